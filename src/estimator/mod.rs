@@ -1,0 +1,44 @@
+//! Depth estimators: N synchronized panoramas in, one ERP range image of the rig's output
+//! frame out.
+
+use crate::frame::{FloatImage, RgbImage};
+use crate::geometry::{ErpGrid, Rig};
+
+/// What an estimator returns for one frame.
+#[derive(Clone, Debug)]
+pub struct DepthEstimate {
+    /// Range in metres along each output pixel's ray (NaN where invalid).
+    pub range_m: FloatImage,
+    /// Per-pixel confidence in [0, 1].
+    pub confidence: FloatImage,
+}
+
+/// Why an estimator could not produce depth for a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum EstimatorError {
+    #[error("estimator got {got} images for a rig of {expected} cameras")]
+    ImageCount { got: usize, expected: usize },
+    #[error("camera '{camera}': image is {width}x{height}; ERP images must be twice as wide as tall and of even width")]
+    BadImageSize {
+        camera: String,
+        width: u32,
+        height: u32,
+    },
+    #[error("{0}")]
+    Geometry(#[from] crate::geometry::GeometryError),
+}
+
+/// A depth estimator. Implementations may cache per-rig work (sampling tables) between calls.
+pub trait DepthEstimator: Send {
+    /// Short name used on the command line and in reports (`photometric`, `ssmode`).
+    fn name(&self) -> &str;
+
+    /// Range of every pixel of `output` (an ERP grid in the rig's output frame) from `images`,
+    /// one per camera of `rig`, in rig order.
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError>;
+}

@@ -1,0 +1,216 @@
+//! Equirectangular projection (ERP) of a 360° camera.
+//!
+//! An ERP image has `W` columns and `H = W / 2` rows; pixel centres sit at `+0.5`:
+//!
+//! ```text
+//! lon = pi * (1 - 2 (u + 0.5) / W)     0 at the centre column, +pi/2 looks along +y (left)
+//! lat = pi/2 - pi (v + 0.5) / H        the top row looks up
+//! dir = (cos lat cos lon, cos lat sin lon, sin lat)
+//! ```
+//!
+//! Continuous pixel coordinates in this module put pixel `(i, j)`'s centre at `(u, v) = (i, j)`.
+
+use super::GeometryError;
+use nalgebra::Vector3;
+use std::f64::consts::{FRAC_PI_2, PI};
+
+/// The smallest ERP width accepted.
+pub const MIN_ERP_WIDTH: usize = 4;
+
+/// Longitude and latitude of a viewing direction, radians.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LonLat {
+    pub lon_rad: f64,
+    pub lat_rad: f64,
+}
+
+/// A continuous pixel position: integer values are pixel centres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelCoord {
+    pub u: f64,
+    pub v: f64,
+}
+
+/// The four neighbours of a continuous pixel position with their bilinear weights.
+/// Indices are row-major (`v * W + u`); weights sum to one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BilinearTaps {
+    pub index: [u32; 4],
+    pub weight: [f32; 4],
+}
+
+/// The pixel grid of an ERP image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ErpGrid {
+    width: usize,
+    height: usize,
+}
+
+impl ErpGrid {
+    /// An ERP grid `width` wide and `width / 2` tall; `width` must be even and at least 4.
+    pub fn new(width: usize) -> Result<Self, GeometryError> {
+        if width < MIN_ERP_WIDTH || width % 2 != 0 {
+            return Err(GeometryError::BadErpWidth {
+                width,
+                min: MIN_ERP_WIDTH,
+            });
+        }
+        Ok(Self {
+            width,
+            height: width / 2,
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Number of pixels, `W * H`.
+    pub fn len(&self) -> usize {
+        self.width * self.height
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// `lon = pi (1 - 2 (u + 0.5) / W)`, `lat = pi/2 - pi (v + 0.5) / H`.
+    pub fn lonlat_from_pixel(&self, p: PixelCoord) -> LonLat {
+        LonLat {
+            lon_rad: PI * (1.0 - 2.0 * (p.u + 0.5) / self.width as f64),
+            lat_rad: FRAC_PI_2 - PI * (p.v + 0.5) / self.height as f64,
+        }
+    }
+
+    /// Inverse of [`Self::lonlat_from_pixel`]: `u = (1 - lon/pi) W/2 - 0.5`,
+    /// `v = (pi/2 - lat) H/pi - 0.5`. For `lon` in `(-pi, pi]` this gives `u` in `[-0.5, W - 0.5)`.
+    pub fn pixel_from_lonlat(&self, ll: LonLat) -> PixelCoord {
+        PixelCoord {
+            u: (1.0 - ll.lon_rad / PI) * self.width as f64 / 2.0 - 0.5,
+            v: (FRAC_PI_2 - ll.lat_rad) * self.height as f64 / PI - 0.5,
+        }
+    }
+
+    /// Unit viewing direction of a pixel, `(cos lat cos lon, cos lat sin lon, sin lat)`.
+    pub fn dir_from_pixel(&self, p: PixelCoord) -> Vector3<f64> {
+        dir_from_lonlat(self.lonlat_from_pixel(p))
+    }
+
+    /// Pixel that looks along `dir` (any non-zero length). The zero vector maps to the
+    /// forward direction.
+    pub fn pixel_from_dir(&self, dir: &Vector3<f64>) -> PixelCoord {
+        self.pixel_from_lonlat(lonlat_from_dir(dir))
+    }
+
+    /// Bilinear taps at a continuous pixel position: columns wrap around the longitude seam,
+    /// rows clamp at the poles.
+    pub fn bilinear_taps(&self, p: PixelCoord) -> BilinearTaps {
+        let (w, h) = (self.width as i64, self.height as i64);
+        let u0 = p.u.floor();
+        let fu = (p.u - u0) as f32;
+        let u0 = (u0 as i64).rem_euclid(w);
+        let u1 = (u0 + 1) % w;
+        let v_clamped = p.v.clamp(0.0, (h - 1) as f64);
+        let v0 = v_clamped.floor();
+        let fv = (v_clamped - v0) as f32;
+        let v0 = v0 as i64;
+        let v1 = (v0 + 1).min(h - 1);
+        let idx = |u: i64, v: i64| (v * w + u) as u32;
+        BilinearTaps {
+            index: [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
+            weight: [
+                (1.0 - fu) * (1.0 - fv),
+                fu * (1.0 - fv),
+                (1.0 - fu) * fv,
+                fu * fv,
+            ],
+        }
+    }
+}
+
+/// `(cos lat cos lon, cos lat sin lon, sin lat)`.
+pub fn dir_from_lonlat(ll: LonLat) -> Vector3<f64> {
+    let (sl, cl) = ll.lat_rad.sin_cos();
+    let (so, co) = ll.lon_rad.sin_cos();
+    Vector3::new(cl * co, cl * so, sl)
+}
+
+/// `lon = atan2(y, x)`, `lat = atan2(z, hypot(x, y))`.
+pub fn lonlat_from_dir(d: &Vector3<f64>) -> LonLat {
+    LonLat {
+        lon_rad: d.y.atan2(d.x),
+        lat_rad: d.z.atan2(d.x.hypot(d.y)),
+    }
+}
+
+impl BilinearTaps {
+    /// Weighted sum of `values` (row-major, one value per pixel) at these taps.
+    pub fn sample(&self, values: &[f32]) -> f32 {
+        self.index
+            .iter()
+            .zip(self.weight.iter())
+            .map(|(&i, &w)| values[i as usize] * w)
+            .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn rejects_odd_or_tiny_width() {
+        assert!(ErpGrid::new(3).is_err());
+        assert!(ErpGrid::new(7).is_err());
+        assert!(ErpGrid::new(8).is_ok());
+    }
+
+    #[test]
+    fn centre_column_looks_forward_left_half_looks_left() {
+        let g = ErpGrid::new(8).unwrap();
+        // The centre column boundary u = W/2 - 0.5 looks exactly forward.
+        let d = g.dir_from_pixel(PixelCoord { u: 3.5, v: 1.5 });
+        assert_relative_eq!(d, Vector3::new(1.0, 0.0, 0.0), epsilon = 1e-12);
+        let left = g.dir_from_pixel(PixelCoord { u: 1.5, v: 1.5 });
+        assert_relative_eq!(left, Vector3::new(0.0, 1.0, 0.0), epsilon = 1e-12);
+        let up = g.lonlat_from_pixel(PixelCoord { u: 0.0, v: -0.5 });
+        assert_relative_eq!(up.lat_rad, FRAC_PI_2, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn round_trip_pixels() {
+        let g = ErpGrid::new(64).unwrap();
+        for j in 0..32 {
+            for i in 0..64 {
+                let p = PixelCoord {
+                    u: i as f64 + 0.25,
+                    v: j as f64 + 0.1,
+                };
+                let q = g.pixel_from_dir(&(g.dir_from_pixel(p) * 3.7));
+                let du = (q.u - p.u).rem_euclid(64.0);
+                assert!(du < 1e-9 || (64.0 - du) < 1e-9, "u {} vs {}", q.u, p.u);
+                assert_relative_eq!(q.v, p.v, epsilon = 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn taps_wrap_across_seam() {
+        let g = ErpGrid::new(8).unwrap();
+        let t = g.bilinear_taps(PixelCoord { u: -0.25, v: 1.0 });
+        // Between column 7 (weight 0.25) and column 0 (weight 0.75) of row 1.
+        assert_eq!(t.index[0], 8 + 7);
+        assert_eq!(t.index[1], 8);
+        assert_relative_eq!(t.weight[0], 0.25);
+        assert_relative_eq!(t.weight[1], 0.75);
+        let t = g.bilinear_taps(PixelCoord { u: 7.5, v: 1.0 });
+        assert_eq!((t.index[0], t.index[1]), (15, 8));
+        let sum: f32 = t.weight.iter().sum();
+        assert_relative_eq!(sum, 1.0);
+    }
+}

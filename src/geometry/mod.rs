@@ -1,0 +1,33 @@
+//! Spherical geometry: free of tensors and ROS.
+//!
+//! * [`erp`]: the equirectangular (ERP) projection of a 360° camera and bilinear taps with
+//!   longitude wrap.
+//! * [`geer`]: the paper's generalized epipolar equirectangular projection (GEER) for a camera
+//!   pair, in which epipolar lines are image rows.
+//! * [`rig`]: the rig calibration read from YAML, validated.
+//! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
+
+pub mod erp;
+pub mod geer;
+pub mod rig;
+pub mod sweep;
+
+pub use erp::{BilinearTaps, ErpGrid, LonLat, PixelCoord};
+pub use geer::{GeerAngles, GeerPair};
+pub use rig::{Projection, Rig, RigCamera, RigError};
+pub use sweep::{DepthRange, InverseDepthHypotheses, SweepGeometry, SweepTable};
+
+/// Errors of the geometry constructors.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum GeometryError {
+    #[error("ERP width must be even and at least {min}, got {width}")]
+    BadErpWidth { width: usize, min: usize },
+    #[error("GEER pair needs two distinct camera centres (baseline {baseline_m} m)")]
+    ZeroBaseline { baseline_m: f64 },
+    #[error("depth range must satisfy 0 < min < max, got min {min_m} m, max {max_m} m")]
+    BadDepthRange { min_m: f64, max_m: f64 },
+    #[error("need at least {min} hypotheses, got {count}")]
+    TooFewHypotheses { count: usize, min: usize },
+    #[error("camera index {index} out of range for a rig of {count} cameras")]
+    NoSuchCamera { index: usize, count: usize },
+}

@@ -1,0 +1,233 @@
+//! Spherical sweeping: inverse-depth hypotheses and exact per-sphere sampling tables.
+//!
+//! For output pixel `(u, v)` with unit ray `dir(u, v)` in the output frame and sphere `i` of
+//! range `rho_i`, camera `c` samples its ERP image at
+//!
+//! ```text
+//! pixel_c = erp_c( cam_from_output * (rho_i * dir(u, v)) )
+//! ```
+//!
+//! which is exact for every sphere, including spheres nearer than the baseline.
+
+use super::erp::{BilinearTaps, ErpGrid, PixelCoord};
+use super::rig::Rig;
+use super::GeometryError;
+use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
+
+/// The paper's sweep range and count.
+pub const PAPER_MIN_DEPTH_M: f64 = 0.5;
+pub const PAPER_MAX_DEPTH_M: f64 = 1000.0;
+pub const PAPER_HYPOTHESES: usize = 192;
+/// At least two hypotheses are needed to define a step.
+pub const MIN_HYPOTHESES: usize = 2;
+
+/// A range of depths (metres).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DepthRange {
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+}
+
+impl DepthRange {
+    pub fn new(min_depth_m: f64, max_depth_m: f64) -> Result<Self, GeometryError> {
+        if !(min_depth_m > 0.0 && max_depth_m > min_depth_m && max_depth_m.is_finite()) {
+            return Err(GeometryError::BadDepthRange {
+                min_m: min_depth_m,
+                max_m: max_depth_m,
+            });
+        }
+        Ok(Self {
+            min_depth_m,
+            max_depth_m,
+        })
+    }
+
+    /// The paper's 0.5 m to 1000 m.
+    pub fn paper() -> Self {
+        Self {
+            min_depth_m: PAPER_MIN_DEPTH_M,
+            max_depth_m: PAPER_MAX_DEPTH_M,
+        }
+    }
+}
+
+/// Hypotheses uniform in inverse depth; index 0 is the farthest (`1 / max_depth`), the last
+/// the nearest (`1 / min_depth`):
+/// `inv_i = 1/max + i (1/min - 1/max) / (n - 1)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InverseDepthHypotheses {
+    range: DepthRange,
+    count: usize,
+}
+
+impl InverseDepthHypotheses {
+    pub fn new(range: DepthRange, count: usize) -> Result<Self, GeometryError> {
+        if count < MIN_HYPOTHESES {
+            return Err(GeometryError::TooFewHypotheses {
+                count,
+                min: MIN_HYPOTHESES,
+            });
+        }
+        Ok(Self { range, count })
+    }
+
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    pub fn range(&self) -> DepthRange {
+        self.range
+    }
+
+    fn inv_step(&self) -> f64 {
+        (1.0 / self.range.min_depth_m - 1.0 / self.range.max_depth_m) / (self.count - 1) as f64
+    }
+
+    /// Inverse depth (1/m) of hypothesis `i`; `i` may be fractional.
+    pub fn inverse_depth(&self, i: f64) -> f64 {
+        1.0 / self.range.max_depth_m + i * self.inv_step()
+    }
+
+    /// Depth (m) of hypothesis `i`; `i` may be fractional.
+    pub fn depth_m(&self, i: f64) -> f64 {
+        1.0 / self.inverse_depth(i)
+    }
+
+    /// Fractional hypothesis index of a depth (inverse of [`Self::depth_m`]).
+    pub fn index_of_depth(&self, depth_m: f64) -> f64 {
+        (1.0 / depth_m - 1.0 / self.range.max_depth_m) / self.inv_step()
+    }
+
+    /// All depths, farthest first.
+    pub fn depths_m(&self) -> Vec<f64> {
+        (0..self.count).map(|i| self.depth_m(i as f64)).collect()
+    }
+}
+
+/// Everything needed to sample a rig's cameras on sweep spheres around the output frame.
+#[derive(Clone, Debug)]
+pub struct SweepGeometry {
+    output: ErpGrid,
+    hypotheses: InverseDepthHypotheses,
+    cam_from_output: Vec<Isometry3<f64>>,
+    camera_grids: Vec<ErpGrid>,
+}
+
+impl SweepGeometry {
+    /// Sweep for `rig` with an output ERP grid and per-camera image grids (same order as
+    /// `rig.cameras`).
+    pub fn new(
+        rig: &Rig,
+        output: ErpGrid,
+        camera_grids: Vec<ErpGrid>,
+        hypotheses: InverseDepthHypotheses,
+    ) -> Result<Self, GeometryError> {
+        if camera_grids.len() != rig.cameras.len() {
+            return Err(GeometryError::NoSuchCamera {
+                index: camera_grids.len(),
+                count: rig.cameras.len(),
+            });
+        }
+        Ok(Self {
+            output,
+            hypotheses,
+            cam_from_output: (0..rig.cameras.len()).map(|i| rig.cam_from_output(i)).collect(),
+            camera_grids,
+        })
+    }
+
+    pub fn output(&self) -> ErpGrid {
+        self.output
+    }
+
+    pub fn hypotheses(&self) -> &InverseDepthHypotheses {
+        &self.hypotheses
+    }
+
+    pub fn camera_count(&self) -> usize {
+        self.cam_from_output.len()
+    }
+
+    pub fn camera_grid(&self, cam: usize) -> ErpGrid {
+        self.camera_grids[cam]
+    }
+
+    /// Where camera `cam` sees the point of output pixel `p` on a sphere of `range_m`.
+    pub fn sample_at_range(&self, cam: usize, p: PixelCoord, range_m: f64) -> PixelCoord {
+        let point_out = Point3::from(self.output.dir_from_pixel(p) * range_m);
+        let point_cam = self.cam_from_output[cam] * point_out;
+        self.camera_grids[cam].pixel_from_dir(&point_cam.coords)
+    }
+
+    /// Where camera `cam` sees output pixel `p` on sphere `sphere`.
+    pub fn sample(&self, cam: usize, sphere: usize, p: PixelCoord) -> PixelCoord {
+        self.sample_at_range(cam, p, self.hypotheses.depth_m(sphere as f64))
+    }
+
+    /// Sample positions of one camera on one sphere for every output pixel, row-major, as
+    /// `[u, v]` pairs.
+    pub fn sphere_coords(&self, cam: usize, sphere: usize) -> Vec<[f32; 2]> {
+        let w = self.output.width();
+        let range_m = self.hypotheses.depth_m(sphere as f64);
+        (0..self.output.len())
+            .into_par_iter()
+            .with_min_len(w)
+            .map(|k| {
+                let p = PixelCoord {
+                    u: (k % w) as f64,
+                    v: (k / w) as f64,
+                };
+                let q = self.sample_at_range(cam, p, range_m);
+                [q.u as f32, q.v as f32]
+            })
+            .collect()
+    }
+}
+
+/// Precomputed sample positions for every camera, sphere and output pixel
+/// (layout `[camera][sphere][v][u]`), built once per rig and resolution.
+#[derive(Clone, Debug)]
+pub struct SweepTable {
+    geometry: SweepGeometry,
+    coords: Vec<[f32; 2]>,
+}
+
+impl SweepTable {
+    pub fn build(geometry: SweepGeometry) -> Self {
+        let n_cam = geometry.camera_count();
+        let n_sph = geometry.hypotheses.count();
+        let mut coords = Vec::with_capacity(n_cam * n_sph * geometry.output.len());
+        for cam in 0..n_cam {
+            for sphere in 0..n_sph {
+                coords.extend(geometry.sphere_coords(cam, sphere));
+            }
+        }
+        Self { geometry, coords }
+    }
+
+    pub fn geometry(&self) -> &SweepGeometry {
+        &self.geometry
+    }
+
+    /// Sample positions of camera `cam` on sphere `sphere`, row-major over the output grid.
+    pub fn coords(&self, cam: usize, sphere: usize) -> &[[f32; 2]] {
+        let n = self.geometry.output.len();
+        let start = (cam * self.geometry.hypotheses.count() + sphere) * n;
+        &self.coords[start..start + n]
+    }
+
+    /// Bilinear taps into camera `cam`'s image for output pixel index `k` on `sphere`.
+    pub fn taps(&self, cam: usize, sphere: usize, k: usize) -> BilinearTaps {
+        let [u, v] = self.coords(cam, sphere)[k];
+        self.geometry.camera_grids[cam].bilinear_taps(PixelCoord {
+            u: u as f64,
+            v: v as f64,
+        })
+    }
+
+    /// Bytes held by the table.
+    pub fn memory_bytes(&self) -> usize {
+        self.coords.len() * std::mem::size_of::<[f32; 2]>()
+    }
+}
