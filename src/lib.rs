@@ -11,4 +11,6 @@ pub mod frame;
 pub mod geometry;
 pub mod metrics;
 pub mod msgs;
+pub mod record;
 pub mod synth;
+pub mod viz;
