@@ -22,6 +22,8 @@ use std::time::Instant;
 pub const SOILED_KEY: &str = "soiled";
 /// The bag metadata key holding the scene's maximum depth (sky), metres.
 pub const MAX_DEPTH_KEY: &str = "max_depth_m";
+/// Nearest range of the preview colour map, metres.
+pub const PREVIEW_MIN_DEPTH_M: f64 = 1.0;
 /// Maximum depth used when a bag does not say.
 pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
 
@@ -59,6 +61,8 @@ pub enum EvalError {
     },
     #[error("{bag}: metadata '{key}' = '{value}' is not a number")]
     BadMetadata { bag: String, key: String, value: String },
+    #[error("writing preview {path}: {message}")]
+    Preview { path: String, message: String },
     #[error("no frames evaluated")]
     NoFrames,
 }
@@ -72,7 +76,13 @@ pub struct EvalOptions {
     /// Stop after this many frames per bag.
     pub max_frames: Option<usize>,
     pub show_progress: bool,
+    /// Write a preview PNG (reference panorama, predicted range, ground truth) of the first
+    /// [`PREVIEW_FRAMES`] frames of each bag here.
+    pub png_dir: Option<PathBuf>,
 }
+
+/// How many frames per bag get a preview PNG.
+pub const PREVIEW_FRAMES: usize = 3;
 
 /// One line of the report: all frames of one condition.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -187,6 +197,23 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             let disp_gt = disparity_image(&rig, output, &pair, gt);
             let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
             group.average.push(depth, disparity);
+            if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
+                let stem = path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let png = dir.join(format!("{stem}_{}_{n:03}.png", estimator.name()));
+                let min_depth_m = PREVIEW_MIN_DEPTH_M as f32;
+                let picture = crate::viz::stack_vertical(&[
+                    images[rig.reference].clone(),
+                    crate::viz::colorize_range(&est.range_m, min_depth_m, max_depth_m as f32),
+                    crate::viz::colorize_range(gt, min_depth_m, max_depth_m as f32),
+                ]);
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| e.to_string())
+                    .and_then(|_| picture.save(&png).map_err(|e| e.to_string()))
+                    .map_err(|message| EvalError::Preview {
+                        path: png.display().to_string(),
+                        message,
+                    })?;
+            }
             progress.inc(1);
         }
         progress.finish_and_clear();

@@ -12,5 +12,6 @@ pub mod geometry;
 pub mod metrics;
 pub mod msgs;
 pub mod record;
+pub mod sync;
 pub mod synth;
 pub mod viz;

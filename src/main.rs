@@ -69,6 +69,9 @@ struct EvalArgs {
     /// Write the table as JSON here.
     #[arg(long, default_value = "eval.json")]
     json: PathBuf,
+    /// Write preview PNGs (panorama, predicted and true range) of the first frames here.
+    #[arg(long)]
+    png_dir: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -128,6 +131,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
             cameras,
             max_frames: a.max_frames,
             show_progress: true,
+            png_dir: a.png_dir,
         },
         est.as_mut(),
     )?;
