@@ -1,1 +1,625 @@
-//! (being written)
+//! ROS 2 bags as MCAP files: profile `ros2`, schema encoding `ros2msg` (see
+//! [`crate::msgs::schema_text`]), message encoding `cdr`.
+//!
+//! [`BagWriter`] writes one schema per message type and one channel per topic.
+//! [`BagReader`] reads a whole file into memory, tolerating damage: every message before a
+//! truncation or corrupt record is kept, and the damage is reported as an error naming the
+//! file after those messages.
+
+pub mod rig_bag;
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use mcap::records::{MessageHeader, Metadata, Record};
+use mcap::{Compression, WriteOptions, Writer};
+
+use crate::geometry::rig::RigError;
+use crate::msgs::{decode_cdr, encode_cdr, ImageMsgError, MsgError, RosMessage};
+
+pub use rig_bag::{RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, SYNTH_METADATA};
+
+/// MCAP profile of ROS 2 bags.
+pub const PROFILE: &str = "ros2";
+/// MCAP schema encoding of `.msg` text.
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+/// MCAP message encoding of ROS 2 messages.
+pub const MESSAGE_ENCODING: &str = "cdr";
+/// Channel metadata key rosbag2 uses for the publisher QoS.
+const QOS_METADATA_KEY: &str = "offered_qos_profiles";
+/// Topic whose publisher is latched (transient local), as tf2's static broadcaster is.
+const TF_STATIC_TOPIC: &str = "/tf_static";
+
+/// rosbag2 (Humble) QoS YAML: keep-last history, reliable, with the given durability
+/// (1 = transient local, 2 = volatile), infinite deadline, lifespan and lease.
+fn qos_yaml(durability: u8) -> String {
+    const INFINITE: &str = "\n    sec: 2147483647\n    nsec: 4294967295";
+    format!(
+        "- history: 1\n  depth: 1\n  reliability: 1\n  durability: {durability}\n  \
+         deadline:{INFINITE}\n  lifespan:{INFINITE}\n  liveliness: 1\n  \
+         liveliness_lease_duration:{INFINITE}\n  avoid_ros_namespace_conventions: false"
+    )
+}
+
+/// A bag that cannot be written or read. Every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum BagError {
+    #[error("{file}: {action}: {source}")]
+    Io {
+        file: String,
+        action: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{file}: MCAP error while {action}: {source}")]
+    Mcap {
+        file: String,
+        action: &'static str,
+        #[source]
+        source: mcap::McapError,
+    },
+    #[error(
+        "{file}: damaged bag ({detail}); {good_messages} messages before the damage were read"
+    )]
+    Damaged {
+        file: String,
+        detail: String,
+        good_messages: usize,
+    },
+    #[error("{file}: not a readable MCAP file: {detail}")]
+    NotMcap { file: String, detail: String },
+    #[error("{file}: topic '{topic}': {source}")]
+    Msg {
+        file: String,
+        topic: String,
+        #[source]
+        source: MsgError,
+    },
+    #[error("{file}: topic '{topic}' carries '{found}', not '{expected}'")]
+    TypeMismatch {
+        file: String,
+        topic: String,
+        expected: String,
+        found: String,
+    },
+    #[error("{file}: topic '{topic}' has no messages")]
+    MissingTopic { file: String, topic: String },
+    #[error("{file}: metadata record '{name}' (key '{key}') is missing")]
+    MissingMetadata {
+        file: String,
+        name: String,
+        key: String,
+    },
+    #[error("{file}: rig from metadata: {source}")]
+    Rig {
+        file: String,
+        #[source]
+        source: RigError,
+    },
+    #[error("{file}: topic '{topic}', stamp {stamp_ns} ns: {source}")]
+    Image {
+        file: String,
+        topic: String,
+        stamp_ns: u64,
+        #[source]
+        source: ImageMsgError,
+    },
+    #[error("{file}: topic '{topic}', stamp {stamp_ns} ns, field '{field}': {problem}")]
+    Frame {
+        file: String,
+        topic: String,
+        stamp_ns: u64,
+        field: String,
+        problem: String,
+    },
+}
+
+/// Chunk compression of a written bag.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BagCompression {
+    /// No compression (rosbag2's default; every MCAP reader handles it).
+    #[default]
+    None,
+    /// Zstandard chunks (smaller; readers need a zstd decompressor).
+    Zstd,
+    /// LZ4 frame chunks.
+    Lz4,
+}
+
+/// Options of [`BagWriter::create_with`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BagWriteOptions {
+    pub compression: BagCompression,
+}
+
+#[derive(Clone, Debug)]
+struct WriterChannel {
+    id: u16,
+    type_name: &'static str,
+    sequence: u32,
+}
+
+/// Writes a ROS 2 MCAP bag. Call [`Self::finish`] to write the summary; a bag dropped
+/// unfinished is still readable by [`BagReader`] up to its last complete chunk.
+pub struct BagWriter {
+    file: String,
+    writer: Writer<BufWriter<File>>,
+    schemas: HashMap<&'static str, u16>,
+    channels: HashMap<String, WriterChannel>,
+}
+
+impl BagWriter {
+    /// Creates (or truncates) an uncompressed bag at `path`.
+    pub fn create(path: impl AsRef<Path>) -> Result<Self, BagError> {
+        Self::create_with(path, BagWriteOptions::default())
+    }
+
+    /// Creates (or truncates) a bag at `path` with `options`.
+    pub fn create_with(path: impl AsRef<Path>, options: BagWriteOptions) -> Result<Self, BagError> {
+        let file = path.as_ref().display().to_string();
+        let handle = File::create(path.as_ref()).map_err(|source| BagError::Io {
+            file: file.clone(),
+            action: "cannot create bag",
+            source,
+        })?;
+        let compression = match options.compression {
+            BagCompression::None => None,
+            BagCompression::Zstd => Some(Compression::Zstd),
+            BagCompression::Lz4 => Some(Compression::Lz4),
+        };
+        let writer = WriteOptions::new()
+            .profile(PROFILE)
+            .library(concat!("mode360 ", env!("CARGO_PKG_VERSION")))
+            .compression(compression)
+            .create(BufWriter::new(handle))
+            .map_err(|source| BagError::Mcap {
+                file: file.clone(),
+                action: "writing the header",
+                source,
+            })?;
+        Ok(Self {
+            file,
+            writer,
+            schemas: HashMap::new(),
+            channels: HashMap::new(),
+        })
+    }
+
+    /// The bag's path as given to [`Self::create`].
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+
+    fn mcap_err(&self, action: &'static str) -> impl FnOnce(mcap::McapError) -> BagError + '_ {
+        move |source| BagError::Mcap {
+            file: self.file.clone(),
+            action,
+            source,
+        }
+    }
+
+    /// The channel of `topic` for type `T`, adding schema and channel on first use.
+    fn channel_for<T: RosMessage>(&mut self, topic: &str) -> Result<&mut WriterChannel, BagError> {
+        if !self.channels.contains_key(topic) {
+            let schema_id = match self.schemas.get(T::TYPE_NAME) {
+                Some(&id) => id,
+                None => {
+                    let text = T::schema_text().map_err(|source| BagError::Msg {
+                        file: self.file.clone(),
+                        topic: topic.to_string(),
+                        source,
+                    })?;
+                    let id = self
+                        .writer
+                        .add_schema(T::TYPE_NAME, SCHEMA_ENCODING, text.as_bytes())
+                        .map_err(|source| BagError::Mcap {
+                            file: self.file.clone(),
+                            action: "adding a schema",
+                            source,
+                        })?;
+                    self.schemas.insert(T::TYPE_NAME, id);
+                    id
+                }
+            };
+            let durability = if topic == TF_STATIC_TOPIC { 1 } else { 2 };
+            let metadata = BTreeMap::from([(QOS_METADATA_KEY.to_string(), qos_yaml(durability))]);
+            let id = self
+                .writer
+                .add_channel(schema_id, topic, MESSAGE_ENCODING, &metadata)
+                .map_err(|source| BagError::Mcap {
+                    file: self.file.clone(),
+                    action: "adding a channel",
+                    source,
+                })?;
+            self.channels.insert(
+                topic.to_string(),
+                WriterChannel {
+                    id,
+                    type_name: T::TYPE_NAME,
+                    sequence: 0,
+                },
+            );
+        }
+        let file = self.file.clone();
+        match self.channels.get_mut(topic) {
+            Some(channel) if channel.type_name == T::TYPE_NAME => Ok(channel),
+            Some(channel) => Err(BagError::TypeMismatch {
+                file,
+                topic: topic.to_string(),
+                expected: channel.type_name.to_string(),
+                found: T::TYPE_NAME.to_string(),
+            }),
+            None => Err(BagError::MissingTopic {
+                file,
+                topic: topic.to_string(),
+            }),
+        }
+    }
+
+    /// Writes `msg` on `topic` at `log_time_ns` (also used as publish time). A topic keeps the
+    /// type of its first message; writing another type there is an error.
+    pub fn write<T: RosMessage>(
+        &mut self,
+        topic: &str,
+        log_time_ns: u64,
+        msg: &T,
+    ) -> Result<(), BagError> {
+        let data = encode_cdr(msg);
+        let channel = self.channel_for::<T>(topic)?;
+        let header = MessageHeader {
+            channel_id: channel.id,
+            sequence: channel.sequence,
+            log_time: log_time_ns,
+            publish_time: log_time_ns,
+        };
+        channel.sequence = channel.sequence.wrapping_add(1);
+        self.writer
+            .write_to_known_channel(&header, &data)
+            .map_err(self.mcap_err("writing a message"))
+    }
+
+    /// Writes an MCAP metadata record `name` holding `entries`.
+    pub fn write_metadata(
+        &mut self,
+        name: &str,
+        entries: BTreeMap<String, String>,
+    ) -> Result<(), BagError> {
+        let record = Metadata {
+            name: name.to_string(),
+            metadata: entries,
+        };
+        self.writer
+            .write_metadata(&record)
+            .map_err(self.mcap_err("writing metadata"))
+    }
+
+    /// Flushes the last chunk and writes the summary and footer.
+    pub fn finish(mut self) -> Result<(), BagError> {
+        self.writer
+            .finish()
+            .map_err(self.mcap_err("finishing the bag"))?;
+        let file = self.file.clone();
+        self.writer
+            .into_inner()
+            .into_inner()
+            .map_err(|err| BagError::Io {
+                file,
+                action: "cannot flush bag",
+                source: err.into_error(),
+            })?
+            .sync_all()
+            .map_err(|source| BagError::Io {
+                file: self.file.clone(),
+                action: "cannot sync bag",
+                source,
+            })
+    }
+}
+
+/// A channel of a read bag.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TopicInfo {
+    pub topic: String,
+    /// Schema name, e.g. `sensor_msgs/msg/Image` (empty for a channel without schema).
+    pub type_name: String,
+    pub message_encoding: String,
+    pub message_count: usize,
+}
+
+#[derive(Clone, Debug)]
+struct StoredMessage {
+    /// Index into `BagReader::channels`.
+    channel: usize,
+    log_time_ns: u64,
+    publish_time_ns: u64,
+    data: Vec<u8>,
+}
+
+/// One message of a read bag, borrowed from the [`BagReader`].
+#[derive(Clone, Copy, Debug)]
+pub struct BagMessage<'a> {
+    pub file: &'a str,
+    pub topic: &'a str,
+    /// Schema name, e.g. `sensor_msgs/msg/Image`.
+    pub schema_name: &'a str,
+    pub message_encoding: &'a str,
+    pub log_time_ns: u64,
+    pub publish_time_ns: u64,
+    /// Encapsulated CDR.
+    pub data: &'a [u8],
+}
+
+impl BagMessage<'_> {
+    fn check_type<T: RosMessage>(&self) -> Result<(), BagError> {
+        if self.schema_name != T::TYPE_NAME || self.message_encoding != MESSAGE_ENCODING {
+            return Err(BagError::TypeMismatch {
+                file: self.file.to_string(),
+                topic: self.topic.to_string(),
+                expected: format!("{} ({MESSAGE_ENCODING})", T::TYPE_NAME),
+                found: format!("{} ({})", self.schema_name, self.message_encoding),
+            });
+        }
+        Ok(())
+    }
+
+    fn msg_err(&self) -> impl FnOnce(MsgError) -> BagError + '_ {
+        move |source| BagError::Msg {
+            file: self.file.to_string(),
+            topic: self.topic.to_string(),
+            source,
+        }
+    }
+
+    /// Decodes the message as `T`, checking that the channel's schema is `T`'s.
+    pub fn decode<T: RosMessage>(&self) -> Result<T, BagError> {
+        self.check_type::<T>()?;
+        decode_cdr(self.data).map_err(self.msg_err())
+    }
+
+    /// Decodes only a leading part of the message (see `msgs::decode_cdr_prefix`), after
+    /// checking the schema is `Full`'s.
+    pub(crate) fn decode_prefix<Full: RosMessage, Prefix: RosMessage>(
+        &self,
+    ) -> Result<Prefix, BagError> {
+        self.check_type::<Full>()?;
+        crate::msgs::decode_cdr_prefix(self.data).map_err(self.msg_err())
+    }
+}
+
+#[derive(Clone, Debug)]
+struct ReaderChannel {
+    topic: String,
+    schema_name: String,
+    message_encoding: String,
+}
+
+/// A whole MCAP bag read into memory, messages sorted by log time.
+#[derive(Debug)]
+pub struct BagReader {
+    path: PathBuf,
+    file: String,
+    profile: String,
+    channels: Vec<ReaderChannel>,
+    messages: Vec<StoredMessage>,
+    metadata: BTreeMap<String, BTreeMap<String, String>>,
+    /// What was wrong with the file, if anything; everything before it was kept.
+    damage: Option<String>,
+}
+
+impl BagReader {
+    /// Reads the bag at `path`. Fails only if the file cannot be read or does not start as an
+    /// MCAP file; later damage (truncation, corrupt records) keeps the messages before it
+    /// and is reported by [`Self::check_complete`] and at the end of [`Self::messages`].
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, BagError> {
+        let path = path.as_ref().to_path_buf();
+        let file = path.display().to_string();
+        let bytes = std::fs::read(&path).map_err(|source| BagError::Io {
+            file: file.clone(),
+            action: "cannot read bag",
+            source,
+        })?;
+        let mut reader = Self {
+            path,
+            file,
+            profile: String::new(),
+            channels: Vec::new(),
+            messages: Vec::new(),
+            metadata: BTreeMap::new(),
+            damage: None,
+        };
+        reader.scan(&bytes)?;
+        reader.messages.sort_by_key(|m| m.log_time_ns);
+        Ok(reader)
+    }
+
+    /// Reads every record in file order, stopping at the first damage.
+    fn scan(&mut self, bytes: &[u8]) -> Result<(), BagError> {
+        let options = mcap::read::Options::IgnoreEndMagic.into();
+        let records =
+            mcap::read::ChunkFlattener::new_with_options(bytes, options).map_err(|err| {
+                BagError::NotMcap {
+                    file: self.file.clone(),
+                    detail: err.to_string(),
+                }
+            })?;
+        // MCAP channel/schema ids -> our tables.
+        let mut schema_names: HashMap<u16, String> = HashMap::new();
+        let mut channel_index: HashMap<u16, usize> = HashMap::new();
+        let mut saw_header = false;
+        let mut saw_data_end = false;
+        for record in records {
+            let record = match record {
+                Ok(record) => record,
+                Err(err) if !saw_header => {
+                    return Err(BagError::NotMcap {
+                        file: self.file.clone(),
+                        detail: err.to_string(),
+                    })
+                }
+                Err(err) => {
+                    self.damage = Some(err.to_string());
+                    return Ok(());
+                }
+            };
+            match record {
+                Record::Header(header) => {
+                    saw_header = true;
+                    self.profile = header.profile;
+                }
+                Record::Schema { header, .. } => {
+                    schema_names.insert(header.id, header.name);
+                }
+                Record::Channel(channel) => {
+                    let schema_name = if channel.schema_id == 0 {
+                        String::new()
+                    } else {
+                        match schema_names.get(&channel.schema_id) {
+                            Some(name) => name.clone(),
+                            None => {
+                                self.damage = Some(format!(
+                                    "channel '{}' refers to unknown schema id {}",
+                                    channel.topic, channel.schema_id
+                                ));
+                                return Ok(());
+                            }
+                        }
+                    };
+                    if !channel_index.contains_key(&channel.id) {
+                        channel_index.insert(channel.id, self.channels.len());
+                        self.channels.push(ReaderChannel {
+                            topic: channel.topic,
+                            schema_name,
+                            message_encoding: channel.message_encoding,
+                        });
+                    }
+                }
+                Record::Message { header, data } => {
+                    let Some(&channel) = channel_index.get(&header.channel_id) else {
+                        self.damage = Some(format!(
+                            "message at log time {} ns on unknown channel id {}",
+                            header.log_time, header.channel_id
+                        ));
+                        return Ok(());
+                    };
+                    self.messages.push(StoredMessage {
+                        channel,
+                        log_time_ns: header.log_time,
+                        publish_time_ns: header.publish_time,
+                        data: data.into_owned(),
+                    });
+                }
+                Record::Metadata(record) => {
+                    self.metadata.insert(record.name, record.metadata);
+                }
+                Record::DataEnd(_) | Record::Footer(_) => {
+                    saw_data_end = true;
+                }
+                _ => {}
+            }
+        }
+        if !saw_header {
+            return Err(BagError::NotMcap {
+                file: self.file.clone(),
+                detail: "no header record".into(),
+            });
+        }
+        if !saw_data_end {
+            self.damage = Some("file ends before the data-end record (truncated)".into());
+        }
+        Ok(())
+    }
+
+    /// The bag's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The bag's path as text (as it appears in errors).
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+
+    /// The MCAP profile from the header (`ros2` for ROS 2 bags).
+    pub fn profile(&self) -> &str {
+        &self.profile
+    }
+
+    /// The damage error, if the file was truncated or corrupt.
+    pub fn damage(&self) -> Option<BagError> {
+        self.damage.as_ref().map(|detail| BagError::Damaged {
+            file: self.file.clone(),
+            detail: detail.clone(),
+            good_messages: self.messages.len(),
+        })
+    }
+
+    /// `Ok` if the whole file was read without damage.
+    pub fn check_complete(&self) -> Result<(), BagError> {
+        self.damage().map_or(Ok(()), Err)
+    }
+
+    fn view<'a>(&'a self, m: &'a StoredMessage) -> BagMessage<'a> {
+        let channel = &self.channels[m.channel];
+        BagMessage {
+            file: &self.file,
+            topic: &channel.topic,
+            schema_name: &channel.schema_name,
+            message_encoding: &channel.message_encoding,
+            log_time_ns: m.log_time_ns,
+            publish_time_ns: m.publish_time_ns,
+            data: &m.data,
+        }
+    }
+
+    /// Every good message in log-time order (stable for equal times), then, if the file
+    /// was damaged, one `Err` naming the file.
+    pub fn messages(&self) -> impl Iterator<Item = Result<BagMessage<'_>, BagError>> + '_ {
+        self.messages
+            .iter()
+            .map(|m| Ok(self.view(m)))
+            .chain(self.damage().map(Err))
+    }
+
+    /// The good messages of `topic` in log-time order (damage is not reported here).
+    pub fn messages_on<'a>(&'a self, topic: &'a str) -> impl Iterator<Item = BagMessage<'a>> + 'a {
+        self.messages
+            .iter()
+            .map(|m| self.view(m))
+            .filter(move |m| m.topic == topic)
+    }
+
+    /// Decodes every message of `topic` as `T`, in log-time order.
+    pub fn decode_topic<T: RosMessage>(&self, topic: &str) -> Result<Vec<T>, BagError> {
+        self.messages_on(topic).map(|m| m.decode::<T>()).collect()
+    }
+
+    /// The metadata record `name`, if the bag has one.
+    pub fn metadata(&self, name: &str) -> Option<BTreeMap<String, String>> {
+        self.metadata.get(name).cloned()
+    }
+
+    /// Names of all metadata records.
+    pub fn metadata_names(&self) -> Vec<String> {
+        self.metadata.keys().cloned().collect()
+    }
+
+    /// Every channel with its type and message count, in order of first appearance.
+    pub fn topics(&self) -> Vec<TopicInfo> {
+        let mut counts = vec![0usize; self.channels.len()];
+        for m in &self.messages {
+            counts[m.channel] += 1;
+        }
+        self.channels
+            .iter()
+            .zip(counts)
+            .map(|(c, message_count)| TopicInfo {
+                topic: c.topic.clone(),
+                type_name: c.schema_name.clone(),
+                message_encoding: c.message_encoding.clone(),
+                message_count,
+            })
+            .collect()
+    }
+}
