@@ -132,6 +132,9 @@ pub enum BagCompression {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BagWriteOptions {
     pub compression: BagCompression,
+    /// Uncompressed bytes buffered per chunk before it is written; `None` keeps the mcap
+    /// crate's default. Smaller chunks lose less data when a recording is cut off.
+    pub chunk_size_bytes: Option<u64>,
 }
 
 #[derive(Clone, Debug)]
@@ -173,6 +176,11 @@ impl BagWriter {
             .profile(PROFILE)
             .library(concat!("mode360 ", env!("CARGO_PKG_VERSION")))
             .compression(compression)
+            .chunk_size(
+                options
+                    .chunk_size_bytes
+                    .or(Some(WriteOptions::DEFAULT_CHUNK_SIZE)),
+            )
             .create(BufWriter::new(handle))
             .map_err(|source| BagError::Mcap {
                 file: file.clone(),
@@ -449,6 +457,7 @@ impl BagReader {
         let mut channel_index: HashMap<u16, usize> = HashMap::new();
         let mut saw_header = false;
         let mut saw_data_end = false;
+        let mut saw_footer = false;
         for record in records {
             let record = match record {
                 Ok(record) => record,
@@ -513,9 +522,8 @@ impl BagReader {
                 Record::Metadata(record) => {
                     self.metadata.insert(record.name, record.metadata);
                 }
-                Record::DataEnd(_) | Record::Footer(_) => {
-                    saw_data_end = true;
-                }
+                Record::DataEnd(_) => saw_data_end = true,
+                Record::Footer(_) => saw_footer = true,
                 _ => {}
             }
         }
@@ -527,6 +535,8 @@ impl BagReader {
         }
         if !saw_data_end {
             self.damage = Some("file ends before the data-end record (truncated)".into());
+        } else if !saw_footer || !bytes.ends_with(mcap::MAGIC) {
+            self.damage = Some("file ends before the footer and end magic (truncated)".into());
         }
         Ok(())
     }

@@ -11,7 +11,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use super::{BagError, BagMessage, BagReader, BagWriter};
+use super::{BagError, BagMessage, BagReader, BagWriteOptions, BagWriter};
 use crate::frame::{FloatImage, RgbImage, RigFrame};
 use crate::geometry::rig::Rig;
 use crate::msgs::{
@@ -56,7 +56,17 @@ impl RigBagWriter {
         rig: &Rig,
         info: &BTreeMap<String, String>,
     ) -> Result<Self, BagError> {
-        let mut bag = BagWriter::create(path)?;
+        Self::create_with(path, rig, info, BagWriteOptions::default())
+    }
+
+    /// [`Self::create`] with bag writing options (compression, chunk size).
+    pub fn create_with(
+        path: impl AsRef<Path>,
+        rig: &Rig,
+        info: &BTreeMap<String, String>,
+        options: BagWriteOptions,
+    ) -> Result<Self, BagError> {
+        let mut bag = BagWriter::create_with(path, options)?;
         bag.write_metadata(
             RIG_METADATA,
             BTreeMap::from([(RIG_YAML_KEY.to_string(), rig.to_yaml())]),
