@@ -495,8 +495,10 @@ impl BagReader {
                             }
                         }
                     };
-                    if !channel_index.contains_key(&channel.id) {
-                        channel_index.insert(channel.id, self.channels.len());
+                    if let std::collections::hash_map::Entry::Vacant(slot) =
+                        channel_index.entry(channel.id)
+                    {
+                        slot.insert(self.channels.len());
                         self.channels.push(ReaderChannel {
                             topic: channel.topic,
                             schema_name,

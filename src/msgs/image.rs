@@ -215,7 +215,7 @@ fn compressed_codec(format: &str) -> Option<image::ImageFormat> {
         .unwrap_or(format)
         .to_ascii_lowercase();
     let words: Vec<&str> = codec_part.split_whitespace().collect();
-    if words.iter().any(|w| *w == "compresseddepth") {
+    if words.contains(&"compresseddepth") {
         return None;
     }
     if words.iter().any(|w| *w == "jpeg" || *w == "jpg") {
