@@ -3,8 +3,9 @@
 //!
 //! [`BagWriter`] writes one schema per message type and one channel per topic.
 //! [`BagReader`] reads a whole file into memory, tolerating damage: every message before a
-//! truncation or corrupt record is kept, and the damage is reported as an error naming the
-//! file after those messages.
+//! truncation is kept, a chunk whose CRC fails is dropped whole while the chunks after it
+//! are kept, and the damage is reported as an error naming the file after the good
+//! messages.
 
 pub mod rig_bag;
 
@@ -60,9 +61,7 @@ pub enum BagError {
         #[source]
         source: mcap::McapError,
     },
-    #[error(
-        "{file}: damaged bag ({detail}); {good_messages} messages before the damage were read"
-    )]
+    #[error("{file}: damaged bag ({detail}); {good_messages} good messages were kept")]
     Damaged {
         file: String,
         detail: String,
@@ -403,6 +402,71 @@ struct ReaderChannel {
     message_encoding: String,
 }
 
+/// A channel record as read, before its schema is resolved.
+#[derive(Clone, Debug)]
+struct RawChannel {
+    topic: String,
+    schema_id: u16,
+    message_encoding: String,
+}
+
+/// What [`BagReader`] collects while scanning records.
+#[derive(Debug, Default)]
+struct ScanState {
+    profile: String,
+    saw_header: bool,
+    saw_data_end: bool,
+    saw_footer: bool,
+    schema_names: HashMap<u16, String>,
+    channels: HashMap<u16, RawChannel>,
+    /// Channel ids in order of first appearance.
+    channel_order: Vec<u16>,
+    /// (MCAP channel id, message) in file order.
+    messages: Vec<(u16, StoredMessage)>,
+    metadata: BTreeMap<String, BTreeMap<String, String>>,
+}
+
+impl ScanState {
+    fn take(&mut self, record: Record<'_>) {
+        match record {
+            Record::Header(header) => {
+                self.saw_header = true;
+                self.profile = header.profile;
+            }
+            Record::Schema { header, .. } => {
+                self.schema_names.entry(header.id).or_insert(header.name);
+            }
+            Record::Channel(channel) => {
+                if let std::collections::hash_map::Entry::Vacant(slot) =
+                    self.channels.entry(channel.id)
+                {
+                    self.channel_order.push(channel.id);
+                    slot.insert(RawChannel {
+                        topic: channel.topic,
+                        schema_id: channel.schema_id,
+                        message_encoding: channel.message_encoding,
+                    });
+                }
+            }
+            Record::Message { header, data } => self.messages.push((
+                header.channel_id,
+                StoredMessage {
+                    channel: usize::MAX,
+                    log_time_ns: header.log_time,
+                    publish_time_ns: header.publish_time,
+                    data: data.into_owned(),
+                },
+            )),
+            Record::Metadata(record) => {
+                self.metadata.insert(record.name, record.metadata);
+            }
+            Record::DataEnd(_) => self.saw_data_end = true,
+            Record::Footer(_) => self.saw_footer = true,
+            _ => {}
+        }
+    }
+}
+
 /// A whole MCAP bag read into memory, messages sorted by log time.
 #[derive(Debug)]
 pub struct BagReader {
@@ -442,105 +506,117 @@ impl BagReader {
         Ok(reader)
     }
 
-    /// Reads every record in file order, stopping at the first damage.
+    /// Notes damage (several pieces are joined).
+    fn note_damage(&mut self, detail: String) {
+        match &mut self.damage {
+            Some(existing) => {
+                existing.push_str("; ");
+                existing.push_str(&detail);
+            }
+            None => self.damage = Some(detail),
+        }
+    }
+
+    /// Reads every top-level record in file order. A chunk that fails to decompress or
+    /// whose CRC does not match is dropped whole (so no corrupt message is kept) and reading
+    /// goes on with the next record; broken record framing (truncation) ends the scan.
     fn scan(&mut self, bytes: &[u8]) -> Result<(), BagError> {
         let options = mcap::read::Options::IgnoreEndMagic.into();
         let records =
-            mcap::read::ChunkFlattener::new_with_options(bytes, options).map_err(|err| {
+            mcap::read::LinearReader::new_with_options(bytes, options).map_err(|err| {
                 BagError::NotMcap {
                     file: self.file.clone(),
                     detail: err.to_string(),
                 }
             })?;
-        // MCAP channel/schema ids -> our tables.
-        let mut schema_names: HashMap<u16, String> = HashMap::new();
-        let mut channel_index: HashMap<u16, usize> = HashMap::new();
-        let mut saw_header = false;
-        let mut saw_data_end = false;
-        let mut saw_footer = false;
+        let mut state = ScanState::default();
         for record in records {
             let record = match record {
                 Ok(record) => record,
-                Err(err) if !saw_header => {
+                Err(err) if !state.saw_header => {
                     return Err(BagError::NotMcap {
                         file: self.file.clone(),
                         detail: err.to_string(),
                     })
                 }
                 Err(err) => {
-                    self.damage = Some(err.to_string());
-                    return Ok(());
+                    self.note_damage(err.to_string());
+                    break;
                 }
             };
-            match record {
-                Record::Header(header) => {
-                    saw_header = true;
-                    self.profile = header.profile;
+            if let Record::Chunk { header, data } = record {
+                let (start_ns, end_ns) = (header.message_start_time, header.message_end_time);
+                let inner: Result<Vec<Record<'_>>, mcap::McapError> =
+                    mcap::read::ChunkReader::new(header, &data).and_then(|chunk| chunk.collect());
+                match inner {
+                    Ok(inner) => inner.into_iter().for_each(|r| state.take(r)),
+                    Err(err) => self.note_damage(format!(
+                        "chunk with log times {start_ns}..={end_ns} ns dropped: {err}"
+                    )),
                 }
-                Record::Schema { header, .. } => {
-                    schema_names.insert(header.id, header.name);
-                }
-                Record::Channel(channel) => {
-                    let schema_name = if channel.schema_id == 0 {
-                        String::new()
-                    } else {
-                        match schema_names.get(&channel.schema_id) {
-                            Some(name) => name.clone(),
-                            None => {
-                                self.damage = Some(format!(
-                                    "channel '{}' refers to unknown schema id {}",
-                                    channel.topic, channel.schema_id
-                                ));
-                                return Ok(());
-                            }
-                        }
-                    };
-                    if let std::collections::hash_map::Entry::Vacant(slot) =
-                        channel_index.entry(channel.id)
-                    {
-                        slot.insert(self.channels.len());
-                        self.channels.push(ReaderChannel {
-                            topic: channel.topic,
-                            schema_name,
-                            message_encoding: channel.message_encoding,
-                        });
-                    }
-                }
-                Record::Message { header, data } => {
-                    let Some(&channel) = channel_index.get(&header.channel_id) else {
-                        self.damage = Some(format!(
-                            "message at log time {} ns on unknown channel id {}",
-                            header.log_time, header.channel_id
-                        ));
-                        return Ok(());
-                    };
-                    self.messages.push(StoredMessage {
-                        channel,
-                        log_time_ns: header.log_time,
-                        publish_time_ns: header.publish_time,
-                        data: data.into_owned(),
-                    });
-                }
-                Record::Metadata(record) => {
-                    self.metadata.insert(record.name, record.metadata);
-                }
-                Record::DataEnd(_) => saw_data_end = true,
-                Record::Footer(_) => saw_footer = true,
-                _ => {}
+            } else {
+                state.take(record);
             }
         }
-        if !saw_header {
+        if !state.saw_header {
             return Err(BagError::NotMcap {
                 file: self.file.clone(),
                 detail: "no header record".into(),
             });
         }
-        if !saw_data_end {
-            self.damage = Some("file ends before the data-end record (truncated)".into());
-        } else if !saw_footer || !bytes.ends_with(mcap::MAGIC) {
-            self.damage = Some("file ends before the footer and end magic (truncated)".into());
+        if !state.saw_data_end {
+            self.note_damage("file ends before the data-end record (truncated)".into());
+        } else if !state.saw_footer || !bytes.ends_with(mcap::MAGIC) {
+            self.note_damage("file ends before the footer and end magic (truncated)".into());
         }
+        self.finish_scan(state);
         Ok(())
+    }
+
+    /// Links messages to channels and channels to schemas once every record was seen
+    /// (the summary repeats schemas and channels, so a lost chunk does not orphan later
+    /// messages).
+    fn finish_scan(&mut self, state: ScanState) {
+        self.profile = state.profile;
+        let mut index_of: HashMap<u16, usize> = HashMap::new();
+        for id in &state.channel_order {
+            let Some(channel) = state.channels.get(id) else {
+                continue;
+            };
+            let schema_name = if channel.schema_id == 0 {
+                String::new()
+            } else if let Some(name) = state.schema_names.get(&channel.schema_id) {
+                name.clone()
+            } else {
+                self.note_damage(format!(
+                    "channel '{}' refers to unknown schema id {}",
+                    channel.topic, channel.schema_id
+                ));
+                String::new()
+            };
+            index_of.insert(*id, self.channels.len());
+            self.channels.push(ReaderChannel {
+                topic: channel.topic.clone(),
+                schema_name,
+                message_encoding: channel.message_encoding.clone(),
+            });
+        }
+        let mut orphans: BTreeMap<u16, usize> = BTreeMap::new();
+        for (channel_id, mut message) in state.messages {
+            match index_of.get(&channel_id) {
+                Some(&index) => {
+                    message.channel = index;
+                    self.messages.push(message);
+                }
+                None => *orphans.entry(channel_id).or_default() += 1,
+            }
+        }
+        for (channel_id, count) in orphans {
+            self.note_damage(format!(
+                "{count} messages on unknown channel id {channel_id} dropped"
+            ));
+        }
+        self.metadata = state.metadata;
     }
 
     /// The bag's path.

@@ -251,9 +251,17 @@ impl RigBagReader {
                 }
             }
             if !any {
-                return Err(match self.bag.damage() {
-                    Some(damage) if self.bag.messages.is_empty() => damage,
-                    _ => BagError::MissingTopic {
+                // In a damaged bag the topic may just be lost after the damage: say both.
+                return Err(match &self.bag.damage {
+                    Some(detail) => BagError::Damaged {
+                        file: self.bag.file().to_string(),
+                        detail: format!(
+                            "{detail}; topic '{}' has no messages before the damage",
+                            camera.topic
+                        ),
+                        good_messages: self.bag.messages.len(),
+                    },
+                    None => BagError::MissingTopic {
                         file: self.bag.file().to_string(),
                         topic: camera.topic.clone(),
                     },
