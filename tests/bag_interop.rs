@@ -6,7 +6,8 @@
 //! Needs `MODE360_PYTHON` (a Python with `mcap mcap-ros2-support rosbags`) and
 //! `MODE360_NODE_DIR` (a folder holding `node_modules` with the packages of
 //! `tests/interop/package.json`); `tests/interop/setup.sh DIR` makes both. Without them the
-//! test is skipped, unless `CI` is set, where it fails.
+//! test is skipped, unless `CI` is set, where it fails. The Python readers also check a
+//! zstd-compressed copy of the bag.
 //!
 //! Checks are `[path, value]` pairs: `a.b[2].c` walks fields and indices, `#len` is a length,
 //! `@f32le[i]` / `@u32le[i]` read a little-endian float32 / uint32 element of a byte array,
@@ -16,7 +17,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use mode360::bag::BagWriter;
+use mode360::bag::{BagCompression, BagWriteOptions, BagWriter};
 use mode360::frame::{FloatImage, RgbImage};
 use mode360::msgs::*;
 use serde_json::{json, Value};
@@ -110,8 +111,8 @@ fn image_checks(msg: &Image, rgb: &RgbImage) -> Vec<(String, Value)> {
 }
 
 /// Writes the bag and returns what each message must decode to.
-fn write_bag(path: &Path) -> Vec<Expected> {
-    let mut bag = match BagWriter::create(path) {
+fn write_bag(path: &Path, options: BagWriteOptions) -> Vec<Expected> {
+    let mut bag = match BagWriter::create_with(path, options) {
         Ok(bag) => bag,
         Err(err) => panic!("{err}"),
     };
@@ -481,7 +482,15 @@ fn third_party_decoders_read_our_bag() {
         Err(err) => panic!("{err}"),
     };
     let bag_path = dir.path().join("interop.mcap");
-    let expected = write_bag(&bag_path);
+    let expected = write_bag(&bag_path, BagWriteOptions::default());
+    // The same content with zstd chunks (checked by the Python readers, which ship zstd).
+    let zstd_path = dir.path().join("interop_zstd.mcap");
+    let zstd = BagWriteOptions {
+        compression: BagCompression::Zstd,
+        chunk_size_bytes: None,
+    };
+    let zstd_expected = write_bag(&zstd_path, zstd);
+    assert_eq!(zstd_expected.len(), expected.len());
     let json = json!({
         "bag": bag_path.display().to_string(),
         "profile": "ros2",
@@ -497,6 +506,12 @@ fn third_party_decoders_read_our_bag() {
     if let Some(python) = python {
         let script = interop_dir.join("check_bag.py");
         check_both_ways(&python, &script, &json_path, &tampered_path, None);
+        let mut zstd_json = json.clone();
+        zstd_json["bag"] = json!(zstd_path.display().to_string());
+        let zstd_json_path = dir.path().join("expected_zstd.json");
+        assert!(std::fs::write(&zstd_json_path, zstd_json.to_string()).is_ok());
+        let (ok, stdout) = run_checker(&python, &script, &zstd_json_path, None);
+        assert!(ok && stdout.contains("OK"), "zstd bag: {stdout}");
     }
     if let Some(node_dir) = node_dir {
         let script = interop_dir.join("check_bag.mjs");

@@ -502,3 +502,82 @@ fn compressed_camera_images_are_decoded() {
     }
     assert!(frames[0].ground_truth.is_none());
 }
+
+#[test]
+fn full_size_frames_round_trip_with_timing() {
+    // Four 1024x512 panoramas and a 1024x512 ground truth per frame, as the node sees them.
+    const FULL_WIDTH: u32 = 1024;
+    const FULL_HEIGHT: u32 = 512;
+    const FRAMES: u64 = 3;
+    let yaml = match std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_deep360.yaml"
+    )) {
+        Ok(yaml) => yaml,
+        Err(err) => panic!("{err}"),
+    };
+    let deep360 = match Rig::from_yaml_str(&yaml, "rig_deep360.yaml") {
+        Ok(rig) => rig,
+        Err(err) => panic!("{err}"),
+    };
+    let make_frame = |f: u64| RigFrame {
+        stamp_ns: STAMPS_NS[0] + f * 50_000_000,
+        images: (0..deep360.cameras.len() as u32)
+            .map(|c| {
+                RgbImage::from_fn(FULL_WIDTH, FULL_HEIGHT, |u, v| {
+                    let x = u ^ (v * 3) ^ (c * 77) ^ (f as u32 * 5);
+                    ::image::Rgb([x as u8, (x >> 3) as u8, (u + v) as u8])
+                })
+            })
+            .collect(),
+        ground_truth: Some(FloatImage {
+            width: FULL_WIDTH as usize,
+            height: FULL_HEIGHT as usize,
+            data: (0..FULL_WIDTH * FULL_HEIGHT)
+                .map(|i| 0.5 + (i % 997) as f32 * 0.125 + f as f32)
+                .collect(),
+        }),
+    };
+    let frames: Vec<RigFrame> = (0..FRAMES).map(make_frame).collect();
+    let dir = temp_dir();
+    let path = dir.path().join("full.mcap");
+    let started = std::time::Instant::now();
+    let mut writer = match RigBagWriter::create(&path, &deep360, &info()) {
+        Ok(w) => w,
+        Err(err) => panic!("{err}"),
+    };
+    for frame in &frames {
+        assert!(writer.write_frame(frame).is_ok());
+    }
+    assert!(writer.finish().is_ok());
+    let write_s = started.elapsed().as_secs_f64();
+    let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+
+    let started = std::time::Instant::now();
+    let reader = match RigBagReader::open(&path) {
+        Ok(reader) => reader,
+        Err(err) => panic!("{err}"),
+    };
+    let read: Vec<RigFrame> = reader
+        .frames()
+        .collect::<Result<_, _>>()
+        .unwrap_or_default();
+    let read_s = started.elapsed().as_secs_f64();
+    assert_eq!(read.len(), frames.len());
+    for (got, want) in read.iter().zip(&frames) {
+        assert_eq!(got.stamp_ns, want.stamp_ns);
+        for (g, w) in got.images.iter().zip(&want.images) {
+            assert!(g.as_raw() == w.as_raw());
+        }
+        match (&got.ground_truth, &want.ground_truth) {
+            (Some(g), Some(w)) => assert!(same_floats(g, w)),
+            other => panic!("ground truth mismatch: {other:?}"),
+        }
+    }
+    let mb = bytes as f64 / 1e6;
+    println!(
+        "{FRAMES} frames, {mb:.1} MB: write {write_s:.3} s ({:.0} MB/s), read+decode {read_s:.3} s ({:.0} MB/s)",
+        mb / write_s,
+        mb / read_s
+    );
+}
