@@ -20,7 +20,10 @@ use mcap::{Compression, WriteOptions, Writer};
 use crate::geometry::rig::RigError;
 use crate::msgs::{decode_cdr, encode_cdr, ImageMsgError, MsgError, RosMessage};
 
-pub use rig_bag::{RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, SYNTH_METADATA};
+pub use rig_bag::{
+    RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, RIG_YAML_KEY, SYNTH_METADATA,
+    TF_STATIC_TOPIC,
+};
 
 /// MCAP profile of ROS 2 bags.
 pub const PROFILE: &str = "ros2";
@@ -30,11 +33,13 @@ pub const SCHEMA_ENCODING: &str = "ros2msg";
 pub const MESSAGE_ENCODING: &str = "cdr";
 /// Channel metadata key rosbag2 uses for the publisher QoS.
 const QOS_METADATA_KEY: &str = "offered_qos_profiles";
-/// Topic whose publisher is latched (transient local), as tf2's static broadcaster is.
-const TF_STATIC_TOPIC: &str = "/tf_static";
+/// rosbag2's QoS durability code of a latched (transient local) publisher.
+const DURABILITY_TRANSIENT_LOCAL: u8 = 1;
+/// rosbag2's QoS durability code of an ordinary (volatile) publisher.
+const DURABILITY_VOLATILE: u8 = 2;
 
-/// rosbag2 (Humble) QoS YAML: keep-last history, reliable, with the given durability
-/// (1 = transient local, 2 = volatile), infinite deadline, lifespan and lease.
+/// rosbag2 (Humble) QoS YAML: keep-last history, reliable, with the given durability,
+/// infinite deadline, lifespan and lease.
 fn qos_yaml(durability: u8) -> String {
     const INFINITE: &str = "\n    sec: 2147483647\n    nsec: 4294967295";
     format!(
@@ -143,8 +148,10 @@ struct WriterChannel {
     sequence: u32,
 }
 
-/// Writes a ROS 2 MCAP bag. Call [`Self::finish`] to write the summary; a bag dropped
-/// unfinished is still readable by [`BagReader`] up to its last complete chunk.
+/// Writes a ROS 2 MCAP bag. Call [`Self::finish`] to write the summary and see any error;
+/// dropping the writer also finishes the file (the mcap crate does so), silently. A
+/// recording cut off by a crash is still readable by [`BagReader`] up to its last complete
+/// chunk.
 pub struct BagWriter {
     file: String,
     writer: Writer<BufWriter<File>>,
@@ -230,7 +237,12 @@ impl BagWriter {
                     id
                 }
             };
-            let durability = if topic == TF_STATIC_TOPIC { 1 } else { 2 };
+            // tf2's static broadcaster latches /tf_static.
+            let durability = if topic == TF_STATIC_TOPIC {
+                DURABILITY_TRANSIENT_LOCAL
+            } else {
+                DURABILITY_VOLATILE
+            };
             let metadata = BTreeMap::from([(QOS_METADATA_KEY.to_string(), qos_yaml(durability))]);
             let id = self
                 .writer
