@@ -21,8 +21,8 @@ use crate::geometry::rig::RigError;
 use crate::msgs::{decode_cdr, encode_cdr, ImageMsgError, MsgError, RosMessage};
 
 pub use rig_bag::{
-    RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, RIG_YAML_KEY, SYNTH_METADATA,
-    TF_STATIC_TOPIC,
+    rig_tf_static, RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, RIG_YAML_KEY,
+    SYNTH_METADATA, TF_STATIC_TOPIC,
 };
 
 /// MCAP profile of ROS 2 bags.
