@@ -6,7 +6,7 @@
 //! markings, windows, paving joints) are box-filtered over the footprint
 //! ([`periodic_coverage`]), so distant detail averages instead of aliasing.
 
-use super::noise::{fbm2, fbm3, lattice_unit, value2};
+use super::noise::{fbm2, fbm3, lattice_unit, octave_weight, value2};
 use nalgebra::Vector3;
 
 /// Linear RGB.
@@ -24,6 +24,8 @@ const DASH_PERIOD_M: f64 = 9.0;
 /// Paving slab size, metres, and joint width.
 const PAVING_SLAB_M: f64 = 0.6;
 const PAVING_JOINT_M: f64 = 0.04;
+/// Frequency of the asphalt's gravel speckle, cycles per metre.
+const ASPHALT_SPECKLE_PER_M: f32 = 24.0;
 /// Ground-floor height of buildings, metres.
 const GROUND_FLOOR_M: f64 = 4.0;
 
@@ -206,9 +208,21 @@ fn concrete(p: &Vector3<f64>, n: &Vector3<f64>, fp: f32, seed: u32, base: Rgb) -
 fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     let fp = fp_m as f32;
     let (x, y) = (p.x as f32, p.y as f32);
-    let grain = fbm2(x, y, seed ^ 0x11, 0.9, 7, fp);
+    let grain = fbm2(x, y, seed ^ 0x11, 2.5, 6, fp);
     let patches = fbm2(x, y, seed ^ 0x12, 0.08, 3, fp);
-    let g = 0.09 + 0.10 * grain + 0.07 * patches;
+    // Gravel speckle: one high-frequency octave, faded out by the footprint.
+    let speckle_w = octave_weight(ASPHALT_SPECKLE_PER_M, fp);
+    let speckle = if speckle_w > 0.0 {
+        speckle_w
+            * (value2(
+                x * ASPHALT_SPECKLE_PER_M,
+                y * ASPHALT_SPECKLE_PER_M,
+                seed ^ 0x14,
+            ) - 0.5)
+    } else {
+        0.0
+    };
+    let g = (0.15 + 0.3 * (grain - 0.5) + 0.12 * (patches - 0.5) + 0.12 * speckle).max(0.02);
     let mut c: Rgb = [g, g, g * 1.04];
     // Parking strips are slightly lighter and bluish.
     if p.y.abs() > LANE_WIDTH_M {
@@ -284,7 +298,7 @@ fn facade(
     };
     let plaster = fbm2(s as f32, h as f32, seed ^ 0x32, 0.7, 7, fp);
     let stains = fbm2(s as f32, h as f32, seed ^ 0x33, 0.1, 3, fp);
-    let mut c = scale(wall, 0.65 + 0.5 * plaster + 0.3 * (stains - 0.5));
+    let mut c = scale(wall, 0.55 + 0.8 * (plaster - 0.5) + 0.4 * stains);
     // Cornice stripe between floors.
     let bay = (s / bay_w).floor() as i32;
     if h < GROUND_FLOOR_M {

@@ -163,6 +163,7 @@ pub struct SynthRenderer {
     /// Unit ray direction of every ERP pixel (row-major), in the camera frame.
     dirs: Vec<Vector3<f64>>,
     params: WorldParams,
+    gamma_lut: Vec<u8>,
 }
 
 /// One traced ray's result.
@@ -221,7 +222,8 @@ impl FrameScene<'_> {
                 } else {
                     Material::Grass
                 };
-                (m, Vector3::z(), p)
+                let p_tex = Vector3::new(p.x.rem_euclid(TEXTURE_WRAP_M), p.y, p.z);
+                (m, Vector3::z(), p_tex)
             }
         };
         let cos_in = n.dot(&ray.dir);
@@ -229,7 +231,8 @@ impl FrameScene<'_> {
             n = -n;
         }
         let footprint_m = t * self.pixel_angle_rad / cos_in.abs().max(MIN_COS_INCIDENCE);
-        let albedo = material::albedo(&material, &p, &p_obj, &n, footprint_m, seed);
+        let p_tex = Vector3::new(p.x.rem_euclid(TEXTURE_WRAP_M), p.y, p.z);
+        let albedo = material::albedo(&material, &p_tex, &p_obj, &n, footprint_m, seed);
         let lambert = n.dot(&sun);
         let sunlit = if lambert > 0.0 {
             let shadow = Ray::new(p + n * SHADOW_BIAS_M, sun);
@@ -266,9 +269,29 @@ impl FrameScene<'_> {
     }
 }
 
-fn to_srgb8(c: f32) -> u8 {
-    (c.max(0.0).powf(1.0 / GAMMA).min(1.0) * 255.0).round() as u8
+/// Entries of the gamma lookup table, indexed by `sqrt(c)` (finer steps in the shadows).
+const GAMMA_LUT_SIZE: usize = 4096;
+
+/// `lut[i] = round(255 (i / (N - 1))^(2 / gamma))`, so `srgb8(c) = lut[sqrt(c) (N - 1)]`.
+fn gamma_lut() -> Vec<u8> {
+    (0..GAMMA_LUT_SIZE)
+        .map(|i| {
+            let s = i as f32 / (GAMMA_LUT_SIZE - 1) as f32;
+            (s.powf(2.0 / GAMMA) * 255.0 + 0.5) as u8
+        })
+        .collect()
 }
+
+/// Encodes linear `c` (clamped to [0, 1]) to 8 bits with display gamma [`GAMMA`].
+#[inline]
+fn to_srgb8(lut: &[u8], c: f32) -> u8 {
+    let i = (c.clamp(0.0, 1.0).sqrt() * (GAMMA_LUT_SIZE - 1) as f32 + 0.5) as usize;
+    lut[i.min(GAMMA_LUT_SIZE - 1)]
+}
+
+/// World texture coordinates wrap along x with this period, metres, so that f32 texture
+/// arithmetic keeps millimetre precision however far the rig drives (one seam per period).
+pub const TEXTURE_WRAP_M: f64 = 2048.0;
 
 fn same_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     (a.translation.vector - b.translation.vector).norm() < SAME_POSE_TOLERANCE
@@ -295,6 +318,7 @@ impl SynthRenderer {
             grid,
             dirs,
             params,
+            gamma_lut: gamma_lut(),
         })
     }
 
@@ -426,14 +450,14 @@ impl SynthRenderer {
                     let d = rot * self.dirs[v * w + u];
                     let s = scene.trace(&Ray::new(origin, d));
                     for i in 0..3 {
-                        row[3 * u + i] = to_srgb8(s.colour[i]);
+                        row[3 * u + i] = to_srgb8(&self.gamma_lut, s.colour[i]);
                     }
                     row_range[u] = s.range_m as f32;
                 }
             });
         let img = RgbImage::from_raw(w as u32, h as u32, rgb)
             .unwrap_or_else(|| RgbImage::new(w as u32, h as u32));
-        let range = keep_range.then(|| FloatImage {
+        let range = keep_range.then_some(FloatImage {
             width: w,
             height: h,
             data: range,
