@@ -361,9 +361,12 @@ pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32
         4,
         fp * 3.0,
     );
-    let cover = ((density - 0.42) * 3.0 + (wisps - 0.5) * 0.8).clamp(0.0, 1.0);
+    let cover = ((density - 0.38) * 3.0 + (wisps - 0.5) * 0.8).clamp(0.0, 1.0);
     let shade = 0.75 + 0.35 * wisps;
     c = mix(c, [shade, shade, shade * 1.02], cover * 0.9);
+    // A thin high veil keeps even clear patches textured (photometric matching needs it).
+    let veil = fbm2(cx as f32, cy as f32, seed ^ 0x43, 4.0, 5, fp);
+    c = scale(c, 0.86 + 0.28 * veil);
     // Haze near the horizon and the sun.
     let cos_sun = d.dot(sun) as f32;
     let glow = cos_sun.max(0.0).powf(64.0) * 0.6;
