@@ -43,6 +43,16 @@ fn same_seed_same_bytes_other_seed_differs() {
     let a = renderer(3, 128, true).render_frame(&rig, 7);
     let b = renderer(3, 128, true).render_frame(&rig, 7);
     let c = renderer(4, 128, true).render_frame(&rig, 7);
+    // The same bytes on a single thread.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("thread pool");
+    let single = pool.install(|| renderer(3, 128, true).render_frame(&rig, 7));
+    for (x, y) in a.images.iter().zip(&single.images) {
+        assert_eq!(x.as_raw(), y.as_raw());
+    }
+    assert_eq!(a.ground_truth, single.ground_truth);
     assert_eq!(a.stamp_ns, b.stamp_ns);
     for (x, y) in a.images.iter().zip(&b.images) {
         assert_eq!(x.as_raw(), y.as_raw());
@@ -280,7 +290,11 @@ fn renders_quickly_and_saves_previews() {
     }
     assert_eq!(finite, frames * 512 * 256);
     if std::env::var_os("SYNTH_PREVIEW").is_some() {
-        let soiled = renderer(1, 512, true);
+        let width: usize = std::env::var("SYNTH_PREVIEW_WIDTH")
+            .ok()
+            .and_then(|w| w.parse().ok())
+            .unwrap_or(512);
+        let soiled = renderer(1, width, true);
         for i in [0usize, 30] {
             let f = soiled.render_frame(&rig, i);
             for (c, img) in f.images.iter().enumerate() {
@@ -292,7 +306,7 @@ fn renders_quickly_and_saves_previews() {
                     .iter()
                     .map(|d| (255.0 * (1.0 - (d.ln() / 1000f32.ln()).clamp(0.0, 1.0))) as u8)
                     .collect();
-                if let Some(img) = image::GrayImage::from_raw(512, 256, px) {
+                if let Some(img) = image::GrayImage::from_raw(width as u32, width as u32 / 2, px) {
                     let _ = img.save(format!("/tmp/synth_f{i}_gt.png"));
                 }
             }

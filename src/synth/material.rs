@@ -208,7 +208,7 @@ fn concrete(p: &Vector3<f64>, n: &Vector3<f64>, fp: f32, seed: u32, base: Rgb) -
 fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     let fp = fp_m as f32;
     let (x, y) = (p.x as f32, p.y as f32);
-    let grain = fbm2(x, y, seed ^ 0x11, 2.5, 6, fp);
+    let grain = fbm2(x, y, seed ^ 0x11, 4.0, 5, fp);
     let patches = fbm2(x, y, seed ^ 0x12, 0.08, 3, fp);
     // Gravel speckle: one high-frequency octave, faded out by the footprint.
     let speckle_w = octave_weight(ASPHALT_SPECKLE_PER_M, fp);
@@ -222,7 +222,7 @@ fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     } else {
         0.0
     };
-    let g = (0.15 + 0.3 * (grain - 0.5) + 0.12 * (patches - 0.5) + 0.12 * speckle).max(0.02);
+    let g = (0.15 + 0.26 * (grain - 0.5) + 0.1 * (patches - 0.5) + 0.14 * speckle).max(0.02);
     let mut c: Rgb = [g, g, g * 1.04];
     // Parking strips are slightly lighter and bluish.
     if p.y.abs() > LANE_WIDTH_M {
