@@ -390,3 +390,66 @@ fn objects_keep_clear_of_the_cameras_and_traffic_moves() {
         .count();
     assert!(moved > 10, "only {moved} primitives moved in one second");
 }
+
+/// Fraction of pixels of `img`, box-downsampled by `factor`, whose 3x3 luminance standard
+/// deviation exceeds `min_std` grey levels (columns wrap, rows clamp).
+fn textured_fraction(
+    img: &image::RgbImage,
+    factor: usize,
+    min_std: f32,
+    rows: std::ops::Range<f64>,
+) -> f64 {
+    let (w, h) = (
+        img.width() as usize / factor,
+        img.height() as usize / factor,
+    );
+    let mut lum = vec![0f32; w * h];
+    for (i, p) in img.pixels().enumerate() {
+        let (x, y) = (
+            i % img.width() as usize / factor,
+            i / img.width() as usize / factor,
+        );
+        if x < w && y < h {
+            let l = 0.299 * p.0[0] as f32 + 0.587 * p.0[1] as f32 + 0.114 * p.0[2] as f32;
+            lum[y * w + x] += l / (factor * factor) as f32;
+        }
+    }
+    let (y0, y1) = (
+        (rows.start * h as f64) as usize,
+        (rows.end * h as f64) as usize,
+    );
+    let mut textured = 0usize;
+    for y in y0..y1 {
+        for x in 0..w {
+            let mut vals = [0f32; 9];
+            let mut k = 0;
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
+                    let xx = (x as i64 + dx).rem_euclid(w as i64) as usize;
+                    vals[k] = lum[yy * w + xx];
+                    k += 1;
+                }
+            }
+            let mean = vals.iter().sum::<f32>() / 9.0;
+            let var = vals.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / 9.0;
+            if var.sqrt() > min_std {
+                textured += 1;
+            }
+        }
+    }
+    textured as f64 / ((y1 - y0) * w) as f64
+}
+
+#[test]
+fn textures_are_rich_at_matching_resolution() {
+    let rig = deep360_rig();
+    let r = renderer(8, 512, false);
+    let f = r.render_frame(&rig, 25);
+    for (name, rows) in [("sky", 0.0..0.4), ("street", 0.4..0.6), ("road", 0.6..1.0)] {
+        let full = textured_fraction(&f.images[0], 1, 1.0, rows.clone());
+        let quarter = textured_fraction(&f.images[0], 4, 1.0, rows);
+        println!("{name}: textured fraction {full:.3} at 512x256, {quarter:.3} at 128x64");
+        assert!(full > 0.5 && quarter > 0.9, "{name}: {full} / {quarter}");
+    }
+}

@@ -210,19 +210,9 @@ fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     let (x, y) = (p.x as f32, p.y as f32);
     let grain = fbm2(x, y, seed ^ 0x11, 4.0, 5, fp);
     let patches = fbm2(x, y, seed ^ 0x12, 0.08, 3, fp);
-    // Gravel speckle: one high-frequency octave, faded out by the footprint.
-    let speckle_w = octave_weight(ASPHALT_SPECKLE_PER_M, fp);
-    let speckle = if speckle_w > 0.0 {
-        speckle_w
-            * (value2(
-                x * ASPHALT_SPECKLE_PER_M,
-                y * ASPHALT_SPECKLE_PER_M,
-                seed ^ 0x14,
-            ) - 0.5)
-    } else {
-        0.0
-    };
-    let g = (0.15 + 0.26 * (grain - 0.5) + 0.1 * (patches - 0.5) + 0.14 * speckle).max(0.02);
+    // Gravel speckle: rough fine octaves, faded out by the footprint.
+    let speckle = rough_detail(x, y, seed ^ 0x14, ASPHALT_SPECKLE_PER_M, fp);
+    let g = (0.15 + 0.22 * (grain - 0.5) + 0.1 * (patches - 0.5) + 0.1 * speckle).max(0.02);
     let mut c: Rgb = [g, g, g * 1.04];
     // Parking strips are slightly lighter and bluish.
     if p.y.abs() > LANE_WIDTH_M {
@@ -253,6 +243,21 @@ fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
         (edge + bay).min(1.0) as f32,
     );
     c
+}
+
+/// Fine detail with equal amplitude per octave (rougher than fbm): octaves at `f`, `f/2`,
+/// `f/4` cycles per metre, each faded by the footprint; centred on 0, within `[-1.5, 1.5]`.
+fn rough_detail(x: f32, y: f32, seed: u32, f: f32, fp: f32) -> f32 {
+    let mut sum = 0.0;
+    let mut freq = f;
+    for k in 0..3u32 {
+        let w = octave_weight(freq, fp);
+        if w > 0.0 {
+            sum += w * (value2(x * freq, y * freq, seed.wrapping_add(k)) - 0.5);
+        }
+        freq *= 0.5;
+    }
+    sum
 }
 
 fn paving(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
@@ -365,8 +370,16 @@ pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32
     let shade = 0.75 + 0.35 * wisps;
     c = mix(c, [shade, shade, shade * 1.02], cover * 0.9);
     // A thin high veil keeps even clear patches textured (photometric matching needs it).
-    let veil = fbm2(cx as f32, cy as f32, seed ^ 0x43, 4.0, 5, fp);
-    c = scale(c, 0.86 + 0.28 * veil);
+    // Noise on the unit sphere of directions: isotropic in angle, no horizon singularity,
+    // band-limited by the pixel's angular size.
+    let veil = fbm3(
+        [d.x as f32, d.y as f32, d.z as f32],
+        seed ^ 0x43,
+        SKY_VEIL_BASE_FREQ,
+        6,
+        pixel_angle_rad as f32,
+    );
+    c = scale(c, 0.8 + 0.4 * veil);
     // Haze near the horizon and the sun.
     let cos_sun = d.dot(sun) as f32;
     let glow = cos_sun.max(0.0).powf(64.0) * 0.6;
@@ -377,6 +390,9 @@ pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32
         c[2] + glow * 0.7 + disk,
     ]
 }
+
+/// Lowest frequency of the sky veil, cycles per unit of direction (about per radian).
+const SKY_VEIL_BASE_FREQ: f32 = 6.0;
 
 /// Cosine of the sun disk's angular radius (about 0.6 degrees, a little larger than the real
 /// sun so it covers a few pixels).
