@@ -295,7 +295,14 @@ fn renders_quickly_and_saves_previews() {
             .and_then(|w| w.parse().ok())
             .unwrap_or(512);
         let soiled = renderer(1, width, true);
-        for i in [0usize, 30] {
+        // Also a frame 6 m before the first intersection ahead.
+        let params = mode360::synth::world::WorldParams::new(1);
+        let tile = (1..1000i64)
+            .find(|&t| mode360::synth::world::is_intersection(&params, t))
+            .unwrap_or(1);
+        let x = mode360::synth::world::cross_street_centre_m(tile) - 6.0;
+        let crossing = (x / (8.0 * 0.1)).round() as usize;
+        for i in [0usize, 30, crossing] {
             let f = soiled.render_frame(&rig, i);
             for (c, img) in f.images.iter().enumerate() {
                 let _ = img.save(format!("/tmp/synth_f{i}_cam{}.png", c + 1));

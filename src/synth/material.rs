@@ -21,6 +21,8 @@ const LINE_WIDTH_M: f64 = 0.15;
 /// Centre-line dash length and period, metres.
 const DASH_LENGTH_M: f64 = 3.0;
 const DASH_PERIOD_M: f64 = 9.0;
+/// Zebra crossing bar period across the road, metres.
+const ZEBRA_PERIOD_M: f64 = 1.0;
 /// Paving slab size, metres, and joint width.
 const PAVING_SLAB_M: f64 = 0.6;
 const PAVING_JOINT_M: f64 = 0.04;
@@ -34,6 +36,9 @@ const GROUND_FLOOR_M: f64 = 4.0;
 pub enum Material {
     /// Road surface with lane markings (the ground plane between the kerbs).
     Asphalt,
+    /// Ground plane of a cross street (local x = 0 on its centre line): asphalt with zebra
+    /// crossings over the main road and a dashed centre line.
+    CrossStreet,
     /// Ground beyond the sidewalks.
     Grass,
     /// Sidewalk: paving slabs on top, concrete kerb on the sides.
@@ -123,6 +128,7 @@ pub fn albedo(
     let fp = footprint_m as f32;
     match *material {
         Material::Asphalt => asphalt(p_world, footprint_m, seed),
+        Material::CrossStreet => cross_street(p_world, p_obj, footprint_m, seed),
         Material::Grass => {
             let g = fbm2(p_world.x as f32, p_world.y as f32, seed ^ 0x61, 0.5, 6, fp);
             let d = fbm2(p_world.x as f32, p_world.y as f32, seed ^ 0x62, 0.11, 3, fp);
@@ -205,7 +211,7 @@ fn concrete(p: &Vector3<f64>, n: &Vector3<f64>, fp: f32, seed: u32, base: Rgb) -
     scale(base, 0.7 + 0.6 * t)
 }
 
-fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+fn asphalt_base(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     let fp = fp_m as f32;
     let (x, y) = (p.x as f32, p.y as f32);
     let grain = fbm2(x, y, seed ^ 0x11, 4.0, 5, fp);
@@ -213,7 +219,33 @@ fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     // Gravel speckle: rough fine octaves, faded out by the footprint.
     let speckle = rough_detail(x, y, seed ^ 0x14, ASPHALT_SPECKLE_PER_M, fp);
     let g = (0.15 + 0.22 * (grain - 0.5) + 0.1 * (patches - 0.5) + 0.1 * speckle).max(0.02);
-    let mut c: Rgb = [g, g, g * 1.04];
+    [g, g, g * 1.04]
+}
+
+/// Cross street: plain asphalt, zebra crossings (bars along x, 0.5 m wide every 1 m) over
+/// the main road next to the cross street's edges, and a dashed centre line along y.
+fn cross_street(p: &Vector3<f64>, local: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+    let c = asphalt_base(p, fp_m, seed);
+    let half = crate::synth::world::CROSS_STREET_HALF_WIDTH_M;
+    let lx = local.x.abs();
+    let zebra = if p.y.abs() <= ROAD_HALF_WIDTH_M - 0.5 {
+        stripe_coverage(lx, half - 3.0, half - 0.5, fp_m)
+            * periodic_coverage(p.y, ZEBRA_PERIOD_M, 0.0, 0.5 * ZEBRA_PERIOD_M, fp_m)
+    } else {
+        0.0
+    };
+    let centre = if p.y.abs() > ROAD_HALF_WIDTH_M + 1.0 {
+        stripe_coverage(local.x, -0.5 * LINE_WIDTH_M, 0.5 * LINE_WIDTH_M, fp_m)
+            * periodic_coverage(p.y, DASH_PERIOD_M, 0.0, DASH_LENGTH_M, fp_m)
+    } else {
+        0.0
+    };
+    mix(c, [0.85, 0.85, 0.84], (zebra + centre).min(1.0) as f32)
+}
+
+fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+    let (x, y) = (p.x as f32, p.y as f32);
+    let mut c = asphalt_base(p, fp_m, seed);
     // Parking strips are slightly lighter and bluish.
     if p.y.abs() > LANE_WIDTH_M {
         c = scale(c, 1.12);

@@ -22,7 +22,7 @@ pub mod world;
 use crate::frame::{FloatImage, RgbImage, RigFrame};
 use crate::geometry::{ErpGrid, GeometryError, PixelCoord, Rig};
 use bvh::{Bvh, Ray};
-use material::{Material, Rgb, ROAD_HALF_WIDTH_M};
+use material::{Material, Rgb};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use noise::Rng;
 use rayon::prelude::*;
@@ -217,13 +217,8 @@ impl FrameScene<'_> {
                 (prim.material, h.hit.normal, p - prim.object_origin)
             }
             None => {
-                let m = if p.y.abs() <= ROAD_HALF_WIDTH_M {
-                    Material::Asphalt
-                } else {
-                    Material::Grass
-                };
-                let p_tex = Vector3::new(p.x.rem_euclid(TEXTURE_WRAP_M), p.y, p.z);
-                (m, Vector3::z(), p_tex)
+                let (m, origin) = world::ground_material(self.params, &p);
+                (m, Vector3::z(), p - origin)
             }
         };
         let cos_in = n.dot(&ray.dir);

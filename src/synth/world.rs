@@ -9,7 +9,7 @@
 
 use super::bvh::{Aabb, Prim, Shape};
 use super::material::{Material, Rgb, ROAD_HALF_WIDTH_M};
-use super::noise::{hash_words, Rng};
+use super::noise::{hash_words, unit_from_hash, Rng};
 use nalgebra::Vector3;
 
 /// Length of a tile of static content along x, metres.
@@ -76,6 +76,46 @@ const CLOTHES_COLOURS: [Rgb; 6] = [
     [0.7, 0.7, 0.7],
 ];
 const SKIN_COLOURS: [Rgb; 3] = [[0.8, 0.6, 0.5], [0.55, 0.38, 0.28], [0.35, 0.22, 0.15]];
+
+/// Probability that a tile holds a cross street (no buildings, zebra crossings).
+pub const INTERSECTION_PROBABILITY: f64 = 0.12;
+/// Half width of a cross street along x, centred in its tile, metres.
+pub const CROSS_STREET_HALF_WIDTH_M: f64 = 6.0;
+
+/// Whether `tile` is an intersection with a cross street (a pure function of seed and tile).
+pub fn is_intersection(params: &WorldParams, tile: i64) -> bool {
+    unit_from_hash(hash_words(&[params.seed, tile as u64, 0x1A7E])) < INTERSECTION_PROBABILITY
+}
+
+/// The tile holding world x.
+pub fn tile_of(x_m: f64) -> i64 {
+    (x_m / TILE_LENGTH_M).floor() as i64
+}
+
+/// Centre x of the cross street of `tile` (if it has one).
+pub fn cross_street_centre_m(tile: i64) -> f64 {
+    (tile as f64 + 0.5) * TILE_LENGTH_M
+}
+
+/// Whether world x lies on a cross street (with `margin_m` added to its half width).
+pub fn on_cross_street(params: &WorldParams, x_m: f64, margin_m: f64) -> bool {
+    let tile = tile_of(x_m);
+    is_intersection(params, tile)
+        && (x_m - cross_street_centre_m(tile)).abs() <= CROSS_STREET_HALF_WIDTH_M + margin_m
+}
+
+/// Material of the ground plane `z = 0` at `p`, and the origin of its local coordinates
+/// (the cross street's centre for [`Material::CrossStreet`]).
+pub fn ground_material(params: &WorldParams, p: &Vector3<f64>) -> (Material, Vector3<f64>) {
+    if on_cross_street(params, p.x, 0.0) {
+        let c = cross_street_centre_m(tile_of(p.x));
+        (Material::CrossStreet, Vector3::new(c, 0.0, 0.0))
+    } else if p.y.abs() <= ROAD_HALF_WIDTH_M {
+        (Material::Asphalt, Vector3::zeros())
+    } else {
+        (Material::Grass, Vector3::zeros())
+    }
+}
 
 /// Global, seed-dependent scene parameters.
 #[derive(Clone, Debug)]
@@ -226,6 +266,35 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
     let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
     // Sidewalk slab (kerb face towards the road).
     let (ya, yb) = lo_hi(s * ROAD_HALF_WIDTH_M, s * SIDEWALK_OUTER_M);
+    if is_intersection(params, tile) {
+        // Corners only: sidewalks up to the cross street and a street light on one corner.
+        let c = cross_street_centre_m(tile);
+        for (a, b) in [
+            (x0, c - CROSS_STREET_HALF_WIDTH_M),
+            (c + CROSS_STREET_HALF_WIDTH_M, x1),
+        ] {
+            push(
+                out,
+                aabox([a, ya, 0.0], [b, yb, KERB_HEIGHT_M]),
+                Material::Paving,
+                Vector3::zeros(),
+            );
+        }
+        let px = c - CROSS_STREET_HALF_WIDTH_M - 1.0;
+        let py = s * POLE_Y_M;
+        push(
+            out,
+            Shape::Cylinder {
+                centre: Vector3::new(px, py, 3.0),
+                axis: 2,
+                radius_m: 0.09,
+                half_length_m: 3.0,
+            },
+            Material::Metal,
+            Vector3::new(px, py, 0.0),
+        );
+        return;
+    }
     push(
         out,
         aabox([x0, ya, 0.0], [x1, yb, KERB_HEIGHT_M]),
@@ -393,6 +462,10 @@ pub fn scene_prims(params: &WorldParams, x_centre_m: f64, range_m: f64, t_s: f64
                 let mut rng = Rng::new(&[params.seed, k as u64, si as u64, pi as u64, 0xFEE7]);
                 if rng.chance(0.5) {
                     let x = k as f64 * st.slot_m + rng.range(0.0, 0.6 * st.slot_m) + shift;
+                    // Nobody walks (at sidewalk height) across a cross street.
+                    if on_cross_street(params, x, 0.5) {
+                        continue;
+                    }
                     let y = side * (st.y_m + rng.range(-0.3, 0.3));
                     // Gait: one stride (two steps) per 1.4 m travelled.
                     let phase = x / 1.4 * std::f64::consts::TAU + rng.range(0.0, 6.0);
