@@ -21,6 +21,10 @@ pub const KERB_HEIGHT_M: f64 = 0.15;
 const SIDEWALK_OUTER_M: f64 = 13.5;
 /// Building fronts start this far from the road axis (plus a random setback).
 const BUILDING_FRONT_M: f64 = 13.0;
+/// Front of the second row of buildings behind the street, metres from the axis.
+const BACK_ROW_FRONT_M: f64 = 32.0;
+/// Corner buildings stand this far back from a cross street's edge, metres.
+const CORNER_SETBACK_M: f64 = 1.5;
 const PARKED_CAR_Y_M: f64 = 6.4;
 const ONCOMING_CAR_Y_M: f64 = 2.4;
 const ONCOMING_SPEED_MPS: f64 = 9.0;
@@ -257,6 +261,65 @@ fn pedestrian(out: &mut Vec<Prim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
     );
 }
 
+/// Up to `max_count` buildings filling `[x0, x1]` on side `s`, fronts `front_m` (plus a
+/// random setback) from the road axis.
+fn building_row(
+    out: &mut Vec<Prim>,
+    rng: &mut Rng,
+    x0: f64,
+    x1: f64,
+    s: f64,
+    front_m: f64,
+    max_count: usize,
+) {
+    let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
+    let count = 1 + rng.index(max_count);
+    let mut x = x0;
+    for b in 0..count {
+        let remaining = x1 - x;
+        let width = if b + 1 == count {
+            remaining
+        } else {
+            remaining * rng.range(0.3, 0.7)
+        };
+        let gap = if rng.chance(0.3) {
+            rng.range(1.0, 3.0)
+        } else {
+            0.0
+        };
+        let front = front_m
+            + if rng.chance(0.4) {
+                rng.range(0.5, 3.0)
+            } else {
+                0.0
+            };
+        let depth = rng.range(10.0, 16.0);
+        let tall = if front_m > BUILDING_FRONT_M { 0.4 } else { 0.2 };
+        let height = if rng.chance(tall) {
+            rng.range(22.0, 45.0)
+        } else {
+            rng.range(7.0, 20.0)
+        };
+        let (ya, yb) = lo_hi(s * front, s * (front + depth));
+        let bx0 = x + 0.5 * gap;
+        let bx1 = (x + width - 0.5 * gap).max(bx0 + 1.0);
+        let wall = FACADE_COLOURS[rng.index(FACADE_COLOURS.len())];
+        let jitter = rng.range(0.85, 1.1) as f32;
+        push(
+            out,
+            aabox([bx0, ya, 0.0], [bx1, yb, height]),
+            Material::Facade {
+                wall: [wall[0] * jitter, wall[1] * jitter, wall[2] * jitter],
+                floor_height_m: rng.range(2.9, 3.6) as f32,
+                bay_width_m: rng.range(2.2, 3.4) as f32,
+                seed: (rng.next_u64() >> 40) as u32,
+            },
+            Vector3::new(bx0, ya, 0.0),
+        );
+        x += width;
+    }
+}
+
 /// Static content of tile `tile` on side `side` (+1 left, -1 right).
 fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64) {
     let mut rng = Rng::new(&[params.seed, tile as u64, side.to_bits(), 0x77]);
@@ -280,6 +343,12 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
                 Vector3::zeros(),
             );
         }
+        // Corner buildings (front and back rows) on both sides of the cross street.
+        let corner = CROSS_STREET_HALF_WIDTH_M + CORNER_SETBACK_M;
+        for (a, b) in [(x0, c - corner), (c + corner, x1)] {
+            building_row(out, &mut rng, a, b, s, BUILDING_FRONT_M, 1);
+            building_row(out, &mut rng, a, b, s, BACK_ROW_FRONT_M, 1);
+        }
         let px = c - CROSS_STREET_HALF_WIDTH_M - 1.0;
         let py = s * POLE_Y_M;
         push(
@@ -301,51 +370,9 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
         Material::Paving,
         Vector3::zeros(),
     );
-    // Buildings: one to three per tile with small gaps.
-    let count = 1 + rng.index(3);
-    let mut x = x0;
-    for b in 0..count {
-        let remaining = x1 - x;
-        let width = if b + 1 == count {
-            remaining
-        } else {
-            remaining * rng.range(0.3, 0.7)
-        };
-        let gap = if rng.chance(0.3) {
-            rng.range(1.0, 3.0)
-        } else {
-            0.0
-        };
-        let front = BUILDING_FRONT_M
-            + if rng.chance(0.4) {
-                rng.range(0.5, 3.0)
-            } else {
-                0.0
-            };
-        let depth = rng.range(10.0, 16.0);
-        let height = if rng.chance(0.2) {
-            rng.range(22.0, 40.0)
-        } else {
-            rng.range(7.0, 20.0)
-        };
-        let (ya, yb) = lo_hi(s * front, s * (front + depth));
-        let bx0 = x + 0.5 * gap;
-        let bx1 = (x + width - 0.5 * gap).max(bx0 + 1.0);
-        let wall = FACADE_COLOURS[rng.index(FACADE_COLOURS.len())];
-        let jitter = rng.range(0.85, 1.1) as f32;
-        push(
-            out,
-            aabox([bx0, ya, 0.0], [bx1, yb, height]),
-            Material::Facade {
-                wall: [wall[0] * jitter, wall[1] * jitter, wall[2] * jitter],
-                floor_height_m: rng.range(2.9, 3.6) as f32,
-                bay_width_m: rng.range(2.2, 3.4) as f32,
-                seed: (rng.next_u64() >> 40) as u32,
-            },
-            Vector3::new(bx0, ya, 0.0),
-        );
-        x += width;
-    }
+    // Buildings: one to three per tile with small gaps, and a taller row behind.
+    building_row(out, &mut rng, x0, x1, s, BUILDING_FRONT_M, 3);
+    building_row(out, &mut rng, x0, x1, s, BACK_ROW_FRONT_M, 2);
     // Tree.
     if rng.chance(0.75) {
         let tx = x0 + rng.range(3.0, 9.0);
