@@ -381,9 +381,7 @@ fn facade(
 /// clouds on a cloud plane, and the sun disk. `pixel_angle_rad` band-limits the clouds.
 pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32) -> Rgb {
     let up = d.z.max(0.0) as f32;
-    let horizon: Rgb = [0.75, 0.82, 0.92];
-    let zenith: Rgb = [0.22, 0.42, 0.8];
-    let mut c = mix(horizon, zenith, up.powf(0.6));
+    let mut c = mix(HORIZON_SKY, ZENITH_SKY, up.powf(SKY_GRADIENT_EXPONENT));
     // Clouds: fractal noise on the plane z = 1 (coordinates d.xy / d.z, clamped near the
     // horizon); the footprint there grows like pixel_angle / d.z^2.
     let dz = d.z.max(0.04);
@@ -423,6 +421,11 @@ pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32
     ]
 }
 
+/// Sky colour at the horizon (also the fog colour) and at the zenith, linear RGB; the
+/// gradient is `mix(horizon, zenith, max(d_z, 0)^SKY_GRADIENT_EXPONENT)`.
+pub const HORIZON_SKY: Rgb = [0.75, 0.82, 0.92];
+pub const ZENITH_SKY: Rgb = [0.22, 0.42, 0.8];
+const SKY_GRADIENT_EXPONENT: f32 = 0.6;
 /// Lowest frequency of the sky veil, cycles per unit of direction (about per radian).
 const SKY_VEIL_BASE_FREQ: f32 = 6.0;
 

@@ -42,6 +42,12 @@ const SUN_RADIANCE: Rgb = [1.55, 1.45, 1.3];
 const SKY_AMBIENT: Rgb = [0.42, 0.48, 0.6];
 /// Light bounced from the ground onto downward-facing surfaces.
 const GROUND_BOUNCE: Rgb = [0.12, 0.11, 0.1];
+/// Sky-ambient weight of a vertical surface (1 for an upward one, `2 base - 1` downward).
+const SKY_VIEW_BASE: f64 = 0.6;
+/// Ground-bounce weight of a vertical surface.
+const GROUND_VIEW_SIDE: f64 = 0.3;
+/// Light emitted by street-lamp heads (linear RGB added to the shaded colour).
+const LAMP_EMISSION: Rgb = [0.3, 0.28, 0.2];
 /// Offset of shadow-ray origins along the normal, metres.
 const SHADOW_BIAS_M: f64 = 1e-4;
 /// Footprints are divided by `max(|cos incidence|, MIN_COS_INCIDENCE)`.
@@ -173,6 +179,13 @@ struct Sample {
     range_m: f64,
 }
 
+/// The first surface a ray meets: its distance and the primitive (`None`: the ground plane).
+#[derive(Clone, Copy, Debug)]
+struct FirstHit {
+    t: f64,
+    prim: Option<bvh::PrimHit>,
+}
+
 /// The per-frame scene: primitives in a BVH plus the analytic ground plane and sky.
 struct FrameScene<'a> {
     bvh: Bvh,
@@ -182,29 +195,35 @@ struct FrameScene<'a> {
 }
 
 impl FrameScene<'_> {
-    /// Distance to the first surface (BVH or ground plane `z = 0`), if any.
-    fn first_hit(&self, ray: &Ray) -> Option<(f64, Option<bvh::PrimHit>)> {
+    /// The first surface along `ray` (BVH primitive or ground plane `z = 0`), if any.
+    fn first_hit(&self, ray: &Ray) -> Option<FirstHit> {
         let t_ground = if ray.dir.z < 0.0 {
             -ray.origin.z / ray.dir.z
         } else {
             f64::INFINITY
         };
         match self.bvh.closest(ray, t_ground) {
-            Some(h) => Some((h.hit.t, Some(h))),
-            None if t_ground.is_finite() => Some((t_ground, None)),
+            Some(h) => Some(FirstHit {
+                t: h.hit.t,
+                prim: Some(h),
+            }),
+            None if t_ground.is_finite() => Some(FirstHit {
+                t: t_ground,
+                prim: None,
+            }),
             None => None,
         }
     }
 
     fn range_only(&self, ray: &Ray) -> f64 {
         self.first_hit(ray)
-            .map_or(self.max_depth_m, |(t, _)| t.min(self.max_depth_m))
+            .map_or(self.max_depth_m, |h| h.t.min(self.max_depth_m))
     }
 
     fn trace(&self, ray: &Ray) -> Sample {
         let seed = self.params.tex_seed;
         let sun = self.params.sun_dir;
-        let Some((t, prim_hit)) = self.first_hit(ray) else {
+        let Some(FirstHit { t, prim: prim_hit }) = self.first_hit(ray) else {
             return Sample {
                 colour: material::sky(&ray.dir, &sun, self.pixel_angle_rad, seed),
                 range_m: self.max_depth_m,
@@ -217,8 +236,8 @@ impl FrameScene<'_> {
                 (prim.material, h.hit.normal, p - prim.object_origin)
             }
             None => {
-                let (m, origin) = world::ground_material(self.params, &p);
-                (m, Vector3::z(), p - origin)
+                let g = world::ground_material(self.params, &p);
+                (g.material, Vector3::z(), p - g.texture_origin)
             }
         };
         let cos_in = n.dot(&ray.dir);
@@ -239,8 +258,10 @@ impl FrameScene<'_> {
         } else {
             0.0
         };
-        let sky_w = 0.6 + 0.4 * n.z;
-        let ground_w = (-n.z).max(0.0) + 0.3 * (1.0 - n.z.abs());
+        // Hemispherical ambient: the sky fills `(1 + n_z) / 2` of a surface's view (slightly
+        // flattened), the ground the rest.
+        let sky_w = SKY_VIEW_BASE + (1.0 - SKY_VIEW_BASE) * n.z;
+        let ground_w = (-n.z).max(0.0) + GROUND_VIEW_SIDE * (1.0 - n.z.abs());
         let mut c = [0.0f32; 3];
         for i in 0..3 {
             c[i] = albedo[i]
@@ -249,13 +270,14 @@ impl FrameScene<'_> {
                     + GROUND_BOUNCE[i] * ground_w as f32);
         }
         if material == Material::Lamp {
-            c = [c[0] + 0.3, c[1] + 0.28, c[2] + 0.2];
+            for (ci, e) in c.iter_mut().zip(LAMP_EMISSION) {
+                *ci += e;
+            }
         }
         // Aerial perspective towards the horizon sky colour.
         let fog = (1.0 - (-t / FOG_DISTANCE_M).exp()) as f32;
-        let haze: Rgb = [0.75, 0.82, 0.92];
         for i in 0..3 {
-            c[i] += (haze[i] - c[i]) * fog;
+            c[i] += (material::HORIZON_SKY[i] - c[i]) * fog;
         }
         Sample {
             colour: c,

@@ -108,16 +108,32 @@ pub fn on_cross_street(params: &WorldParams, x_m: f64, margin_m: f64) -> bool {
         && (x_m - cross_street_centre_m(tile)).abs() <= CROSS_STREET_HALF_WIDTH_M + margin_m
 }
 
-/// Material of the ground plane `z = 0` at `p`, and the origin of its local coordinates
-/// (the cross street's centre for [`Material::CrossStreet`]).
-pub fn ground_material(params: &WorldParams, p: &Vector3<f64>) -> (Material, Vector3<f64>) {
+/// What the ground plane is at a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GroundSurface {
+    pub material: Material,
+    /// Origin of the material's local coordinates (the cross street's centre for
+    /// [`Material::CrossStreet`], else the world origin).
+    pub texture_origin: Vector3<f64>,
+}
+
+/// The ground plane `z = 0` at `p`: cross street, road (`|y| <= ROAD_HALF_WIDTH_M`) or grass.
+pub fn ground_material(params: &WorldParams, p: &Vector3<f64>) -> GroundSurface {
     if on_cross_street(params, p.x, 0.0) {
         let c = cross_street_centre_m(tile_of(p.x));
-        (Material::CrossStreet, Vector3::new(c, 0.0, 0.0))
-    } else if p.y.abs() <= ROAD_HALF_WIDTH_M {
-        (Material::Asphalt, Vector3::zeros())
+        return GroundSurface {
+            material: Material::CrossStreet,
+            texture_origin: Vector3::new(c, 0.0, 0.0),
+        };
+    }
+    let material = if p.y.abs() <= ROAD_HALF_WIDTH_M {
+        Material::Asphalt
     } else {
-        (Material::Grass, Vector3::zeros())
+        Material::Grass
+    };
+    GroundSurface {
+        material,
+        texture_origin: Vector3::zeros(),
     }
 }
 
