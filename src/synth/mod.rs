@@ -276,8 +276,8 @@ impl FrameScene<'_> {
         }
         // Aerial perspective towards the horizon sky colour.
         let fog = (1.0 - (-t / FOG_DISTANCE_M).exp()) as f32;
-        for i in 0..3 {
-            c[i] += (material::HORIZON_SKY[i] - c[i]) * fog;
+        for (ci, h) in c.iter_mut().zip(material::HORIZON_SKY) {
+            *ci += (h - *ci) * fog;
         }
         Sample {
             colour: c,
