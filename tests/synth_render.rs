@@ -460,3 +460,17 @@ fn textures_are_rich_at_matching_resolution() {
         assert!(full > 0.5 && quarter > 0.9, "{name}: {full} / {quarter}");
     }
 }
+
+#[test]
+fn single_camera_view_matches_the_rig_frame() {
+    let rig = deep360_rig();
+    let r = renderer(6, 128, false);
+    let frame = r.render_frame(&rig, 17);
+    for (c, cam) in rig.cameras.iter().enumerate() {
+        let view = r.render_camera(17, &(r.world_from_rig(17) * cam.rig_from_cam));
+        assert_eq!(view.image.as_raw(), frame.images[c].as_raw(), "camera {c}");
+        if c == rig.reference {
+            assert_eq!(Some(&view.range_m), frame.ground_truth.as_ref());
+        }
+    }
+}

@@ -162,6 +162,13 @@ pub struct FrameReport {
     pub soiling: Vec<CameraSoiling>,
 }
 
+/// A single rendered view: the ERP image and its range image (metres).
+#[derive(Clone, Debug)]
+pub struct CameraView {
+    pub image: RgbImage,
+    pub range_m: FloatImage,
+}
+
 /// Renders frames of a procedural street for any rig.
 pub struct SynthRenderer {
     cfg: SynthConfig,
@@ -382,17 +389,7 @@ impl SynthRenderer {
     pub fn render_frame_with_report(&self, rig: &Rig, index: usize) -> (RigFrame, FrameReport) {
         let t_s = self.frame_time_s(index);
         let world_from_rig = self.world_from_rig(index);
-        let scene = FrameScene {
-            bvh: Bvh::build(world::scene_prims(
-                &self.params,
-                world_from_rig.translation.x,
-                VIEW_RANGE_M,
-                t_s,
-            )),
-            params: &self.params,
-            pixel_angle_rad: std::f64::consts::PI / self.grid.height() as f64,
-            max_depth_m: self.cfg.max_depth_m,
-        };
+        let scene = self.frame_scene(index);
         let output_cam = rig
             .cameras
             .iter()
@@ -446,6 +443,31 @@ impl SynthRenderer {
                 soiling,
             },
         )
+    }
+
+    /// One clean ERP view from an arbitrary camera pose at the time of frame `index`, with
+    /// its own range image (same conventions as the ground truth). The scene is the one
+    /// around the rig's position at that frame.
+    pub fn render_camera(&self, index: usize, world_from_cam: &Isometry3<f64>) -> CameraView {
+        let scene = self.frame_scene(index);
+        let (image, range) = self.render_view(&scene, world_from_cam, true);
+        let range_m = range
+            .unwrap_or_else(|| FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN));
+        CameraView { image, range_m }
+    }
+
+    fn frame_scene(&self, index: usize) -> FrameScene<'_> {
+        FrameScene {
+            bvh: Bvh::build(world::scene_prims(
+                &self.params,
+                self.world_from_rig(index).translation.x,
+                VIEW_RANGE_M,
+                self.frame_time_s(index),
+            )),
+            params: &self.params,
+            pixel_angle_rad: std::f64::consts::PI / self.grid.height() as f64,
+            max_depth_m: self.cfg.max_depth_m,
+        }
     }
 
     fn render_view(
