@@ -4,6 +4,8 @@
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, Rig};
 
+pub mod photometric;
+
 /// What an estimator returns for one frame.
 #[derive(Clone, Debug)]
 pub struct DepthEstimate {
@@ -24,6 +26,8 @@ pub enum EstimatorError {
         width: u32,
         height: u32,
     },
+    #[error("estimator config field '{field}': {problem}")]
+    BadConfig { field: String, problem: String },
     #[error("{0}")]
     Geometry(#[from] crate::geometry::GeometryError),
 }

@@ -209,8 +209,14 @@ mod tests {
         let p = pair([0.3, 0.2, 0.0], [-0.4, 0.9, 0.1]);
         let pt = Vector3::new(4.0, -3.0, 1.5);
         let d = p.point_disparity(&pt);
-        let rho = p.range_from_disparity(d.phi_r_rad, d.disparity_rad).unwrap();
-        assert_relative_eq!(rho, (pt - Vector3::new(0.3, 0.2, 0.0)).norm(), epsilon = 1e-9);
+        let rho = p
+            .range_from_disparity(d.phi_r_rad, d.disparity_rad)
+            .unwrap();
+        assert_relative_eq!(
+            rho,
+            (pt - Vector3::new(0.3, 0.2, 0.0)).norm(),
+            epsilon = 1e-9
+        );
         let d2 = p.disparity_from_range(d.phi_l_rad, rho);
         assert_relative_eq!(d2, d.disparity_rad, epsilon = 1e-12);
     }

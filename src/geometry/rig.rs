@@ -152,10 +152,7 @@ fn finite_vec<const N: usize>(
     values: &[f64],
 ) -> Result<[f64; N], RigError> {
     if values.len() != N {
-        return Err(ctx.err(
-            field,
-            format!("expected {N} numbers, got {}", values.len()),
-        ));
+        return Err(ctx.err(field, format!("expected {N} numbers, got {}", values.len())));
     }
     if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
         return Err(ctx.err(field, format!("value {bad} is not finite")));
@@ -262,7 +259,10 @@ impl Rig {
             }
             let topic = non_empty(&ctx, "topic", &rc.topic)?;
             if !topics.insert(topic.clone()) {
-                return Err(ctx.err("topic", format!("topic '{topic}' is used by another camera")));
+                return Err(ctx.err(
+                    "topic",
+                    format!("topic '{topic}' is used by another camera"),
+                ));
             }
             let frame_id = non_empty(&ctx, "frame_id", &rc.frame_id)?;
             if !frames.insert(frame_id.clone()) {
@@ -295,12 +295,10 @@ impl Rig {
         }
         let reference = match &raw.reference_camera {
             None => 0,
-            Some(r) => cameras.iter().position(|c| &c.name == r).ok_or_else(|| {
-                top.err(
-                    "reference_camera",
-                    format!("no camera named '{r}'"),
-                )
-            })?,
+            Some(r) => cameras
+                .iter()
+                .position(|c| &c.name == r)
+                .ok_or_else(|| top.err("reference_camera", format!("no camera named '{r}'")))?,
         };
         let rig_frame = match &raw.rig_frame {
             None => DEFAULT_RIG_FRAME.to_string(),
@@ -393,7 +391,10 @@ impl Rig {
             }
             cameras.push(cam.clone());
         }
-        let reference = indices.iter().position(|&i| i == self.reference).unwrap_or(0);
+        let reference = indices
+            .iter()
+            .position(|&i| i == self.reference)
+            .unwrap_or(0);
         Ok(Self {
             rig_frame: self.rig_frame.clone(),
             cameras,
@@ -439,11 +440,19 @@ cameras:
         let p = rig.cameras[1].rig_from_cam * nalgebra::Point3::new(1.0, 0.0, 0.0);
         assert!((p.coords - Vector3::new(0.0, 0.0, 1.0)).norm() < 1e-6);
         let back = Rig::from_yaml_str(&rig.to_yaml(), "round").unwrap();
-        assert!((back.cameras[1].rig_from_cam.rotation.angle_to(&rig.cameras[1].rig_from_cam.rotation)) < 1e-9);
+        assert!(
+            (back.cameras[1]
+                .rig_from_cam
+                .rotation
+                .angle_to(&rig.cameras[1].rig_from_cam.rotation))
+                < 1e-9
+        );
     }
 
     fn expect_err(text: &str, needles: &[&str]) {
-        let e = Rig::from_yaml_str(text, "bad.yaml").unwrap_err().to_string();
+        let e = Rig::from_yaml_str(text, "bad.yaml")
+            .unwrap_err()
+            .to_string();
         for n in needles {
             assert!(e.contains(n), "error '{e}' should mention '{n}'");
         }
@@ -451,13 +460,31 @@ cameras:
 
     #[test]
     fn errors_name_file_camera_and_field() {
-        expect_err(&GOOD.replace("[0, 0, 0, 1]", "[0, 0, 0, 2]"), &["bad.yaml", "'a'", "rotation_xyzw", "norm"]);
-        expect_err(&GOOD.replace("[0, -1, 1]", "[0, .nan, 1]"), &["'b'", "translation", "not finite"]);
+        expect_err(
+            &GOOD.replace("[0, 0, 0, 1]", "[0, 0, 0, 2]"),
+            &["bad.yaml", "'a'", "rotation_xyzw", "norm"],
+        );
+        expect_err(
+            &GOOD.replace("[0, -1, 1]", "[0, .nan, 1]"),
+            &["'b'", "translation", "not finite"],
+        );
         expect_err(&GOOD.replace("name: b", "name: a"), &["duplicate"]);
-        expect_err(&GOOD.replace("    topic: /b/image\n", ""), &["'b'", "topic", "missing"]);
+        expect_err(
+            &GOOD.replace("    topic: /b/image\n", ""),
+            &["'b'", "topic", "missing"],
+        );
         expect_err("cameras: [", &["bad.yaml", "malformed YAML"]);
         expect_err("cameras: []", &["at least 2"]);
-        expect_err(&GOOD.replace("rotation_rpy: [0, 0, 1.5707963]", "rotation_rpy: [0, 0]"), &["expected 3 numbers"]);
-        expect_err(&GOOD.replace("frame_id: b_link", "frame_id: b_link\n    projection: fisheye"), &["unsupported projection"]);
+        expect_err(
+            &GOOD.replace("rotation_rpy: [0, 0, 1.5707963]", "rotation_rpy: [0, 0]"),
+            &["expected 3 numbers"],
+        );
+        expect_err(
+            &GOOD.replace(
+                "frame_id: b_link",
+                "frame_id: b_link\n    projection: fisheye",
+            ),
+            &["unsupported projection"],
+        );
     }
 }

@@ -132,7 +132,9 @@ impl SweepGeometry {
         Ok(Self {
             output,
             hypotheses,
-            cam_from_output: (0..rig.cameras.len()).map(|i| rig.cam_from_output(i)).collect(),
+            cam_from_output: (0..rig.cameras.len())
+                .map(|i| rig.cam_from_output(i))
+                .collect(),
             camera_grids,
         })
     }
