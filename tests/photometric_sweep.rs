@@ -43,6 +43,38 @@ fn explore_analytic_scene() -> TestResult {
         let secs = t0.elapsed().as_secs_f64();
         let s = scores(&out.range_m, &frame.ground_truth, max_depth_m);
         println!("{name} {width}: {s:?} {secs:.2}s");
+        if std::env::var("PHOTO_DUMP").is_ok() {
+            let (w, h) = (width as u32, width as u32 / 2);
+            let mut img = RgbImage::new(w, h * 2);
+            let mut sky_bad = 0;
+            let mut bad = 0;
+            for (k, (&p, &g)) in out
+                .range_m
+                .data
+                .iter()
+                .zip(&frame.ground_truth.data)
+                .enumerate()
+            {
+                let (u, v) = (k as u32 % w, k as u32 / w);
+                let ok = (p / g).max(g / p) < 1.25;
+                if !ok {
+                    bad += 1;
+                    if g >= 999.0 {
+                        sky_bad += 1;
+                    }
+                }
+                let enc = |d: f32| (255.0 * (1.0 / d).min(1.0).sqrt()) as u8;
+                img.put_pixel(
+                    u,
+                    v,
+                    image::Rgb([enc(g), enc(g), if ok { enc(g) } else { 255 }]),
+                );
+                img.put_pixel(u, v + h, image::Rgb([enc(p), enc(p), enc(p)]));
+            }
+            println!("bad {bad} of which sky {sky_bad}");
+            img.save(format!("/tmp/photo_{name}.png"))?;
+            frame.images[0].save("/tmp/photo_cam1.png")?;
+        }
     }
     Ok(())
 }

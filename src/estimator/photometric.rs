@@ -55,6 +55,8 @@ pub struct AggregationConfig {
     pub p1: f32,
     /// Penalty for a larger change (cost units).
     pub p2: f32,
+    /// Guide-image intensity step (in [0, 1]) at which `p2` is halved; 0 keeps `p2` fixed.
+    pub edge_scale: f32,
     /// Columns a row path runs before it starts accumulating, so the longitude seam is seamless.
     pub row_warmup_px: usize,
 }
@@ -65,6 +67,7 @@ impl Default for AggregationConfig {
             enabled: true,
             p1: 0.03,
             p2: 0.3,
+            edge_scale: 0.05,
             row_warmup_px: 64,
         }
     }
@@ -92,6 +95,9 @@ pub struct PhotometricConfig {
     /// `k = parallax_exponent`; 0 turns the weighting off.
     pub parallax_exponent: f32,
     pub aggregation: AggregationConfig,
+    /// Cost added per unit of normalized hypothesis index (`i / (D - 1)`), so that flat,
+    /// undecided cost curves (sky) resolve to the far end.
+    pub far_prior: f32,
     /// Cost margin (per pixel and path) at which the confidence reaches 1/2.
     pub confidence_margin: f32,
 }
@@ -108,6 +114,7 @@ impl Default for PhotometricConfig {
             best_pair_fraction: 0.5,
             parallax_exponent: 1.0,
             aggregation: AggregationConfig::default(),
+            far_prior: 0.02,
             confidence_margin: 0.05,
         }
     }
@@ -135,6 +142,8 @@ impl PhotometricConfig {
             ("mean_scale", self.mean_scale),
             ("confidence_margin", self.confidence_margin),
             ("parallax_exponent", self.parallax_exponent + 1.0),
+            ("far_prior", self.far_prior + 1.0),
+            ("aggregation.edge_scale", self.aggregation.edge_scale + 1.0),
         ] {
             if !(x.is_finite() && x > 0.0) {
                 return Err(bad(field, format!("{x} must be finite and positive")));
@@ -294,6 +303,7 @@ impl PhotometricSweep {
                 cost::sphere_cost(&views, &cache.pair_weights, w, h, &params)
             })
             .collect();
+        let prior_step = self.cfg.far_prior / (d_count - 1).max(1) as f32;
         let mut volume = vec![0.0f32; n * d_count];
         volume
             .par_chunks_mut(w * d_count)
@@ -301,8 +311,8 @@ impl PhotometricSweep {
             .for_each(|(v, row)| {
                 for (u, cell) in row.chunks_exact_mut(d_count).enumerate() {
                     let k = v * w + u;
-                    for (c, slice) in cell.iter_mut().zip(&slices) {
-                        *c = slice[k];
+                    for (i, (c, slice)) in cell.iter_mut().zip(&slices).enumerate() {
+                        *c = slice[k] + prior_step * i as f32;
                     }
                 }
             });
@@ -348,6 +358,35 @@ fn pair_parallax_weights(key: &CacheKey, exponent: f32) -> Vec<Vec<f32>> {
         }
     }
     weights
+}
+
+impl PhotometricSweep {
+    /// The output view for edge-aware aggregation: the camera nearest the output origin,
+    /// sampled on the farthest sphere (exact when it is the output camera).
+    fn guide_image(&self, grey: &[Vec<f32>], output: ErpGrid) -> Vec<f32> {
+        let mut guide = vec![0.0f32; output.len()];
+        let Some(cache) = self.cache.as_ref() else {
+            return guide;
+        };
+        let nearest = cache
+            .key
+            .cam_from_output
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                a.1.translation
+                    .vector
+                    .norm()
+                    .total_cmp(&b.1.translation.vector.norm())
+            })
+            .map(|(i, _)| i)
+            .unwrap_or(0);
+        if let (Some(sampler), Some(img)) = (cache.samplers.get(nearest), grey.get(nearest)) {
+            let far_m = self.hypotheses.depth_m(0.0) as f32;
+            sampler.warp(img, far_m, &mut guide);
+        }
+        guide
+    }
 }
 
 /// Grey image in [0, 1], row-major.
@@ -459,9 +498,12 @@ impl PhotometricSweep {
         let pen = sgm::SgmPenalties {
             p1: agg.p1,
             p2: agg.p2,
+            edge_scale: agg.edge_scale,
         };
+        let guide = self.guide_image(&grey, output);
         let summed = sgm::aggregate(
             &volume,
+            &guide,
             output.width(),
             output.height(),
             self.hypotheses.count(),

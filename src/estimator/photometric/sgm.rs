@@ -10,6 +10,9 @@
 //! S(p, d)   = sum_r L_r(p, d)
 //! ```
 //!
+//! `P2` adapts to the guide image `g` (the output view): across an intensity edge a depth jump
+//! is likelier, so `P2' = max(P1, P2 / (1 + |g(p) - g(p - r)| / s_edge))`.
+//!
 //! Rows are closed loops on the sphere: a row path starts `warmup` columns before the column
 //! where accumulation begins, so no seam appears at `u = 0`.
 
@@ -22,6 +25,20 @@ pub(crate) struct SgmPenalties {
     pub p1: f32,
     /// Penalty for a larger jump.
     pub p2: f32,
+    /// Guide intensity step at which `P2` is halved; 0 keeps `P2` fixed.
+    pub edge_scale: f32,
+}
+
+impl SgmPenalties {
+    /// Penalties between two neighbours of guide intensities `a` and `b`.
+    #[inline]
+    fn between(&self, a: f32, b: f32) -> SgmPenalties {
+        if self.edge_scale <= 0.0 {
+            return *self;
+        }
+        let p2 = (self.p2 / (1.0 + (a - b).abs() / self.edge_scale)).max(self.p1);
+        SgmPenalties { p2, ..*self }
+    }
 }
 
 /// Number of aggregation paths: left, right, down, up.
@@ -48,6 +65,7 @@ fn step(cost: &[f32], prev: &[f32], cur: &mut [f32], pen: SgmPenalties) {
 /// Aggregated cost `S` of `volume` (`[v][u][d]`, `w x h` pixels, `d_count` hypotheses).
 pub(crate) fn aggregate(
     volume: &[f32],
+    guide: &[f32],
     w: usize,
     h: usize,
     d_count: usize,
@@ -60,7 +78,8 @@ pub(crate) fn aggregate(
     // Row paths, both directions, one row per task.
     sum.par_chunks_mut(row_len)
         .zip(volume.par_chunks(row_len))
-        .for_each(|(sum_row, cost_row)| {
+        .zip(guide.par_chunks(w))
+        .for_each(|((sum_row, cost_row), guide_row)| {
             let mut prev = vec![0.0f32; d_count];
             let mut cur = vec![0.0f32; d_count];
             for forward in [true, false] {
@@ -78,7 +97,8 @@ pub(crate) fn aggregate(
                 for i in 1..w + warmup {
                     let u = col(i);
                     let c = &cost_row[u * d_count..(u + 1) * d_count];
-                    step(c, &prev, &mut cur, pen);
+                    let here = pen.between(guide_row[u], guide_row[col(i - 1)]);
+                    step(c, &prev, &mut cur, here);
                     if i >= warmup {
                         for (s, l) in sum_row[u * d_count..(u + 1) * d_count].iter_mut().zip(&cur) {
                             *s += l;
@@ -113,13 +133,17 @@ pub(crate) fn aggregate(
             let v = row_of(i);
             let cost_row = &volume[v * row_len..(v + 1) * row_len];
             let sum_row = &mut sum[v * row_len..(v + 1) * row_len];
+            let v_prev = row_of(i - 1);
+            let guide_here = &guide[v * w..(v + 1) * w];
+            let guide_prev = &guide[v_prev * w..(v_prev + 1) * w];
             cur.par_chunks_mut(d_count)
                 .zip(prev.par_chunks(d_count))
                 .zip(cost_row.par_chunks(d_count))
                 .zip(sum_row.par_chunks_mut(d_count))
+                .enumerate()
                 .with_min_len(16)
-                .for_each(|(((c, p), cost), s)| {
-                    step(cost, p, c, pen);
+                .for_each(|(u, (((c, p), cost), s))| {
+                    step(cost, p, c, pen.between(guide_here[u], guide_prev[u]));
                     for (si, ci) in s.iter_mut().zip(c.iter()) {
                         *si += ci;
                     }
@@ -146,8 +170,12 @@ mod tests {
         let odd = 2 * w; // (u=0, v=2), on the seam
         volume[odd * d + 2] = 0.6;
         volume[odd * d + 4] = 0.5;
-        let pen = SgmPenalties { p1: 0.1, p2: 0.4 };
-        let s = aggregate(&volume, w, h, d, pen, 4);
+        let pen = SgmPenalties {
+            p1: 0.1,
+            p2: 0.4,
+            edge_scale: 0.0,
+        };
+        let s = aggregate(&volume, &vec![0.0; w * h], w, h, d, pen, 4);
         let argmin = |k: usize| {
             (0..d)
                 .min_by(|&a, &b| s[k * d + a].total_cmp(&s[k * d + b]))
