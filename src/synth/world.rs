@@ -1,0 +1,405 @@
+//! The procedural street: static content generated per 24 m tile of road from the seed, and
+//! moving traffic and pedestrians as periodic streams evaluated at a time, so any stretch of
+//! an unbounded road can be produced lazily and identically for every frame.
+//!
+//! Layout across the road (y, REP 103 left positive): ego lane `[-4, 0]` (driving +x),
+//! oncoming lane `[0, 4]`, parking strips `4..7.5`, kerb and sidewalk `7.5..13.5` (0.15 m
+//! high), buildings from about 13 m outwards. Parked cars stand at `|y| = 6.4`, oncoming cars
+//! at `y = 2.4`, so nothing comes within about 3 m of a camera of a rig in the ego lane.
+
+use super::bvh::{Aabb, Prim, Shape};
+use super::material::{Material, Rgb, ROAD_HALF_WIDTH_M};
+use super::noise::{hash_words, Rng};
+use nalgebra::Vector3;
+
+/// Length of a tile of static content along x, metres.
+pub const TILE_LENGTH_M: f64 = 24.0;
+/// y of the ego lane centre, metres.
+pub const EGO_LANE_Y_M: f64 = -2.0;
+/// Sidewalk top height and outer edge, metres.
+pub const KERB_HEIGHT_M: f64 = 0.15;
+const SIDEWALK_OUTER_M: f64 = 13.5;
+/// Building fronts start this far from the road axis (plus a random setback).
+const BUILDING_FRONT_M: f64 = 13.0;
+const PARKED_CAR_Y_M: f64 = 6.4;
+const ONCOMING_CAR_Y_M: f64 = 2.4;
+const ONCOMING_SPEED_MPS: f64 = 9.0;
+const ONCOMING_SLOT_M: f64 = 32.0;
+const TREE_Y_M: f64 = 8.7;
+const POLE_Y_M: f64 = 8.0;
+/// Pedestrian streams: lateral position (magnitude), speed along x (signed) and slot spacing.
+const PEDESTRIAN_STREAMS: [PedestrianStream; 2] = [
+    PedestrianStream {
+        y_m: 10.2,
+        speed_mps: 1.3,
+        slot_m: 11.0,
+    },
+    PedestrianStream {
+        y_m: 11.6,
+        speed_mps: -1.2,
+        slot_m: 13.0,
+    },
+];
+
+struct PedestrianStream {
+    y_m: f64,
+    speed_mps: f64,
+    slot_m: f64,
+}
+
+const FACADE_COLOURS: [Rgb; 8] = [
+    [0.62, 0.48, 0.36],
+    [0.72, 0.68, 0.6],
+    [0.55, 0.3, 0.24],
+    [0.78, 0.74, 0.62],
+    [0.45, 0.47, 0.5],
+    [0.7, 0.58, 0.42],
+    [0.6, 0.62, 0.55],
+    [0.82, 0.8, 0.76],
+];
+const CAR_COLOURS: [Rgb; 8] = [
+    [0.6, 0.05, 0.04],
+    [0.05, 0.12, 0.4],
+    [0.7, 0.7, 0.72],
+    [0.08, 0.08, 0.09],
+    [0.85, 0.85, 0.82],
+    [0.15, 0.3, 0.15],
+    [0.55, 0.45, 0.1],
+    [0.3, 0.32, 0.35],
+];
+const CLOTHES_COLOURS: [Rgb; 6] = [
+    [0.1, 0.1, 0.3],
+    [0.5, 0.1, 0.1],
+    [0.1, 0.1, 0.1],
+    [0.6, 0.55, 0.4],
+    [0.2, 0.4, 0.2],
+    [0.7, 0.7, 0.7],
+];
+const SKIN_COLOURS: [Rgb; 3] = [[0.8, 0.6, 0.5], [0.55, 0.38, 0.28], [0.35, 0.22, 0.15]];
+
+/// Global, seed-dependent scene parameters.
+#[derive(Clone, Debug)]
+pub struct WorldParams {
+    pub seed: u64,
+    /// Unit vector towards the sun.
+    pub sun_dir: Vector3<f64>,
+    /// Texture seed (32-bit).
+    pub tex_seed: u32,
+}
+
+impl WorldParams {
+    pub fn new(seed: u64) -> Self {
+        let mut rng = Rng::new(&[seed, 0x5u64]);
+        let azimuth = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+        let elevation = rng.range(0.45, 1.05);
+        Self {
+            seed,
+            sun_dir: Vector3::new(
+                elevation.cos() * azimuth.cos(),
+                elevation.cos() * azimuth.sin(),
+                elevation.sin(),
+            ),
+            tex_seed: (hash_words(&[seed, 0x7]) >> 32) as u32,
+        }
+    }
+}
+
+fn aabox(min: [f64; 3], max: [f64; 3]) -> Shape {
+    Shape::Box(Aabb {
+        min: Vector3::from(min),
+        max: Vector3::from(max),
+    })
+}
+
+fn push(out: &mut Vec<Prim>, shape: Shape, material: Material, origin: Vector3<f64>) {
+    out.push(Prim {
+        shape,
+        material,
+        object_origin: origin,
+    });
+}
+
+/// A car of length `len` centred at `(x, y)` facing along x.
+fn car(out: &mut Vec<Prim>, x: f64, y: f64, rng: &mut Rng) {
+    let len = rng.range(3.9, 4.8);
+    let half_w = rng.range(0.82, 0.92);
+    let colour = CAR_COLOURS[rng.index(CAR_COLOURS.len())];
+    let roof = rng.range(1.4, 1.6);
+    let origin = Vector3::new(x, y, 0.0);
+    let body_top = 0.95;
+    push(
+        out,
+        aabox(
+            [x - len / 2.0, y - half_w, 0.3],
+            [x + len / 2.0, y + half_w, body_top],
+        ),
+        Material::CarPaint(colour),
+        origin,
+    );
+    let cab_front = x + len * rng.range(0.05, 0.15);
+    let cab_back = x - len * rng.range(0.3, 0.4);
+    push(
+        out,
+        aabox(
+            [cab_back, y - half_w + 0.1, body_top],
+            [cab_front, y + half_w - 0.1, roof - 0.06],
+        ),
+        Material::CarGlass,
+        origin,
+    );
+    push(
+        out,
+        aabox(
+            [cab_back + 0.05, y - half_w + 0.12, roof - 0.06],
+            [cab_front - 0.05, y + half_w - 0.12, roof],
+        ),
+        Material::CarPaint(colour),
+        origin,
+    );
+    let wheel_r = 0.33;
+    for dx in [-0.33 * len, 0.31 * len] {
+        for sy in [-1.0, 1.0] {
+            push(
+                out,
+                Shape::Cylinder {
+                    centre: Vector3::new(x + dx, y + sy * (half_w - 0.12), wheel_r),
+                    axis: 1,
+                    radius_m: wheel_r,
+                    half_length_m: 0.12,
+                },
+                Material::Tyre,
+                origin,
+            );
+        }
+    }
+}
+
+/// A pedestrian standing at `(x, y)` on the sidewalk, walking along x with gait phase `phase`.
+fn pedestrian(out: &mut Vec<Prim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
+    let z0 = KERB_HEIGHT_M;
+    let height = rng.range(1.6, 1.9);
+    let clothes = CLOTHES_COLOURS[rng.index(CLOTHES_COLOURS.len())];
+    let trousers = CLOTHES_COLOURS[rng.index(CLOTHES_COLOURS.len())];
+    let skin = SKIN_COLOURS[rng.index(SKIN_COLOURS.len())];
+    let origin = Vector3::new(x, y, z0);
+    let leg_h = 0.47 * height;
+    let swing = 0.18 * phase.sin();
+    for (sy, dx) in [(-1.0, swing), (1.0, -swing)] {
+        push(
+            out,
+            aabox(
+                [x + dx - 0.07, y + sy * 0.11 - 0.07, z0],
+                [x + dx + 0.07, y + sy * 0.11 + 0.07, z0 + leg_h],
+            ),
+            Material::Clothes(trousers),
+            origin,
+        );
+    }
+    let torso_top = z0 + 0.82 * height;
+    push(
+        out,
+        aabox(
+            [x - 0.13, y - 0.22, z0 + leg_h],
+            [x + 0.13, y + 0.22, torso_top],
+        ),
+        Material::Clothes(clothes),
+        origin,
+    );
+    let head_r = 0.5 * (height * 0.18 - 0.02);
+    push(
+        out,
+        Shape::Sphere {
+            centre: Vector3::new(x, y, torso_top + 0.02 + head_r),
+            radius_m: head_r,
+        },
+        Material::Skin(skin),
+        origin,
+    );
+}
+
+/// Static content of tile `tile` on side `side` (+1 left, -1 right).
+fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64) {
+    let mut rng = Rng::new(&[params.seed, tile as u64, side.to_bits(), 0x77]);
+    let x0 = tile as f64 * TILE_LENGTH_M;
+    let x1 = x0 + TILE_LENGTH_M;
+    let s = side;
+    let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
+    // Sidewalk slab (kerb face towards the road).
+    let (ya, yb) = lo_hi(s * ROAD_HALF_WIDTH_M, s * SIDEWALK_OUTER_M);
+    push(
+        out,
+        aabox([x0, ya, 0.0], [x1, yb, KERB_HEIGHT_M]),
+        Material::Paving,
+        Vector3::zeros(),
+    );
+    // Buildings: one to three per tile with small gaps.
+    let count = 1 + rng.index(3);
+    let mut x = x0;
+    for b in 0..count {
+        let remaining = x1 - x;
+        let width = if b + 1 == count {
+            remaining
+        } else {
+            remaining * rng.range(0.3, 0.7)
+        };
+        let gap = if rng.chance(0.3) {
+            rng.range(1.0, 3.0)
+        } else {
+            0.0
+        };
+        let front = BUILDING_FRONT_M
+            + if rng.chance(0.4) {
+                rng.range(0.5, 3.0)
+            } else {
+                0.0
+            };
+        let depth = rng.range(10.0, 16.0);
+        let height = if rng.chance(0.2) {
+            rng.range(22.0, 40.0)
+        } else {
+            rng.range(7.0, 20.0)
+        };
+        let (ya, yb) = lo_hi(s * front, s * (front + depth));
+        let bx0 = x + 0.5 * gap;
+        let bx1 = (x + width - 0.5 * gap).max(bx0 + 1.0);
+        let wall = FACADE_COLOURS[rng.index(FACADE_COLOURS.len())];
+        let jitter = rng.range(0.85, 1.1) as f32;
+        push(
+            out,
+            aabox([bx0, ya, 0.0], [bx1, yb, height]),
+            Material::Facade {
+                wall: [wall[0] * jitter, wall[1] * jitter, wall[2] * jitter],
+                floor_height_m: rng.range(2.9, 3.6) as f32,
+                bay_width_m: rng.range(2.2, 3.4) as f32,
+                seed: (rng.next_u64() >> 40) as u32,
+            },
+            Vector3::new(bx0, ya, 0.0),
+        );
+        x += width;
+    }
+    // Tree.
+    if rng.chance(0.75) {
+        let tx = x0 + rng.range(3.0, 9.0);
+        let ty = s * (TREE_Y_M + rng.range(-0.2, 0.2));
+        let trunk_h = rng.range(2.8, 3.8);
+        let origin = Vector3::new(tx, ty, 0.0);
+        push(
+            out,
+            Shape::Cylinder {
+                centre: Vector3::new(tx, ty, 0.5 * trunk_h),
+                axis: 2,
+                radius_m: rng.range(0.14, 0.24),
+                half_length_m: 0.5 * trunk_h,
+            },
+            Material::Bark,
+            origin,
+        );
+        let green: Rgb = [
+            rng.range(0.08, 0.16) as f32,
+            rng.range(0.2, 0.32) as f32,
+            rng.range(0.04, 0.1) as f32,
+        ];
+        let blobs = 2 + rng.index(3);
+        for _ in 0..blobs {
+            let r = rng.range(1.3, 2.2);
+            let rz = r * rng.range(0.8, 1.2);
+            let c = Vector3::new(
+                tx + rng.range(-0.8, 0.8),
+                ty + rng.range(-0.5, 0.5),
+                trunk_h + rz * 0.5 + rng.range(0.0, 1.2),
+            );
+            push(
+                out,
+                Shape::Ellipsoid {
+                    centre: c,
+                    radii_m: Vector3::new(r, r * 0.85, rz),
+                },
+                Material::Foliage(green),
+                origin,
+            );
+        }
+    }
+    // Street light: pole, arm over the parking strip, lamp head.
+    if rng.chance(0.8) {
+        let px = x0 + rng.range(14.0, 20.0);
+        let py = s * POLE_Y_M;
+        let h = rng.range(6.5, 8.0);
+        let origin = Vector3::new(px, py, 0.0);
+        push(
+            out,
+            Shape::Cylinder {
+                centre: Vector3::new(px, py, 0.5 * h),
+                axis: 2,
+                radius_m: 0.09,
+                half_length_m: 0.5 * h,
+            },
+            Material::Metal,
+            origin,
+        );
+        let arm_end = s * (POLE_Y_M - 1.6);
+        let (ya, yb) = lo_hi(py, arm_end);
+        push(
+            out,
+            aabox([px - 0.05, ya, h - 0.1], [px + 0.05, yb, h]),
+            Material::Metal,
+            origin,
+        );
+        let (la, lb) = lo_hi(arm_end, arm_end + s * 0.6);
+        push(
+            out,
+            aabox([px - 0.2, la, h - 0.22], [px + 0.2, lb, h - 0.1]),
+            Material::Lamp,
+            origin,
+        );
+    }
+    // Parked cars in the bays.
+    let mut cx = x0 + rng.range(1.0, 4.0);
+    while cx < x1 - 3.0 {
+        if rng.chance(0.55) {
+            car(out, cx + 2.5, s * PARKED_CAR_Y_M, &mut rng);
+        }
+        cx += rng.range(5.5, 7.0);
+    }
+}
+
+/// Every primitive within `range_m` of `x_centre_m` along the road at time `t_s`.
+pub fn scene_prims(params: &WorldParams, x_centre_m: f64, range_m: f64, t_s: f64) -> Vec<Prim> {
+    let mut out = Vec::new();
+    let first = ((x_centre_m - range_m) / TILE_LENGTH_M).floor() as i64;
+    let last = ((x_centre_m + range_m) / TILE_LENGTH_M).ceil() as i64;
+    for tile in first..=last {
+        for side in [1.0, -1.0] {
+            tile_content(&mut out, params, tile, side);
+        }
+    }
+    // Oncoming traffic: slot k's car is at k * slot + jitter - speed * t.
+    let shift = -ONCOMING_SPEED_MPS * t_s;
+    let k0 = ((x_centre_m - range_m - shift) / ONCOMING_SLOT_M).floor() as i64;
+    let k1 = ((x_centre_m + range_m - shift) / ONCOMING_SLOT_M).ceil() as i64;
+    for k in k0..=k1 {
+        let mut rng = Rng::new(&[params.seed, k as u64, 0x0C0C]);
+        if rng.chance(0.6) {
+            let x = k as f64 * ONCOMING_SLOT_M + rng.range(0.0, 0.5 * ONCOMING_SLOT_M) + shift;
+            car(&mut out, x, ONCOMING_CAR_Y_M, &mut rng);
+        }
+    }
+    // Pedestrians on both sidewalks.
+    for (si, side) in [1.0f64, -1.0].iter().enumerate() {
+        for (pi, st) in PEDESTRIAN_STREAMS.iter().enumerate() {
+            let shift = st.speed_mps * t_s;
+            let k0 = ((x_centre_m - range_m - shift) / st.slot_m).floor() as i64;
+            let k1 = ((x_centre_m + range_m - shift) / st.slot_m).ceil() as i64;
+            for k in k0..=k1 {
+                let mut rng = Rng::new(&[params.seed, k as u64, si as u64, pi as u64, 0xFEE7]);
+                if rng.chance(0.5) {
+                    let x = k as f64 * st.slot_m + rng.range(0.0, 0.6 * st.slot_m) + shift;
+                    let y = side * (st.y_m + rng.range(-0.3, 0.3));
+                    // Gait: one stride (two steps) per 1.4 m travelled.
+                    let phase = x / 1.4 * std::f64::consts::TAU + rng.range(0.0, 6.0);
+                    pedestrian(&mut out, x, y, phase, &mut rng);
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,283 @@
+//! Synthetic street renderer: determinism, analytic ground truth, multi-view consistency,
+//! soiling coverage, and a quick speed measurement.
+
+use mode360::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360::synth::{SynthConfig, SynthRenderer};
+use std::time::Instant;
+
+fn deep360_rig() -> Rig {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_deep360.yaml"
+    );
+    Rig::from_file(path).expect("rig_deep360.yaml")
+}
+
+fn renderer(seed: u64, width: usize, soiled: bool) -> SynthRenderer {
+    SynthRenderer::new(SynthConfig {
+        seed,
+        width,
+        soiled,
+        ..SynthConfig::default()
+    })
+    .expect("valid config")
+}
+
+/// The Deep360 rig with `cam` as reference (and so output) camera.
+fn rig_with_reference(cam: &str) -> Rig {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_deep360.yaml"
+    );
+    let text = std::fs::read_to_string(path).expect("rig yaml");
+    let text = text.replace(
+        "reference_camera: cam1",
+        &format!("reference_camera: {cam}"),
+    );
+    Rig::from_yaml_str(&text, "rig with other reference").expect("rig")
+}
+
+#[test]
+fn same_seed_same_bytes_other_seed_differs() {
+    let rig = deep360_rig();
+    let a = renderer(3, 128, true).render_frame(&rig, 7);
+    let b = renderer(3, 128, true).render_frame(&rig, 7);
+    let c = renderer(4, 128, true).render_frame(&rig, 7);
+    assert_eq!(a.stamp_ns, b.stamp_ns);
+    for (x, y) in a.images.iter().zip(&b.images) {
+        assert_eq!(x.as_raw(), y.as_raw());
+    }
+    assert_eq!(a.ground_truth, b.ground_truth);
+    let differing = a
+        .images
+        .iter()
+        .zip(&c.images)
+        .map(|(x, y)| {
+            x.as_raw()
+                .iter()
+                .zip(y.as_raw())
+                .filter(|(p, q)| p != q)
+                .count()
+        })
+        .sum::<usize>();
+    let total: usize = a.images.iter().map(|i| i.as_raw().len()).sum();
+    assert!(
+        differing * 2 > total,
+        "only {differing} of {total} bytes differ between seeds"
+    );
+    // Stamps advance by the frame period.
+    let r = renderer(3, 64, false);
+    assert_eq!(r.frame_stamp_ns(10) - r.frame_stamp_ns(0), 1_000_000_000);
+}
+
+#[test]
+fn ground_truth_matches_road_plane_and_sky() {
+    let rig = deep360_rig();
+    let r = renderer(11, 256, false);
+    let grid = ErpGrid::new(256).expect("grid");
+    for index in [0usize, 40] {
+        let frame = r.render_frame(&rig, index);
+        let gt = frame.ground_truth.expect("ground truth");
+        let world_from_out = r.world_from_rig(index) * rig.rig_from_output;
+        let o = world_from_out.translation.vector;
+        let (mut road_checked, mut sky_checked) = (0, 0);
+        for v in 0..grid.height() {
+            for u in 0..grid.width() {
+                let p = PixelCoord {
+                    u: u as f64,
+                    v: v as f64,
+                };
+                let d = world_from_out.rotation * grid.dir_from_pixel(p);
+                let lat = grid.lonlat_from_pixel(p).lat_rad;
+                let got = gt.get(u, v) as f64;
+                if d.z < -0.2 {
+                    // Where the ray meets z = 0 inside the ego lane, nothing can be in between.
+                    let expected = o.z / (-lat).sin();
+                    let hit = o + d * expected;
+                    if hit.y > -3.8 && hit.y < -0.2 && (hit.x - o.x).abs() < 12.0 {
+                        assert!(
+                            ((got - expected) / expected).abs() < 1e-3,
+                            "frame {index} pixel ({u},{v}): {got} vs road plane {expected}"
+                        );
+                        road_checked += 1;
+                    }
+                }
+                if lat > 80f64.to_radians() {
+                    assert_eq!(got, 1000.0, "sky pixel ({u},{v})");
+                    sky_checked += 1;
+                }
+                assert!(got > 0.0 && got <= 1000.0);
+            }
+        }
+        assert!(road_checked > 1000, "road pixels checked: {road_checked}");
+        assert!(sky_checked > 1000, "sky pixels checked: {sky_checked}");
+    }
+}
+
+/// Bilinear colour sample with longitude wrap.
+fn sample_rgb(img: &image::RgbImage, grid: &ErpGrid, p: PixelCoord) -> [f32; 3] {
+    let taps = grid.bilinear_taps(p);
+    let raw = img.as_raw();
+    let mut out = [0.0f32; 3];
+    for (idx, w) in taps.index.iter().zip(taps.weight) {
+        for (c, o) in out.iter_mut().enumerate() {
+            *o += raw[*idx as usize * 3 + c] as f32 * w;
+        }
+    }
+    out
+}
+
+#[test]
+fn colours_agree_across_views() {
+    let width = 512;
+    let rig1 = deep360_rig();
+    let r = renderer(5, width, false);
+    let grid = ErpGrid::new(width).expect("grid");
+    let index = 12;
+    let f1 = r.render_frame(&rig1, index);
+    let gt1 = f1.ground_truth.clone().expect("gt");
+    for (cam_index, cam_name) in [(1usize, "cam2"), (2, "cam3"), (3, "cam4")] {
+        // Ground truth of the other camera, for the occlusion test.
+        let rig_other = rig_with_reference(cam_name);
+        let f_other = r.render_frame(&rig_other, index);
+        let gt_other = f_other.ground_truth.expect("gt");
+        assert_eq!(
+            f_other.images[cam_index].as_raw(),
+            f1.images[cam_index].as_raw()
+        );
+        let out_from_rig = rig1.rig_from_output.inverse();
+        let other_from_rig = rig1.cameras[cam_index].rig_from_cam.inverse();
+        let mut diffs = Vec::new();
+        for v in (0..grid.height()).step_by(2) {
+            for u in (0..grid.width()).step_by(2) {
+                let p = PixelCoord {
+                    u: u as f64,
+                    v: v as f64,
+                };
+                let range = gt1.get(u, v) as f64;
+                if range >= 100.0 {
+                    continue;
+                }
+                let point_out = grid.dir_from_pixel(p) * range;
+                let point_rig = out_from_rig.inverse() * nalgebra::Point3::from(point_out);
+                let point_other = other_from_rig * point_rig;
+                let q = grid.pixel_from_dir(&point_other.coords);
+                let visible = gt_other.get(
+                    (q.u.round() as i64).rem_euclid(width as i64) as usize,
+                    (q.v.round().clamp(0.0, (grid.height() - 1) as f64)) as usize,
+                ) as f64;
+                let dist = point_other.coords.norm();
+                if (visible - dist).abs() > 0.01 * dist {
+                    continue; // occluded in the other view
+                }
+                let a = f1.images[0].get_pixel(u as u32, v as u32).0;
+                let b = sample_rgb(&f1.images[cam_index], &grid, q);
+                let diff = (0..3).map(|c| (a[c] as f32 - b[c]).abs()).sum::<f32>() / 3.0;
+                diffs.push(diff);
+            }
+        }
+        diffs.sort_by(f32::total_cmp);
+        let n = diffs.len();
+        assert!(n > 5000, "{cam_name}: only {n} co-visible pixels");
+        let median = diffs[n / 2];
+        let p80 = diffs[n * 4 / 5];
+        println!("{cam_name}: {n} co-visible pixels, median |diff| {median:.2}, p80 {p80:.2}");
+        assert!(
+            median < 6.0,
+            "{cam_name}: median colour difference {median}"
+        );
+        assert!(
+            p80 < 16.0,
+            "{cam_name}: 80th percentile colour difference {p80}"
+        );
+    }
+}
+
+#[test]
+fn soiling_covers_5_to_20_percent_of_chosen_cameras_only() {
+    let rig = deep360_rig();
+    let clean = renderer(21, 256, false);
+    let soiled = renderer(21, 256, true);
+    let mut soiled_cams = 0;
+    for index in 0..6 {
+        let (fc, rc) = clean.render_frame_with_report(&rig, index);
+        let (fs, rs) = soiled.render_frame_with_report(&rig, index);
+        assert_eq!(
+            fc.ground_truth, fs.ground_truth,
+            "soiling must not touch ground truth"
+        );
+        assert!(rc.soiling.iter().all(|s| s.coverage == 0.0));
+        let mut n = 0;
+        for (c, s) in rs.soiling.iter().enumerate() {
+            let changed = fc.images[c]
+                .as_raw()
+                .chunks(3)
+                .zip(fs.images[c].as_raw().chunks(3))
+                .filter(|(a, b)| a != b)
+                .count() as f64
+                / (256.0 * 128.0);
+            if s.coverage > 0.0 {
+                n += 1;
+                assert!(
+                    (0.05..=0.20).contains(&s.coverage),
+                    "coverage {}",
+                    s.coverage
+                );
+                assert!(
+                    changed >= 0.8 * s.coverage,
+                    "changed {changed} vs {}",
+                    s.coverage
+                );
+            } else {
+                assert_eq!(
+                    changed, 0.0,
+                    "clean camera {c} of frame {index} was modified"
+                );
+            }
+        }
+        assert!((1..=2).contains(&n), "frame {index}: {n} soiled cameras");
+        soiled_cams += n;
+    }
+    assert!(soiled_cams >= 6);
+}
+
+#[test]
+fn renders_quickly_and_saves_previews() {
+    let rig = deep360_rig();
+    let r = renderer(1, 512, false);
+    let _ = r.render_frame(&rig, 0); // warm up
+    let frames = 5;
+    let start = Instant::now();
+    let mut finite = 0usize;
+    for i in 0..frames {
+        let f = r.render_frame(&rig, 10 * i);
+        finite += f
+            .ground_truth
+            .map_or(0, |g| g.data.iter().filter(|d| d.is_finite()).count());
+    }
+    let fps = frames as f64 / start.elapsed().as_secs_f64();
+    println!(
+        "synth render: {fps:.2} frames/s (4 cameras + ground truth, 512x256, {} threads)",
+        rayon::current_num_threads()
+    );
+    assert_eq!(finite, frames * 512 * 256);
+    if std::env::var_os("SYNTH_PREVIEW").is_some() {
+        let soiled = renderer(1, 512, true);
+        for i in [0usize, 30] {
+            let f = soiled.render_frame(&rig, i);
+            for (c, img) in f.images.iter().enumerate() {
+                let _ = img.save(format!("/tmp/synth_f{i}_cam{}.png", c + 1));
+            }
+            if let Some(gt) = f.ground_truth {
+                let px: Vec<u8> = gt
+                    .data
+                    .iter()
+                    .map(|d| (255.0 * (1.0 - (d.ln() / 1000f32.ln()).clamp(0.0, 1.0))) as u8)
+                    .collect();
+                if let Some(img) = image::GrayImage::from_raw(512, 256, px) {
+                    let _ = img.save(format!("/tmp/synth_f{i}_gt.png"));
+                }
+            }
+        }
+    }
+}
