@@ -78,3 +78,83 @@ fn explore_analytic_scene() -> TestResult {
     }
     Ok(())
 }
+
+#[test]
+#[ignore = "exploration: prints metrics on rendered street frames"]
+fn explore_synth() -> TestResult {
+    use mode360::synth::{SynthConfig, SynthRenderer};
+    let rig = Rig::from_file(RIG_PATH)?;
+    let env_num = |k: &str, d: usize| {
+        std::env::var(k)
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(d)
+    };
+    let width = env_num("PHOTO_WIDTH", 512);
+    let seeds = env_num("PHOTO_SEEDS", 2);
+    let frames = env_num("PHOTO_FRAMES", 1);
+    let soiled = std::env::var("PHOTO_SOILED").is_ok();
+    let max_depth_m = 1000.0;
+    let cfg: PhotometricConfig = match std::env::var("PHOTO_CFG") {
+        Ok(json) => serde_json::from_str(&json)?,
+        Err(_) => PhotometricConfig::default(),
+    };
+    let sets: Vec<(&str, Vec<usize>)> = match std::env::var("PHOTO_SETS") {
+        Ok(s) if s == "4" => vec![("4cam", vec![0, 1, 2, 3])],
+        _ => vec![
+            ("4cam", vec![0, 1, 2, 3]),
+            ("3cam", vec![0, 1, 2]),
+            ("2cam", vec![0, 1]),
+        ],
+    };
+    for (name, idx) in sets {
+        let sub = rig.subset(&idx)?;
+        let mut est = PhotometricSweep::new(cfg.clone())?;
+        let (mut d1, mut ar, mut mae, mut rmse, mut secs, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for seed in 0..seeds as u64 {
+            let renderer = SynthRenderer::new(SynthConfig {
+                seed,
+                width,
+                soiled,
+                ..Default::default()
+            })?;
+            for f in 0..frames {
+                let frame = renderer.render_frame(&rig, f * 5);
+                let Some(gt) = frame.ground_truth.as_ref() else {
+                    continue;
+                };
+                let imgs: Vec<RgbImage> = idx.iter().map(|&i| frame.images[i].clone()).collect();
+                let t0 = Instant::now();
+                let out = est.estimate(&sub, &imgs, ErpGrid::new(width)?)?;
+                secs += t0.elapsed().as_secs_f64();
+                let s = scores(&out.range_m, gt, max_depth_m);
+                println!("  {name} seed {seed} frame {}: {s:?}", f * 5);
+                d1 += s.delta1;
+                ar += s.abs_rel;
+                mae += s.mae_m;
+                rmse += s.rmse_m;
+                n += 1.0;
+                if std::env::var("PHOTO_DUMP").is_ok() && seed == 0 && f == 0 {
+                    let (w, h) = (width as u32, width as u32 / 2);
+                    let mut img = RgbImage::new(w, h * 2);
+                    for (k, (&p, &g)) in out.range_m.data.iter().zip(&gt.data).enumerate() {
+                        let (u, v) = (k as u32 % w, k as u32 / w);
+                        let ok = (p / g).max(g / p) < 1.25;
+                        let enc = |d: f32| (255.0 * (1.0 / d).min(1.0).sqrt()) as u8;
+                        img.put_pixel(
+                            u,
+                            v,
+                            image::Rgb([enc(g), enc(g), if ok { enc(g) } else { 255 }]),
+                        );
+                        img.put_pixel(u, v + h, image::Rgb([enc(p), enc(p), enc(p)]));
+                    }
+                    img.save(format!("/tmp/photo_synth_{name}.png"))?;
+                    frame.images[0].save("/tmp/photo_synth_cam1.png")?;
+                }
+            }
+        }
+        println!("{name} {width} soiled={soiled}: delta1 {:.4} absrel {:.4} mae {:.2} rmse {:.2} s/frame {:.2}",
+            d1 / n, ar / n, mae / n, rmse / n, secs / n);
+    }
+    Ok(())
+}

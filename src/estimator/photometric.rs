@@ -66,8 +66,8 @@ impl Default for AggregationConfig {
         Self {
             enabled: true,
             p1: 0.03,
-            p2: 0.3,
-            edge_scale: 0.05,
+            p2: 0.6,
+            edge_scale: 0.02,
             row_warmup_px: 64,
         }
     }
@@ -108,9 +108,9 @@ impl Default for PhotometricConfig {
             hypotheses: 128,
             depth_range: DepthRange::paper(),
             window_radius_px: 2,
-            variance_floor: 1e-4,
-            mean_weight: 0.1,
-            mean_scale: 0.1,
+            variance_floor: 1e-6,
+            mean_weight: 0.3,
+            mean_scale: 0.03,
             best_pair_fraction: 0.5,
             parallax_exponent: 1.0,
             aggregation: AggregationConfig::default(),
@@ -285,20 +285,40 @@ impl PhotometricSweep {
         let n = output.len();
         let d_count = self.hypotheses.count();
         let params = self.pair_params(grey.len());
+        // Views whose sampling is the identity are the same on every sphere: compute once.
+        let fixed: Vec<Option<ViewStats>> = cache
+            .samplers
+            .iter()
+            .zip(grey)
+            .map(|(sampler, img)| {
+                sampler.identity.then(|| {
+                    let mut tmp = vec![0.0f32; n];
+                    ViewStats::new(img.clone(), w, h, params.window_radius_px, &mut tmp)
+                })
+            })
+            .collect();
         let slices: Vec<Vec<f32>> = (0..d_count)
             .into_par_iter()
             .map(|i| {
                 let range_m = self.hypotheses.depth_m(i as f64) as f32;
                 let mut tmp = vec![0.0f32; n];
-                let views: Vec<ViewStats> = cache
+                let warped: Vec<Option<ViewStats>> = cache
                     .samplers
                     .iter()
                     .zip(grey)
-                    .map(|(sampler, img)| {
-                        let mut warped = vec![0.0f32; n];
-                        sampler.warp(img, range_m, &mut warped);
-                        ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp)
+                    .zip(&fixed)
+                    .map(|((sampler, img), fixed)| {
+                        fixed.is_none().then(|| {
+                            let mut warped = vec![0.0f32; n];
+                            sampler.warp(img, range_m, &mut warped);
+                            ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp)
+                        })
                     })
+                    .collect();
+                let views: Vec<&ViewStats> = warped
+                    .iter()
+                    .zip(&fixed)
+                    .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
                     .collect();
                 cost::sphere_cost(&views, &cache.pair_weights, w, h, &params)
             })

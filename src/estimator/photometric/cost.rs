@@ -108,7 +108,7 @@ impl ViewStats {
 /// pair's cost toward the undecided `1/2` where the pair has little parallax:
 /// `cost' = w cost + (1 - w) / 2`.
 pub(crate) fn sphere_cost(
-    views: &[ViewStats],
+    views: &[&ViewStats],
     pair_weights: &[Vec<f32>],
     w: usize,
     h: usize,
@@ -152,8 +152,17 @@ pub(crate) fn sphere_cost(
 fn combine_best(pair_costs: &[Vec<f32>], n: usize, best: usize) -> Vec<f32> {
     let pairs = pair_costs.len();
     let best = best.clamp(1, pairs.max(1));
-    if pairs == 1 {
-        return pair_costs[0].clone();
+    if best == pairs {
+        // Plain mean of all pairs.
+        let mut out = pair_costs[0].clone();
+        for c in &pair_costs[1..] {
+            for (o, x) in out.iter_mut().zip(c) {
+                *o += x;
+            }
+        }
+        let inv = 1.0 / pairs as f32;
+        out.iter_mut().for_each(|o| *o *= inv);
+        return out;
     }
     let mut out = vec![0.0f32; n];
     let mut buf = vec![0.0f32; pairs];
