@@ -184,14 +184,14 @@ pub fn render(
                     };
                     let dir = pose.rotation * grid.dir_from_pixel(p);
                     let hit = cast(origin, dir);
-                    for c in 0..3 {
-                        rgb[c] += hit.rgb[c];
+                    for (acc, c) in rgb.iter_mut().zip(hit.rgb) {
+                        *acc += c;
                     }
                 }
             }
             let n = (SUBSAMPLES * SUBSAMPLES) as f64;
-            for c in 0..3 {
-                px[c] = (rgb[c] / n * 255.0).clamp(0.0, 255.0).round() as u8;
+            for (out, c) in px.0.iter_mut().zip(rgb) {
+                *out = (c / n * 255.0).clamp(0.0, 255.0).round() as u8;
             }
         }
         images.push(img);

@@ -36,8 +36,8 @@ pub(crate) fn box_mean(
         for du in 0..=2 * r {
             sum += row_in[(du + w * (r / w + 1) - r) % w];
         }
-        for u in 0..w {
-            row_tmp[u] = sum;
+        for (u, t) in row_tmp.iter_mut().enumerate() {
+            *t = sum;
             let add = (u + r + 1) % w;
             let sub = (u + w * (r / w + 1) - r) % w;
             sum += row_in[add] - row_in[sub];

@@ -27,7 +27,7 @@ const TAN_PI_8: f32 = 0.414_213_57;
 const ATAN_P3: f32 = 8.053_744_5e-2;
 const ATAN_P2: f32 = -1.387_768_6e-1;
 const ATAN_P1: f32 = 1.997_771_1e-1;
-const ATAN_P0: f32 = -3.333_294_9e-1;
+const ATAN_P0: f32 = -3.333_295e-1;
 
 /// Arctangent of `x >= 0` with range reduction at `tan(pi/8)` and `tan(3pi/8)`.
 #[inline]
