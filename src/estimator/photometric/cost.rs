@@ -1,0 +1,225 @@
+//! Photometric matching cost of one sphere: windowed ZNCC between every camera pair, combined
+//! robustly to occlusion by averaging only the best pairs.
+//!
+//! For a pair `(a, b)` of warped grey images and a `(2r+1)^2` window (box means `E[.]`):
+//!
+//! ```text
+//! var_a = E[a^2] - E[a]^2,   cov = E[ab] - E[a] E[b]
+//! zncc  = cov / sqrt((var_a + eps) (var_b + eps))
+//! cost  = (1 - w_mean) (1 - zncc) / 2 + w_mean min(|E[a] - E[b]| / s_mean, 1)
+//! ```
+//!
+//! The variance floor `eps` sends flat windows to `zncc = 0` (cost 1/2, undecided) rather than to
+//! noise; the mean term separates flat regions of different brightness. The pixel's cost is the
+//! mean of its `k` smallest pair costs: a camera that is occluded spoils only its own pairs.
+
+/// Cost of a pair that cannot tell hypotheses apart.
+pub(crate) const UNDECIDED_COST: f32 = 0.5;
+
+/// Windowed box mean with longitude wrap along rows and replicated rows at the poles.
+///
+/// `out[v][u] = mean_{|dv|<=r, |du|<=r} in[clamp(v+dv)][(u+du) mod W]`; `tmp` is scratch of
+/// the same size.
+pub(crate) fn box_mean(
+    input: &[f32],
+    w: usize,
+    h: usize,
+    r: usize,
+    tmp: &mut [f32],
+    out: &mut [f32],
+) {
+    let n = (2 * r + 1) as f32;
+    let inv_area = 1.0 / (n * n);
+    // Horizontal running sums with wrap.
+    for (row_in, row_tmp) in input.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+        let mut sum = 0.0f32;
+        for du in 0..=2 * r {
+            sum += row_in[(du + w * (r / w + 1) - r) % w];
+        }
+        for (u, t) in row_tmp.iter_mut().enumerate() {
+            *t = sum;
+            let add = (u + r + 1) % w;
+            let sub = (u + w * (r / w + 1) - r) % w;
+            sum += row_in[add] - row_in[sub];
+        }
+    }
+    // Vertical running sums with clamped rows.
+    let row = |v: isize| -> usize { v.clamp(0, h as isize - 1) as usize };
+    let mut acc = vec![0.0f32; w];
+    for dv in -(r as isize)..=(r as isize) {
+        let src = &tmp[row(dv) * w..row(dv) * w + w];
+        for (a, s) in acc.iter_mut().zip(src) {
+            *a += s;
+        }
+    }
+    for v in 0..h {
+        let out_row = &mut out[v * w..v * w + w];
+        for (o, a) in out_row.iter_mut().zip(&acc) {
+            *o = a * inv_area;
+        }
+        let add = row(v as isize + r as isize + 1) * w;
+        let sub = row(v as isize - r as isize) * w;
+        for u in 0..w {
+            acc[u] += tmp[add + u] - tmp[sub + u];
+        }
+    }
+}
+
+/// Parameters of the pair cost.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PairCostParams {
+    pub window_radius_px: usize,
+    pub variance_floor: f32,
+    pub mean_weight: f32,
+    pub mean_scale: f32,
+    /// How many of the pair costs (the smallest) are averaged per pixel.
+    pub best_pairs: usize,
+}
+
+/// Windowed statistics of one warped view.
+pub(crate) struct ViewStats {
+    pub image: Vec<f32>,
+    pub mean: Vec<f32>,
+    /// `E[a^2] - E[a]^2`.
+    pub variance: Vec<f32>,
+}
+
+impl ViewStats {
+    pub fn new(image: Vec<f32>, w: usize, h: usize, r: usize, tmp: &mut [f32]) -> Self {
+        let mut mean = vec![0.0; image.len()];
+        box_mean(&image, w, h, r, tmp, &mut mean);
+        let sq: Vec<f32> = image.iter().map(|x| x * x).collect();
+        let mut variance = vec![0.0; image.len()];
+        box_mean(&sq, w, h, r, tmp, &mut variance);
+        for (var, m) in variance.iter_mut().zip(&mean) {
+            *var = (*var - m * m).max(0.0);
+        }
+        Self {
+            image,
+            mean,
+            variance,
+        }
+    }
+}
+
+/// Matching cost of every output pixel for one sphere from the warped views.
+///
+/// `pair_weights` (one per pair, in `(a, b)`, `a < b` order, each per pixel or empty) blend a
+/// pair's cost toward the undecided `1/2` where the pair has little parallax:
+/// `cost' = w cost + (1 - w) / 2`.
+pub(crate) fn sphere_cost(
+    views: &[&ViewStats],
+    pair_weights: &[Vec<f32>],
+    w: usize,
+    h: usize,
+    p: &PairCostParams,
+) -> Vec<f32> {
+    let n = w * h;
+    let mut tmp = vec![0.0f32; n];
+    let mut product = vec![0.0f32; n];
+    let mut cross = vec![0.0f32; n];
+    let mut pair_costs: Vec<Vec<f32>> = Vec::new();
+    for a in 0..views.len() {
+        for b in a + 1..views.len() {
+            let (va, vb) = (&views[a], &views[b]);
+            for ((x, ia), ib) in product.iter_mut().zip(&va.image).zip(&vb.image) {
+                *x = ia * ib;
+            }
+            box_mean(&product, w, h, p.window_radius_px, &mut tmp, &mut cross);
+            let mut cost = vec![0.0f32; n];
+            for k in 0..n {
+                let (ma, mb) = (va.mean[k], vb.mean[k]);
+                let cov = cross[k] - ma * mb;
+                let denom = ((va.variance[k] + p.variance_floor)
+                    * (vb.variance[k] + p.variance_floor))
+                    .sqrt();
+                let zncc = (cov / denom).clamp(-1.0, 1.0);
+                let mean_term = ((ma - mb).abs() / p.mean_scale).min(1.0);
+                cost[k] = (1.0 - p.mean_weight) * 0.5 * (1.0 - zncc) + p.mean_weight * mean_term;
+            }
+            if let Some(weights) = pair_weights.get(pair_costs.len()).filter(|x| !x.is_empty()) {
+                for (c, wt) in cost.iter_mut().zip(weights) {
+                    *c = wt * *c + (1.0 - wt) * UNDECIDED_COST;
+                }
+            }
+            pair_costs.push(cost);
+        }
+    }
+    combine_best(&pair_costs, n, p.best_pairs)
+}
+
+/// Per pixel, the mean of the `best` smallest of the pair costs.
+fn combine_best(pair_costs: &[Vec<f32>], n: usize, best: usize) -> Vec<f32> {
+    let pairs = pair_costs.len();
+    let best = best.clamp(1, pairs.max(1));
+    if best == pairs {
+        // Plain mean of all pairs.
+        let mut out = pair_costs[0].clone();
+        for c in &pair_costs[1..] {
+            for (o, x) in out.iter_mut().zip(c) {
+                *o += x;
+            }
+        }
+        let inv = 1.0 / pairs as f32;
+        out.iter_mut().for_each(|o| *o *= inv);
+        return out;
+    }
+    let mut out = vec![0.0f32; n];
+    let mut buf = vec![0.0f32; pairs];
+    for (k, o) in out.iter_mut().enumerate() {
+        for (b, c) in buf.iter_mut().zip(pair_costs) {
+            *b = c[k];
+        }
+        // Insertion sort: the pair count is small (6 for four cameras).
+        for i in 1..pairs {
+            let x = buf[i];
+            let mut j = i;
+            while j > 0 && buf[j - 1] > x {
+                buf[j] = buf[j - 1];
+                j -= 1;
+            }
+            buf[j] = x;
+        }
+        *o = buf[..best].iter().sum::<f32>() / best as f32;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_mean_wraps_columns_and_clamps_rows() {
+        let (w, h, r) = (6usize, 3usize, 1usize);
+        let input: Vec<f32> = (0..w * h).map(|i| ((i * 13) % 7) as f32).collect();
+        let mut tmp = vec![0.0; w * h];
+        let mut out = vec![0.0; w * h];
+        box_mean(&input, w, h, r, &mut tmp, &mut out);
+        for v in 0..h as isize {
+            for u in 0..w as isize {
+                let mut sum = 0.0;
+                for dv in -1..=1isize {
+                    for du in -1..=1isize {
+                        let vv = (v + dv).clamp(0, h as isize - 1) as usize;
+                        let uu = (u + du).rem_euclid(w as isize) as usize;
+                        sum += input[vv * w + uu];
+                    }
+                }
+                let got = out[v as usize * w + u as usize];
+                assert!(
+                    (got - sum / 9.0).abs() < 1e-5,
+                    "({u},{v}) {got} vs {}",
+                    sum / 9.0
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn best_pairs_ignore_an_outlier() {
+        let costs = vec![vec![0.1f32], vec![0.9], vec![0.2]];
+        let out = combine_best(&costs, 1, 2);
+        assert!((out[0] - 0.15).abs() < 1e-6);
+    }
+}

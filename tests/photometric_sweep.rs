@@ -1,0 +1,389 @@
+//! Accuracy of the photometric sphere sweep against exact ground truth.
+
+mod photometric_scene;
+
+use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
+use mode360::estimator::{DepthEstimator, EstimatorError};
+use mode360::frame::RgbImage;
+use mode360::geometry::{ErpGrid, Rig};
+use photometric_scene::{render, scores};
+use std::time::Instant;
+
+const RIG_PATH: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/launch_configs/rig_deep360.yaml"
+);
+
+type TestResult = Result<(), Box<dyn std::error::Error>>;
+
+/// Width of the test frames (256x128 keeps CI time low).
+const TEST_WIDTH: usize = 256;
+const MAX_DEPTH_M: f64 = 1000.0;
+/// delta1 threshold ratio.
+const DELTA1_RATIO: f32 = 1.25;
+// Thresholds below were measured with the default config (numbers in brackets) and given
+// margin.
+/// Analytic scene, 4 cameras: delta1 [0.964], AbsRel [0.045].
+const MIN4: f64 = 0.93;
+const MAXR4: f64 = 0.07;
+/// Analytic scene, cameras 1-3: delta1 [0.963], AbsRel [0.045].
+const MIN3: f64 = 0.93;
+const MAXR3: f64 = 0.07;
+/// Analytic scene, cameras 1-2: delta1 [0.958], AbsRel [0.061].
+const MIN2: f64 = 0.92;
+const MAXR2: f64 = 0.09;
+/// Fraction of sky pixels answered with exactly max_depth [0.925].
+const MIN_SKY: f64 = 0.85;
+/// Refined inverse-depth MAE must be below this fraction of plain WTA's [0.0062 / 0.0078 = 0.79].
+const REFINE_FACTOR: f64 = 0.9;
+/// Mean confidence on correct pixels over that on wrong ones [0.882 / 0.703 = 1.25].
+const CONF_FACTOR: f64 = 1.1;
+/// Rendered street frame (seed 0, frame 0, 256x128, 4 cameras): delta1 [0.913].
+const MIN_STREET: f64 = 0.87;
+
+fn estimate_analytic(
+    cameras: &[usize],
+    refine: bool,
+) -> Result<
+    (
+        mode360::estimator::DepthEstimate,
+        photometric_scene::SceneFrame,
+    ),
+    Box<dyn std::error::Error>,
+> {
+    let rig = Rig::from_file(RIG_PATH)?;
+    let frame = render(&rig, TEST_WIDTH, MAX_DEPTH_M)?;
+    let sub = rig.subset(cameras)?;
+    let imgs: Vec<RgbImage> = cameras.iter().map(|&i| frame.images[i].clone()).collect();
+    let mut est = PhotometricSweep::new(PhotometricConfig::default())?;
+    let out = est.estimate_with(&sub, &imgs, ErpGrid::new(TEST_WIDTH)?, refine)?;
+    Ok((out, frame))
+}
+
+#[test]
+fn analytic_scene_accuracy_for_four_three_and_two_cameras() -> TestResult {
+    for (cameras, min_delta1, max_abs_rel) in [
+        (vec![0, 1, 2, 3], MIN4, MAXR4),
+        (vec![0, 1, 2], MIN3, MAXR3),
+        (vec![0, 1], MIN2, MAXR2),
+    ] {
+        let (out, frame) = estimate_analytic(&cameras, true)?;
+        let s = scores(&out.range_m, &frame.ground_truth, MAX_DEPTH_M);
+        println!("{} cameras: {s:?}", cameras.len());
+        assert_eq!(s.pixels, TEST_WIDTH * TEST_WIDTH / 2);
+        assert!(
+            s.delta1 >= min_delta1,
+            "{} cameras: delta1 {} < {min_delta1}",
+            cameras.len(),
+            s.delta1
+        );
+        assert!(
+            s.abs_rel <= max_abs_rel,
+            "{} cameras: AbsRel {} > {max_abs_rel}",
+            cameras.len(),
+            s.abs_rel
+        );
+        let conf_ok = out.confidence.data.iter().all(|c| (0.0..=1.0).contains(c));
+        assert!(conf_ok, "confidence outside [0, 1]");
+    }
+    Ok(())
+}
+
+#[test]
+fn sky_resolves_to_max_depth() -> TestResult {
+    let (out, frame) = estimate_analytic(&[0, 1, 2, 3], true)?;
+    let sky: Vec<f32> = frame
+        .ground_truth
+        .data
+        .iter()
+        .zip(&out.range_m.data)
+        .filter(|(g, _)| **g as f64 >= MAX_DEPTH_M)
+        .map(|(_, p)| *p)
+        .collect();
+    let at_max =
+        sky.iter().filter(|p| **p as f64 == MAX_DEPTH_M).count() as f64 / sky.len().max(1) as f64;
+    println!("sky pixels {} at max depth {at_max}", sky.len());
+    assert!(
+        sky.len() > TEST_WIDTH * TEST_WIDTH / 8,
+        "scene has too little sky"
+    );
+    assert!(
+        at_max >= MIN_SKY,
+        "only {at_max} of sky pixels at max depth"
+    );
+    Ok(())
+}
+
+#[test]
+fn parabolic_refinement_beats_plain_winner_take_all() -> TestResult {
+    let (refined, frame) = estimate_analytic(&[0, 1, 2, 3], true)?;
+    let (plain, _) = estimate_analytic(&[0, 1, 2, 3], false)?;
+    // Error in inverse depth on non-sky pixels, where the sweep is uniform.
+    let inv_err = |pred: &[f32]| {
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for (&p, &g) in pred.iter().zip(&frame.ground_truth.data) {
+            if (g as f64) < MAX_DEPTH_M {
+                sum += (1.0 / p as f64 - 1.0 / g as f64).abs();
+                n += 1;
+            }
+        }
+        sum / n.max(1) as f64
+    };
+    let (e_ref, e_plain) = (inv_err(&refined.range_m.data), inv_err(&plain.range_m.data));
+    let s_ref = scores(&refined.range_m, &frame.ground_truth, MAX_DEPTH_M);
+    let s_plain = scores(&plain.range_m, &frame.ground_truth, MAX_DEPTH_M);
+    println!(
+        "inverse-depth MAE refined {e_ref} plain {e_plain}; AbsRel {} vs {}",
+        s_ref.abs_rel, s_plain.abs_rel
+    );
+    assert!(
+        e_ref < REFINE_FACTOR * e_plain,
+        "refined {e_ref} vs plain {e_plain}"
+    );
+    assert!(s_ref.abs_rel < s_plain.abs_rel);
+    Ok(())
+}
+
+#[test]
+fn confidence_is_higher_on_correct_pixels() -> TestResult {
+    let (out, frame) = estimate_analytic(&[0, 1, 2, 3], true)?;
+    let (mut good, mut bad) = (Vec::new(), Vec::new());
+    for ((&p, &g), &c) in out
+        .range_m
+        .data
+        .iter()
+        .zip(&frame.ground_truth.data)
+        .zip(&out.confidence.data)
+    {
+        if (p / g).max(g / p) < DELTA1_RATIO {
+            good.push(c as f64);
+        } else {
+            bad.push(c as f64);
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    println!(
+        "confidence correct {} ({}) wrong {} ({})",
+        mean(&good),
+        good.len(),
+        mean(&bad),
+        bad.len()
+    );
+    assert!(!bad.is_empty() && !good.is_empty());
+    assert!(
+        mean(&good) > CONF_FACTOR * mean(&bad),
+        "{} vs {}",
+        mean(&good),
+        mean(&bad)
+    );
+    Ok(())
+}
+
+#[test]
+fn rendered_street_frame_accuracy() -> TestResult {
+    use mode360::synth::{SynthConfig, SynthRenderer};
+    let rig = Rig::from_file(RIG_PATH)?;
+    let renderer = SynthRenderer::new(SynthConfig {
+        seed: 0,
+        width: TEST_WIDTH,
+        soiled: false,
+        ..Default::default()
+    })?;
+    let frame = renderer.render_frame(&rig, 0);
+    let gt = frame
+        .ground_truth
+        .as_ref()
+        .ok_or("renderer gave no ground truth")?;
+    let mut est = PhotometricSweep::new(PhotometricConfig::default())?;
+    let out = est.estimate(&rig, &frame.images, ErpGrid::new(TEST_WIDTH)?)?;
+    let s = scores(&out.range_m, gt, MAX_DEPTH_M);
+    println!("street 256x128: {s:?}");
+    assert!(s.delta1 >= MIN_STREET, "delta1 {}", s.delta1);
+    // The rig cache is reused on the next call and gives the same answer.
+    let again = est.estimate(&rig, &frame.images, ErpGrid::new(TEST_WIDTH)?)?;
+    assert_eq!(again.range_m.data, out.range_m.data);
+    Ok(())
+}
+
+#[test]
+fn wrong_image_count_or_size_is_an_error() -> TestResult {
+    let rig = Rig::from_file(RIG_PATH)?;
+    let mut est = PhotometricSweep::new(PhotometricConfig {
+        hypotheses: 8,
+        ..Default::default()
+    })?;
+    let grid = ErpGrid::new(32)?;
+    let good = RgbImage::new(32, 16);
+    let three = vec![good.clone(), good.clone(), good.clone()];
+    match est.estimate(&rig, &three, grid) {
+        Err(EstimatorError::ImageCount {
+            got: 3,
+            expected: 4,
+        }) => {}
+        other => panic!("expected ImageCount error, got {other:?}"),
+    }
+    for (w, h) in [(32u32, 32u32), (31, 15), (2, 1)] {
+        let mut images = vec![good.clone(); 4];
+        images[2] = RgbImage::new(w, h);
+        match est.estimate(&rig, &images, grid) {
+            Err(EstimatorError::BadImageSize {
+                camera,
+                width,
+                height,
+            }) => {
+                assert_eq!(camera, "cam3");
+                assert_eq!((width, height), (w, h));
+            }
+            other => panic!("expected BadImageSize for {w}x{h}, got {other:?}"),
+        }
+    }
+    // Mixed but valid sizes work: one camera at twice the resolution.
+    let mut images = vec![good.clone(); 4];
+    images[1] = RgbImage::new(64, 32);
+    let out = est.estimate(&rig, &images, grid)?;
+    assert_eq!(out.range_m.data.len(), grid.len());
+    Ok(())
+}
+
+#[test]
+#[ignore = "exploration: prints metrics"]
+fn explore_analytic_scene() -> TestResult {
+    let rig = Rig::from_file(RIG_PATH)?;
+    let width: usize = std::env::var("PHOTO_WIDTH")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(256);
+    let max_depth_m = 1000.0;
+    let frame = render(&rig, width, max_depth_m)?;
+    for (name, idx) in [
+        ("4cam", vec![0, 1, 2, 3]),
+        ("3cam", vec![0, 1, 2]),
+        ("2cam", vec![0, 1]),
+    ] {
+        let sub = rig.subset(&idx)?;
+        let imgs: Vec<RgbImage> = idx.iter().map(|&i| frame.images[i].clone()).collect();
+        let cfg: PhotometricConfig = match std::env::var("PHOTO_CFG") {
+            Ok(json) => serde_json::from_str(&json)?,
+            Err(_) => PhotometricConfig::default(),
+        };
+        let mut est = PhotometricSweep::new(cfg)?;
+        let t0 = Instant::now();
+        let out = est.estimate(&sub, &imgs, ErpGrid::new(width)?)?;
+        let secs = t0.elapsed().as_secs_f64();
+        let s = scores(&out.range_m, &frame.ground_truth, max_depth_m);
+        println!("{name} {width}: {s:?} {secs:.2}s");
+        if std::env::var("PHOTO_DUMP").is_ok() {
+            let (w, h) = (width as u32, width as u32 / 2);
+            let mut img = RgbImage::new(w, h * 2);
+            let mut sky_bad = 0;
+            let mut bad = 0;
+            for (k, (&p, &g)) in out
+                .range_m
+                .data
+                .iter()
+                .zip(&frame.ground_truth.data)
+                .enumerate()
+            {
+                let (u, v) = (k as u32 % w, k as u32 / w);
+                let ok = (p / g).max(g / p) < 1.25;
+                if !ok {
+                    bad += 1;
+                    if g >= 999.0 {
+                        sky_bad += 1;
+                    }
+                }
+                let enc = |d: f32| (255.0 * (1.0 / d).min(1.0).sqrt()) as u8;
+                img.put_pixel(
+                    u,
+                    v,
+                    image::Rgb([enc(g), enc(g), if ok { enc(g) } else { 255 }]),
+                );
+                img.put_pixel(u, v + h, image::Rgb([enc(p), enc(p), enc(p)]));
+            }
+            println!("bad {bad} of which sky {sky_bad}");
+            img.save(format!("/tmp/photo_{name}.png"))?;
+            frame.images[0].save("/tmp/photo_cam1.png")?;
+        }
+    }
+    Ok(())
+}
+
+#[test]
+#[ignore = "exploration: prints metrics on rendered street frames"]
+fn explore_synth() -> TestResult {
+    use mode360::synth::{SynthConfig, SynthRenderer};
+    let rig = Rig::from_file(RIG_PATH)?;
+    let env_num = |k: &str, d: usize| {
+        std::env::var(k)
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(d)
+    };
+    let width = env_num("PHOTO_WIDTH", 512);
+    let seeds = env_num("PHOTO_SEEDS", 2);
+    let frames = env_num("PHOTO_FRAMES", 1);
+    let soiled = std::env::var("PHOTO_SOILED").is_ok();
+    let max_depth_m = 1000.0;
+    let cfg: PhotometricConfig = match std::env::var("PHOTO_CFG") {
+        Ok(json) => serde_json::from_str(&json)?,
+        Err(_) => PhotometricConfig::default(),
+    };
+    let sets: Vec<(&str, Vec<usize>)> = match std::env::var("PHOTO_SETS") {
+        Ok(s) if s == "4" => vec![("4cam", vec![0, 1, 2, 3])],
+        _ => vec![
+            ("4cam", vec![0, 1, 2, 3]),
+            ("3cam", vec![0, 1, 2]),
+            ("2cam", vec![0, 1]),
+        ],
+    };
+    for (name, idx) in sets {
+        let sub = rig.subset(&idx)?;
+        let mut est = PhotometricSweep::new(cfg.clone())?;
+        let (mut d1, mut ar, mut mae, mut rmse, mut secs, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for seed in 0..seeds as u64 {
+            let renderer = SynthRenderer::new(SynthConfig {
+                seed,
+                width,
+                soiled,
+                ..Default::default()
+            })?;
+            for f in 0..frames {
+                let frame = renderer.render_frame(&rig, f * 5);
+                let Some(gt) = frame.ground_truth.as_ref() else {
+                    continue;
+                };
+                let imgs: Vec<RgbImage> = idx.iter().map(|&i| frame.images[i].clone()).collect();
+                let t0 = Instant::now();
+                let out = est.estimate(&sub, &imgs, ErpGrid::new(width)?)?;
+                secs += t0.elapsed().as_secs_f64();
+                let s = scores(&out.range_m, gt, max_depth_m);
+                println!("  {name} seed {seed} frame {}: {s:?}", f * 5);
+                d1 += s.delta1;
+                ar += s.abs_rel;
+                mae += s.mae_m;
+                rmse += s.rmse_m;
+                n += 1.0;
+                if std::env::var("PHOTO_DUMP").is_ok() && seed == 0 && f == 0 {
+                    let (w, h) = (width as u32, width as u32 / 2);
+                    let mut img = RgbImage::new(w, h * 2);
+                    for (k, (&p, &g)) in out.range_m.data.iter().zip(&gt.data).enumerate() {
+                        let (u, v) = (k as u32 % w, k as u32 / w);
+                        let ok = (p / g).max(g / p) < 1.25;
+                        let enc = |d: f32| (255.0 * (1.0 / d).min(1.0).sqrt()) as u8;
+                        img.put_pixel(
+                            u,
+                            v,
+                            image::Rgb([enc(g), enc(g), if ok { enc(g) } else { 255 }]),
+                        );
+                        img.put_pixel(u, v + h, image::Rgb([enc(p), enc(p), enc(p)]));
+                    }
+                    img.save(format!("/tmp/photo_synth_{name}.png"))?;
+                    frame.images[0].save("/tmp/photo_synth_cam1.png")?;
+                }
+            }
+        }
+        println!("{name} {width} soiled={soiled}: delta1 {:.4} absrel {:.4} mae {:.2} rmse {:.2} s/frame {:.2}",
+            d1 / n, ar / n, mae / n, rmse / n, secs / n);
+    }
+    Ok(())
+}
