@@ -241,3 +241,40 @@ fn upsample_trilinear_forward_gradient_and_composite() {
     let gc = (&yc * &r).unwrap().sum_all().unwrap().backward().unwrap();
     assert!(max_abs_diff(&values(gc.get(x.as_tensor()).unwrap()), &g) < FWD_TOL);
 }
+
+/// Many more samples than pixels (the sweep case): the backward scatters per thread.
+#[test]
+fn table_sample_dense_table_gradient_matches_composite() {
+    let grid = ErpGrid::new(8).unwrap(); // 4 x 8 = 32 pixels
+    let (h, w, c) = (grid.height(), grid.width(), 2);
+    let n = 4000;
+    let table = SampleTable::new(
+        &pseudo_random(2 * n, 81)
+            .chunks(2)
+            .map(|p| {
+                grid.bilinear_taps(PixelCoord {
+                    u: (p[0] + 1.0) * 0.5 * w as f64,
+                    v: (p[1] + 1.0) * 0.5 * h as f64 - 0.5,
+                })
+            })
+            .collect::<Vec<_>>(),
+    );
+    let fv = pseudo_random(h * w * c, 82);
+    let rv = pseudo_random(n * c, 83);
+    let features = Var::from_tensor(&tensor(&fv, &[1, h, w, c])).unwrap();
+    let r = tensor(&rv, &[1, n, c]);
+    let grad_of = |out: Tensor| {
+        let grads = (&out * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        values(grads.get(features.as_tensor()).unwrap())
+    };
+    let g = grad_of(table_sample(features.as_tensor(), &table).unwrap());
+    let gc = grad_of(table_sample_composite(features.as_tensor(), &table).unwrap());
+    // each pixel collects ~500 products of magnitude < 1
+    assert!(g.iter().any(|v| v.abs() > 1.0));
+    let err = max_abs_diff(&g, &gc);
+    assert!(err < 1e-3, "custom vs composite {err}");
+    // and the exact adjoint identity <S f, r> = <f, Sᵀ r>
+    let out = values(&table_sample(features.as_tensor(), &table).unwrap());
+    let (l, rr) = (dot(&out, &rv), dot(&fv, &g));
+    assert!((l - rr).abs() < 1e-3 * l.abs().max(1.0), "{l} vs {rr}");
+}

@@ -4,7 +4,9 @@
 //! `(B, H, W, C)` seen as `(B, H·W, C)`. Backward to the features is the transposed table, stored
 //! as compressed rows: for every pixel `p`, the list of `(n, weight)` whose taps hit `p`, so that
 //! `grad_features[b, p, c] = Σ_{(n, w) ∈ row p} w · grad_out[b, n, c]` is a parallel gather with
-//! no write conflicts. The table itself gets no gradient.
+//! no write conflicts. When there are many more samples than pixels (a sweep volume sampling one
+//! feature image), a scatter-add streaming through the samples with one accumulator per thread
+//! is faster and is used instead. The table itself gets no gradient.
 
 use std::borrow::Cow;
 use std::sync::{Arc, OnceLock};
@@ -234,6 +236,59 @@ impl CustomOp1 for TableSampleOp {
     }
 }
 
+/// `out[p] += Σ_{(n, w) ∈ row p} w · g[n]` over the transposed table, one task per pixel block:
+/// no write conflicts, but reads of `g` jump around.
+fn gather_transposed(t: &TransposedTable, g: &[f32], out: &mut [f32], c: usize) {
+    out.par_chunks_mut(PIXELS_PER_TASK * c)
+        .enumerate()
+        .for_each(|(task, out_task)| {
+            for (j, o) in out_task.chunks_mut(c).enumerate() {
+                let p = task * PIXELS_PER_TASK + j;
+                for e in t.start[p]..t.start[p + 1] {
+                    let (s, w) = (t.sample[e] as usize, t.weight[e]);
+                    for (o, v) in o.iter_mut().zip(&g[s * c..(s + 1) * c]) {
+                        *o += w * v;
+                    }
+                }
+            }
+        });
+}
+
+/// `out[index[n][k]] += weight[n][k] · g[n]` streaming through `g` in sample order, one
+/// private accumulator per thread (summed at the end): for many more samples than pixels.
+fn scatter_add(table: &SampleTable, g: &[f32], out: &mut [f32], c: usize, threads: usize) {
+    let (index, weight) = (table.flat_indices(), table.flat_weights());
+    let n = table.len();
+    let per_thread = n.div_ceil(threads);
+    let partials: Vec<Vec<f32>> = (0..threads)
+        .into_par_iter()
+        .map(|t| {
+            let mut acc = vec![0f32; out.len()];
+            for s in t * per_thread..((t + 1) * per_thread).min(n) {
+                let src = &g[s * c..(s + 1) * c];
+                for k in s * SampleTable::TAPS..(s + 1) * SampleTable::TAPS {
+                    let (p, w) = (index[k] as usize, weight[k]);
+                    for (o, v) in acc[p * c..(p + 1) * c].iter_mut().zip(src) {
+                        *o += w * v;
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
+    out.par_chunks_mut(PIXELS_PER_TASK * c)
+        .enumerate()
+        .for_each(|(task, chunk)| {
+            let start = task * PIXELS_PER_TASK * c;
+            let len = chunk.len();
+            for part in &partials {
+                for (o, v) in chunk.iter_mut().zip(&part[start..start + len]) {
+                    *o += v;
+                }
+            }
+        });
+}
+
 /// The adjoint of [`TableSampleOp`]: `(B, N, C) -> (B, H, W, C)`.
 struct TableSampleTransposeOp {
     table: SampleTable,
@@ -250,26 +305,17 @@ impl CustomOp1 for TableSampleTransposeOp {
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
         let g = cpu_slice(storage, layout, self.name())?;
-        let t = self.table.transposed(self.pixels);
         let (n, c) = (self.table.len(), self.channels);
         let mut out = vec![0f32; self.batch * self.pixels * c];
+        let threads = rayon::current_num_threads().max(1);
+        let scatter = n >= self.pixels * threads;
         for (b, out_b) in out.chunks_mut(self.pixels * c).enumerate() {
             let g_b = &g[b * n * c..(b + 1) * n * c];
-            out_b
-                .par_chunks_mut(PIXELS_PER_TASK * c)
-                .enumerate()
-                .for_each(|(task, out_task)| {
-                    for (j, o) in out_task.chunks_mut(c).enumerate() {
-                        let p = task * PIXELS_PER_TASK + j;
-                        for e in t.start[p]..t.start[p + 1] {
-                            let (s, w) = (t.sample[e] as usize, t.weight[e]);
-                            let src = &g_b[s * c..(s + 1) * c];
-                            for (o, v) in o.iter_mut().zip(src) {
-                                *o += w * v;
-                            }
-                        }
-                    }
-                });
+            if scatter {
+                scatter_add(&self.table, g_b, out_b, c, threads);
+            } else {
+                gather_transposed(&self.table.transposed(self.pixels), g_b, out_b, c);
+            }
         }
         let [h, w] = self.image;
         Ok((CpuStorage::F32(out), Shape::from((self.batch, h, w, c))))
