@@ -57,14 +57,9 @@ fn pad_spatial(x: &Tensor, padding: [usize; 3]) -> Result<Tensor> {
 /// The input values one kernel tap `t` sees: `xp[b, o·s + t, ci]` as `(B·Do·Ho·Wo, Ci)`.
 fn tap_columns(xp: &Tensor, g: &Conv3dGeometry, tap: [usize; 3]) -> Result<Tensor> {
     let mut t = xp.clone();
-    for axis in 0..SPATIAL_AXES_3D {
-        t = strided_window(
-            &t,
-            FIRST_SPATIAL_AXIS + axis,
-            tap[axis],
-            g.out_dims[axis],
-            g.stride[axis],
-        )?;
+    let per_axis = tap.iter().zip(g.out_dims.iter().zip(g.stride.iter()));
+    for (axis, (&start, (&n, &s))) in per_axis.enumerate() {
+        t = strided_window(&t, FIRST_SPATIAL_AXIS + axis, start, n, s)?;
     }
     // (B, Do, Ho, Wo, Ci) -> (B·Do·Ho·Wo, Ci)
     t.reshape(((), g.c_in))
