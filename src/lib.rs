@@ -6,12 +6,12 @@
 
 pub mod bag;
 pub mod estimator;
-// pub mod eval; // TEMPORARILY disabled in the ops worktree by the lead: needs modules from other branches
+pub mod eval;
 pub mod frame;
 pub mod geometry;
 pub mod metrics;
 pub mod model;
 pub mod msgs;
-// pub mod record; // TEMPORARILY disabled in the ops worktree by the lead
+pub mod record;
 pub mod synth;
 pub mod viz;
