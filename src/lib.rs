@@ -10,6 +10,7 @@ pub mod eval;
 pub mod frame;
 pub mod geometry;
 pub mod metrics;
+pub mod model;
 pub mod msgs;
 pub mod record;
 pub mod sync;

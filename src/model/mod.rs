@@ -1,0 +1,3 @@
+//! The SSMODE network and its building blocks (candle).
+
+pub mod ops;

@@ -1,0 +1,327 @@
+//! Bilinear gathering through a precomputed table of taps (the spherical-sweep sampling).
+//!
+//! Forward: `out[b, n, c] = Σ_{k<4} weight[n][k] · features[b, index[n][k], c]` with the features
+//! `(B, H, W, C)` seen as `(B, H·W, C)`. Backward to the features is the transposed table, stored
+//! as compressed rows: for every pixel `p`, the list of `(n, weight)` whose taps hit `p`, so that
+//! `grad_features[b, p, c] = Σ_{(n, w) ∈ row p} w · grad_out[b, n, c]` is a parallel gather with
+//! no write conflicts. When there are many more samples than pixels (a sweep volume sampling one
+//! feature image), a scatter-add streaming through the samples with one accumulator per thread
+//! is faster and is used instead. The table itself gets no gradient.
+
+use std::borrow::Cow;
+use std::sync::{Arc, OnceLock};
+
+use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
+use rayon::prelude::*;
+
+use super::conv3d::cpu_slice;
+use super::{composite, dims_of, has_custom_kernels, OpsError};
+use crate::geometry::BilinearTaps;
+
+/// Rank of the features `(B, H, W, C)`.
+const FEATURE_RANK: usize = 4;
+/// Output samples per rayon task in the forward gather.
+const SAMPLES_PER_TASK: usize = 256;
+/// Pixels per rayon task in the transposed gather.
+const PIXELS_PER_TASK: usize = 256;
+
+/// For every source pixel `p`, the samples that read it: `entries[start[p]..start[p + 1]]`.
+#[derive(Clone, Debug)]
+struct TransposedTable {
+    pixels: usize,
+    /// `pixels + 1` offsets into `sample` and `weight`.
+    start: Vec<usize>,
+    sample: Vec<u32>,
+    weight: Vec<f32>,
+}
+
+#[derive(Debug)]
+struct TableData {
+    /// `4 N` pixel indices into `H·W`, row-major per sample.
+    index: Vec<u32>,
+    /// `4 N` bilinear weights.
+    weight: Vec<f32>,
+    /// Largest index + 1 (0 for an empty table): the fewest pixels the features must have.
+    min_pixels: usize,
+    /// Built on first backward, for the pixel count seen then.
+    transposed: OnceLock<TransposedTable>,
+}
+
+/// A precomputed bilinear sampling table: 4 pixel indices and 4 weights per output sample.
+/// Cheap to clone (shared).
+#[derive(Clone, Debug)]
+pub struct SampleTable {
+    data: Arc<TableData>,
+}
+
+impl From<Vec<BilinearTaps>> for SampleTable {
+    fn from(taps: Vec<BilinearTaps>) -> Self {
+        Self::new(&taps)
+    }
+}
+
+impl SampleTable {
+    /// Taps per output sample.
+    pub const TAPS: usize = 4;
+
+    /// A table with one output sample per element of `taps`, in order.
+    pub fn new(taps: &[BilinearTaps]) -> Self {
+        let index: Vec<u32> = taps.iter().flat_map(|t| t.index).collect();
+        let weight: Vec<f32> = taps.iter().flat_map(|t| t.weight).collect();
+        let min_pixels = index.iter().max().map_or(0, |&m| m as usize + 1);
+        Self {
+            data: Arc::new(TableData {
+                index,
+                weight,
+                min_pixels,
+                transposed: OnceLock::new(),
+            }),
+        }
+    }
+
+    /// Number of output samples N.
+    pub fn len(&self) -> usize {
+        self.data.index.len() / Self::TAPS
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.data.index.is_empty()
+    }
+
+    /// All indices, `4 N`, sample-major.
+    pub fn flat_indices(&self) -> &[u32] {
+        &self.data.index
+    }
+
+    /// All weights, `4 N`, sample-major.
+    pub fn flat_weights(&self) -> &[f32] {
+        &self.data.weight
+    }
+
+    /// Errors unless every index is below `pixels`.
+    pub(super) fn check_pixels(&self, pixels: usize, op: &'static str) -> Result<()> {
+        if self.data.min_pixels > pixels {
+            return Err(OpsError::TableIndex {
+                op,
+                index: (self.data.min_pixels - 1) as u32,
+                pixels,
+            }
+            .into());
+        }
+        Ok(())
+    }
+
+    /// The transposed table for features of `pixels` pixels; cached for the first size seen.
+    fn transposed(&self, pixels: usize) -> Cow<'_, TransposedTable> {
+        let cached = self
+            .data
+            .transposed
+            .get_or_init(|| build_transposed(&self.data.index, &self.data.weight, pixels));
+        if cached.pixels == pixels {
+            Cow::Borrowed(cached)
+        } else {
+            Cow::Owned(build_transposed(
+                &self.data.index,
+                &self.data.weight,
+                pixels,
+            ))
+        }
+    }
+}
+
+/// Counting sort of the `(sample, weight)` pairs by pixel.
+fn build_transposed(index: &[u32], weight: &[f32], pixels: usize) -> TransposedTable {
+    let mut start = vec![0usize; pixels + 1];
+    for &p in index {
+        start[p as usize + 1] += 1;
+    }
+    for p in 0..pixels {
+        start[p + 1] += start[p];
+    }
+    let mut fill = start.clone();
+    let mut sample = vec![0u32; index.len()];
+    let mut w = vec![0f32; index.len()];
+    for (k, (&p, &wk)) in index.iter().zip(weight).enumerate() {
+        let slot = &mut fill[p as usize];
+        sample[*slot] = (k / SampleTable::TAPS) as u32;
+        w[*slot] = wk;
+        *slot += 1;
+    }
+    TransposedTable {
+        pixels,
+        start,
+        sample,
+        weight: w,
+    }
+}
+
+/// Bilinear gather: features `(B, H, W, C)` -> `(B, N, C)`,
+/// `out[b, n, c] = Σ_k weight[n][k] · features[b, index[n][k], c]`, indices into `H·W`.
+/// Gradients flow to `features` (not to the table).
+pub fn table_sample(features: &Tensor, table: &SampleTable) -> Result<Tensor> {
+    const OP: &str = "table_sample";
+    let dims = dims_of(features, OP, "features", FEATURE_RANK)?;
+    if dims.contains(&0) {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!("features {dims:?} must not be empty"),
+        }
+        .into());
+    }
+    table.check_pixels(dims[1] * dims[2], OP)?;
+    if !has_custom_kernels(features.device()) {
+        return composite::table_sample_composite(features, table);
+    }
+    // (B, H, W, C) -> (B, N, C)
+    features.contiguous()?.apply_op1(TableSampleOp {
+        table: table.clone(),
+        batch: dims[0],
+        pixels: dims[1] * dims[2],
+        image: [dims[1], dims[2]],
+        channels: dims[3],
+    })
+}
+
+/// `features (B, H, W, C) -> (B, N, C)`.
+struct TableSampleOp {
+    table: SampleTable,
+    batch: usize,
+    pixels: usize,
+    image: [usize; 2],
+    channels: usize,
+}
+
+impl CustomOp1 for TableSampleOp {
+    fn name(&self) -> &'static str {
+        "table_sample"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        let f = cpu_slice(storage, layout, self.name())?;
+        let (n, c) = (self.table.len(), self.channels);
+        let index = self.table.flat_indices();
+        let weight = self.table.flat_weights();
+        let mut out = vec![0f32; self.batch * n * c];
+        for (b, out_b) in out.chunks_mut(n * c).enumerate() {
+            let f_b = &f[b * self.pixels * c..(b + 1) * self.pixels * c];
+            out_b
+                .par_chunks_mut(SAMPLES_PER_TASK * c)
+                .enumerate()
+                .for_each(|(task, out_task)| {
+                    for (j, o) in out_task.chunks_mut(c).enumerate() {
+                        let s = (task * SAMPLES_PER_TASK + j) * SampleTable::TAPS;
+                        let taps = s..s + SampleTable::TAPS;
+                        let (i, w) = (&index[taps.clone()], &weight[taps]);
+                        let p = |k: usize| &f_b[i[k] as usize * c..(i[k] as usize + 1) * c];
+                        let (p0, p1, p2, p3) = (p(0), p(1), p(2), p(3));
+                        let taps = p0.iter().zip(p1).zip(p2).zip(p3);
+                        for (o, (((a, b), c), d)) in o.iter_mut().zip(taps) {
+                            *o = w[0] * a + w[1] * b + w[2] * c + w[3] * d;
+                        }
+                    }
+                });
+        }
+        Ok((CpuStorage::F32(out), Shape::from((self.batch, n, c))))
+    }
+
+    fn bwd(&self, _features: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
+        let grad = grad_out.contiguous()?.apply_op1(TableSampleTransposeOp {
+            table: self.table.clone(),
+            batch: self.batch,
+            pixels: self.pixels,
+            image: self.image,
+            channels: self.channels,
+        })?;
+        Ok(Some(grad))
+    }
+}
+
+/// `out[p] += Σ_{(n, w) ∈ row p} w · g[n]` over the transposed table, one task per pixel block:
+/// no write conflicts, but reads of `g` jump around.
+fn gather_transposed(t: &TransposedTable, g: &[f32], out: &mut [f32], c: usize) {
+    out.par_chunks_mut(PIXELS_PER_TASK * c)
+        .enumerate()
+        .for_each(|(task, out_task)| {
+            for (j, o) in out_task.chunks_mut(c).enumerate() {
+                let p = task * PIXELS_PER_TASK + j;
+                for e in t.start[p]..t.start[p + 1] {
+                    let (s, w) = (t.sample[e] as usize, t.weight[e]);
+                    for (o, v) in o.iter_mut().zip(&g[s * c..(s + 1) * c]) {
+                        *o += w * v;
+                    }
+                }
+            }
+        });
+}
+
+/// `out[index[n][k]] += weight[n][k] · g[n]` streaming through `g` in sample order, one
+/// private accumulator per thread (summed at the end): for many more samples than pixels.
+fn scatter_add(table: &SampleTable, g: &[f32], out: &mut [f32], c: usize, threads: usize) {
+    let (index, weight) = (table.flat_indices(), table.flat_weights());
+    let n = table.len();
+    let per_thread = n.div_ceil(threads);
+    let partials: Vec<Vec<f32>> = (0..threads)
+        .into_par_iter()
+        .map(|t| {
+            let mut acc = vec![0f32; out.len()];
+            for s in t * per_thread..((t + 1) * per_thread).min(n) {
+                let src = &g[s * c..(s + 1) * c];
+                for k in s * SampleTable::TAPS..(s + 1) * SampleTable::TAPS {
+                    let (p, w) = (index[k] as usize, weight[k]);
+                    for (o, v) in acc[p * c..(p + 1) * c].iter_mut().zip(src) {
+                        *o += w * v;
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
+    out.par_chunks_mut(PIXELS_PER_TASK * c)
+        .enumerate()
+        .for_each(|(task, chunk)| {
+            let start = task * PIXELS_PER_TASK * c;
+            let len = chunk.len();
+            for part in &partials {
+                for (o, v) in chunk.iter_mut().zip(&part[start..start + len]) {
+                    *o += v;
+                }
+            }
+        });
+}
+
+/// The adjoint of [`TableSampleOp`]: `(B, N, C) -> (B, H, W, C)`.
+struct TableSampleTransposeOp {
+    table: SampleTable,
+    batch: usize,
+    pixels: usize,
+    image: [usize; 2],
+    channels: usize,
+}
+
+impl CustomOp1 for TableSampleTransposeOp {
+    fn name(&self) -> &'static str {
+        "table_sample_transpose"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        let g = cpu_slice(storage, layout, self.name())?;
+        let (n, c) = (self.table.len(), self.channels);
+        let mut out = vec![0f32; self.batch * self.pixels * c];
+        let threads = rayon::current_num_threads().max(1);
+        let scatter = n >= self.pixels * threads;
+        for (b, out_b) in out.chunks_mut(self.pixels * c).enumerate() {
+            let g_b = &g[b * n * c..(b + 1) * n * c];
+            if scatter {
+                scatter_add(&self.table, g_b, out_b, c, threads);
+            } else {
+                gather_transposed(&self.table.transposed(self.pixels), g_b, out_b, c);
+            }
+        }
+        let [h, w] = self.image;
+        Ok((CpuStorage::F32(out), Shape::from((self.batch, h, w, c))))
+    }
+
+    fn bwd(&self, _g: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
+        Ok(Some(table_sample(grad_out, &self.table)?))
+    }
+}

@@ -1,0 +1,480 @@
+//! conv3d / conv_transpose3d: custom kernels against nested-loop f64 references, gradients
+//! against central differences of the reference, and custom == composite.
+
+use candle_core::{Device, Tensor, Var};
+use mode360::model::ops::{
+    conv3d, conv3d_composite, conv3d_weight_grad, conv3d_weight_grad_composite, conv_transpose3d,
+    conv_transpose3d_composite, Conv3dGeometry,
+};
+
+/// Forward tolerance (f32 sums of a few hundred products of values in [-1, 1]).
+const FWD_TOL: f64 = 1e-4;
+/// Gradient tolerance against f64 central differences.
+const GRAD_TOL: f64 = 1e-3;
+/// Central-difference step (the reference is f64 and linear, so the step barely matters).
+const FD_STEP: f64 = 1e-3;
+
+/// Deterministic values in [-1, 1) (64-bit LCG).
+fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
+    let mut s = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (0..n)
+        .map(|_| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        })
+        .collect()
+}
+
+fn tensor(v: &[f64], dims: &[usize]) -> Tensor {
+    let f: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+    Tensor::from_vec(f, dims, &Device::Cpu).unwrap()
+}
+
+fn values(t: &Tensor) -> Vec<f64> {
+    t.flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap()
+        .into_iter()
+        .map(f64::from)
+        .collect()
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+/// Naive f64 conv3d, x `(B, D, H, W, Ci)`, w `(kD, kH, kW, Ci, Co)`.
+fn conv3d_ref(x: &[f64], w: &[f64], g: &Conv3dGeometry) -> Vec<f64> {
+    let [d, h, wd] = g.in_dims;
+    let [od, oh, ow] = g.out_dims;
+    let [kd, kh, kw] = g.kernel;
+    let (ci, co) = (g.c_in, g.c_out);
+    let mut y = vec![0.0; g.batch * od * oh * ow * co];
+    for b in 0..g.batch {
+        for z in 0..od {
+            for r in 0..oh {
+                for c in 0..ow {
+                    for a in 0..kd {
+                        for bb in 0..kh {
+                            for e in 0..kw {
+                                let iz = (z * g.stride[0] + a) as isize - g.padding[0] as isize;
+                                let ir = (r * g.stride[1] + bb) as isize - g.padding[1] as isize;
+                                let ic = (c * g.stride[2] + e) as isize - g.padding[2] as isize;
+                                if iz < 0
+                                    || ir < 0
+                                    || ic < 0
+                                    || iz >= d as isize
+                                    || ir >= h as isize
+                                    || ic >= wd as isize
+                                {
+                                    continue;
+                                }
+                                let (iz, ir, ic) = (iz as usize, ir as usize, ic as usize);
+                                for i in 0..ci {
+                                    let xv = x[(((b * d + iz) * h + ir) * wd + ic) * ci + i];
+                                    for o in 0..co {
+                                        y[(((b * od + z) * oh + r) * ow + c) * co + o] +=
+                                            xv * w[(((a * kh + bb) * kw + e) * ci + i) * co + o];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    y
+}
+
+/// Naive f64 transposed conv by scattering: x `(B, D, H, W, Ci)`, w `(kD, kH, kW, Ci, Co)`.
+fn conv_transpose3d_ref(
+    x: &[f64],
+    x_dims: [usize; 5],
+    w: &[f64],
+    w_dims: [usize; 5],
+    stride: [usize; 3],
+    padding: [usize; 3],
+    output_padding: [usize; 3],
+) -> (Vec<f64>, [usize; 3]) {
+    let [bn, d, h, wd, ci] = x_dims;
+    let [kd, kh, kw, _, co] = w_dims;
+    let out: [usize; 3] = std::array::from_fn(|a| {
+        ([d, h, wd][a] - 1) * stride[a] + [kd, kh, kw][a] + output_padding[a] - 2 * padding[a]
+    });
+    let [od, oh, ow] = out;
+    let mut y = vec![0.0; bn * od * oh * ow * co];
+    for b in 0..bn {
+        for z in 0..d {
+            for r in 0..h {
+                for c in 0..wd {
+                    for a in 0..kd {
+                        for bb in 0..kh {
+                            for e in 0..kw {
+                                let tz = (z * stride[0] + a) as isize - padding[0] as isize;
+                                let tr = (r * stride[1] + bb) as isize - padding[1] as isize;
+                                let tc = (c * stride[2] + e) as isize - padding[2] as isize;
+                                if tz < 0
+                                    || tr < 0
+                                    || tc < 0
+                                    || tz >= od as isize
+                                    || tr >= oh as isize
+                                    || tc >= ow as isize
+                                {
+                                    continue;
+                                }
+                                let (tz, tr, tc) = (tz as usize, tr as usize, tc as usize);
+                                for i in 0..ci {
+                                    let xv = x[(((b * d + z) * h + r) * wd + c) * ci + i];
+                                    for o in 0..co {
+                                        y[(((b * od + tz) * oh + tr) * ow + tc) * co + o] +=
+                                            xv * w[(((a * kh + bb) * kw + e) * ci + i) * co + o];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    (y, out)
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Central differences of `loss(v) = <f(v), r>` in every coordinate of `v` listed in `coords`.
+fn central_differences(
+    v: &[f64],
+    coords: impl Iterator<Item = usize>,
+    f: impl Fn(&[f64]) -> Vec<f64>,
+    r: &[f64],
+) -> Vec<(usize, f64)> {
+    coords
+        .map(|i| {
+            let mut p = v.to_vec();
+            p[i] += FD_STEP;
+            let lp = dot(&f(&p), r);
+            p[i] -= 2.0 * FD_STEP;
+            let lm = dot(&f(&p), r);
+            (i, (lp - lm) / (2.0 * FD_STEP))
+        })
+        .collect()
+}
+
+struct ConvCase {
+    x_dims: [usize; 5],
+    kernel: [usize; 3],
+    c_out: usize,
+    stride: [usize; 3],
+    padding: [usize; 3],
+}
+
+fn check_conv3d_case(case: &ConvCase, seed: u64) {
+    let [bn, d, h, wd, ci] = case.x_dims;
+    let [kd, kh, kw] = case.kernel;
+    let g = Conv3dGeometry::new(
+        bn,
+        [d, h, wd],
+        case.kernel,
+        case.stride,
+        case.padding,
+        ci,
+        case.c_out,
+    )
+    .unwrap();
+    let w_dims = [kd, kh, kw, ci, case.c_out];
+    let xv = pseudo_random(case.x_dims.iter().product(), seed);
+    let wv = pseudo_random(w_dims.iter().product(), seed + 1);
+    let [od, oh, ow] = g.out_dims;
+    let y_dims = [bn, od, oh, ow, case.c_out];
+    let rv = pseudo_random(y_dims.iter().product(), seed + 2);
+
+    let x = Var::from_tensor(&tensor(&xv, &case.x_dims)).unwrap();
+    let w = Var::from_tensor(&tensor(&wv, &w_dims)).unwrap();
+    let r = tensor(&rv, &y_dims);
+
+    // forward vs reference
+    let y = conv3d(x.as_tensor(), w.as_tensor(), case.stride, case.padding).unwrap();
+    assert_eq!(y.dims(), &y_dims);
+    let y_ref = conv3d_ref(&xv, &wv, &g);
+    let err = max_abs_diff(&values(&y), &y_ref);
+    assert!(err < FWD_TOL, "forward error {err}");
+
+    // gradients vs central differences of the f64 reference
+    let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    let gx = values(grads.get(x.as_tensor()).unwrap());
+    let gw = values(grads.get(w.as_tensor()).unwrap());
+    let x_step = (xv.len() / 97).max(1);
+    for (i, fd) in central_differences(
+        &xv,
+        (0..xv.len()).step_by(x_step),
+        |p| conv3d_ref(p, &wv, &g),
+        &rv,
+    ) {
+        assert!(
+            (gx[i] - fd).abs() < GRAD_TOL,
+            "dx[{i}] {} vs fd {fd}",
+            gx[i]
+        );
+    }
+    for (i, fd) in central_differences(&wv, 0..wv.len(), |p| conv3d_ref(&xv, p, &g), &rv) {
+        assert!(
+            (gw[i] - fd).abs() < GRAD_TOL,
+            "dw[{i}] {} vs fd {fd}",
+            gw[i]
+        );
+    }
+
+    // composite == custom, forward and gradients
+    let yc = conv3d_composite(x.as_tensor(), w.as_tensor(), case.stride, case.padding).unwrap();
+    assert!(max_abs_diff(&values(&yc), &values(&y)) < FWD_TOL);
+    let gc = (&yc * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    assert!(max_abs_diff(&values(gc.get(x.as_tensor()).unwrap()), &gx) < FWD_TOL);
+    assert!(max_abs_diff(&values(gc.get(w.as_tensor()).unwrap()), &gw) < FWD_TOL);
+}
+
+#[test]
+fn conv3d_stride1_pad1_odd_sizes() {
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [2, 5, 7, 9, 3],
+            kernel: [3, 3, 3],
+            c_out: 4,
+            stride: [1, 1, 1],
+            padding: [1, 1, 1],
+        },
+        1,
+    );
+}
+
+#[test]
+fn conv3d_stride2_pad1_odd_sizes() {
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [1, 5, 7, 9, 4],
+            kernel: [3, 3, 3],
+            c_out: 3,
+            stride: [2, 2, 2],
+            padding: [1, 1, 1],
+        },
+        11,
+    );
+}
+
+#[test]
+fn conv3d_mixed_stride_padding_kernel() {
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [1, 6, 7, 8, 2],
+            kernel: [2, 3, 1],
+            c_out: 5,
+            stride: [1, 2, 3],
+            padding: [0, 2, 1],
+        },
+        21,
+    );
+}
+
+struct TransposeCase {
+    x_dims: [usize; 5],
+    w_dims: [usize; 5],
+    stride: [usize; 3],
+    padding: [usize; 3],
+    output_padding: [usize; 3],
+}
+
+fn check_transpose_case(case: &TransposeCase, seed: u64) {
+    let xv = pseudo_random(case.x_dims.iter().product(), seed);
+    let wv = pseudo_random(case.w_dims.iter().product(), seed + 1);
+    let (y_ref, out) = conv_transpose3d_ref(
+        &xv,
+        case.x_dims,
+        &wv,
+        case.w_dims,
+        case.stride,
+        case.padding,
+        case.output_padding,
+    );
+    let y_dims = [case.x_dims[0], out[0], out[1], out[2], case.w_dims[4]];
+    let rv = pseudo_random(y_ref.len(), seed + 2);
+    let x = Var::from_tensor(&tensor(&xv, &case.x_dims)).unwrap();
+    let w = Var::from_tensor(&tensor(&wv, &case.w_dims)).unwrap();
+    let r = tensor(&rv, &y_dims);
+    let y = conv_transpose3d(
+        x.as_tensor(),
+        w.as_tensor(),
+        case.stride,
+        case.padding,
+        case.output_padding,
+    )
+    .unwrap();
+    assert_eq!(y.dims(), &y_dims);
+    let err = max_abs_diff(&values(&y), &y_ref);
+    assert!(err < FWD_TOL, "forward error {err}");
+
+    let reference = |xs: &[f64], ws: &[f64]| {
+        conv_transpose3d_ref(
+            xs,
+            case.x_dims,
+            ws,
+            case.w_dims,
+            case.stride,
+            case.padding,
+            case.output_padding,
+        )
+        .0
+    };
+    let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    let gx = values(grads.get(x.as_tensor()).unwrap());
+    let gw = values(grads.get(w.as_tensor()).unwrap());
+    for (i, fd) in central_differences(&xv, 0..xv.len(), |p| reference(p, &wv), &rv) {
+        assert!(
+            (gx[i] - fd).abs() < GRAD_TOL,
+            "dx[{i}] {} vs fd {fd}",
+            gx[i]
+        );
+    }
+    for (i, fd) in central_differences(&wv, 0..wv.len(), |p| reference(&xv, p), &rv) {
+        assert!(
+            (gw[i] - fd).abs() < GRAD_TOL,
+            "dw[{i}] {} vs fd {fd}",
+            gw[i]
+        );
+    }
+
+    let yc = conv_transpose3d_composite(
+        x.as_tensor(),
+        w.as_tensor(),
+        case.stride,
+        case.padding,
+        case.output_padding,
+    )
+    .unwrap();
+    assert!(max_abs_diff(&values(&yc), &values(&y)) < FWD_TOL);
+    let gc = (&yc * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    assert!(max_abs_diff(&values(gc.get(x.as_tensor()).unwrap()), &gx) < FWD_TOL);
+    assert!(max_abs_diff(&values(gc.get(w.as_tensor()).unwrap()), &gw) < FWD_TOL);
+}
+
+#[test]
+fn conv_transpose3d_x2_upsampling_odd_and_even_targets() {
+    // (3, 4, 5) -> (5, 8, 10): output padding 0 on D (odd target), 1 on H and W.
+    check_transpose_case(
+        &TransposeCase {
+            x_dims: [1, 3, 4, 5, 4],
+            w_dims: [3, 3, 3, 4, 2],
+            stride: [2, 2, 2],
+            padding: [1, 1, 1],
+            output_padding: [0, 1, 1],
+        },
+        31,
+    );
+}
+
+#[test]
+fn conv_transpose3d_stride1_and_mixed() {
+    check_transpose_case(
+        &TransposeCase {
+            x_dims: [2, 3, 4, 3, 2],
+            w_dims: [2, 3, 3, 2, 3],
+            stride: [1, 2, 3],
+            padding: [0, 1, 1],
+            output_padding: [0, 0, 2],
+        },
+        41,
+    );
+}
+
+/// `<conv3d(a, w), b> = <a, conv_transpose3d(b, wᵀ)>` with the sizes restored by output padding.
+#[test]
+fn conv_transpose3d_is_adjoint_of_conv3d() {
+    let (stride, padding) = ([2, 2, 2], [1, 1, 1]);
+    let a_dims = [1, 5, 8, 7, 3];
+    let w_dims = [3, 3, 3, 3, 4];
+    let g = Conv3dGeometry::new(1, [5, 8, 7], [3, 3, 3], stride, padding, 3, 4).unwrap();
+    assert_eq!(g.output_padding(), [0, 1, 0]);
+    let [od, oh, ow] = g.out_dims;
+    let b_dims = [1, od, oh, ow, 4];
+    let av = pseudo_random(a_dims.iter().product(), 51);
+    let bv = pseudo_random(b_dims.iter().product(), 52);
+    let wv = pseudo_random(w_dims.iter().product(), 53);
+    let w = tensor(&wv, &w_dims);
+    let lhs = values(&conv3d(&tensor(&av, &a_dims), &w, stride, padding).unwrap());
+    let wt = w.transpose(3, 4).unwrap();
+    let back = conv_transpose3d(
+        &tensor(&bv, &b_dims),
+        &wt,
+        stride,
+        padding,
+        g.output_padding(),
+    )
+    .unwrap();
+    assert_eq!(back.dims(), &a_dims);
+    let l = dot(&lhs, &bv);
+    let r = dot(&av, &values(&back));
+    assert!((l - r).abs() < 1e-3 * l.abs().max(1.0), "{l} vs {r}");
+}
+
+/// The weight-gradient op is itself differentiable (its backward is conv3d and the input
+/// gradient): custom and composite agree on it, forward and backward, under a nonlinear loss.
+#[test]
+fn conv3d_weight_grad_op_is_differentiable() {
+    let (kernel, stride, padding) = ([3, 2, 3], [1, 2, 1], [1, 1, 0]);
+    let x_dims = [1, 4, 5, 6, 2];
+    let g = Conv3dGeometry::new(1, [4, 5, 6], kernel, stride, padding, 2, 3).unwrap();
+    let [od, oh, ow] = g.out_dims;
+    let dy_dims = [1, od, oh, ow, 3];
+    let xv = pseudo_random(x_dims.iter().product(), 61);
+    let dyv = pseudo_random(dy_dims.iter().product(), 62);
+    let run = |composite: bool| {
+        let x = Var::from_tensor(&tensor(&xv, &x_dims)).unwrap();
+        let dy = Var::from_tensor(&tensor(&dyv, &dy_dims)).unwrap();
+        let dw = if composite {
+            conv3d_weight_grad_composite(x.as_tensor(), dy.as_tensor(), kernel, stride, padding)
+        } else {
+            conv3d_weight_grad(x.as_tensor(), dy.as_tensor(), kernel, stride, padding)
+        }
+        .unwrap();
+        let grads = dw.sqr().unwrap().sum_all().unwrap().backward().unwrap();
+        let mut out = values(&dw);
+        out.extend(values(grads.get(x.as_tensor()).unwrap()));
+        out.extend(values(grads.get(dy.as_tensor()).unwrap()));
+        out
+    };
+    let custom = run(false);
+    let composite = run(true);
+    assert!(custom.iter().any(|v| v.abs() > 1e-1));
+    let err = max_abs_diff(&custom, &composite);
+    assert!(err < 1e-3, "custom vs composite {err}");
+}
+
+#[test]
+fn conv3d_rejects_bad_shapes() {
+    let x = Tensor::zeros((1, 4, 4, 4, 3), candle_core::DType::F32, &Device::Cpu).unwrap();
+    let w = Tensor::zeros((3, 3, 3, 2, 4), candle_core::DType::F32, &Device::Cpu).unwrap();
+    let err = conv3d(&x, &w, [1, 1, 1], [1, 1, 1])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("channels"), "{err}");
+    let w = Tensor::zeros((3, 3, 3, 3, 4), candle_core::DType::F32, &Device::Cpu).unwrap();
+    let err = conv3d(&x, &w, [0, 1, 1], [1, 1, 1])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("stride"), "{err}");
+    let err = conv_transpose3d(&x, &w, [2, 2, 2], [1, 1, 1], [2, 0, 0])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("output_padding"), "{err}");
+}

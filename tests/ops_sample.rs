@@ -1,0 +1,280 @@
+//! table_sample and trilinear upsampling: against nested-loop f64 references, gradients against
+//! central differences, custom == composite.
+
+use candle_core::{Device, Tensor, Var};
+use mode360::geometry::{ErpGrid, PixelCoord};
+use mode360::model::ops::{
+    resample_linear_axis, table_sample, table_sample_composite, upsample_trilinear,
+    upsample_trilinear_composite, SampleTable,
+};
+
+const FWD_TOL: f64 = 1e-5;
+const GRAD_TOL: f64 = 1e-4;
+const FD_STEP: f64 = 1e-3;
+
+fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
+    let mut s = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (0..n)
+        .map(|_| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        })
+        .collect()
+}
+
+fn tensor(v: &[f64], dims: &[usize]) -> Tensor {
+    let f: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+    Tensor::from_vec(f, dims, &Device::Cpu).unwrap()
+}
+
+fn values(t: &Tensor) -> Vec<f64> {
+    t.flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap()
+        .into_iter()
+        .map(f64::from)
+        .collect()
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Gradient of `<f(v), r>` by central differences in every coordinate.
+fn fd_gradient(v: &[f64], f: impl Fn(&[f64]) -> Vec<f64>, r: &[f64]) -> Vec<f64> {
+    (0..v.len())
+        .map(|i| {
+            let mut p = v.to_vec();
+            p[i] += FD_STEP;
+            let lp = dot(&f(&p), r);
+            p[i] -= 2.0 * FD_STEP;
+            (lp - dot(&f(&p), r)) / (2.0 * FD_STEP)
+        })
+        .collect()
+}
+
+/// Bilinear sampling of an ERP image `(H, W, C)` at continuous `(u, v)`, written directly from
+/// the wrap-around / clamp rules (not through `BilinearTaps`).
+fn erp_bilinear_ref(img: &[f64], h: usize, w: usize, c: usize, p: PixelCoord) -> Vec<f64> {
+    let u0 = p.u.floor();
+    let fu = p.u - u0;
+    let v = p.v.clamp(0.0, (h - 1) as f64);
+    let v0 = v.floor();
+    let fv = v - v0;
+    let col = |k: f64| (k as i64).rem_euclid(w as i64) as usize;
+    let row = |k: f64| (k as usize).min(h - 1);
+    let at = |r: usize, q: usize, ch: usize| img[(r * w + q) * c + ch];
+    (0..c)
+        .map(|ch| {
+            (1.0 - fu) * (1.0 - fv) * at(row(v0), col(u0), ch)
+                + fu * (1.0 - fv) * at(row(v0), col(u0 + 1.0), ch)
+                + (1.0 - fu) * fv * at(row(v0 + 1.0), col(u0), ch)
+                + fu * fv * at(row(v0 + 1.0), col(u0 + 1.0), ch)
+        })
+        .collect()
+}
+
+#[test]
+fn table_sample_matches_bilinear_reference_across_the_seam() {
+    let grid = ErpGrid::new(10).unwrap(); // 5 x 10
+    let (h, w, c, b) = (grid.height(), grid.width(), 3, 2);
+    // positions everywhere, including across the u = 0 / u = W seam and beyond the poles
+    let mut coords: Vec<PixelCoord> = pseudo_random(40, 7)
+        .chunks(2)
+        .map(|p| PixelCoord {
+            u: (p[0] + 1.0) * 0.5 * w as f64 - 0.5,
+            v: (p[1] + 1.0) * 0.5 * h as f64 - 0.5,
+        })
+        .collect();
+    coords.push(PixelCoord { u: 9.7, v: 2.3 });
+    coords.push(PixelCoord { u: -0.4, v: 0.6 });
+    coords.push(PixelCoord { u: 3.0, v: 4.8 });
+    let table = SampleTable::from(
+        coords
+            .iter()
+            .map(|&p| grid.bilinear_taps(p))
+            .collect::<Vec<_>>(),
+    );
+    assert_eq!(table.len(), coords.len());
+    let n = coords.len();
+    let fv = pseudo_random(b * h * w * c, 8);
+    let rv = pseudo_random(b * n * c, 9);
+    let reference = |f: &[f64]| -> Vec<f64> {
+        (0..b)
+            .flat_map(|bi| {
+                let img = &f[bi * h * w * c..(bi + 1) * h * w * c];
+                coords
+                    .iter()
+                    .flat_map(|&p| erp_bilinear_ref(img, h, w, c, p))
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let features = Var::from_tensor(&tensor(&fv, &[b, h, w, c])).unwrap();
+    let out = table_sample(features.as_tensor(), &table).unwrap();
+    assert_eq!(out.dims(), &[b, n, c]);
+    let err = max_abs_diff(&values(&out), &reference(&fv));
+    assert!(err < FWD_TOL, "forward error {err}");
+
+    let r = tensor(&rv, &[b, n, c]);
+    let grads = (&out * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    let g = values(grads.get(features.as_tensor()).unwrap());
+    let g_fd = fd_gradient(&fv, reference, &rv);
+    let err = max_abs_diff(&g, &g_fd);
+    assert!(err < GRAD_TOL, "gradient error {err}");
+    // the seam sample (u = 9.7) reads column 0: its gradient is non-zero there
+    assert!(g.iter().any(|v| v.abs() > 1e-2));
+
+    let outc = table_sample_composite(features.as_tensor(), &table).unwrap();
+    assert!(max_abs_diff(&values(&outc), &values(&out)) < FWD_TOL);
+    let gc = (&outc * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    assert!(max_abs_diff(&values(gc.get(features.as_tensor()).unwrap()), &g) < FWD_TOL);
+}
+
+#[test]
+fn table_sample_rejects_features_smaller_than_the_table() {
+    let grid = ErpGrid::new(8).unwrap();
+    let table = SampleTable::from(vec![grid.bilinear_taps(PixelCoord { u: 7.5, v: 3.0 })]);
+    let small = Tensor::zeros((1, 2, 4, 1), candle_core::DType::F32, &Device::Cpu).unwrap();
+    let err = table_sample(&small, &table).unwrap_err().to_string();
+    assert!(err.contains("out of range"), "{err}");
+}
+
+/// PyTorch `align_corners=False` linear weights, computed independently per output index.
+fn linear_ref(input: &[f64], out_len: usize) -> Vec<f64> {
+    let n = input.len();
+    (0..out_len)
+        .map(|j| {
+            let src = ((j as f64 + 0.5) * n as f64 / out_len as f64 - 0.5).max(0.0);
+            let i0 = src.floor() as usize;
+            let lambda = src - i0 as f64;
+            let i1 = if i0 + 1 < n { i0 + 1 } else { i0 };
+            (1.0 - lambda) * input[i0] + lambda * input[i1]
+        })
+        .collect()
+}
+
+/// Naive trilinear on `(B, D, H, W)`: each output voxel from its 8 neighbours.
+fn trilinear_ref(x: &[f64], dims: [usize; 4], out: [usize; 3]) -> Vec<f64> {
+    let [b, d, h, w] = dims;
+    let [od, oh, ow] = out;
+    let taps = |o: usize, n: usize, j: usize| {
+        let src = ((j as f64 + 0.5) * n as f64 / o as f64 - 0.5).max(0.0);
+        let i0 = (src.floor() as usize).min(n - 1);
+        [
+            (i0, 1.0 - (src - i0 as f64)),
+            ((i0 + 1).min(n - 1), src - i0 as f64),
+        ]
+    };
+    let mut y = Vec::with_capacity(b * od * oh * ow);
+    for bi in 0..b {
+        for z in 0..od {
+            for r in 0..oh {
+                for c in 0..ow {
+                    let mut acc = 0.0;
+                    for (iz, wz) in taps(od, d, z) {
+                        for (ir, wr) in taps(oh, h, r) {
+                            for (ic, wc) in taps(ow, w, c) {
+                                acc += wz * wr * wc * x[((bi * d + iz) * h + ir) * w + ic];
+                            }
+                        }
+                    }
+                    y.push(acc);
+                }
+            }
+        }
+    }
+    y
+}
+
+#[test]
+fn linear_axis_matches_pytorch_formula() {
+    // x2 and odd factors, and down-sampling
+    for (n, m) in [(4, 8), (5, 9), (7, 3), (1, 4), (6, 6)] {
+        let v = pseudo_random(n, n as u64 * 100 + m as u64);
+        let out = resample_linear_axis(&tensor(&v, &[1, n, 1]), 1, m).unwrap();
+        assert_eq!(out.dims(), &[1, m, 1]);
+        let err = max_abs_diff(&values(&out), &linear_ref(&v, m));
+        assert!(err < FWD_TOL, "{n}->{m}: {err}");
+    }
+    // x2 upsampling of [0, 1, 2, 3]: PyTorch gives [0, .25, .75, 1.25, 1.75, 2.25, 2.75, 3]
+    let ramp = tensor(&[0.0, 1.0, 2.0, 3.0], &[4]);
+    let up = values(&resample_linear_axis(&ramp, 0, 8).unwrap());
+    let expected = [0.0, 0.25, 0.75, 1.25, 1.75, 2.25, 2.75, 3.0];
+    assert!(max_abs_diff(&up, &expected) < FWD_TOL, "{up:?}");
+}
+
+#[test]
+fn upsample_trilinear_forward_gradient_and_composite() {
+    let dims = [2, 3, 5, 4];
+    let out = [6, 9, 8];
+    let xv = pseudo_random(dims.iter().product(), 71);
+    let x = Var::from_tensor(&tensor(&xv, &dims)).unwrap();
+    let y = upsample_trilinear(x.as_tensor(), out[0], out[1], out[2]).unwrap();
+    assert_eq!(y.dims(), &[2, 6, 9, 8]);
+    let err = max_abs_diff(&values(&y), &trilinear_ref(&xv, dims, out));
+    assert!(err < FWD_TOL, "forward error {err}");
+
+    let rv = pseudo_random(y.elem_count(), 72);
+    let r = tensor(&rv, y.dims());
+    let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    let g = values(grads.get(x.as_tensor()).unwrap());
+    let g_fd = fd_gradient(&xv, |p| trilinear_ref(p, dims, out), &rv);
+    let err = max_abs_diff(&g, &g_fd);
+    assert!(err < GRAD_TOL, "gradient error {err}");
+
+    let yc = upsample_trilinear_composite(x.as_tensor(), out[0], out[1], out[2]).unwrap();
+    assert!(max_abs_diff(&values(&yc), &values(&y)) < FWD_TOL);
+    let gc = (&yc * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    assert!(max_abs_diff(&values(gc.get(x.as_tensor()).unwrap()), &g) < FWD_TOL);
+}
+
+/// Many more samples than pixels (the sweep case): the backward scatters per thread.
+#[test]
+fn table_sample_dense_table_gradient_matches_composite() {
+    let grid = ErpGrid::new(8).unwrap(); // 4 x 8 = 32 pixels
+    let (h, w, c) = (grid.height(), grid.width(), 2);
+    let n = 4000;
+    let table = SampleTable::new(
+        &pseudo_random(2 * n, 81)
+            .chunks(2)
+            .map(|p| {
+                grid.bilinear_taps(PixelCoord {
+                    u: (p[0] + 1.0) * 0.5 * w as f64,
+                    v: (p[1] + 1.0) * 0.5 * h as f64 - 0.5,
+                })
+            })
+            .collect::<Vec<_>>(),
+    );
+    let fv = pseudo_random(h * w * c, 82);
+    let rv = pseudo_random(n * c, 83);
+    let features = Var::from_tensor(&tensor(&fv, &[1, h, w, c])).unwrap();
+    let r = tensor(&rv, &[1, n, c]);
+    let grad_of = |out: Tensor| {
+        let grads = (&out * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        values(grads.get(features.as_tensor()).unwrap())
+    };
+    let g = grad_of(table_sample(features.as_tensor(), &table).unwrap());
+    let gc = grad_of(table_sample_composite(features.as_tensor(), &table).unwrap());
+    // each pixel collects ~500 products of magnitude < 1
+    assert!(g.iter().any(|v| v.abs() > 1.0));
+    let err = max_abs_diff(&g, &gc);
+    assert!(err < 1e-3, "custom vs composite {err}");
+    // and the exact adjoint identity <S f, r> = <f, Sᵀ r>
+    let out = values(&table_sample(features.as_tensor(), &table).unwrap());
+    let (l, rr) = (dot(&out, &rv), dot(&fv, &g));
+    assert!((l - rr).abs() < 1e-3 * l.abs().max(1.0), "{l} vs {rr}");
+}

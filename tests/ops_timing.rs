@@ -1,0 +1,168 @@
+//! Throughput measurements of the custom ops in the test profile (opt-level 3), ignored by
+//! default: `cargo test --test ops_timing -- --ignored --nocapture`.
+//! Each reports GFLOP/s and checks the custom kernel is at least as fast as the composite.
+
+use std::time::Instant;
+
+use candle_core::{Device, Tensor, Var};
+use mode360::geometry::{ErpGrid, PixelCoord};
+use mode360::model::ops::{
+    conv3d, conv3d_composite, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d,
+    table_sample, table_sample_composite, Conv3dGeometry, SampleTable,
+};
+
+const REPEATS: usize = 3;
+const GIGA: f64 = 1e9;
+
+/// Best wall time of `REPEATS` runs, seconds.
+fn best_secs(mut f: impl FnMut()) -> f64 {
+    f(); // warm-up
+    (0..REPEATS)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn randn(dims: &[usize]) -> Tensor {
+    Tensor::randn(0f32, 1f32, dims, &Device::Cpu).unwrap()
+}
+
+#[test]
+#[ignore]
+fn conv3d_throughput() {
+    let (d, h, w, c) = (24, 64, 128, 32);
+    let unit = [1, 1, 1];
+    let g = Conv3dGeometry::new(1, [d, h, w], [3, 3, 3], unit, unit, c, c).unwrap();
+    let x = randn(&[1, d, h, w, c]);
+    let wt = randn(&[3, 3, 3, c, c]);
+    let dy = randn(&[1, d, h, w, c]);
+    let gflop = g.flops() / GIGA;
+    let fwd = best_secs(|| {
+        conv3d(&x, &wt, unit, unit).unwrap();
+    });
+    let dx = best_secs(|| {
+        conv3d_input_grad(&dy, &wt, unit, unit, [d, h, w]).unwrap();
+    });
+    let dw = best_secs(|| {
+        conv3d_weight_grad(&x, &dy, [3, 3, 3], unit, unit).unwrap();
+    });
+    let xv = Var::from_tensor(&x).unwrap();
+    let wv = Var::from_tensor(&wt).unwrap();
+    let fwd_bwd = best_secs(|| {
+        let y = conv3d(xv.as_tensor(), wv.as_tensor(), unit, unit).unwrap();
+        (y * &dy).unwrap().sum_all().unwrap().backward().unwrap();
+    });
+    let composite = best_secs(|| {
+        conv3d_composite(&x, &wt, unit, unit).unwrap();
+    });
+    println!("conv3d (1,{d},{h},{w},{c}->{c}) k3 s1: {gflop:.2} GFLOP per pass");
+    println!(
+        "  forward      {:.1} ms  {:.1} GFLOP/s",
+        fwd * 1e3,
+        gflop / fwd
+    );
+    println!(
+        "  input grad   {:.1} ms  {:.1} GFLOP/s",
+        dx * 1e3,
+        gflop / dx
+    );
+    println!(
+        "  weight grad  {:.1} ms  {:.1} GFLOP/s",
+        dw * 1e3,
+        gflop / dw
+    );
+    println!(
+        "  fwd+bwd      {:.1} ms  {:.1} GFLOP/s",
+        fwd_bwd * 1e3,
+        3.0 * gflop / fwd_bwd
+    );
+    println!(
+        "  composite fwd {:.1} ms  {:.1} GFLOP/s",
+        composite * 1e3,
+        gflop / composite
+    );
+
+    // x2 transposed conv (1, 12, 32, 64, 32) -> (1, 24, 64, 128, 32)
+    let s2 = [2, 2, 2];
+    let g2 = Conv3dGeometry::new(1, [d, h, w], [3, 3, 3], s2, unit, c, c).unwrap();
+    let small = randn(&[1, d / 2, h / 2, w / 2, c]);
+    let tr = best_secs(|| {
+        conv_transpose3d(&small, &wt, s2, unit, g2.output_padding()).unwrap();
+    });
+    println!(
+        "  transpose x2 {:.1} ms  {:.1} GFLOP/s",
+        tr * 1e3,
+        g2.flops() / GIGA / tr
+    );
+    assert!(
+        fwd < composite,
+        "custom {fwd} s slower than composite {composite} s"
+    );
+}
+
+#[test]
+#[ignore]
+fn table_sample_throughput() {
+    let grid = ErpGrid::new(256).unwrap();
+    let (h, w, c) = (grid.height(), grid.width(), 32);
+    let n = 48 * 64 * 128;
+    let taps: Vec<_> = (0..n)
+        .map(|i| {
+            let t = i as f64 / n as f64;
+            grid.bilinear_taps(PixelCoord {
+                u: (t * 977.0 * w as f64) % w as f64,
+                v: (t * 31.0 * h as f64) % h as f64,
+            })
+        })
+        .collect();
+    let table = SampleTable::new(&taps);
+    let f = randn(&[1, h, w, c]);
+    let fv = Var::from_tensor(&f).unwrap();
+    let g = Tensor::ones((1, n, c), candle_core::DType::F32, &Device::Cpu).unwrap();
+    let fwd = best_secs(|| {
+        table_sample(&f, &table).unwrap();
+    });
+    let fwd_bwd = best_secs(|| {
+        let out = table_sample(fv.as_tensor(), &table).unwrap();
+        (out * &g).unwrap().sum_all().unwrap().backward().unwrap();
+    });
+    // the loss and its own backward, to isolate the gather's backward
+    let out_fixed = table_sample(&f, &table).unwrap();
+    let ov = Var::from_tensor(&out_fixed).unwrap();
+    let loss_only = best_secs(|| {
+        (ov.as_tensor() * &g)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+    });
+    let comp = best_secs(|| {
+        table_sample_composite(&f, &table).unwrap();
+    });
+    let comp_bwd = best_secs(|| {
+        let out = table_sample_composite(fv.as_tensor(), &table).unwrap();
+        (out * &g).unwrap().sum_all().unwrap().backward().unwrap();
+    });
+    let out_gb = (n * c * 4) as f64 / GIGA;
+    println!("table_sample ({h}x{w}x{c}, N={n}): output {out_gb:.3} GB");
+    println!(
+        "  custom    fwd {:.1} ms, fwd+bwd {:.1} ms",
+        fwd * 1e3,
+        fwd_bwd * 1e3
+    );
+    println!(
+        "  custom backward alone ~{:.1} ms (fwd+bwd - fwd - loss {:.1} ms)",
+        (fwd_bwd - fwd - loss_only) * 1e3,
+        loss_only * 1e3
+    );
+    println!(
+        "  composite fwd {:.1} ms, fwd+bwd {:.1} ms",
+        comp * 1e3,
+        comp_bwd * 1e3
+    );
+    assert!(fwd < comp, "custom {fwd} s slower than composite {comp} s");
+}
