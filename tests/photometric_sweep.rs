@@ -311,6 +311,9 @@ fn explore_analytic_scene() -> TestResult {
 #[test]
 #[ignore = "exploration: prints metrics on rendered street frames"]
 fn explore_synth() -> TestResult {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .try_init();
     use mode360::synth::{SynthConfig, SynthRenderer};
     let rig = Rig::from_file(RIG_PATH)?;
     let env_num = |k: &str, d: usize| {
@@ -340,6 +343,7 @@ fn explore_synth() -> TestResult {
         let sub = rig.subset(&idx)?;
         let mut est = PhotometricSweep::new(cfg.clone())?;
         let (mut d1, mut ar, mut mae, mut rmse, mut secs, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut cpu = 0.0;
         for seed in 0..seeds as u64 {
             let renderer = SynthRenderer::new(SynthConfig {
                 seed,
@@ -354,8 +358,10 @@ fn explore_synth() -> TestResult {
                 };
                 let imgs: Vec<RgbImage> = idx.iter().map(|&i| frame.images[i].clone()).collect();
                 let t0 = Instant::now();
+                let cpu0 = process_cpu_s();
                 let out = est.estimate(&sub, &imgs, ErpGrid::new(width)?)?;
                 secs += t0.elapsed().as_secs_f64();
+                cpu += process_cpu_s() - cpu0;
                 let s = scores(&out.range_m, gt, max_depth_m);
                 println!("  {name} seed {seed} frame {}: {s:?}", f * 5);
                 d1 += s.delta1;
@@ -382,8 +388,24 @@ fn explore_synth() -> TestResult {
                 }
             }
         }
-        println!("{name} {width} soiled={soiled}: delta1 {:.4} absrel {:.4} mae {:.2} rmse {:.2} s/frame {:.2}",
-            d1 / n, ar / n, mae / n, rmse / n, secs / n);
+        println!("{name} {width} soiled={soiled}: delta1 {:.4} absrel {:.4} mae {:.2} rmse {:.2} s/frame {:.2} cpu-s/frame {:.2}",
+            d1 / n, ar / n, mae / n, rmse / n, secs / n, cpu / n);
     }
     Ok(())
+}
+
+/// User + system CPU seconds of this process so far (Linux `/proc/self/stat`, 100 ticks/s).
+fn process_cpu_s() -> f64 {
+    const TICKS_PER_S: f64 = 100.0;
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after_name = stat.rsplit(')').next().unwrap_or("");
+    let fields: Vec<&str> = after_name.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the whole line, 12 and 13 after the name.
+    let tick = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|s| s.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    (tick(11) + tick(12)) / TICKS_PER_S
 }

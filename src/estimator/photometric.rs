@@ -509,8 +509,12 @@ impl PhotometricSweep {
         output: ErpGrid,
         refine: bool,
     ) -> Result<DepthEstimate, EstimatorError> {
+        let started = std::time::Instant::now();
         let grey = self.prepare(rig, images, output)?;
+        let prepared_s = started.elapsed().as_secs_f64();
         let volume = self.build_volume(&grey, output);
+        let volume_s = started.elapsed().as_secs_f64() - prepared_s;
+        tracing::debug!(prepared_s, volume_s, "photometric sweep: cost volume built");
         let agg = self.cfg.aggregation;
         if !agg.enabled {
             return Ok(self.decide(&volume, output, refine, 1));
@@ -531,7 +535,14 @@ impl PhotometricSweep {
             agg.row_warmup_px,
         );
         drop(volume);
-        Ok(self.decide(&summed, output, refine, sgm::PATH_COUNT))
+        let aggregated_s = started.elapsed().as_secs_f64() - prepared_s - volume_s;
+        let estimate = self.decide(&summed, output, refine, sgm::PATH_COUNT);
+        tracing::debug!(
+            aggregated_s,
+            total_s = started.elapsed().as_secs_f64(),
+            "photometric sweep: done"
+        );
+        Ok(estimate)
     }
 }
 
@@ -565,6 +576,19 @@ mod tests {
         assert_eq!(plain.index, 3.0);
         // Runner-up outside +-2: i = 6 (7.29) vs i = 0 (10.89).
         assert!((m.margin - (2.7f32.powi(2) - 0.09)).abs() < 1e-4);
+    }
+
+    #[test]
+    fn config_reads_partial_json_with_defaults() -> Result<(), serde_json::Error> {
+        let cfg: PhotometricConfig =
+            serde_json::from_str(r#"{"hypotheses": 64, "aggregation": {"p2": 0.9}}"#)?;
+        assert_eq!(cfg.hypotheses, 64);
+        assert_eq!(cfg.aggregation.p2, 0.9);
+        assert_eq!(cfg.aggregation.p1, AggregationConfig::default().p1);
+        assert_eq!(cfg.depth_range, DepthRange::paper());
+        let back: PhotometricConfig = serde_json::from_str(&serde_json::to_string(&cfg)?)?;
+        assert_eq!(back, cfg);
+        Ok(())
     }
 
     #[test]
