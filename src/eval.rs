@@ -1,1 +1,310 @@
-//! (being written)
+//! `mode360 eval`: score a depth estimator on rig bags with the paper's metrics.
+//!
+//! Every frame of every bag is run through the estimator; depth metrics compare its range
+//! image with the bag's `/ground_truth/depth`; disparity metrics compare both, converted to
+//! GEER angular disparity (in GEER pixels, GEER width = ERP height as in Deep360) for the pair
+//! (reference camera, next selected camera). Metrics are per-frame means; bags are grouped by
+//! condition (clean or soiled, from the bag's `mode360.synth` metadata).
+
+use crate::bag::{BagError, RigBagReader};
+use crate::estimator::{DepthEstimator, EstimatorError};
+use crate::frame::FloatImage;
+use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig, RigError};
+use crate::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage, MetricsError};
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// The bag metadata key that marks soiled frames.
+pub const SOILED_KEY: &str = "soiled";
+/// The bag metadata key holding the scene's maximum depth (sky), metres.
+pub const MAX_DEPTH_KEY: &str = "max_depth_m";
+/// Nearest range of the preview colour map, metres.
+pub const PREVIEW_MIN_DEPTH_M: f64 = 1.0;
+/// Maximum depth used when a bag does not say.
+pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    #[error("{bag}: {source}")]
+    Rig {
+        bag: String,
+        #[source]
+        source: RigError,
+    },
+    #[error("{bag}: frame at stamp {stamp_ns} ns: {source}")]
+    Estimator {
+        bag: String,
+        stamp_ns: u64,
+        #[source]
+        source: EstimatorError,
+    },
+    #[error("{bag}: frame at stamp {stamp_ns} ns has no ground truth on /ground_truth/depth")]
+    NoGroundTruth { bag: String, stamp_ns: u64 },
+    #[error("{bag}: frame at stamp {stamp_ns} ns: {source}")]
+    Metrics {
+        bag: String,
+        stamp_ns: u64,
+        #[source]
+        source: MetricsError,
+    },
+    #[error("{bag}: {source}")]
+    Geometry {
+        bag: String,
+        #[source]
+        source: GeometryError,
+    },
+    #[error("{bag}: metadata '{key}' = '{value}' is not a number")]
+    BadMetadata { bag: String, key: String, value: String },
+    #[error("writing preview {path}: {message}")]
+    Preview { path: String, message: String },
+    #[error("no frames evaluated")]
+    NoFrames,
+}
+
+/// What to evaluate.
+#[derive(Clone, Debug)]
+pub struct EvalOptions {
+    pub bags: Vec<PathBuf>,
+    /// 0-based camera indices into each bag's rig; `None` = all cameras.
+    pub cameras: Option<Vec<usize>>,
+    /// Stop after this many frames per bag.
+    pub max_frames: Option<usize>,
+    pub show_progress: bool,
+    /// Write a preview PNG (reference panorama, predicted range, ground truth) of the first
+    /// [`PREVIEW_FRAMES`] frames of each bag here.
+    pub png_dir: Option<PathBuf>,
+}
+
+/// How many frames per bag get a preview PNG.
+pub const PREVIEW_FRAMES: usize = 3;
+
+/// One line of the report: all frames of one condition.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EvalRow {
+    pub condition: String,
+    pub bags: Vec<String>,
+    pub cameras: Vec<String>,
+    pub frames: usize,
+    pub depth: DepthMetrics,
+    pub disparity: Option<DisparityMetrics>,
+    pub seconds_per_frame: f64,
+}
+
+/// The whole report, printed as a table and written as JSON.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EvalReport {
+    pub estimator: String,
+    pub rows: Vec<EvalRow>,
+}
+
+struct Group {
+    bags: Vec<String>,
+    cameras: Vec<String>,
+    average: FrameAverage,
+    seconds: f64,
+}
+
+/// Runs `estimator` over every frame of the bags and scores it.
+pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Result<EvalReport, EvalError> {
+    let mut groups: BTreeMap<String, Group> = BTreeMap::new();
+    for path in &opts.bags {
+        let bag_name = path.display().to_string();
+        let reader = RigBagReader::open(path)?;
+        let info = reader.info().clone();
+        let condition = if info.get(SOILED_KEY).map(String::as_str) == Some("true") {
+            "soiled"
+        } else {
+            "clean"
+        };
+        let max_depth_m = match info.get(MAX_DEPTH_KEY) {
+            None => DEFAULT_MAX_DEPTH_M,
+            Some(v) => v.parse().map_err(|_| EvalError::BadMetadata {
+                bag: bag_name.clone(),
+                key: MAX_DEPTH_KEY.into(),
+                value: v.clone(),
+            })?,
+        };
+        let full_rig = reader.rig().clone();
+        let selection: Vec<usize> = opts.cameras.clone().unwrap_or_else(|| (0..full_rig.cameras.len()).collect());
+        let rig = full_rig.subset(&selection).map_err(|source| EvalError::Rig {
+            bag: bag_name.clone(),
+            source,
+        })?;
+        let group = groups.entry(condition.to_string()).or_insert_with(|| Group {
+            bags: Vec::new(),
+            cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
+            average: FrameAverage::default(),
+            seconds: 0.0,
+        });
+        group.bags.push(bag_name.clone());
+        let progress = if opts.show_progress {
+            let pb = ProgressBar::new(opts.max_frames.map(|m| m as u64).unwrap_or(0));
+            pb.set_style(
+                ProgressStyle::with_template("{msg} [{elapsed_precise}] {bar:30} {pos} frames, ETA {eta}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+            pb.set_message(format!("{} {}", estimator.name(), bag_name));
+            pb
+        } else {
+            ProgressBar::hidden()
+        };
+        let mut pair_cache: Option<(usize, GeerPair)> = None;
+        for (n, frame) in reader.frames().enumerate() {
+            if opts.max_frames.is_some_and(|m| n >= m) {
+                break;
+            }
+            let frame = frame?;
+            let gt = frame.ground_truth.as_ref().ok_or(EvalError::NoGroundTruth {
+                bag: bag_name.clone(),
+                stamp_ns: frame.stamp_ns,
+            })?;
+            let images: Vec<_> = selection.iter().map(|&i| frame.images[i].clone()).collect();
+            let output = ErpGrid::new(gt.width).map_err(|source| EvalError::Geometry {
+                bag: bag_name.clone(),
+                source,
+            })?;
+            let t0 = Instant::now();
+            let est = estimator.estimate(&rig, &images, output).map_err(|source| EvalError::Estimator {
+                bag: bag_name.clone(),
+                stamp_ns: frame.stamp_ns,
+                source,
+            })?;
+            group.seconds += t0.elapsed().as_secs_f64();
+            let frame_err = |source| EvalError::Metrics {
+                bag: bag_name.clone(),
+                stamp_ns: frame.stamp_ns,
+                source,
+            };
+            let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m).map_err(frame_err)?;
+            let pair = match &pair_cache {
+                Some((w, p)) if *w == gt.width => p.clone(),
+                _ => {
+                    let p = reference_pair(&rig, output).map_err(|source| EvalError::Geometry {
+                        bag: bag_name.clone(),
+                        source,
+                    })?;
+                    pair_cache = Some((gt.width, p.clone()));
+                    p
+                }
+            };
+            let disp_pred = disparity_image(&rig, output, &pair, &est.range_m);
+            let disp_gt = disparity_image(&rig, output, &pair, gt);
+            let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
+            group.average.push(depth, disparity);
+            if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
+                let stem = path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let png = dir.join(format!("{stem}_{}_{n:03}.png", estimator.name()));
+                let min_depth_m = PREVIEW_MIN_DEPTH_M as f32;
+                let picture = crate::viz::stack_vertical(&[
+                    images[rig.reference].clone(),
+                    crate::viz::colorize_range(&est.range_m, min_depth_m, max_depth_m as f32),
+                    crate::viz::colorize_range(gt, min_depth_m, max_depth_m as f32),
+                ]);
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| e.to_string())
+                    .and_then(|_| picture.save(&png).map_err(|e| e.to_string()))
+                    .map_err(|message| EvalError::Preview {
+                        path: png.display().to_string(),
+                        message,
+                    })?;
+            }
+            progress.inc(1);
+        }
+        progress.finish_and_clear();
+    }
+    let rows: Vec<EvalRow> = groups
+        .into_iter()
+        .filter(|(_, g)| g.average.frames() > 0)
+        .map(|(condition, g)| EvalRow {
+            condition,
+            frames: g.average.frames(),
+            depth: g.average.depth(),
+            disparity: g.average.disparity(),
+            seconds_per_frame: g.seconds / g.average.frames() as f64,
+            bags: g.bags,
+            cameras: g.cameras,
+        })
+        .collect();
+    if rows.is_empty() {
+        return Err(EvalError::NoFrames);
+    }
+    Ok(EvalReport {
+        estimator: estimator.name().to_string(),
+        rows,
+    })
+}
+
+/// GEER pair of the reference camera and the next camera of the rig, GEER width = ERP height.
+fn reference_pair(rig: &Rig, output: ErpGrid) -> Result<GeerPair, GeometryError> {
+    let other = (rig.reference + 1) % rig.cameras.len();
+    GeerPair::new(
+        rig.camera_origin(rig.reference),
+        rig.camera_origin(other),
+        Vector3::z(),
+        output.height(),
+    )
+}
+
+/// Converts an output-frame range image to the pair's angular disparity in GEER pixels.
+/// Non-finite ranges give NaN.
+pub fn disparity_image(rig: &Rig, output: ErpGrid, pair: &GeerPair, range_m: &FloatImage) -> Vec<f32> {
+    range_m
+        .data
+        .iter()
+        .enumerate()
+        .map(|(k, &rho)| {
+            if !(rho.is_finite() && rho > 0.0) {
+                return f32::NAN;
+            }
+            let p = PixelCoord {
+                u: (k % output.width()) as f64,
+                v: (k / output.width()) as f64,
+            };
+            let p_out = output.dir_from_pixel(p) * rho as f64;
+            let p_rig = rig.rig_from_output * Point3::from(p_out);
+            pair.disparity_px(pair.point_disparity(&p_rig.coords).disparity_rad) as f32
+        })
+        .collect()
+}
+
+impl EvalReport {
+    /// The paper's table layout, one line per condition.
+    pub fn to_table(&self) -> String {
+        let mut s = format!(
+            "estimator: {}\n| condition | cameras | frames | MAE (m) | RMSE (m) | AbsRel | SqRel | SILog | δ1 % | δ2 % | δ3 % | disp MAE (px) | disp RMSE | Px1 % | Px3 % | Px5 % | D1 % | s/frame |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+            self.estimator
+        );
+        for r in &self.rows {
+            let d = &r.depth;
+            let p = r.disparity.unwrap_or_default();
+            s.push_str(&format!(
+                "| {} | {} | {} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.2} | {:.2} | {:.2} | {:.3} | {:.3} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |\n",
+                r.condition,
+                r.cameras.join(","),
+                r.frames,
+                d.mae_m,
+                d.rmse_m,
+                d.abs_rel,
+                d.sq_rel_m,
+                d.silog,
+                d.delta1_pct,
+                d.delta2_pct,
+                d.delta3_pct,
+                p.mae_px,
+                p.rmse_px,
+                p.px1_pct,
+                p.px3_pct,
+                p.px5_pct,
+                p.d1_pct,
+                r.seconds_per_frame
+            ));
+        }
+        s
+    }
+}

@@ -11,4 +11,7 @@ pub mod frame;
 pub mod geometry;
 pub mod metrics;
 pub mod msgs;
+pub mod record;
+pub mod sync;
 pub mod synth;
+pub mod viz;

@@ -1,1 +1,323 @@
-//! (being written)
+//! The paper's depth and disparity metrics (section 6.1.3), per frame and averaged over
+//! frames.
+//!
+//! Depth metrics use pixels whose ground truth `g` is finite and in `(0, max_depth]`; with
+//! prediction `p`:
+//!
+//! ```text
+//! MAE    = mean |p - g|                  RMSE  = sqrt(mean (p - g)^2)
+//! AbsRel = mean |p - g| / g              SqRel = mean (p - g)^2 / g      (standard form;
+//!                                                 the paper's reference code divides by g^2)
+//! SILog  = 100 sqrt(mean e^2 - (mean e)^2),  e = ln p - ln g
+//! deltaK = 100 * fraction of pixels with max(p/g, g/p) < 1.25^K,  K = 1, 2, 3
+//! ```
+//!
+//! A prediction that is not finite and positive on a valid pixel counts as a failure for the
+//! delta accuracies and is left out of the error means; `coverage_pct` says how many valid
+//! pixels had a usable prediction.
+//!
+//! Disparity metrics use pixels with finite, non-negative ground truth `g` (in pixels):
+//!
+//! ```text
+//! MAE = mean |p - g|,  RMSE = sqrt(mean (p - g)^2),
+//! PxK = 100 * fraction with |p - g| > K px (K = 1, 3, 5),
+//! D1  = 100 * fraction with |p - g| > 3 px and |p - g| > 5% of g   (KITTI 2015)
+//! ```
+
+use serde::{Deserialize, Serialize};
+
+/// The delta accuracy base threshold.
+pub const DELTA_THRESHOLD: f64 = 1.25;
+/// D1's relative threshold (fraction of the ground-truth disparity).
+pub const D1_RELATIVE: f64 = 0.05;
+/// D1's absolute threshold, pixels.
+pub const D1_ABSOLUTE_PX: f64 = 3.0;
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum MetricsError {
+    #[error("prediction has {pred} pixels but ground truth has {gt}")]
+    SizeMismatch { pred: usize, gt: usize },
+    #[error("no valid ground-truth pixels")]
+    NoValidPixels,
+}
+
+/// Depth metrics of one frame or averaged over frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DepthMetrics {
+    pub mae_m: f64,
+    pub rmse_m: f64,
+    pub abs_rel: f64,
+    pub sq_rel_m: f64,
+    pub silog: f64,
+    pub delta1_pct: f64,
+    pub delta2_pct: f64,
+    pub delta3_pct: f64,
+    pub coverage_pct: f64,
+}
+
+/// Disparity metrics of one frame or averaged over frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DisparityMetrics {
+    pub mae_px: f64,
+    pub rmse_px: f64,
+    pub px1_pct: f64,
+    pub px3_pct: f64,
+    pub px5_pct: f64,
+    pub d1_pct: f64,
+}
+
+fn check_sizes(pred: &[f32], gt: &[f32]) -> Result<(), MetricsError> {
+    if pred.len() != gt.len() {
+        return Err(MetricsError::SizeMismatch {
+            pred: pred.len(),
+            gt: gt.len(),
+        });
+    }
+    Ok(())
+}
+
+/// Depth metrics of one frame (see the module docs).
+pub fn depth_metrics(
+    pred: &[f32],
+    gt: &[f32],
+    max_depth_m: f64,
+) -> Result<DepthMetrics, MetricsError> {
+    check_sizes(pred, gt)?;
+    let (mut n_valid, mut n_used) = (0usize, 0usize);
+    let (mut abs, mut sq, mut abs_rel, mut sq_rel, mut e_sum, mut e2_sum) =
+        (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut within = [0usize; 3];
+    let thresholds = [
+        DELTA_THRESHOLD,
+        DELTA_THRESHOLD.powi(2),
+        DELTA_THRESHOLD.powi(3),
+    ];
+    for (&p, &g) in pred.iter().zip(gt) {
+        let (p, g) = (p as f64, g as f64);
+        if !(g.is_finite() && g > 0.0 && g <= max_depth_m) {
+            continue;
+        }
+        n_valid += 1;
+        if !(p.is_finite() && p > 0.0) {
+            continue;
+        }
+        n_used += 1;
+        let diff = p - g;
+        abs += diff.abs();
+        sq += diff * diff;
+        abs_rel += diff.abs() / g;
+        sq_rel += diff * diff / g;
+        let e = p.ln() - g.ln();
+        e_sum += e;
+        e2_sum += e * e;
+        let ratio = (p / g).max(g / p);
+        for (w, t) in within.iter_mut().zip(thresholds) {
+            if ratio < t {
+                *w += 1;
+            }
+        }
+    }
+    if n_valid == 0 {
+        return Err(MetricsError::NoValidPixels);
+    }
+    let pct = |k: usize| 100.0 * k as f64 / n_valid as f64;
+    let used = n_used.max(1) as f64;
+    let mean_e = e_sum / used;
+    Ok(DepthMetrics {
+        mae_m: abs / used,
+        rmse_m: (sq / used).sqrt(),
+        abs_rel: abs_rel / used,
+        sq_rel_m: sq_rel / used,
+        silog: 100.0 * (e2_sum / used - mean_e * mean_e).max(0.0).sqrt(),
+        delta1_pct: pct(within[0]),
+        delta2_pct: pct(within[1]),
+        delta3_pct: pct(within[2]),
+        coverage_pct: pct(n_used),
+    })
+}
+
+/// Disparity metrics of one frame (see the module docs). A non-finite prediction is read as
+/// disparity 0 (a point at infinity).
+pub fn disparity_metrics(pred_px: &[f32], gt_px: &[f32]) -> Result<DisparityMetrics, MetricsError> {
+    check_sizes(pred_px, gt_px)?;
+    let mut n = 0usize;
+    let (mut abs, mut sq) = (0.0f64, 0.0f64);
+    let mut outliers = [0usize; 4];
+    for (&p, &g) in pred_px.iter().zip(gt_px) {
+        let g = g as f64;
+        if !(g.is_finite() && g >= 0.0) {
+            continue;
+        }
+        n += 1;
+        let p = if p.is_finite() { p as f64 } else { 0.0 };
+        let err = (p - g).abs();
+        abs += err;
+        sq += err * err;
+        for (o, k) in outliers.iter_mut().zip([1.0, 3.0, 5.0]) {
+            if err > k {
+                *o += 1;
+            }
+        }
+        if err > D1_ABSOLUTE_PX && err > D1_RELATIVE * g {
+            outliers[3] += 1;
+        }
+    }
+    if n == 0 {
+        return Err(MetricsError::NoValidPixels);
+    }
+    let pct = |k: usize| 100.0 * k as f64 / n as f64;
+    Ok(DisparityMetrics {
+        mae_px: abs / n as f64,
+        rmse_px: (sq / n as f64).sqrt(),
+        px1_pct: pct(outliers[0]),
+        px3_pct: pct(outliers[1]),
+        px5_pct: pct(outliers[2]),
+        d1_pct: pct(outliers[3]),
+    })
+}
+
+/// Averages per-frame metrics over frames (the paper reports per-frame means).
+#[derive(Clone, Debug, Default)]
+pub struct FrameAverage {
+    depth: Vec<DepthMetrics>,
+    disparity: Vec<DisparityMetrics>,
+}
+
+macro_rules! mean_of {
+    ($items:expr, $ty:ident { $($f:ident),* }) => {{
+        let n = $items.len().max(1) as f64;
+        $ty { $($f: $items.iter().map(|m| m.$f).sum::<f64>() / n),* }
+    }};
+}
+
+impl FrameAverage {
+    pub fn push(&mut self, depth: DepthMetrics, disparity: Option<DisparityMetrics>) {
+        self.depth.push(depth);
+        self.disparity.extend(disparity);
+    }
+
+    pub fn frames(&self) -> usize {
+        self.depth.len()
+    }
+
+    pub fn depth(&self) -> DepthMetrics {
+        mean_of!(
+            self.depth,
+            DepthMetrics {
+                mae_m,
+                rmse_m,
+                abs_rel,
+                sq_rel_m,
+                silog,
+                delta1_pct,
+                delta2_pct,
+                delta3_pct,
+                coverage_pct
+            }
+        )
+    }
+
+    pub fn disparity(&self) -> Option<DisparityMetrics> {
+        (!self.disparity.is_empty()).then(|| {
+            mean_of!(
+                self.disparity,
+                DisparityMetrics {
+                    mae_px,
+                    rmse_px,
+                    px1_pct,
+                    px3_pct,
+                    px5_pct,
+                    d1_pct
+                }
+            )
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    /// Three valid pixels worked by hand, one invalid (beyond max depth), one NaN gt.
+    /// p = [2, 9, 5], g = [1, 10, 4]
+    #[test]
+    fn depth_metrics_by_hand() {
+        let pred = [2.0, 9.0, 5.0, 7.0, 3.0];
+        let gt = [1.0, 10.0, 4.0, 2000.0, f32::NAN];
+        let m = depth_metrics(&pred, &gt, 1000.0).unwrap();
+        // |p-g| = 1, 1, 1
+        assert_relative_eq!(m.mae_m, 1.0, epsilon = 1e-12);
+        assert_relative_eq!(m.rmse_m, 1.0, epsilon = 1e-12);
+        // AbsRel = (1/1 + 1/10 + 1/4) / 3 = 1.35 / 3
+        assert_relative_eq!(m.abs_rel, 1.35 / 3.0, epsilon = 1e-12);
+        // SqRel = (1/1 + 1/10 + 1/4) / 3 as well (all squared errors are 1)
+        assert_relative_eq!(m.sq_rel_m, 1.35 / 3.0, epsilon = 1e-12);
+        // e = ln2, ln0.9, ln1.25
+        let e = [2f64.ln(), 0.9f64.ln(), 1.25f64.ln()];
+        let mean = e.iter().sum::<f64>() / 3.0;
+        let var = e.iter().map(|x| x * x).sum::<f64>() / 3.0 - mean * mean;
+        assert_relative_eq!(m.silog, 100.0 * var.sqrt(), epsilon = 1e-9);
+        // ratios 2, 1.111, 1.25: < 1.25 only the second; < 1.5625 the second and third (1.25);
+        // < 1.953 still two (2 is not below 1.953125).
+        assert_relative_eq!(m.delta1_pct, 100.0 / 3.0, epsilon = 1e-9);
+        assert_relative_eq!(m.delta2_pct, 200.0 / 3.0, epsilon = 1e-9);
+        assert_relative_eq!(m.delta3_pct, 200.0 / 3.0, epsilon = 1e-9);
+        assert_relative_eq!(m.coverage_pct, 100.0, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn nan_prediction_is_a_failure_not_an_average_term() {
+        let m = depth_metrics(&[f32::NAN, 10.0], &[5.0, 10.0], 100.0).unwrap();
+        assert_relative_eq!(m.mae_m, 0.0);
+        assert_relative_eq!(m.delta1_pct, 50.0);
+        assert_relative_eq!(m.coverage_pct, 50.0);
+    }
+
+    #[test]
+    fn errors() {
+        assert_eq!(
+            depth_metrics(&[1.0], &[1.0, 2.0], 10.0),
+            Err(MetricsError::SizeMismatch { pred: 1, gt: 2 })
+        );
+        assert_eq!(
+            depth_metrics(&[1.0], &[f32::NAN], 10.0),
+            Err(MetricsError::NoValidPixels)
+        );
+    }
+
+    /// p = [10, 12, 0.5, 40, NaN], g = [10, 10, 2, 50, 4]:
+    /// errors 0, 2, 1.5, 10, 4 (NaN read as 0).
+    #[test]
+    fn disparity_metrics_by_hand() {
+        let m = disparity_metrics(
+            &[10.0, 12.0, 0.5, 40.0, f32::NAN],
+            &[10.0, 10.0, 2.0, 50.0, 4.0],
+        )
+        .unwrap();
+        assert_relative_eq!(m.mae_px, 17.5 / 5.0, epsilon = 1e-12);
+        assert_relative_eq!(
+            m.rmse_px,
+            ((4.0 + 2.25 + 100.0 + 16.0) / 5.0f64).sqrt(),
+            epsilon = 1e-12
+        );
+        assert_relative_eq!(m.px1_pct, 80.0); // 2, 1.5, 10, 4
+        assert_relative_eq!(m.px3_pct, 40.0); // 10, 4
+        assert_relative_eq!(m.px5_pct, 20.0); // 10
+                                              // D1: >3 px and >5% of g: 10 (>2.5) yes; 4 (>0.2) yes.
+        assert_relative_eq!(m.d1_pct, 40.0);
+    }
+
+    #[test]
+    fn frame_average_is_a_per_frame_mean() {
+        let mut avg = FrameAverage::default();
+        let a = depth_metrics(&[2.0], &[1.0], 10.0).unwrap();
+        let b = depth_metrics(&[1.0, 1.0, 1.0], &[1.0, 1.0, 1.0], 10.0).unwrap();
+        avg.push(a, None);
+        avg.push(b, None);
+        assert_eq!(avg.frames(), 2);
+        assert_relative_eq!(avg.depth().mae_m, 0.5);
+        assert_relative_eq!(avg.depth().delta1_pct, 50.0);
+        assert!(avg.disparity().is_none());
+    }
+}

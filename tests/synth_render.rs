@@ -43,6 +43,16 @@ fn same_seed_same_bytes_other_seed_differs() {
     let a = renderer(3, 128, true).render_frame(&rig, 7);
     let b = renderer(3, 128, true).render_frame(&rig, 7);
     let c = renderer(4, 128, true).render_frame(&rig, 7);
+    // The same bytes on a single thread.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("thread pool");
+    let single = pool.install(|| renderer(3, 128, true).render_frame(&rig, 7));
+    for (x, y) in a.images.iter().zip(&single.images) {
+        assert_eq!(x.as_raw(), y.as_raw());
+    }
+    assert_eq!(a.ground_truth, single.ground_truth);
     assert_eq!(a.stamp_ns, b.stamp_ns);
     for (x, y) in a.images.iter().zip(&b.images) {
         assert_eq!(x.as_raw(), y.as_raw());
@@ -241,6 +251,18 @@ fn soiling_covers_5_to_20_percent_of_chosen_cameras_only() {
     assert!(soiled_cams >= 6);
 }
 
+/// CPU seconds this process has used (Linux `/proc/self/stat` utime + stime at 100 Hz).
+fn process_cpu_s() -> Option<f64> {
+    const CLOCK_TICKS_PER_S: f64 = 100.0;
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let after = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    // After the command name: state is field 3, utime field 14, stime field 15.
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    Some((utime + stime) / CLOCK_TICKS_PER_S)
+}
+
 #[test]
 fn renders_quickly_and_saves_previews() {
     let rig = deep360_rig();
@@ -248,6 +270,7 @@ fn renders_quickly_and_saves_previews() {
     let _ = r.render_frame(&rig, 0); // warm up
     let frames = 5;
     let start = Instant::now();
+    let cpu_start = process_cpu_s();
     let mut finite = 0usize;
     for i in 0..frames {
         let f = r.render_frame(&rig, 10 * i);
@@ -256,14 +279,30 @@ fn renders_quickly_and_saves_previews() {
             .map_or(0, |g| g.data.iter().filter(|d| d.is_finite()).count());
     }
     let fps = frames as f64 / start.elapsed().as_secs_f64();
-    println!(
-        "synth render: {fps:.2} frames/s (4 cameras + ground truth, 512x256, {} threads)",
-        rayon::current_num_threads()
-    );
+    let threads = rayon::current_num_threads();
+    println!("synth render: {fps:.2} frames/s wall (4 cameras + ground truth, 512x256, {threads} threads)");
+    if let (Some(a), Some(b)) = (cpu_start, process_cpu_s()) {
+        let cpu_per_frame = (b - a) / frames as f64;
+        println!(
+            "synth render: {cpu_per_frame:.3} CPU s per frame = {:.2} frames/s on {threads} idle cores",
+            threads as f64 / cpu_per_frame
+        );
+    }
     assert_eq!(finite, frames * 512 * 256);
     if std::env::var_os("SYNTH_PREVIEW").is_some() {
-        let soiled = renderer(1, 512, true);
-        for i in [0usize, 30] {
+        let width: usize = std::env::var("SYNTH_PREVIEW_WIDTH")
+            .ok()
+            .and_then(|w| w.parse().ok())
+            .unwrap_or(512);
+        let soiled = renderer(1, width, true);
+        // Also a frame 6 m before the first intersection ahead.
+        let params = mode360::synth::world::WorldParams::new(1);
+        let tile = (1..1000i64)
+            .find(|&t| mode360::synth::world::is_intersection(&params, t))
+            .unwrap_or(1);
+        let x = mode360::synth::world::cross_street_centre_m(tile) - 6.0;
+        let crossing = (x / (8.0 * 0.1)).round() as usize;
+        for i in [0usize, 30, crossing] {
             let f = soiled.render_frame(&rig, i);
             for (c, img) in f.images.iter().enumerate() {
                 let _ = img.save(format!("/tmp/synth_f{i}_cam{}.png", c + 1));
@@ -274,10 +313,164 @@ fn renders_quickly_and_saves_previews() {
                     .iter()
                     .map(|d| (255.0 * (1.0 - (d.ln() / 1000f32.ln()).clamp(0.0, 1.0))) as u8)
                     .collect();
-                if let Some(img) = image::GrayImage::from_raw(512, 256, px) {
+                if let Some(img) = image::GrayImage::from_raw(width as u32, width as u32 / 2, px) {
                     let _ = img.save(format!("/tmp/synth_f{i}_gt.png"));
                 }
             }
+        }
+    }
+}
+
+#[test]
+fn ground_truth_of_an_output_frame_between_the_cameras() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_deep360.yaml"
+    );
+    let text = std::fs::read_to_string(path).expect("rig yaml");
+    let output_height_m = 1.5;
+    let text = format!(
+        "{text}\noutput:\n  frame_id: rig_centre\n  rig_from_output: {{translation: [0.0, 0.0, {output_height_m}], rotation_rpy: [0.0, 0.0, 0.3]}}\n"
+    );
+    let rig = Rig::from_yaml_str(&text, "centre output").expect("rig");
+    let r = renderer(2, 128, false);
+    let grid = ErpGrid::new(128).expect("grid");
+    let gt = r.render_frame(&rig, 3).ground_truth.expect("gt");
+    let world_from_out = r.world_from_rig(3) * rig.rig_from_output;
+    let mut checked = 0;
+    for v in 0..grid.height() {
+        for u in 0..grid.width() {
+            let p = PixelCoord {
+                u: u as f64,
+                v: v as f64,
+            };
+            let d = world_from_out.rotation * grid.dir_from_pixel(p);
+            if d.z < -0.3 {
+                let expected = output_height_m / -d.z;
+                let hit = world_from_out.translation.vector + d * expected;
+                if hit.y > -3.8 && hit.y < -0.2 {
+                    let got = gt.get(u, v) as f64;
+                    assert!(
+                        ((got - expected) / expected).abs() < 1e-3,
+                        "{got} vs {expected}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked > 100, "checked {checked}");
+}
+
+#[test]
+fn objects_keep_clear_of_the_cameras_and_traffic_moves() {
+    use mode360::synth::world::{scene_prims, WorldParams};
+    let rig = deep360_rig();
+    let r = renderer(9, 64, false);
+    let params = WorldParams::new(9);
+    let mut min_dist = f64::INFINITY;
+    for index in (0..400).step_by(9) {
+        let world_from_rig = r.world_from_rig(index);
+        let t = r.frame_time_s(index);
+        let prims = scene_prims(&params, world_from_rig.translation.x, 40.0, t);
+        for cam in &rig.cameras {
+            let c = (world_from_rig * cam.rig_from_cam).translation.vector;
+            for p in &prims {
+                let b = p.shape.aabb();
+                let q = c.sup(&b.min).inf(&b.max);
+                min_dist = min_dist.min((q - c).norm());
+            }
+        }
+    }
+    println!("closest object to any camera: {min_dist:.2} m");
+    assert!(
+        min_dist > 2.9,
+        "an object came within {min_dist} m of a camera"
+    );
+    // Moving objects: the same stretch of road at two times holds primitives at different places.
+    let a = scene_prims(&params, 0.0, 60.0, 0.0);
+    let b = scene_prims(&params, 0.0, 60.0, 1.0);
+    let moved = a
+        .iter()
+        .zip(&b)
+        .filter(|(p, q)| p.shape.aabb() != q.shape.aabb())
+        .count();
+    assert!(moved > 10, "only {moved} primitives moved in one second");
+}
+
+/// Fraction of pixels of `img`, box-downsampled by `factor`, whose 3x3 luminance standard
+/// deviation exceeds `min_std` grey levels (columns wrap, rows clamp).
+fn textured_fraction(
+    img: &image::RgbImage,
+    factor: usize,
+    min_std: f32,
+    rows: std::ops::Range<f64>,
+) -> f64 {
+    let (w, h) = (
+        img.width() as usize / factor,
+        img.height() as usize / factor,
+    );
+    let mut lum = vec![0f32; w * h];
+    for (i, p) in img.pixels().enumerate() {
+        let (x, y) = (
+            i % img.width() as usize / factor,
+            i / img.width() as usize / factor,
+        );
+        if x < w && y < h {
+            let l = 0.299 * p.0[0] as f32 + 0.587 * p.0[1] as f32 + 0.114 * p.0[2] as f32;
+            lum[y * w + x] += l / (factor * factor) as f32;
+        }
+    }
+    let (y0, y1) = (
+        (rows.start * h as f64) as usize,
+        (rows.end * h as f64) as usize,
+    );
+    let mut textured = 0usize;
+    for y in y0..y1 {
+        for x in 0..w {
+            let mut vals = [0f32; 9];
+            let mut k = 0;
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
+                    let xx = (x as i64 + dx).rem_euclid(w as i64) as usize;
+                    vals[k] = lum[yy * w + xx];
+                    k += 1;
+                }
+            }
+            let mean = vals.iter().sum::<f32>() / 9.0;
+            let var = vals.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / 9.0;
+            if var.sqrt() > min_std {
+                textured += 1;
+            }
+        }
+    }
+    textured as f64 / ((y1 - y0) * w) as f64
+}
+
+#[test]
+fn textures_are_rich_at_matching_resolution() {
+    let rig = deep360_rig();
+    let r = renderer(8, 512, false);
+    let f = r.render_frame(&rig, 25);
+    for (name, rows) in [("sky", 0.0..0.4), ("street", 0.4..0.6), ("road", 0.6..1.0)] {
+        let full = textured_fraction(&f.images[0], 1, 1.0, rows.clone());
+        let quarter = textured_fraction(&f.images[0], 4, 1.0, rows);
+        println!("{name}: textured fraction {full:.3} at 512x256, {quarter:.3} at 128x64");
+        assert!(full > 0.5 && quarter > 0.9, "{name}: {full} / {quarter}");
+    }
+}
+
+#[test]
+fn single_camera_view_matches_the_rig_frame() {
+    let rig = deep360_rig();
+    let r = renderer(6, 128, false);
+    let frame = r.render_frame(&rig, 17);
+    for (c, cam) in rig.cameras.iter().enumerate() {
+        let view = r.render_camera(17, &(r.world_from_rig(17) * cam.rig_from_cam));
+        assert_eq!(view.image.as_raw(), frame.images[c].as_raw(), "camera {c}");
+        if c == rig.reference {
+            assert_eq!(Some(&view.range_m), frame.ground_truth.as_ref());
         }
     }
 }

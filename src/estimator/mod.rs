@@ -28,6 +28,8 @@ pub enum EstimatorError {
     },
     #[error("estimator config field '{field}': {problem}")]
     BadConfig { field: String, problem: String },
+    #[error("unknown estimator '{name}' (known: {known})")]
+    UnknownEstimator { name: String, known: String },
     #[error("{0}")]
     Geometry(#[from] crate::geometry::GeometryError),
 }
@@ -45,4 +47,20 @@ pub trait DepthEstimator: Send {
         images: &[RgbImage],
         output: ErpGrid,
     ) -> Result<DepthEstimate, EstimatorError>;
+}
+
+/// Estimator names accepted by [`by_name`].
+pub const ESTIMATOR_NAMES: &[&str] = &["photometric"];
+
+/// The estimator called `name`, with its default settings.
+pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+    match name {
+        "photometric" => Ok(Box::new(photometric::PhotometricSweep::new(
+            photometric::PhotometricConfig::default(),
+        )?)),
+        other => Err(EstimatorError::UnknownEstimator {
+            name: other.to_string(),
+            known: ESTIMATOR_NAMES.join(", "),
+        }),
+    }
 }

@@ -275,6 +275,84 @@ impl Shape {
     }
 }
 
+/// Below this depth splits use the SAH; the traversal stack (`STACK_DEPTH`) exceeds this
+/// plus log2 of any realistic primitive count.
+const SAH_MAX_DEPTH: usize = 32;
+/// Number of bins of the binned surface-area-heuristic split.
+const SAH_BINS: usize = 16;
+
+fn half_area(b: &Aabb) -> f64 {
+    let e = (b.max - b.min).sup(&Vector3::zeros());
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+/// Partitions `items` along `axis` where the binned surface area heuristic
+/// `A(L) n(L) + A(R) n(R)` is least; returns the split index (median if degenerate).
+fn sah_split(items: &mut [(Aabb, Prim)], centroids: &Aabb, axis: usize) -> usize {
+    let lo = centroids.min[axis];
+    let extent = centroids.max[axis] - lo;
+    let n = items.len();
+    let median = |items: &mut [(Aabb, Prim)]| {
+        let mid = n / 2;
+        items.select_nth_unstable_by(mid, |a, b| {
+            a.0.centre()[axis].total_cmp(&b.0.centre()[axis])
+        });
+        mid
+    };
+    if extent <= 1e-12 {
+        return median(items);
+    }
+    let bin_of = |b: &Aabb| {
+        (((b.centre()[axis] - lo) / extent * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
+    };
+    let mut counts = [0usize; SAH_BINS];
+    let mut bounds = [Aabb::empty(); SAH_BINS];
+    for (b, _) in items.iter() {
+        let k = bin_of(b);
+        counts[k] += 1;
+        bounds[k] = bounds[k].union(b);
+    }
+    // Costs of splitting after bin k: sweep from the left and from the right.
+    let mut left_cost = [0.0f64; SAH_BINS];
+    let (mut acc, mut cnt) = (Aabb::empty(), 0usize);
+    for k in 0..SAH_BINS - 1 {
+        acc = acc.union(&bounds[k]);
+        cnt += counts[k];
+        left_cost[k] = if cnt > 0 {
+            half_area(&acc) * cnt as f64
+        } else {
+            0.0
+        };
+    }
+    let (mut best_k, mut best_cost) = (usize::MAX, f64::INFINITY);
+    let (mut acc, mut cnt) = (Aabb::empty(), 0usize);
+    for k in (0..SAH_BINS - 1).rev() {
+        acc = acc.union(&bounds[k + 1]);
+        cnt += counts[k + 1];
+        let left_n: usize = n - cnt;
+        if cnt == 0 || left_n == 0 {
+            continue;
+        }
+        let cost = left_cost[k] + half_area(&acc) * cnt as f64;
+        if cost < best_cost {
+            best_cost = cost;
+            best_k = k;
+        }
+    }
+    if best_k == usize::MAX {
+        return median(items);
+    }
+    // In-place partition: bins 0..=best_k to the front.
+    let mut i = 0;
+    for j in 0..n {
+        if bin_of(&items[j].0) <= best_k {
+            items.swap(i, j);
+            i += 1;
+        }
+    }
+    i
+}
+
 /// A flattened BVH node: a leaf when `count > 0` (prims `first..first+count`), else an inner
 /// node whose children are `first` and `first + 1`.
 #[derive(Clone, Copy, Debug)]
@@ -307,7 +385,7 @@ impl Bvh {
             count: 0,
         }];
         if !items.is_empty() {
-            Self::build_node(&mut items, 0, 0, &mut nodes);
+            Self::build_node(&mut items, 0, 0, 0, &mut nodes);
         }
         Self {
             prims: items.into_iter().map(|(_, p)| p).collect(),
@@ -315,7 +393,13 @@ impl Bvh {
         }
     }
 
-    fn build_node(items: &mut [(Aabb, Prim)], offset: usize, node: usize, nodes: &mut Vec<Node>) {
+    fn build_node(
+        items: &mut [(Aabb, Prim)],
+        offset: usize,
+        node: usize,
+        depth: usize,
+        nodes: &mut Vec<Node>,
+    ) {
         let bounds = items.iter().fold(Aabb::empty(), |b, (a, _)| b.union(a));
         if items.len() <= MAX_LEAF_PRIMS {
             nodes[node] = Node {
@@ -337,10 +421,17 @@ impl Bvh {
         } else {
             2
         };
-        let mid = items.len() / 2;
-        items.select_nth_unstable_by(mid, |a, b| {
-            a.0.centre()[axis].total_cmp(&b.0.centre()[axis])
-        });
+        // Deep in the tree fall back to median splits, which bound the depth (and so the
+        // traversal stack) by log2(n).
+        let mid = if depth < SAH_MAX_DEPTH {
+            sah_split(items, &cb, axis)
+        } else {
+            let mid = items.len() / 2;
+            items.select_nth_unstable_by(mid, |a, b| {
+                a.0.centre()[axis].total_cmp(&b.0.centre()[axis])
+            });
+            mid
+        };
         let left = nodes.len();
         nodes.push(Node {
             bounds: Aabb::empty(),
@@ -358,8 +449,8 @@ impl Bvh {
             count: 0,
         };
         let (l, r) = items.split_at_mut(mid);
-        Self::build_node(l, offset, left, nodes);
-        Self::build_node(r, offset + mid, left + 1, nodes);
+        Self::build_node(l, offset, left, depth + 1, nodes);
+        Self::build_node(r, offset + mid, left + 1, depth + 1, nodes);
     }
 
     /// Closest hit within `(0, t_max)`.

@@ -6,7 +6,7 @@
 //! markings, windows, paving joints) are box-filtered over the footprint
 //! ([`periodic_coverage`]), so distant detail averages instead of aliasing.
 
-use super::noise::{fbm2, fbm3, lattice_unit, value2};
+use super::noise::{fbm2, fbm3, lattice_unit, octave_weight, value2};
 use nalgebra::Vector3;
 
 /// Linear RGB.
@@ -21,9 +21,13 @@ const LINE_WIDTH_M: f64 = 0.15;
 /// Centre-line dash length and period, metres.
 const DASH_LENGTH_M: f64 = 3.0;
 const DASH_PERIOD_M: f64 = 9.0;
+/// Zebra crossing bar period across the road, metres.
+const ZEBRA_PERIOD_M: f64 = 1.0;
 /// Paving slab size, metres, and joint width.
 const PAVING_SLAB_M: f64 = 0.6;
 const PAVING_JOINT_M: f64 = 0.04;
+/// Frequency of the asphalt's gravel speckle, cycles per metre.
+const ASPHALT_SPECKLE_PER_M: f32 = 24.0;
 /// Ground-floor height of buildings, metres.
 const GROUND_FLOOR_M: f64 = 4.0;
 
@@ -32,6 +36,9 @@ const GROUND_FLOOR_M: f64 = 4.0;
 pub enum Material {
     /// Road surface with lane markings (the ground plane between the kerbs).
     Asphalt,
+    /// Ground plane of a cross street (local x = 0 on its centre line): asphalt with zebra
+    /// crossings over the main road and a dashed centre line.
+    CrossStreet,
     /// Ground beyond the sidewalks.
     Grass,
     /// Sidewalk: paving slabs on top, concrete kerb on the sides.
@@ -121,6 +128,7 @@ pub fn albedo(
     let fp = footprint_m as f32;
     match *material {
         Material::Asphalt => asphalt(p_world, footprint_m, seed),
+        Material::CrossStreet => cross_street(p_world, p_obj, footprint_m, seed),
         Material::Grass => {
             let g = fbm2(p_world.x as f32, p_world.y as f32, seed ^ 0x61, 0.5, 6, fp);
             let d = fbm2(p_world.x as f32, p_world.y as f32, seed ^ 0x62, 0.11, 3, fp);
@@ -203,13 +211,41 @@ fn concrete(p: &Vector3<f64>, n: &Vector3<f64>, fp: f32, seed: u32, base: Rgb) -
     scale(base, 0.7 + 0.6 * t)
 }
 
-fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+fn asphalt_base(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
     let fp = fp_m as f32;
     let (x, y) = (p.x as f32, p.y as f32);
-    let grain = fbm2(x, y, seed ^ 0x11, 0.9, 7, fp);
+    let grain = fbm2(x, y, seed ^ 0x11, 4.0, 5, fp);
     let patches = fbm2(x, y, seed ^ 0x12, 0.08, 3, fp);
-    let g = 0.09 + 0.10 * grain + 0.07 * patches;
-    let mut c: Rgb = [g, g, g * 1.04];
+    // Gravel speckle: rough fine octaves, faded out by the footprint.
+    let speckle = rough_detail(x, y, seed ^ 0x14, ASPHALT_SPECKLE_PER_M, fp);
+    let g = (0.15 + 0.22 * (grain - 0.5) + 0.1 * (patches - 0.5) + 0.1 * speckle).max(0.02);
+    [g, g, g * 1.04]
+}
+
+/// Cross street: plain asphalt, zebra crossings (bars along x, 0.5 m wide every 1 m) over
+/// the main road next to the cross street's edges, and a dashed centre line along y.
+fn cross_street(p: &Vector3<f64>, local: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+    let c = asphalt_base(p, fp_m, seed);
+    let half = crate::synth::world::CROSS_STREET_HALF_WIDTH_M;
+    let lx = local.x.abs();
+    let zebra = if p.y.abs() <= ROAD_HALF_WIDTH_M - 0.5 {
+        stripe_coverage(lx, half - 3.0, half - 0.5, fp_m)
+            * periodic_coverage(p.y, ZEBRA_PERIOD_M, 0.0, 0.5 * ZEBRA_PERIOD_M, fp_m)
+    } else {
+        0.0
+    };
+    let centre = if p.y.abs() > ROAD_HALF_WIDTH_M + 1.0 {
+        stripe_coverage(local.x, -0.5 * LINE_WIDTH_M, 0.5 * LINE_WIDTH_M, fp_m)
+            * periodic_coverage(p.y, DASH_PERIOD_M, 0.0, DASH_LENGTH_M, fp_m)
+    } else {
+        0.0
+    };
+    mix(c, [0.85, 0.85, 0.84], (zebra + centre).min(1.0) as f32)
+}
+
+fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+    let (x, y) = (p.x as f32, p.y as f32);
+    let mut c = asphalt_base(p, fp_m, seed);
     // Parking strips are slightly lighter and bluish.
     if p.y.abs() > LANE_WIDTH_M {
         c = scale(c, 1.12);
@@ -239,6 +275,21 @@ fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
         (edge + bay).min(1.0) as f32,
     );
     c
+}
+
+/// Fine detail with equal amplitude per octave (rougher than fbm): octaves at `f`, `f/2`,
+/// `f/4` cycles per metre, each faded by the footprint; centred on 0, within `[-1.5, 1.5]`.
+fn rough_detail(x: f32, y: f32, seed: u32, f: f32, fp: f32) -> f32 {
+    let mut sum = 0.0;
+    let mut freq = f;
+    for k in 0..3u32 {
+        let w = octave_weight(freq, fp);
+        if w > 0.0 {
+            sum += w * (value2(x * freq, y * freq, seed.wrapping_add(k)) - 0.5);
+        }
+        freq *= 0.5;
+    }
+    sum
 }
 
 fn paving(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
@@ -284,7 +335,7 @@ fn facade(
     };
     let plaster = fbm2(s as f32, h as f32, seed ^ 0x32, 0.7, 7, fp);
     let stains = fbm2(s as f32, h as f32, seed ^ 0x33, 0.1, 3, fp);
-    let mut c = scale(wall, 0.65 + 0.5 * plaster + 0.3 * (stains - 0.5));
+    let mut c = scale(wall, 0.55 + 0.8 * (plaster - 0.5) + 0.4 * stains);
     // Cornice stripe between floors.
     let bay = (s / bay_w).floor() as i32;
     if h < GROUND_FLOOR_M {
@@ -330,9 +381,7 @@ fn facade(
 /// clouds on a cloud plane, and the sun disk. `pixel_angle_rad` band-limits the clouds.
 pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32) -> Rgb {
     let up = d.z.max(0.0) as f32;
-    let horizon: Rgb = [0.75, 0.82, 0.92];
-    let zenith: Rgb = [0.22, 0.42, 0.8];
-    let mut c = mix(horizon, zenith, up.powf(0.6));
+    let mut c = mix(HORIZON_SKY, ZENITH_SKY, up.powf(SKY_GRADIENT_EXPONENT));
     // Clouds: fractal noise on the plane z = 1 (coordinates d.xy / d.z, clamped near the
     // horizon); the footprint there grows like pixel_angle / d.z^2.
     let dz = d.z.max(0.04);
@@ -347,9 +396,20 @@ pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32
         4,
         fp * 3.0,
     );
-    let cover = ((density - 0.42) * 3.0 + (wisps - 0.5) * 0.8).clamp(0.0, 1.0);
+    let cover = ((density - 0.38) * 3.0 + (wisps - 0.5) * 0.8).clamp(0.0, 1.0);
     let shade = 0.75 + 0.35 * wisps;
     c = mix(c, [shade, shade, shade * 1.02], cover * 0.9);
+    // A thin high veil keeps even clear patches textured (photometric matching needs it).
+    // Noise on the unit sphere of directions: isotropic in angle, no horizon singularity,
+    // band-limited by the pixel's angular size.
+    let veil = fbm3(
+        [d.x as f32, d.y as f32, d.z as f32],
+        seed ^ 0x43,
+        SKY_VEIL_BASE_FREQ,
+        6,
+        pixel_angle_rad as f32,
+    );
+    c = scale(c, 0.8 + 0.4 * veil);
     // Haze near the horizon and the sun.
     let cos_sun = d.dot(sun) as f32;
     let glow = cos_sun.max(0.0).powf(64.0) * 0.6;
@@ -360,6 +420,14 @@ pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32
         c[2] + glow * 0.7 + disk,
     ]
 }
+
+/// Sky colour at the horizon (also the fog colour) and at the zenith, linear RGB; the
+/// gradient is `mix(horizon, zenith, max(d_z, 0)^SKY_GRADIENT_EXPONENT)`.
+pub const HORIZON_SKY: Rgb = [0.75, 0.82, 0.92];
+pub const ZENITH_SKY: Rgb = [0.22, 0.42, 0.8];
+const SKY_GRADIENT_EXPONENT: f32 = 0.6;
+/// Lowest frequency of the sky veil, cycles per unit of direction (about per radian).
+const SKY_VEIL_BASE_FREQ: f32 = 6.0;
 
 /// Cosine of the sun disk's angular radius (about 0.6 degrees, a little larger than the real
 /// sun so it covers a few pixels).

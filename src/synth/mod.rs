@@ -22,7 +22,7 @@ pub mod world;
 use crate::frame::{FloatImage, RgbImage, RigFrame};
 use crate::geometry::{ErpGrid, GeometryError, PixelCoord, Rig};
 use bvh::{Bvh, Ray};
-use material::{Material, Rgb, ROAD_HALF_WIDTH_M};
+use material::{Material, Rgb};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use noise::Rng;
 use rayon::prelude::*;
@@ -42,6 +42,12 @@ const SUN_RADIANCE: Rgb = [1.55, 1.45, 1.3];
 const SKY_AMBIENT: Rgb = [0.42, 0.48, 0.6];
 /// Light bounced from the ground onto downward-facing surfaces.
 const GROUND_BOUNCE: Rgb = [0.12, 0.11, 0.1];
+/// Sky-ambient weight of a vertical surface (1 for an upward one, `2 base - 1` downward).
+const SKY_VIEW_BASE: f64 = 0.6;
+/// Ground-bounce weight of a vertical surface.
+const GROUND_VIEW_SIDE: f64 = 0.3;
+/// Light emitted by street-lamp heads (linear RGB added to the shaded colour).
+const LAMP_EMISSION: Rgb = [0.3, 0.28, 0.2];
 /// Offset of shadow-ray origins along the normal, metres.
 const SHADOW_BIAS_M: f64 = 1e-4;
 /// Footprints are divided by `max(|cos incidence|, MIN_COS_INCIDENCE)`.
@@ -156,6 +162,13 @@ pub struct FrameReport {
     pub soiling: Vec<CameraSoiling>,
 }
 
+/// A single rendered view: the ERP image and its range image (metres).
+#[derive(Clone, Debug)]
+pub struct CameraView {
+    pub image: RgbImage,
+    pub range_m: FloatImage,
+}
+
 /// Renders frames of a procedural street for any rig.
 pub struct SynthRenderer {
     cfg: SynthConfig,
@@ -163,6 +176,7 @@ pub struct SynthRenderer {
     /// Unit ray direction of every ERP pixel (row-major), in the camera frame.
     dirs: Vec<Vector3<f64>>,
     params: WorldParams,
+    gamma_lut: Vec<u8>,
 }
 
 /// One traced ray's result.
@@ -170,6 +184,13 @@ pub struct SynthRenderer {
 struct Sample {
     colour: Rgb,
     range_m: f64,
+}
+
+/// The first surface a ray meets: its distance and the primitive (`None`: the ground plane).
+#[derive(Clone, Copy, Debug)]
+struct FirstHit {
+    t: f64,
+    prim: Option<bvh::PrimHit>,
 }
 
 /// The per-frame scene: primitives in a BVH plus the analytic ground plane and sky.
@@ -181,29 +202,35 @@ struct FrameScene<'a> {
 }
 
 impl FrameScene<'_> {
-    /// Distance to the first surface (BVH or ground plane `z = 0`), if any.
-    fn first_hit(&self, ray: &Ray) -> Option<(f64, Option<bvh::PrimHit>)> {
+    /// The first surface along `ray` (BVH primitive or ground plane `z = 0`), if any.
+    fn first_hit(&self, ray: &Ray) -> Option<FirstHit> {
         let t_ground = if ray.dir.z < 0.0 {
             -ray.origin.z / ray.dir.z
         } else {
             f64::INFINITY
         };
         match self.bvh.closest(ray, t_ground) {
-            Some(h) => Some((h.hit.t, Some(h))),
-            None if t_ground.is_finite() => Some((t_ground, None)),
+            Some(h) => Some(FirstHit {
+                t: h.hit.t,
+                prim: Some(h),
+            }),
+            None if t_ground.is_finite() => Some(FirstHit {
+                t: t_ground,
+                prim: None,
+            }),
             None => None,
         }
     }
 
     fn range_only(&self, ray: &Ray) -> f64 {
         self.first_hit(ray)
-            .map_or(self.max_depth_m, |(t, _)| t.min(self.max_depth_m))
+            .map_or(self.max_depth_m, |h| h.t.min(self.max_depth_m))
     }
 
     fn trace(&self, ray: &Ray) -> Sample {
         let seed = self.params.tex_seed;
         let sun = self.params.sun_dir;
-        let Some((t, prim_hit)) = self.first_hit(ray) else {
+        let Some(FirstHit { t, prim: prim_hit }) = self.first_hit(ray) else {
             return Sample {
                 colour: material::sky(&ray.dir, &sun, self.pixel_angle_rad, seed),
                 range_m: self.max_depth_m,
@@ -216,12 +243,8 @@ impl FrameScene<'_> {
                 (prim.material, h.hit.normal, p - prim.object_origin)
             }
             None => {
-                let m = if p.y.abs() <= ROAD_HALF_WIDTH_M {
-                    Material::Asphalt
-                } else {
-                    Material::Grass
-                };
-                (m, Vector3::z(), p)
+                let g = world::ground_material(self.params, &p);
+                (g.material, Vector3::z(), p - g.texture_origin)
             }
         };
         let cos_in = n.dot(&ray.dir);
@@ -229,7 +252,8 @@ impl FrameScene<'_> {
             n = -n;
         }
         let footprint_m = t * self.pixel_angle_rad / cos_in.abs().max(MIN_COS_INCIDENCE);
-        let albedo = material::albedo(&material, &p, &p_obj, &n, footprint_m, seed);
+        let p_tex = Vector3::new(p.x.rem_euclid(TEXTURE_WRAP_M), p.y, p.z);
+        let albedo = material::albedo(&material, &p_tex, &p_obj, &n, footprint_m, seed);
         let lambert = n.dot(&sun);
         let sunlit = if lambert > 0.0 {
             let shadow = Ray::new(p + n * SHADOW_BIAS_M, sun);
@@ -241,8 +265,10 @@ impl FrameScene<'_> {
         } else {
             0.0
         };
-        let sky_w = 0.6 + 0.4 * n.z;
-        let ground_w = (-n.z).max(0.0) + 0.3 * (1.0 - n.z.abs());
+        // Hemispherical ambient: the sky fills `(1 + n_z) / 2` of a surface's view (slightly
+        // flattened), the ground the rest.
+        let sky_w = SKY_VIEW_BASE + (1.0 - SKY_VIEW_BASE) * n.z;
+        let ground_w = (-n.z).max(0.0) + GROUND_VIEW_SIDE * (1.0 - n.z.abs());
         let mut c = [0.0f32; 3];
         for i in 0..3 {
             c[i] = albedo[i]
@@ -251,13 +277,14 @@ impl FrameScene<'_> {
                     + GROUND_BOUNCE[i] * ground_w as f32);
         }
         if material == Material::Lamp {
-            c = [c[0] + 0.3, c[1] + 0.28, c[2] + 0.2];
+            for (ci, e) in c.iter_mut().zip(LAMP_EMISSION) {
+                *ci += e;
+            }
         }
         // Aerial perspective towards the horizon sky colour.
         let fog = (1.0 - (-t / FOG_DISTANCE_M).exp()) as f32;
-        let haze: Rgb = [0.75, 0.82, 0.92];
-        for i in 0..3 {
-            c[i] += (haze[i] - c[i]) * fog;
+        for (ci, h) in c.iter_mut().zip(material::HORIZON_SKY) {
+            *ci += (h - *ci) * fog;
         }
         Sample {
             colour: c,
@@ -266,9 +293,29 @@ impl FrameScene<'_> {
     }
 }
 
-fn to_srgb8(c: f32) -> u8 {
-    (c.max(0.0).powf(1.0 / GAMMA).min(1.0) * 255.0).round() as u8
+/// Entries of the gamma lookup table, indexed by `sqrt(c)` (finer steps in the shadows).
+const GAMMA_LUT_SIZE: usize = 4096;
+
+/// `lut[i] = round(255 (i / (N - 1))^(2 / gamma))`, so `srgb8(c) = lut[sqrt(c) (N - 1)]`.
+fn gamma_lut() -> Vec<u8> {
+    (0..GAMMA_LUT_SIZE)
+        .map(|i| {
+            let s = i as f32 / (GAMMA_LUT_SIZE - 1) as f32;
+            (s.powf(2.0 / GAMMA) * 255.0 + 0.5) as u8
+        })
+        .collect()
 }
+
+/// Encodes linear `c` (clamped to [0, 1]) to 8 bits with display gamma [`GAMMA`].
+#[inline]
+fn to_srgb8(lut: &[u8], c: f32) -> u8 {
+    let i = (c.clamp(0.0, 1.0).sqrt() * (GAMMA_LUT_SIZE - 1) as f32 + 0.5) as usize;
+    lut[i.min(GAMMA_LUT_SIZE - 1)]
+}
+
+/// World texture coordinates wrap along x with this period, metres, so that f32 texture
+/// arithmetic keeps millimetre precision however far the rig drives (one seam per period).
+pub const TEXTURE_WRAP_M: f64 = 2048.0;
 
 fn same_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     (a.translation.vector - b.translation.vector).norm() < SAME_POSE_TOLERANCE
@@ -295,6 +342,7 @@ impl SynthRenderer {
             grid,
             dirs,
             params,
+            gamma_lut: gamma_lut(),
         })
     }
 
@@ -341,17 +389,7 @@ impl SynthRenderer {
     pub fn render_frame_with_report(&self, rig: &Rig, index: usize) -> (RigFrame, FrameReport) {
         let t_s = self.frame_time_s(index);
         let world_from_rig = self.world_from_rig(index);
-        let scene = FrameScene {
-            bvh: Bvh::build(world::scene_prims(
-                &self.params,
-                world_from_rig.translation.x,
-                VIEW_RANGE_M,
-                t_s,
-            )),
-            params: &self.params,
-            pixel_angle_rad: std::f64::consts::PI / self.grid.height() as f64,
-            max_depth_m: self.cfg.max_depth_m,
-        };
+        let scene = self.frame_scene(index);
         let output_cam = rig
             .cameras
             .iter()
@@ -407,6 +445,31 @@ impl SynthRenderer {
         )
     }
 
+    /// One clean ERP view from an arbitrary camera pose at the time of frame `index`, with
+    /// its own range image (same conventions as the ground truth). The scene is the one
+    /// around the rig's position at that frame.
+    pub fn render_camera(&self, index: usize, world_from_cam: &Isometry3<f64>) -> CameraView {
+        let scene = self.frame_scene(index);
+        let (image, range) = self.render_view(&scene, world_from_cam, true);
+        let range_m = range
+            .unwrap_or_else(|| FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN));
+        CameraView { image, range_m }
+    }
+
+    fn frame_scene(&self, index: usize) -> FrameScene<'_> {
+        FrameScene {
+            bvh: Bvh::build(world::scene_prims(
+                &self.params,
+                self.world_from_rig(index).translation.x,
+                VIEW_RANGE_M,
+                self.frame_time_s(index),
+            )),
+            params: &self.params,
+            pixel_angle_rad: std::f64::consts::PI / self.grid.height() as f64,
+            max_depth_m: self.cfg.max_depth_m,
+        }
+    }
+
     fn render_view(
         &self,
         scene: &FrameScene,
@@ -426,14 +489,14 @@ impl SynthRenderer {
                     let d = rot * self.dirs[v * w + u];
                     let s = scene.trace(&Ray::new(origin, d));
                     for i in 0..3 {
-                        row[3 * u + i] = to_srgb8(s.colour[i]);
+                        row[3 * u + i] = to_srgb8(&self.gamma_lut, s.colour[i]);
                     }
                     row_range[u] = s.range_m as f32;
                 }
             });
         let img = RgbImage::from_raw(w as u32, h as u32, rgb)
             .unwrap_or_else(|| RgbImage::new(w as u32, h as u32));
-        let range = keep_range.then(|| FloatImage {
+        let range = keep_range.then_some(FloatImage {
             width: w,
             height: h,
             data: range,

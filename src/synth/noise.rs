@@ -80,6 +80,18 @@ pub fn lattice_unit(x: i32, y: i32, z: i32, seed: u32) -> f32 {
     (lattice_hash(x, y, z, seed) >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
 }
 
+/// `floor` without a libm call (baseline x86-64 has no rounding instruction); exact for
+/// `|x| < 2^31`.
+#[inline]
+pub fn fast_floor(x: f32) -> i32 {
+    let i = x as i32;
+    if (i as f32) > x {
+        i - 1
+    } else {
+        i
+    }
+}
+
 /// Quintic fade `6t^5 - 15t^4 + 10t^3`.
 #[inline]
 fn fade(t: f32) -> f32 {
@@ -94,9 +106,8 @@ fn lerp(a: f32, b: f32, t: f32) -> f32 {
 /// 2-D value noise in `[0, 1)`, continuous, one lattice cell per unit.
 #[inline]
 pub fn value2(x: f32, y: f32, seed: u32) -> f32 {
-    let (fx, fy) = (x.floor(), y.floor());
-    let (ix, iy) = (fx as i32, fy as i32);
-    let (tx, ty) = (fade(x - fx), fade(y - fy));
+    let (ix, iy) = (fast_floor(x), fast_floor(y));
+    let (tx, ty) = (fade(x - ix as f32), fade(y - iy as f32));
     let a = lattice_unit(ix, iy, 0, seed);
     let b = lattice_unit(ix + 1, iy, 0, seed);
     let c = lattice_unit(ix, iy + 1, 0, seed);
@@ -107,9 +118,12 @@ pub fn value2(x: f32, y: f32, seed: u32) -> f32 {
 /// 3-D value noise in `[0, 1)`.
 #[inline]
 pub fn value3(x: f32, y: f32, z: f32, seed: u32) -> f32 {
-    let (fx, fy, fz) = (x.floor(), y.floor(), z.floor());
-    let (ix, iy, iz) = (fx as i32, fy as i32, fz as i32);
-    let (tx, ty, tz) = (fade(x - fx), fade(y - fy), fade(z - fz));
+    let (ix, iy, iz) = (fast_floor(x), fast_floor(y), fast_floor(z));
+    let (tx, ty, tz) = (
+        fade(x - ix as f32),
+        fade(y - iy as f32),
+        fade(z - iz as f32),
+    );
     let l = |dx: i32, dy: i32, dz: i32| lattice_unit(ix + dx, iy + dy, iz + dz, seed);
     let z0 = lerp(
         lerp(l(0, 0, 0), l(1, 0, 0), tx),

@@ -9,7 +9,7 @@
 
 use super::bvh::{Aabb, Prim, Shape};
 use super::material::{Material, Rgb, ROAD_HALF_WIDTH_M};
-use super::noise::{hash_words, Rng};
+use super::noise::{hash_words, unit_from_hash, Rng};
 use nalgebra::Vector3;
 
 /// Length of a tile of static content along x, metres.
@@ -21,6 +21,10 @@ pub const KERB_HEIGHT_M: f64 = 0.15;
 const SIDEWALK_OUTER_M: f64 = 13.5;
 /// Building fronts start this far from the road axis (plus a random setback).
 const BUILDING_FRONT_M: f64 = 13.0;
+/// Front of the second row of buildings behind the street, metres from the axis.
+const BACK_ROW_FRONT_M: f64 = 32.0;
+/// Corner buildings stand this far back from a cross street's edge, metres.
+const CORNER_SETBACK_M: f64 = 1.5;
 const PARKED_CAR_Y_M: f64 = 6.4;
 const ONCOMING_CAR_Y_M: f64 = 2.4;
 const ONCOMING_SPEED_MPS: f64 = 9.0;
@@ -76,6 +80,62 @@ const CLOTHES_COLOURS: [Rgb; 6] = [
     [0.7, 0.7, 0.7],
 ];
 const SKIN_COLOURS: [Rgb; 3] = [[0.8, 0.6, 0.5], [0.55, 0.38, 0.28], [0.35, 0.22, 0.15]];
+
+/// Probability that a tile holds a cross street (no buildings, zebra crossings).
+pub const INTERSECTION_PROBABILITY: f64 = 0.12;
+/// Half width of a cross street along x, centred in its tile, metres.
+pub const CROSS_STREET_HALF_WIDTH_M: f64 = 6.0;
+
+/// Whether `tile` is an intersection with a cross street (a pure function of seed and tile).
+pub fn is_intersection(params: &WorldParams, tile: i64) -> bool {
+    unit_from_hash(hash_words(&[params.seed, tile as u64, 0x1A7E])) < INTERSECTION_PROBABILITY
+}
+
+/// The tile holding world x.
+pub fn tile_of(x_m: f64) -> i64 {
+    (x_m / TILE_LENGTH_M).floor() as i64
+}
+
+/// Centre x of the cross street of `tile` (if it has one).
+pub fn cross_street_centre_m(tile: i64) -> f64 {
+    (tile as f64 + 0.5) * TILE_LENGTH_M
+}
+
+/// Whether world x lies on a cross street (with `margin_m` added to its half width).
+pub fn on_cross_street(params: &WorldParams, x_m: f64, margin_m: f64) -> bool {
+    let tile = tile_of(x_m);
+    is_intersection(params, tile)
+        && (x_m - cross_street_centre_m(tile)).abs() <= CROSS_STREET_HALF_WIDTH_M + margin_m
+}
+
+/// What the ground plane is at a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GroundSurface {
+    pub material: Material,
+    /// Origin of the material's local coordinates (the cross street's centre for
+    /// [`Material::CrossStreet`], else the world origin).
+    pub texture_origin: Vector3<f64>,
+}
+
+/// The ground plane `z = 0` at `p`: cross street, road (`|y| <= ROAD_HALF_WIDTH_M`) or grass.
+pub fn ground_material(params: &WorldParams, p: &Vector3<f64>) -> GroundSurface {
+    if on_cross_street(params, p.x, 0.0) {
+        let c = cross_street_centre_m(tile_of(p.x));
+        return GroundSurface {
+            material: Material::CrossStreet,
+            texture_origin: Vector3::new(c, 0.0, 0.0),
+        };
+    }
+    let material = if p.y.abs() <= ROAD_HALF_WIDTH_M {
+        Material::Asphalt
+    } else {
+        Material::Grass
+    };
+    GroundSurface {
+        material,
+        texture_origin: Vector3::zeros(),
+    }
+}
 
 /// Global, seed-dependent scene parameters.
 #[derive(Clone, Debug)]
@@ -217,23 +277,19 @@ fn pedestrian(out: &mut Vec<Prim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
     );
 }
 
-/// Static content of tile `tile` on side `side` (+1 left, -1 right).
-fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64) {
-    let mut rng = Rng::new(&[params.seed, tile as u64, side.to_bits(), 0x77]);
-    let x0 = tile as f64 * TILE_LENGTH_M;
-    let x1 = x0 + TILE_LENGTH_M;
-    let s = side;
+/// Up to `max_count` buildings filling `[x0, x1]` on side `s`, fronts `front_m` (plus a
+/// random setback) from the road axis.
+fn building_row(
+    out: &mut Vec<Prim>,
+    rng: &mut Rng,
+    x0: f64,
+    x1: f64,
+    s: f64,
+    front_m: f64,
+    max_count: usize,
+) {
     let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
-    // Sidewalk slab (kerb face towards the road).
-    let (ya, yb) = lo_hi(s * ROAD_HALF_WIDTH_M, s * SIDEWALK_OUTER_M);
-    push(
-        out,
-        aabox([x0, ya, 0.0], [x1, yb, KERB_HEIGHT_M]),
-        Material::Paving,
-        Vector3::zeros(),
-    );
-    // Buildings: one to three per tile with small gaps.
-    let count = 1 + rng.index(3);
+    let count = 1 + rng.index(max_count);
     let mut x = x0;
     for b in 0..count {
         let remaining = x1 - x;
@@ -247,15 +303,16 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
         } else {
             0.0
         };
-        let front = BUILDING_FRONT_M
+        let front = front_m
             + if rng.chance(0.4) {
                 rng.range(0.5, 3.0)
             } else {
                 0.0
             };
         let depth = rng.range(10.0, 16.0);
-        let height = if rng.chance(0.2) {
-            rng.range(22.0, 40.0)
+        let tall = if front_m > BUILDING_FRONT_M { 0.4 } else { 0.2 };
+        let height = if rng.chance(tall) {
+            rng.range(22.0, 45.0)
         } else {
             rng.range(7.0, 20.0)
         };
@@ -277,6 +334,61 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
         );
         x += width;
     }
+}
+
+/// Static content of tile `tile` on side `side` (+1 left, -1 right).
+fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64) {
+    let mut rng = Rng::new(&[params.seed, tile as u64, side.to_bits(), 0x77]);
+    let x0 = tile as f64 * TILE_LENGTH_M;
+    let x1 = x0 + TILE_LENGTH_M;
+    let s = side;
+    let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
+    // Sidewalk slab (kerb face towards the road).
+    let (ya, yb) = lo_hi(s * ROAD_HALF_WIDTH_M, s * SIDEWALK_OUTER_M);
+    if is_intersection(params, tile) {
+        // Corners only: sidewalks up to the cross street and a street light on one corner.
+        let c = cross_street_centre_m(tile);
+        for (a, b) in [
+            (x0, c - CROSS_STREET_HALF_WIDTH_M),
+            (c + CROSS_STREET_HALF_WIDTH_M, x1),
+        ] {
+            push(
+                out,
+                aabox([a, ya, 0.0], [b, yb, KERB_HEIGHT_M]),
+                Material::Paving,
+                Vector3::zeros(),
+            );
+        }
+        // Corner buildings (front and back rows) on both sides of the cross street.
+        let corner = CROSS_STREET_HALF_WIDTH_M + CORNER_SETBACK_M;
+        for (a, b) in [(x0, c - corner), (c + corner, x1)] {
+            building_row(out, &mut rng, a, b, s, BUILDING_FRONT_M, 1);
+            building_row(out, &mut rng, a, b, s, BACK_ROW_FRONT_M, 1);
+        }
+        let px = c - CROSS_STREET_HALF_WIDTH_M - 1.0;
+        let py = s * POLE_Y_M;
+        push(
+            out,
+            Shape::Cylinder {
+                centre: Vector3::new(px, py, 3.0),
+                axis: 2,
+                radius_m: 0.09,
+                half_length_m: 3.0,
+            },
+            Material::Metal,
+            Vector3::new(px, py, 0.0),
+        );
+        return;
+    }
+    push(
+        out,
+        aabox([x0, ya, 0.0], [x1, yb, KERB_HEIGHT_M]),
+        Material::Paving,
+        Vector3::zeros(),
+    );
+    // Buildings: one to three per tile with small gaps, and a taller row behind.
+    building_row(out, &mut rng, x0, x1, s, BUILDING_FRONT_M, 3);
+    building_row(out, &mut rng, x0, x1, s, BACK_ROW_FRONT_M, 2);
     // Tree.
     if rng.chance(0.75) {
         let tx = x0 + rng.range(3.0, 9.0);
@@ -393,6 +505,10 @@ pub fn scene_prims(params: &WorldParams, x_centre_m: f64, range_m: f64, t_s: f64
                 let mut rng = Rng::new(&[params.seed, k as u64, si as u64, pi as u64, 0xFEE7]);
                 if rng.chance(0.5) {
                     let x = k as f64 * st.slot_m + rng.range(0.0, 0.6 * st.slot_m) + shift;
+                    // Nobody walks (at sidewalk height) across a cross street.
+                    if on_cross_street(params, x, 0.5) {
+                        continue;
+                    }
                     let y = side * (st.y_m + rng.range(-0.3, 0.3));
                     // Gait: one stride (two steps) per 1.4 m travelled.
                     let phase = x / 1.4 * std::f64::consts::TAU + rng.range(0.0, 6.0);

@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# Prepares the third-party readers used by tests/bag_interop.rs. Idempotent.
+#
+# Usage: tests/interop/setup.sh DIR
+#   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support and rosbags
+#     (skipped when it already imports them);
+#   - runs `npm install` (from package.json / package-lock.json) into tests/interop
+#     (skipped when node_modules already holds the pinned packages).
+# Then export, as printed at the end:
+#   MODE360_PYTHON=DIR/.venv/bin/python  MODE360_NODE_DIR=<repo>/tests/interop
+set -euo pipefail
+
+if [[ $# -ne 1 ]]; then
+  echo "usage: $0 DIR   (the venv goes to DIR/.venv)" >&2
+  exit 2
+fi
+root="$(cd "$1" && pwd)"
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+venv="$root/.venv"
+python="$venv/bin/python"
+# Pinned to the versions the checks were written against.
+python_packages=(mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9)
+
+if [[ -x "$python" ]] && "$python" -c "import mcap, mcap_ros2, rosbags" 2>/dev/null; then
+  echo "python: $venv already has ${python_packages[*]}"
+else
+  if [[ ! -x "$python" ]]; then
+    echo "python: creating venv $venv"
+    python3 -m venv "$venv"
+  fi
+  echo "python: installing ${python_packages[*]} into $venv"
+  "$python" -m pip install --quiet --upgrade "${python_packages[@]}"
+fi
+
+node_packages=(@mcap/core @foxglove/rosmsg @foxglove/rosmsg2-serialization)
+have_all=1
+for p in "${node_packages[@]}"; do
+  [[ -f "$here/node_modules/$p/package.json" ]] || have_all=0
+done
+if [[ $have_all -eq 1 ]]; then
+  echo "node: $here/node_modules already has ${node_packages[*]}"
+else
+  echo "node: npm install in $here"
+  if [[ -f "$here/package-lock.json" ]]; then
+    (cd "$here" && npm ci --no-audit --no-fund)
+  else
+    (cd "$here" && npm install --no-audit --no-fund)
+  fi
+fi
+
+echo "export MODE360_PYTHON=$python"
+echo "export MODE360_NODE_DIR=$here"
