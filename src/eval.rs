@@ -60,7 +60,11 @@ pub enum EvalError {
         source: GeometryError,
     },
     #[error("{bag}: metadata '{key}' = '{value}' is not a number")]
-    BadMetadata { bag: String, key: String, value: String },
+    BadMetadata {
+        bag: String,
+        key: String,
+        value: String,
+    },
     #[error("writing preview {path}: {message}")]
     Preview { path: String, message: String },
     #[error("no frames evaluated")]
@@ -111,7 +115,10 @@ struct Group {
 }
 
 /// Runs `estimator` over every frame of the bags and scores it.
-pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Result<EvalReport, EvalError> {
+pub fn evaluate(
+    opts: &EvalOptions,
+    estimator: &mut dyn DepthEstimator,
+) -> Result<EvalReport, EvalError> {
     let mut groups: BTreeMap<String, Group> = BTreeMap::new();
     for path in &opts.bags {
         let bag_name = path.display().to_string();
@@ -131,23 +138,32 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             })?,
         };
         let full_rig = reader.rig().clone();
-        let selection: Vec<usize> = opts.cameras.clone().unwrap_or_else(|| (0..full_rig.cameras.len()).collect());
-        let rig = full_rig.subset(&selection).map_err(|source| EvalError::Rig {
-            bag: bag_name.clone(),
-            source,
-        })?;
-        let group = groups.entry(condition.to_string()).or_insert_with(|| Group {
-            bags: Vec::new(),
-            cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
-            average: FrameAverage::default(),
-            seconds: 0.0,
-        });
+        let selection: Vec<usize> = opts
+            .cameras
+            .clone()
+            .unwrap_or_else(|| (0..full_rig.cameras.len()).collect());
+        let rig = full_rig
+            .subset(&selection)
+            .map_err(|source| EvalError::Rig {
+                bag: bag_name.clone(),
+                source,
+            })?;
+        let group = groups
+            .entry(condition.to_string())
+            .or_insert_with(|| Group {
+                bags: Vec::new(),
+                cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
+                average: FrameAverage::default(),
+                seconds: 0.0,
+            });
         group.bags.push(bag_name.clone());
         let progress = if opts.show_progress {
             let pb = ProgressBar::new(opts.max_frames.map(|m| m as u64).unwrap_or(0));
             pb.set_style(
-                ProgressStyle::with_template("{msg} [{elapsed_precise}] {bar:30} {pos} frames, ETA {eta}")
-                    .unwrap_or_else(|_| ProgressStyle::default_bar()),
+                ProgressStyle::with_template(
+                    "{msg} [{elapsed_precise}] {bar:30} {pos} frames, ETA {eta}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
             );
             pb.set_message(format!("{} {}", estimator.name(), bag_name));
             pb
@@ -160,28 +176,34 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                 break;
             }
             let frame = frame?;
-            let gt = frame.ground_truth.as_ref().ok_or(EvalError::NoGroundTruth {
-                bag: bag_name.clone(),
-                stamp_ns: frame.stamp_ns,
-            })?;
+            let gt = frame
+                .ground_truth
+                .as_ref()
+                .ok_or(EvalError::NoGroundTruth {
+                    bag: bag_name.clone(),
+                    stamp_ns: frame.stamp_ns,
+                })?;
             let images: Vec<_> = selection.iter().map(|&i| frame.images[i].clone()).collect();
             let output = ErpGrid::new(gt.width).map_err(|source| EvalError::Geometry {
                 bag: bag_name.clone(),
                 source,
             })?;
             let t0 = Instant::now();
-            let est = estimator.estimate(&rig, &images, output).map_err(|source| EvalError::Estimator {
-                bag: bag_name.clone(),
-                stamp_ns: frame.stamp_ns,
-                source,
-            })?;
+            let est = estimator
+                .estimate(&rig, &images, output)
+                .map_err(|source| EvalError::Estimator {
+                    bag: bag_name.clone(),
+                    stamp_ns: frame.stamp_ns,
+                    source,
+                })?;
             group.seconds += t0.elapsed().as_secs_f64();
             let frame_err = |source| EvalError::Metrics {
                 bag: bag_name.clone(),
                 stamp_ns: frame.stamp_ns,
                 source,
             };
-            let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m).map_err(frame_err)?;
+            let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m)
+                .map_err(frame_err)?;
             let pair = match &pair_cache {
                 Some((w, p)) if *w == gt.width => p.clone(),
                 _ => {
@@ -198,7 +220,10 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
             group.average.push(depth, disparity);
             if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
-                let stem = path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let stem = path
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().to_string())
+                    .unwrap_or_default();
                 let png = dir.join(format!("{stem}_{}_{n:03}.png", estimator.name()));
                 let min_depth_m = PREVIEW_MIN_DEPTH_M as f32;
                 let picture = crate::viz::stack_vertical(&[
@@ -253,7 +278,12 @@ fn reference_pair(rig: &Rig, output: ErpGrid) -> Result<GeerPair, GeometryError>
 
 /// Converts an output-frame range image to the pair's angular disparity in GEER pixels.
 /// Non-finite ranges give NaN.
-pub fn disparity_image(rig: &Rig, output: ErpGrid, pair: &GeerPair, range_m: &FloatImage) -> Vec<f32> {
+pub fn disparity_image(
+    rig: &Rig,
+    output: ErpGrid,
+    pair: &GeerPair,
+    range_m: &FloatImage,
+) -> Vec<f32> {
     range_m
         .data
         .iter()

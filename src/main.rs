@@ -10,7 +10,11 @@ use mode360::synth::SynthConfig;
 use std::path::PathBuf;
 
 #[derive(Parser)]
-#[command(name = "mode360", version, about = "Multi-camera 360° depth: synthetic rig bags, spherical sweep, evaluation")]
+#[command(
+    name = "mode360",
+    version,
+    about = "Multi-camera 360° depth: synthetic rig bags, spherical sweep, evaluation"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -76,7 +80,9 @@ struct EvalArgs {
 
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {

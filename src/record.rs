@@ -48,8 +48,10 @@ pub fn record_synthetic_bag(opts: &RecordOptions) -> Result<RecordSummary, Recor
     let progress = if opts.show_progress {
         let pb = ProgressBar::new(opts.frames as u64);
         pb.set_style(
-            ProgressStyle::with_template("rendering [{elapsed_precise}] {bar:30} {pos}/{len} frames ({per_sec}, ETA {eta})")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            ProgressStyle::with_template(
+                "rendering [{elapsed_precise}] {bar:30} {pos}/{len} frames ({per_sec}, ETA {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
         pb
     } else {

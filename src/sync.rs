@@ -34,7 +34,9 @@ impl Default for SyncConfig {
 /// A message the synchronizer refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum SyncError {
-    #[error("stream {stream}: stamp {stamp_ns} ns is older than the previous message ({last_ns} ns)")]
+    #[error(
+        "stream {stream}: stamp {stamp_ns} ns is older than the previous message ({last_ns} ns)"
+    )]
     OutOfOrder {
         stream: usize,
         stamp_ns: u64,
@@ -101,7 +103,12 @@ impl<T> ApproxTimeSync<T> {
     }
 
     /// Adds a message; returns the groups it completed (usually zero or one).
-    pub fn push(&mut self, stream: usize, stamp_ns: u64, msg: T) -> Result<Vec<SyncGroup<T>>, SyncError> {
+    pub fn push(
+        &mut self,
+        stream: usize,
+        stamp_ns: u64,
+        msg: T,
+    ) -> Result<Vec<SyncGroup<T>>, SyncError> {
         let count = self.queues.len();
         let last = self
             .last_stamp_ns
@@ -149,9 +156,10 @@ impl<T> ApproxTimeSync<T> {
                         return self.queues[i].pop_front();
                     }
                     let q = &mut self.queues[i];
-                    let pos = q
-                        .iter()
-                        .position(|(s, _)| s.abs_diff(min_ns) <= self.config.tolerance_ns && s.abs_diff(max_ns) <= self.config.tolerance_ns)?;
+                    let pos = q.iter().position(|(s, _)| {
+                        s.abs_diff(min_ns) <= self.config.tolerance_ns
+                            && s.abs_diff(max_ns) <= self.config.tolerance_ns
+                    })?;
                     q.drain(..pos).for_each(drop);
                     q.pop_front()
                 })
@@ -172,7 +180,13 @@ mod tests {
     const MS: u64 = 1_000_000;
 
     fn sync(n: usize) -> ApproxTimeSync<&'static str> {
-        ApproxTimeSync::new(n, SyncConfig { tolerance_ns: 5 * MS, queue_size: 3 })
+        ApproxTimeSync::new(
+            n,
+            SyncConfig {
+                tolerance_ns: 5 * MS,
+                queue_size: 3,
+            },
+        )
     }
 
     #[test]
@@ -205,13 +219,20 @@ mod tests {
         s.push(0, 50 * MS, "a").unwrap();
         assert_eq!(
             s.push(0, 40 * MS, "late"),
-            Err(SyncError::OutOfOrder { stream: 0, stamp_ns: 40 * MS, last_ns: 50 * MS })
+            Err(SyncError::OutOfOrder {
+                stream: 0,
+                stamp_ns: 40 * MS,
+                last_ns: 50 * MS
+            })
         );
         for k in 0..10 {
             s.push(0, (60 + k) * MS, "x").unwrap();
         }
         assert_eq!(s.stats().overflow, 8);
-        assert!(matches!(s.push(5, 0, "?"), Err(SyncError::NoSuchStream { .. })));
+        assert!(matches!(
+            s.push(5, 0, "?"),
+            Err(SyncError::NoSuchStream { .. })
+        ));
     }
 
     #[test]

@@ -12,17 +12,26 @@ fn mode360(args: &[&str]) -> Output {
 }
 
 fn rig_path() -> String {
-    format!("{}/launch_configs/rig_deep360.yaml", env!("CARGO_MANIFEST_DIR"))
+    format!(
+        "{}/launch_configs/rig_deep360.yaml",
+        env!("CARGO_MANIFEST_DIR")
+    )
 }
 
 fn synth(dir: &Path, name: &str, extra: &[&str]) -> PathBuf {
     let out = dir.join(name);
     let out_s = out.to_string_lossy().to_string();
     let rig = rig_path();
-    let mut args = vec!["synth", "--rig", &rig, "--frames", "2", "--width", "128", "--seed", "5", "--out", &out_s];
+    let mut args = vec![
+        "synth", "--rig", &rig, "--frames", "2", "--width", "128", "--seed", "5", "--out", &out_s,
+    ];
     args.extend_from_slice(extra);
     let o = mode360(&args);
-    assert!(o.status.success(), "synth failed: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "synth failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     out
 }
 
@@ -34,12 +43,28 @@ fn synth_then_eval_prints_and_writes_the_table() {
     let json = dir.path().join("eval.json");
     let pngs = dir.path().join("png");
     let o = mode360(&[
-        "eval", "--bag", clean.to_str().unwrap(), "--bag", soiled.to_str().unwrap(),
-        "--estimator", "photometric", "--json", json.to_str().unwrap(), "--png-dir", pngs.to_str().unwrap(),
+        "eval",
+        "--bag",
+        clean.to_str().unwrap(),
+        "--bag",
+        soiled.to_str().unwrap(),
+        "--estimator",
+        "photometric",
+        "--json",
+        json.to_str().unwrap(),
+        "--png-dir",
+        pngs.to_str().unwrap(),
     ]);
     let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "eval failed: {}", String::from_utf8_lossy(&o.stderr));
-    assert!(stdout.contains("| clean |") && stdout.contains("| soiled |"), "{stdout}");
+    assert!(
+        o.status.success(),
+        "eval failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        stdout.contains("| clean |") && stdout.contains("| soiled |"),
+        "{stdout}"
+    );
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let rows = report["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
@@ -58,25 +83,62 @@ fn synth_then_eval_prints_and_writes_the_table() {
 fn camera_subset_is_one_based_and_validated() {
     let dir = tempfile::tempdir().unwrap();
     let bag = synth(dir.path(), "b.mcap", &[]);
-    let o = mode360(&["eval", "--bag", bag.to_str().unwrap(), "--cameras", "0,1", "--max-frames", "1"]);
+    let o = mode360(&[
+        "eval",
+        "--bag",
+        bag.to_str().unwrap(),
+        "--cameras",
+        "0,1",
+        "--max-frames",
+        "1",
+    ]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("1-based"));
-    let o = mode360(&["eval", "--bag", bag.to_str().unwrap(), "--cameras", "1,7", "--max-frames", "1"]);
+    let o = mode360(&[
+        "eval",
+        "--bag",
+        bag.to_str().unwrap(),
+        "--cameras",
+        "1,7",
+        "--max-frames",
+        "1",
+    ]);
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("camera 7"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("camera 7"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }
 
 #[test]
 fn bad_rig_yaml_names_the_file_and_field() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad_rig.yaml");
-    let text = std::fs::read_to_string(rig_path()).unwrap().replacen("rotation_xyzw: [0.0, 0.0, 0.0, 1.0]", "rotation_xyzw: [0.0, 0.0, 0.5, 1.0]", 1);
+    let text = std::fs::read_to_string(rig_path()).unwrap().replacen(
+        "rotation_xyzw: [0.0, 0.0, 0.0, 1.0]",
+        "rotation_xyzw: [0.0, 0.0, 0.5, 1.0]",
+        1,
+    );
     std::fs::write(&bad, text).unwrap();
     let out = dir.path().join("x.mcap");
-    let o = mode360(&["synth", "--rig", bad.to_str().unwrap(), "--frames", "1", "--width", "64", "--out", out.to_str().unwrap()]);
+    let o = mode360(&[
+        "synth",
+        "--rig",
+        bad.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--width",
+        "64",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("bad_rig.yaml") && err.contains("cam1") && err.contains("rotation_xyzw"), "{err}");
+    assert!(
+        err.contains("bad_rig.yaml") && err.contains("cam1") && err.contains("rotation_xyzw"),
+        "{err}"
+    );
     assert!(!err.contains("panicked"), "{err}");
 }
 

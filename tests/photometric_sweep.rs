@@ -199,6 +199,10 @@ fn rendered_street_frame_accuracy() -> TestResult {
     let s = scores(&out.range_m, gt, MAX_DEPTH_M);
     println!("street 256x128: {s:?}");
     assert!(s.delta1 >= MIN_STREET, "delta1 {}", s.delta1);
+    // The project's metrics module agrees with this test's own scoring.
+    let m = mode360::metrics::depth_metrics(&out.range_m.data, &gt.data, MAX_DEPTH_M)?;
+    assert!((m.delta1_pct / 100.0 - s.delta1).abs() < 1e-9);
+    assert!((m.abs_rel - s.abs_rel).abs() < 1e-9);
     // The rig cache is reused on the next call and gives the same answer.
     let again = est.estimate(&rig, &frame.images, ErpGrid::new(TEST_WIDTH)?)?;
     assert_eq!(again.range_m.data, out.range_m.data);
