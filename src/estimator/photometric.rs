@@ -5,11 +5,14 @@
 //! 1. Every camera image becomes a grey image `g = 0.299 R + 0.587 G + 0.114 B` in [0, 1].
 //! 2. For each sphere `i` (range `rho_i`, uniform in inverse depth, index 0 the farthest
 //!    `1 / max_depth`), every camera is sampled onto the output grid with the exact sweep
-//!    formula of [`crate::geometry::SweepGeometry`] (see [`sampling`]); a camera whose frame is
-//!    the output frame is used as is.
+//!    formula of [`crate::geometry::SweepGeometry`] (submodule `sampling`); a camera whose frame
+//!    is the output frame is used as is.
 //! 3. Windowed ZNCC between every camera pair, the best `ceil(f P)` of the `P` pair costs
-//!    averaged per pixel (occlusion-robust, see [`cost`]): a cost volume `C(v, u, i)`.
-//! 4. Semi-global aggregation along rows (closed loops in longitude) and columns ([`sgm`]).
+//!    averaged per pixel (occlusion-robust, submodule `cost`); pairs are blended toward the
+//!    undecided cost where their baseline is nearly parallel to the ray; a small far prior
+//!    `far_prior * i / (D - 1)` is added: a cost volume `C(v, u, i)`.
+//! 4. Semi-global aggregation along rows (closed loops in longitude) and columns, with `P2`
+//!    lowered across intensity edges of the output view (submodule `sgm`).
 //! 5. Winner-take-all `i* = argmin_i S(i)`, refined by the parabola through
 //!    `S(i*-1), S(i*), S(i*+1)`: `i = i* + (S(i*-1) - S(i*+1)) / (2 (S(i*-1) - 2 S(i*) + S(i*+1)))`,
 //!    which is linear in inverse depth; range `1 / inv(i)`. Index 0 is `max_depth` (sky).
@@ -18,9 +21,12 @@
 //!    `CONFIDENCE_EXCLUSION` hypotheses away, and `confidence = m / (m + m_0)` in [0, 1).
 //!
 //! Per-rig work (rotated output rays per camera) is cached and reused while the rig, the
-//! image sizes and the output grid stay the same. Memory is one `W H D` cost volume and one
-//! aggregated volume of f32 (2 x 64 MiB at 512x256 with 128 spheres); sampling is computed per
-//! sphere on the fly.
+//! image sizes and the output grid stay the same. Sampling is computed per sphere on the fly;
+//! memory peaks at three `W H D` f32 volumes (per-sphere slices, the `[v][u][i]` volume, the
+//! aggregated volume: 3 x 64 MiB at 512x256 with 128 spheres).
+//!
+//! Measured on rendered 512x256 street frames (4 cameras, defaults): delta1 about 91 %, about
+//! 3.3 CPU-seconds per frame (under 2 s wall on two idle cores).
 
 mod cost;
 mod sampling;
