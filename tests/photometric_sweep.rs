@@ -40,6 +40,13 @@ const REFINE_FACTOR: f64 = 0.9;
 const CONF_FACTOR: f64 = 1.1;
 /// Rendered street frame (seed 0, frame 0, 256x128, 4 cameras): delta1 [0.913].
 const MIN_STREET: f64 = 0.87;
+/// Colour of the simulated mud patch.
+const MUD_RGB: [u8; 3] = [150, 110, 60];
+/// Size of the mud texture's blotches, pixels.
+const MUD_BLOTCH_PX: u32 = 3;
+/// delta1 gain of averaging the best half of pairs over all pairs with a blocked camera
+/// [0.9635 - 0.9387 = 0.025].
+const MIN_SUBSET_GAIN: f64 = 0.01;
 
 fn estimate_analytic(
     cameras: &[usize],
@@ -176,6 +183,37 @@ fn confidence_is_higher_on_correct_pixels() -> TestResult {
         mean(&good),
         mean(&bad)
     );
+    Ok(())
+}
+
+#[test]
+fn best_pair_subset_resists_a_blocked_camera() -> TestResult {
+    let rig = Rig::from_file(RIG_PATH)?;
+    let mut frame = render(&rig, TEST_WIDTH, MAX_DEPTH_M)?;
+    // A textured "mud" patch fixed to camera 3's image over an eighth of its panorama: every
+    // pair with camera 3 is wrong there.
+    let (w, h) = frame.images[2].dimensions();
+    for v in h / 4..(3 * h) / 4 {
+        for u in w / 4..w / 2 {
+            // Blotches of MUD_BLOTCH_PX pixels, brightness from a multiplicative hash.
+            let cell = (u / MUD_BLOTCH_PX) * 7919 + (v / MUD_BLOTCH_PX) * 104_729;
+            let shade = (cell.wrapping_mul(2_654_435_761) >> 24) % 128 + 64;
+            let rgb = MUD_RGB.map(|c| (c as u32 * shade / 128).min(255) as u8);
+            frame.images[2].put_pixel(u, v, image::Rgb(rgb));
+        }
+    }
+    let grid = ErpGrid::new(TEST_WIDTH)?;
+    let run = |fraction: f32| -> Result<f64, Box<dyn std::error::Error>> {
+        let cfg = PhotometricConfig {
+            best_pair_fraction: fraction,
+            ..Default::default()
+        };
+        let out = PhotometricSweep::new(cfg)?.estimate(&rig, &frame.images, grid)?;
+        Ok(scores(&out.range_m, &frame.ground_truth, MAX_DEPTH_M).delta1)
+    };
+    let (subset, all) = (run(0.5)?, run(1.0)?);
+    println!("blocked camera: delta1 best half of pairs {subset}, all pairs {all}");
+    assert!(subset > all + MIN_SUBSET_GAIN, "{subset} vs {all}");
     Ok(())
 }
 
