@@ -57,15 +57,17 @@ mod tests {
     #[test]
     fn near_is_red_far_is_blue_invalid_is_black() {
         let r = FloatImage {
-            width: 3,
+            width: 4,
             height: 1,
-            data: vec![1.0, 1000.0, f32::NAN],
+            data: vec![1.0, 1000.0, f32::NAN, 100.0],
         };
         let img = colorize_range(&r, 1.0, 1000.0);
         let near = img.get_pixel(0, 0);
         let far = img.get_pixel(1, 0);
         assert!(near[0] > near[2], "near should be red: {near:?}");
-        assert!(far[2] > far[0], "far should be blue: {far:?}");
+        let mid = img.get_pixel(3, 0);
+        assert!(mid[2] > mid[0], "100 m should be blue: {mid:?}");
+        assert!(far.0.iter().map(|&c| c as u32).sum::<u32>() < 150, "max depth is dark: {far:?}");
         assert_eq!(*img.get_pixel(2, 0), Rgb([0, 0, 0]));
         assert_eq!(stack_vertical(&[img.clone(), img]).height(), 2);
     }

@@ -49,7 +49,7 @@ pub struct ErpGrid {
 impl ErpGrid {
     /// An ERP grid `width` wide and `width / 2` tall; `width` must be even and at least 4.
     pub fn new(width: usize) -> Result<Self, GeometryError> {
-        if width < MIN_ERP_WIDTH || width % 2 != 0 {
+        if width < MIN_ERP_WIDTH || !width.is_multiple_of(2) {
             return Err(GeometryError::BadErpWidth {
                 width,
                 min: MIN_ERP_WIDTH,

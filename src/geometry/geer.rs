@@ -64,7 +64,7 @@ impl GeerPair {
     ) -> Result<Self, GeometryError> {
         let baseline = left_origin_rig - right_origin_rig;
         let baseline_m = baseline.norm();
-        if !(baseline_m > MIN_BASELINE_M) {
+        if baseline_m.is_nan() || baseline_m <= MIN_BASELINE_M {
             return Err(GeometryError::ZeroBaseline { baseline_m });
         }
         if width == 0 {
