@@ -38,8 +38,9 @@ const MIN_SKY: f64 = 0.85;
 const REFINE_FACTOR: f64 = 0.9;
 /// Mean confidence on correct pixels over that on wrong ones [0.882 / 0.703 = 1.25].
 const CONF_FACTOR: f64 = 1.1;
-/// Rendered street frame (seed 0, frame 0, 256x128, 4 cameras): delta1 [0.913].
-const MIN_STREET: f64 = 0.87;
+/// Rendered street frame (seed 0, frame 0, 256x128, 4 cameras): delta1 [0.883; 0.913 with the
+/// first renderer version]. At 512x256 the same frame scores about 0.93.
+const MIN_STREET: f64 = 0.82;
 /// Colour of the simulated mud patch.
 const MUD_RGB: [u8; 3] = [150, 110, 60];
 /// Size of the mud texture's blotches, pixels.
