@@ -67,7 +67,10 @@ mod tests {
         assert!(near[0] > near[2], "near should be red: {near:?}");
         let mid = img.get_pixel(3, 0);
         assert!(mid[2] > mid[0], "100 m should be blue: {mid:?}");
-        assert!(far.0.iter().map(|&c| c as u32).sum::<u32>() < 150, "max depth is dark: {far:?}");
+        assert!(
+            far.0.iter().map(|&c| c as u32).sum::<u32>() < 150,
+            "max depth is dark: {far:?}"
+        );
         assert_eq!(*img.get_pixel(2, 0), Rgb([0, 0, 0]));
         assert_eq!(stack_vertical(&[img.clone(), img]).height(), 2);
     }

@@ -38,8 +38,16 @@ const MIN_SKY: f64 = 0.85;
 const REFINE_FACTOR: f64 = 0.9;
 /// Mean confidence on correct pixels over that on wrong ones [0.882 / 0.703 = 1.25].
 const CONF_FACTOR: f64 = 1.1;
-/// Rendered street frame (seed 0, frame 0, 256x128, 4 cameras): delta1 [0.913].
-const MIN_STREET: f64 = 0.87;
+/// Rendered street frame (seed 0, frame 0, 256x128, 4 cameras): delta1 [0.883; 0.913 with the
+/// first renderer version]. At 512x256 the same frame scores about 0.93.
+const MIN_STREET: f64 = 0.82;
+/// Colour of the simulated mud patch.
+const MUD_RGB: [u8; 3] = [150, 110, 60];
+/// Size of the mud texture's blotches, pixels.
+const MUD_BLOTCH_PX: u32 = 3;
+/// delta1 gain of averaging the best half of pairs over all pairs with a blocked camera
+/// [0.9635 - 0.9387 = 0.025].
+const MIN_SUBSET_GAIN: f64 = 0.01;
 
 fn estimate_analytic(
     cameras: &[usize],
@@ -180,6 +188,37 @@ fn confidence_is_higher_on_correct_pixels() -> TestResult {
 }
 
 #[test]
+fn best_pair_subset_resists_a_blocked_camera() -> TestResult {
+    let rig = Rig::from_file(RIG_PATH)?;
+    let mut frame = render(&rig, TEST_WIDTH, MAX_DEPTH_M)?;
+    // A textured "mud" patch fixed to camera 3's image over an eighth of its panorama: every
+    // pair with camera 3 is wrong there.
+    let (w, h) = frame.images[2].dimensions();
+    for v in h / 4..(3 * h) / 4 {
+        for u in w / 4..w / 2 {
+            // Blotches of MUD_BLOTCH_PX pixels, brightness from a multiplicative hash.
+            let cell = (u / MUD_BLOTCH_PX) * 7919 + (v / MUD_BLOTCH_PX) * 104_729;
+            let shade = (cell.wrapping_mul(2_654_435_761) >> 24) % 128 + 64;
+            let rgb = MUD_RGB.map(|c| (c as u32 * shade / 128).min(255) as u8);
+            frame.images[2].put_pixel(u, v, image::Rgb(rgb));
+        }
+    }
+    let grid = ErpGrid::new(TEST_WIDTH)?;
+    let run = |fraction: f32| -> Result<f64, Box<dyn std::error::Error>> {
+        let cfg = PhotometricConfig {
+            best_pair_fraction: fraction,
+            ..Default::default()
+        };
+        let out = PhotometricSweep::new(cfg)?.estimate(&rig, &frame.images, grid)?;
+        Ok(scores(&out.range_m, &frame.ground_truth, MAX_DEPTH_M).delta1)
+    };
+    let (subset, all) = (run(0.5)?, run(1.0)?);
+    println!("blocked camera: delta1 best half of pairs {subset}, all pairs {all}");
+    assert!(subset > all + MIN_SUBSET_GAIN, "{subset} vs {all}");
+    Ok(())
+}
+
+#[test]
 fn rendered_street_frame_accuracy() -> TestResult {
     use mode360::synth::{SynthConfig, SynthRenderer};
     let rig = Rig::from_file(RIG_PATH)?;
@@ -199,6 +238,10 @@ fn rendered_street_frame_accuracy() -> TestResult {
     let s = scores(&out.range_m, gt, MAX_DEPTH_M);
     println!("street 256x128: {s:?}");
     assert!(s.delta1 >= MIN_STREET, "delta1 {}", s.delta1);
+    // The project's metrics module agrees with this test's own scoring.
+    let m = mode360::metrics::depth_metrics(&out.range_m.data, &gt.data, MAX_DEPTH_M)?;
+    assert!((m.delta1_pct / 100.0 - s.delta1).abs() < 1e-9);
+    assert!((m.abs_rel - s.abs_rel).abs() < 1e-9);
     // The rig cache is reused on the next call and gives the same answer.
     let again = est.estimate(&rig, &frame.images, ErpGrid::new(TEST_WIDTH)?)?;
     assert_eq!(again.range_m.data, out.range_m.data);
@@ -311,6 +354,9 @@ fn explore_analytic_scene() -> TestResult {
 #[test]
 #[ignore = "exploration: prints metrics on rendered street frames"]
 fn explore_synth() -> TestResult {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .try_init();
     use mode360::synth::{SynthConfig, SynthRenderer};
     let rig = Rig::from_file(RIG_PATH)?;
     let env_num = |k: &str, d: usize| {
@@ -340,6 +386,7 @@ fn explore_synth() -> TestResult {
         let sub = rig.subset(&idx)?;
         let mut est = PhotometricSweep::new(cfg.clone())?;
         let (mut d1, mut ar, mut mae, mut rmse, mut secs, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut cpu = 0.0;
         for seed in 0..seeds as u64 {
             let renderer = SynthRenderer::new(SynthConfig {
                 seed,
@@ -354,8 +401,10 @@ fn explore_synth() -> TestResult {
                 };
                 let imgs: Vec<RgbImage> = idx.iter().map(|&i| frame.images[i].clone()).collect();
                 let t0 = Instant::now();
+                let cpu0 = process_cpu_s();
                 let out = est.estimate(&sub, &imgs, ErpGrid::new(width)?)?;
                 secs += t0.elapsed().as_secs_f64();
+                cpu += process_cpu_s() - cpu0;
                 let s = scores(&out.range_m, gt, max_depth_m);
                 println!("  {name} seed {seed} frame {}: {s:?}", f * 5);
                 d1 += s.delta1;
@@ -382,8 +431,24 @@ fn explore_synth() -> TestResult {
                 }
             }
         }
-        println!("{name} {width} soiled={soiled}: delta1 {:.4} absrel {:.4} mae {:.2} rmse {:.2} s/frame {:.2}",
-            d1 / n, ar / n, mae / n, rmse / n, secs / n);
+        println!("{name} {width} soiled={soiled}: delta1 {:.4} absrel {:.4} mae {:.2} rmse {:.2} s/frame {:.2} cpu-s/frame {:.2}",
+            d1 / n, ar / n, mae / n, rmse / n, secs / n, cpu / n);
     }
     Ok(())
+}
+
+/// User + system CPU seconds of this process so far (Linux `/proc/self/stat`, 100 ticks/s).
+fn process_cpu_s() -> f64 {
+    const TICKS_PER_S: f64 = 100.0;
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after_name = stat.rsplit(')').next().unwrap_or("");
+    let fields: Vec<&str> = after_name.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the whole line, 12 and 13 after the name.
+    let tick = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|s| s.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    (tick(11) + tick(12)) / TICKS_PER_S
 }

@@ -151,7 +151,11 @@ pub(crate) fn sphere_cost(
 /// Per pixel, the mean of the `best` smallest of the pair costs.
 fn combine_best(pair_costs: &[Vec<f32>], n: usize, best: usize) -> Vec<f32> {
     let pairs = pair_costs.len();
-    let best = best.clamp(1, pairs.max(1));
+    if pairs == 0 {
+        // A single camera cannot match anything.
+        return vec![UNDECIDED_COST; n];
+    }
+    let best = best.clamp(1, pairs);
     if best == pairs {
         // Plain mean of all pairs.
         let mut out = pair_costs[0].clone();
@@ -221,5 +225,7 @@ mod tests {
         let costs = vec![vec![0.1f32], vec![0.9], vec![0.2]];
         let out = combine_best(&costs, 1, 2);
         assert!((out[0] - 0.15).abs() < 1e-6);
+        assert!((combine_best(&costs, 1, 3)[0] - 0.4).abs() < 1e-6);
+        assert_eq!(combine_best(&[], 2, 1), vec![UNDECIDED_COST; 2]);
     }
 }
