@@ -49,7 +49,7 @@ impl SsmodeConfig {
             name: "paper".to_string(),
             width: 1024,
             feature_channels: [32, 64, 64, 128],
-            feature_blocks: [3, 12, 3, 3],
+            feature_blocks: [3, 16, 3, 7],
             feature_out_channels: 32,
             spheres: 48,
             hypotheses: 192,
