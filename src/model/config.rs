@@ -69,7 +69,7 @@ impl SsmodeConfig {
             feature_blocks: [1, 2, 1, 1],
             feature_out_channels: 16,
             spheres: 32,
-            hypotheses: 128,
+            hypotheses: 64,
             min_depth_m: crate::geometry::sweep::PAPER_MIN_DEPTH_M,
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 16,
