@@ -1,5 +1,6 @@
 //! SSMODE hyper-parameters (presets) and the per-rig sweep sampling tables.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::sphere_conv::SphereConvTable;
@@ -220,19 +221,23 @@ impl SweepSampling {
         let geometry =
             SweepGeometry::new(rig, grid, vec![grid; cameras], cfg.sphere_hypotheses()?)?;
         let w = grid.width();
+        let pixels = grid.len();
         let sweep_tables = (0..cameras)
             .map(|cam| {
                 let camera_grid = geometry.camera_grid(cam);
-                let mut taps = Vec::with_capacity(cfg.spheres * grid.len());
-                for sphere in 0..cfg.spheres {
-                    for k in 0..grid.len() {
+                // sample index (sphere H + v) W + u
+                let taps: Vec<_> = (0..cfg.spheres * pixels)
+                    .into_par_iter()
+                    .with_min_len(w)
+                    .map(|n| {
+                        let (sphere, k) = (n / pixels, n % pixels);
                         let p = PixelCoord {
                             u: (k % w) as f64,
                             v: (k / w) as f64,
                         };
-                        taps.push(camera_grid.bilinear_taps(geometry.sample(cam, sphere, p)));
-                    }
-                }
+                        camera_grid.bilinear_taps(geometry.sample(cam, sphere, p))
+                    })
+                    .collect();
                 SampleTable::new(&taps)
             })
             .collect();
