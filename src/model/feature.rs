@@ -318,3 +318,80 @@ impl FeatureExtractor {
         self.fuse[1].forward(&f)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{DType, Device};
+    use candle_nn::VarMap;
+
+    /// Direct loops: `y[v, u, o] = b[o] + sum_{i, j, c} w[i, j, c, o] x[v + d(i-1), (u + d(j-1)) mod W, c]`
+    /// with zero rows outside the image.
+    fn reference(
+        x: &[f32],
+        w: &[f32],
+        b: &[f32],
+        dims: (usize, usize, usize, usize),
+        d: i64,
+    ) -> Vec<f32> {
+        let (h, wd, c, o) = dims;
+        let mut y = vec![0.0; h * wd * o];
+        for v in 0..h as i64 {
+            for u in 0..wd as i64 {
+                for oc in 0..o {
+                    let mut acc = b[oc];
+                    for i in 0..KERNEL as i64 {
+                        for j in 0..KERNEL as i64 {
+                            let vv = v + d * (i - 1);
+                            if vv < 0 || vv >= h as i64 {
+                                continue;
+                            }
+                            let uu = (u + d * (j - 1)).rem_euclid(wd as i64);
+                            for ci in 0..c {
+                                let xi = ((vv as usize * wd) + uu as usize) * c + ci;
+                                let wi = ((i as usize * KERNEL + j as usize) * c + ci) * o + oc;
+                                acc += w[wi] * x[xi];
+                            }
+                        }
+                    }
+                    y[((v as usize * wd) + u as usize) * o + oc] = acc;
+                }
+            }
+        }
+        y
+    }
+
+    #[test]
+    fn erp_conv_matches_direct_loops_with_wrap_and_dilation() {
+        const H: usize = 4;
+        const W: usize = 8;
+        const C: usize = 2;
+        const O: usize = 3;
+        for dilation in [1usize, 2] {
+            let varmap = VarMap::new();
+            let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+            let conv = ErpConv::new(C, O, KERNEL, 1, dilation, vb.pp("c")).expect("conv");
+            let data: Vec<f32> = (0..H * W * C)
+                .map(|k| ((k * 37) % 11) as f32 - 5.0)
+                .collect();
+            let x = Tensor::from_vec(data.clone(), (1, H, W, C), &Device::Cpu).unwrap();
+            let y: Vec<f32> = conv
+                .forward(&x)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1()
+                .unwrap();
+            let w: Vec<f32> = conv.weight.flatten_all().unwrap().to_vec1().unwrap();
+            let b: Vec<f32> = conv.bias.to_vec1().unwrap();
+            let expected = reference(&data, &w, &b, (H, W, C, O), dilation as i64);
+            assert_eq!(y.len(), expected.len());
+            for (k, (a, e)) in y.iter().zip(&expected).enumerate() {
+                assert!(
+                    (a - e).abs() < 1e-4,
+                    "dilation {dilation}, element {k}: {a} vs {e}"
+                );
+            }
+        }
+    }
+}
