@@ -386,3 +386,36 @@ fn stage_timing() {
         );
     }
 }
+
+/// One training step (forward, backward, AdamW) of the compact preset at 256x128, 4 cameras;
+/// run with `cargo test --test model_ssmode -- --ignored --nocapture train_step_timing`.
+#[test]
+#[ignore]
+fn train_step_timing() {
+    const STEPS: usize = 3;
+    let cfg = SsmodeConfig::compact();
+    let (varmap, net) = model(&cfg);
+    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+    let images = noise_images(&cfg, 4, 9);
+    let mut opt = AdamW::new(varmap.all_vars(), ParamsAdamW::default()).unwrap();
+    let mut times = Vec::with_capacity(STEPS);
+    for _ in 0..STEPS {
+        let t = std::time::Instant::now();
+        let out = net.forward(&images, &sampling, true).unwrap();
+        let mut loss = Tensor::new(0f32, &Device::Cpu).unwrap();
+        for s in &out.inverse_depth_stages {
+            loss = (loss + (s - 0.4).unwrap().abs().unwrap().mean_all().unwrap()).unwrap();
+        }
+        opt.backward_step(&loss).unwrap();
+        times.push(t.elapsed().as_secs_f64());
+    }
+    let hwm = std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM"))
+                .map(str::to_string)
+        })
+        .unwrap_or_default();
+    println!("compact train step at 256x128: {times:?} s, {hwm}");
+}
