@@ -61,7 +61,9 @@ impl SsmodeConfig {
         }
     }
 
-    /// The shipped CPU default: 256x128 input, 32 spheres, two hourglasses on 16 channels.
+    /// The shipped CPU default: 256x128 input, 32 spheres, 64 hypotheses, two hourglasses on
+    /// 16 channels, about 0.4M parameters (measured on 2 shared cores: about 0.34 s per 4-camera
+    /// forward, 1.1 s per training step).
     pub fn compact() -> Self {
         Self {
             name: "compact".to_string(),
