@@ -5,6 +5,7 @@ use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, Rig};
 
 pub mod photometric;
+pub mod ssmode;
 
 /// What an estimator returns for one frame.
 #[derive(Clone, Debug)]
@@ -32,6 +33,8 @@ pub enum EstimatorError {
     UnknownEstimator { name: String, known: String },
     #[error("{0}")]
     Geometry(#[from] crate::geometry::GeometryError),
+    #[error("{0}")]
+    Model(#[from] crate::model::ModelError),
 }
 
 /// A depth estimator. Implementations may cache per-rig work (sampling tables) between calls.
@@ -50,13 +53,16 @@ pub trait DepthEstimator: Send {
 }
 
 /// Estimator names accepted by [`by_name`].
-pub const ESTIMATOR_NAMES: &[&str] = &["photometric"];
+pub const ESTIMATOR_NAMES: &[&str] = &["photometric", "ssmode"];
 
 /// The estimator called `name`, with its default settings.
 pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
     match name {
         "photometric" => Ok(Box::new(photometric::PhotometricSweep::new(
             photometric::PhotometricConfig::default(),
+        )?)),
+        "ssmode" => Ok(Box::new(ssmode::SsmodeEstimator::load(
+            ssmode::DEFAULT_WEIGHTS_PATH,
         )?)),
         other => Err(EstimatorError::UnknownEstimator {
             name: other.to_string(),

@@ -1,3 +1,45 @@
 //! The SSMODE network and its building blocks (candle).
+//!
+//! Stages, one file each: [`feature`] (spherical feature extraction, per camera, weights shared),
+//! [`sphere_conv`] (SphereNet kernel tables), [`cost_volume`] (spherical sweep with exact tables,
+//! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
+//! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
+//! network), [`weights`] (safetensors with the config in the header), [`config`] (presets and
+//! per-rig sampling tables).
 
+pub mod config;
+pub mod cost_volume;
+pub mod feature;
+pub mod hourglass;
 pub mod ops;
+pub mod regression;
+pub mod sphere_conv;
+pub mod ssmode;
+pub mod weights;
+
+pub use config::{SsmodeConfig, SweepSampling};
+pub use ssmode::{Ssmode, SsmodeOutput};
+pub use weights::{load_weights, read_config, save_weights};
+
+/// Errors of the model code (configs, sampling tables, weight files).
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("unknown SSMODE preset '{name}' (known: {known})")]
+    UnknownPreset { name: String, known: String },
+    #[error("SSMODE config field '{field}': {problem}")]
+    BadConfig { field: String, problem: String },
+    #[error("SSMODE needs at least {min} cameras, the rig has {got}")]
+    TooFewCameras { got: usize, min: usize },
+    #[error("{0}")]
+    Geometry(#[from] crate::geometry::GeometryError),
+    #[error("weights file {path}: {problem}")]
+    Weights { path: String, problem: String },
+    #[error("weights file {path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("tensor error: {0}")]
+    Candle(#[from] candle_core::Error),
+}

@@ -1,0 +1,186 @@
+//! The SSMODE network as a [`DepthEstimator`]: loads a weights file, resizes the panoramas to
+//! the network's width (bilinear, longitude wraps), runs the forward pass on the CPU and resizes
+//! the range back to the requested output grid. Sweep tables are cached per rig.
+
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+
+use super::{DepthEstimate, DepthEstimator, EstimatorError};
+use crate::frame::{FloatImage, RgbImage};
+use crate::geometry::{ErpGrid, PixelCoord, Rig};
+use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
+
+/// Weights loaded by `by_name("ssmode")`.
+pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
+/// 8-bit colour to [0, 1].
+const BYTE_SCALE: f32 = 1.0 / 255.0;
+/// Channels of an RGB pixel.
+const RGB: usize = 3;
+
+/// SSMODE inference on the CPU.
+pub struct SsmodeEstimator {
+    weights_path: PathBuf,
+    model: Ssmode,
+    device: Device,
+    /// Sampling tables of the last rig seen.
+    cached: Option<(Rig, SweepSampling)>,
+}
+
+fn model_err(e: impl Into<ModelError>) -> EstimatorError {
+    EstimatorError::Model(e.into())
+}
+
+impl SsmodeEstimator {
+    /// Loads weights (with their config) from `path`.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, EstimatorError> {
+        let path = path.as_ref();
+        if !path.exists() {
+            return Err(EstimatorError::BadConfig {
+                field: "weights".to_string(),
+                problem: format!(
+                    "SSMODE weights file {} not found (train one with the training command or pass another path)",
+                    path.display()
+                ),
+            });
+        }
+        let device = Device::Cpu;
+        let (cfg, vb) = load_weights(path, &device).map_err(model_err)?;
+        let model = Ssmode::new(&cfg, vb).map_err(|e| {
+            model_err(ModelError::Weights {
+                path: path.display().to_string(),
+                problem: format!("building the network: {e}"),
+            })
+        })?;
+        Ok(Self {
+            weights_path: path.to_path_buf(),
+            model,
+            device,
+            cached: None,
+        })
+    }
+
+    pub fn config(&self) -> &SsmodeConfig {
+        self.model.config()
+    }
+
+    pub fn weights_path(&self) -> &Path {
+        &self.weights_path
+    }
+
+    fn sampling(&mut self, rig: &Rig) -> Result<&SweepSampling, EstimatorError> {
+        let stale = self.cached.as_ref().is_none_or(|(r, _)| r != rig);
+        if stale {
+            let sampling = SweepSampling::new(rig, self.model.config()).map_err(model_err)?;
+            self.cached = Some((rig.clone(), sampling));
+        }
+        match &self.cached {
+            Some((_, s)) => Ok(s),
+            None => Err(model_err(ModelError::BadConfig {
+                field: "rig".to_string(),
+                problem: "sweep sampling cache is empty".to_string(),
+            })),
+        }
+    }
+}
+
+/// Bilinear ERP resampling of `channels`-interleaved row-major data from `src` to `dst`
+/// (pixel centres aligned: `u_src = (u + 0.5) W_src / W_dst - 0.5`, likewise `v`; longitude
+/// wraps, latitude clamps).
+pub fn resample_erp(data: &[f32], channels: usize, src: ErpGrid, dst: ErpGrid) -> Vec<f32> {
+    if src == dst {
+        return data.to_vec();
+    }
+    let scale = src.width() as f64 / dst.width() as f64;
+    let mut out = vec![0.0; dst.len() * channels];
+    for v in 0..dst.height() {
+        for u in 0..dst.width() {
+            let taps = src.bilinear_taps(PixelCoord {
+                u: (u as f64 + 0.5) * scale - 0.5,
+                v: (v as f64 + 0.5) * scale - 0.5,
+            });
+            let o = (v * dst.width() + u) * channels;
+            for (&i, &w) in taps.index.iter().zip(taps.weight.iter()) {
+                let s = i as usize * channels;
+                for c in 0..channels {
+                    out[o + c] += w * data[s + c];
+                }
+            }
+        }
+    }
+    out
+}
+
+impl DepthEstimator for SsmodeEstimator {
+    fn name(&self) -> &str {
+        "ssmode"
+    }
+
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        if images.len() != rig.cameras.len() {
+            return Err(EstimatorError::ImageCount {
+                got: images.len(),
+                expected: rig.cameras.len(),
+            });
+        }
+        let cfg = self.model.config().clone();
+        let net_grid = ErpGrid::new(cfg.width)?;
+        let mut tensors = Vec::with_capacity(images.len());
+        for (cam, img) in images.iter().enumerate() {
+            let (w, h) = img.dimensions();
+            let bad = || EstimatorError::BadImageSize {
+                camera: rig.cameras[cam].name.clone(),
+                width: w,
+                height: h,
+            };
+            if w != 2 * h {
+                return Err(bad());
+            }
+            let grid = ErpGrid::new(w as usize).map_err(|_| bad())?;
+            let rgb: Vec<f32> = img
+                .as_raw()
+                .iter()
+                .map(|&b| b as f32 * BYTE_SCALE)
+                .collect();
+            let resized = resample_erp(&rgb, RGB, grid, net_grid);
+            let t = Tensor::from_vec(resized, (1, cfg.height(), cfg.width, RGB), &self.device)
+                .map_err(model_err)?;
+            tensors.push(t);
+        }
+        let sampling = self.sampling(rig)?.clone();
+        let out = self
+            .model
+            .forward(&tensors, &sampling, false)
+            .map_err(model_err)?;
+        let final_range = out.stages.last().ok_or_else(|| {
+            model_err(ModelError::BadConfig {
+                field: "hourglasses".to_string(),
+                problem: "the network produced no stage".to_string(),
+            })
+        })?;
+        let to_vec = |t: &Tensor| -> Result<Vec<f32>, EstimatorError> {
+            t.flatten_all()
+                .and_then(|f| f.to_vec1::<f32>())
+                .map_err(model_err)
+        };
+        let range = resample_erp(&to_vec(final_range)?, 1, net_grid, output);
+        let conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
+        Ok(DepthEstimate {
+            range_m: FloatImage {
+                width: output.width(),
+                height: output.height(),
+                data: range,
+            },
+            confidence: FloatImage {
+                width: output.width(),
+                height: output.height(),
+                data: conf,
+            },
+        })
+    }
+}

@@ -1,0 +1,77 @@
+//! Spherical sweep cost volume with exact sampling tables and count-invariant view aggregation.
+//!
+//! For camera `c`, sphere `d` and output pixel `(v, u)` at quarter resolution,
+//! `f_c(d, v, u) = table_sample(features_c, sweep_table_c)` samples camera `c`'s features where
+//! it sees the point `rho_d dir(u, v)` (see [`super::config::SweepSampling`]). The views are
+//! aggregated independently of their number `N` and order:
+//!
+//! ```text
+//! mean = (1/N) sum_c f_c,   var = (1/N) sum_c f_c^2 - mean^2,   volume = concat(mean, var)
+//! ```
+
+use candle_core::{Result, Tensor};
+
+use super::config::SweepSampling;
+use crate::model::ops::{table_sample, OpsError};
+
+/// Builds the `(B, D, H, W, 2 C)` cost volume from per-camera features `(B, H, W, C)`.
+pub fn cost_volume(features: &[Tensor], sampling: &SweepSampling) -> Result<Tensor> {
+    const OP: &str = "cost_volume";
+    if features.len() != sampling.camera_count() || features.is_empty() {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!(
+                "{} feature maps for a sweep of {} cameras",
+                features.len(),
+                sampling.camera_count()
+            ),
+        }
+        .into());
+    }
+    let grid = sampling.geometry().output();
+    let spheres = sampling.geometry().hypotheses().count();
+    let (b, h, w, c) = features[0].dims4()?;
+    if (h, w) != (grid.height(), grid.width()) {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!(
+                "features are {w}x{h}, the sweep tables expect {}x{}",
+                grid.width(),
+                grid.height()
+            ),
+        }
+        .into());
+    }
+    let mut sum: Option<Tensor> = None;
+    let mut sum_sq: Option<Tensor> = None;
+    for (cam, f) in features.iter().enumerate() {
+        let table = sampling.sweep_table(cam).ok_or(OpsError::Shape {
+            op: OP,
+            what: format!("no sweep table for camera {cam}"),
+        })?;
+        // (B, D H W, C) -> (B, D, H, W, C)
+        let warped = table_sample(f, table)?.reshape((b, spheres, h, w, c))?;
+        let sq = warped.sqr()?;
+        sum = Some(match sum {
+            Some(s) => (s + &warped)?,
+            None => warped,
+        });
+        sum_sq = Some(match sum_sq {
+            Some(s) => (s + sq)?,
+            None => sq,
+        });
+    }
+    let n = features.len() as f64;
+    let (Some(sum), Some(sum_sq)) = (sum, sum_sq) else {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: "no cameras".to_string(),
+        }
+        .into());
+    };
+    // (B, D, H, W, C) each
+    let mean = (sum / n)?;
+    let var = ((sum_sq / n)? - mean.sqr()?)?;
+    // (B, D, H, W, 2 C)
+    Tensor::cat(&[&mean, &var], 4)
+}

@@ -1,0 +1,156 @@
+//! 3-D stacked hourglass cost aggregation (PSMNet style), channels-last.
+//!
+//! ```text
+//! volume (B, D, H, W, 2 Cf) -> dres0: 2 convs -> dres1: residual pair   (B, D, H, W, Ch)
+//! hourglass k: conv1 s2 -> conv2 -> conv3 s2 -> conv4                      (B, D/4, H/4, W/4, 2 Ch)
+//!              conv5 deconv x2 (+ conv2 output) -> conv6 deconv x2 (+ input) (B, D, H, W, Ch)
+//! ```
+
+use candle_core::{Result, Tensor};
+use candle_nn::{Init, VarBuilder};
+
+use super::config::SsmodeConfig;
+use crate::model::ops::{conv3d, conv_transpose3d};
+
+/// Kernel side of every 3-D convolution.
+pub const KERNEL_3D: usize = 3;
+const PAD: [usize; 3] = [1, 1, 1];
+const UNIT: [usize; 3] = [1, 1, 1];
+const STRIDE2: [usize; 3] = [2, 2, 2];
+/// `op = 2 D - (2 D - 1)` for an exact x2 upsampling of even targets.
+const OUTPUT_PADDING: [usize; 3] = [1, 1, 1];
+
+/// A 3x3x3 convolution (or transposed convolution) with bias, weight `(3, 3, 3, Cin, Cout)`.
+#[derive(Clone, Debug)]
+pub struct Conv3d {
+    weight: Tensor,
+    bias: Option<Tensor>,
+}
+
+impl Conv3d {
+    pub fn new(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Self> {
+        let mut conv = Self::new_no_bias(c_in, c_out, vb.clone())?;
+        conv.bias = Some(vb.get_with_hints(c_out, "bias", Init::Const(0.0))?);
+        Ok(conv)
+    }
+
+    /// Without bias (for a layer followed by a shift-invariant softmax, whose bias would get
+    /// no gradient).
+    pub fn new_no_bias(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Self> {
+        let fan_in = KERNEL_3D.pow(3) * c_in;
+        let bound = (6.0 / fan_in as f64).sqrt();
+        let weight = vb.get_with_hints(
+            (KERNEL_3D, KERNEL_3D, KERNEL_3D, c_in, c_out),
+            "weight",
+            Init::Uniform {
+                lo: -bound,
+                up: bound,
+            },
+        )?;
+        Ok(Self { weight, bias: None })
+    }
+
+    /// `(B, D, H, W, Cin)` -> `(B, D/s, H/s, W/s, Cout)`.
+    pub fn forward(&self, x: &Tensor, stride: [usize; 3]) -> Result<Tensor> {
+        self.add_bias(conv3d(x, &self.weight, stride, PAD)?)
+    }
+
+    fn add_bias(&self, y: Tensor) -> Result<Tensor> {
+        match &self.bias {
+            Some(b) => y.broadcast_add(b),
+            None => Ok(y),
+        }
+    }
+
+    /// Transposed, x2: `(B, D, H, W, Cin)` -> `(B, 2D, 2H, 2W, Cout)`.
+    pub fn forward_up(&self, x: &Tensor) -> Result<Tensor> {
+        self.add_bias(conv_transpose3d(
+            x,
+            &self.weight,
+            STRIDE2,
+            PAD,
+            OUTPUT_PADDING,
+        )?)
+    }
+}
+
+/// One hourglass.
+#[derive(Clone, Debug)]
+pub struct Hourglass {
+    conv1: Conv3d,
+    conv2: Conv3d,
+    conv3: Conv3d,
+    conv4: Conv3d,
+    conv5: Conv3d,
+    conv6: Conv3d,
+}
+
+impl Hourglass {
+    pub fn new(c: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Self {
+            conv1: Conv3d::new(c, 2 * c, vb.pp("conv1"))?,
+            conv2: Conv3d::new(2 * c, 2 * c, vb.pp("conv2"))?,
+            conv3: Conv3d::new(2 * c, 2 * c, vb.pp("conv3"))?,
+            conv4: Conv3d::new(2 * c, 2 * c, vb.pp("conv4"))?,
+            conv5: Conv3d::new(2 * c, 2 * c, vb.pp("conv5"))?,
+            conv6: Conv3d::new(2 * c, c, vb.pp("conv6"))?,
+        })
+    }
+
+    /// `(B, D, H, W, C)` -> `(B, D, H, W, C)`; D, H, W multiples of 4.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        // (B, D/2, H/2, W/2, 2C)
+        let out = self.conv1.forward(x, STRIDE2)?.relu()?;
+        let pre = self.conv2.forward(&out, UNIT)?.relu()?;
+        // (B, D/4, H/4, W/4, 2C)
+        let out = self.conv3.forward(&pre, STRIDE2)?.relu()?;
+        let out = self.conv4.forward(&out, UNIT)?.relu()?;
+        // (B, D/2, H/2, W/2, 2C)
+        let post = (self.conv5.forward_up(&out)? + pre)?.relu()?;
+        // (B, D, H, W, C)
+        self.conv6.forward_up(&post)? + x
+    }
+}
+
+/// `dres0`, `dres1` and the stacked hourglasses; returns every hourglass output.
+#[derive(Clone, Debug)]
+pub struct CostAggregation {
+    dres0: [Conv3d; 2],
+    dres1: [Conv3d; 2],
+    hourglasses: Vec<Hourglass>,
+}
+
+impl CostAggregation {
+    pub fn new(cfg: &SsmodeConfig, vb: VarBuilder) -> Result<Self> {
+        let c = cfg.hourglass_channels;
+        let c_in = 2 * cfg.feature_out_channels;
+        Ok(Self {
+            dres0: [
+                Conv3d::new(c_in, c, vb.pp("dres0.0"))?,
+                Conv3d::new(c, c, vb.pp("dres0.1"))?,
+            ],
+            dres1: [
+                Conv3d::new(c, c, vb.pp("dres1.0"))?,
+                Conv3d::new(c, c, vb.pp("dres1.1"))?,
+            ],
+            hourglasses: (0..cfg.hourglasses)
+                .map(|k| Hourglass::new(c, vb.pp(format!("hourglass{k}"))))
+                .collect::<Result<_>>()?,
+        })
+    }
+
+    /// volume `(B, D, H, W, 2 Cf)` -> one `(B, D, H, W, Ch)` per hourglass.
+    pub fn forward(&self, volume: &Tensor) -> Result<Vec<Tensor>> {
+        // (B, D, H, W, Ch)
+        let x = self.dres0[0].forward(volume, UNIT)?.relu()?;
+        let x = self.dres0[1].forward(&x, UNIT)?.relu()?;
+        let y = self.dres1[0].forward(&x, UNIT)?.relu()?;
+        let mut x = (self.dres1[1].forward(&y, UNIT)? + x)?;
+        let mut outs = Vec::with_capacity(self.hourglasses.len());
+        for hg in &self.hourglasses {
+            x = hg.forward(&x)?;
+            outs.push(x.clone());
+        }
+        Ok(outs)
+    }
+}

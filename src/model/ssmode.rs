@@ -1,0 +1,165 @@
+//! The SSMODE network (paper section 4.3, with count-invariant view aggregation).
+//!
+//! ```text
+//! images: N x (B, H, W, 3) -> stacked (N B, H, W, 3)
+//! feature                   -> (N B, H/4, W/4, Cf) -> N x (B, H/4, W/4, Cf)
+//! cost_volume               -> (B, D, H/4, W/4, 2 Cf)     mean and variance over views
+//! aggregation               -> K x (B, D, H/4, W/4, Ch)  stacked hourglasses
+//! classif{k}                -> K x (B, D, H/4, W/4)
+//! regression                -> K x (B, H, W) range, index; confidence of the last
+//! ```
+
+use candle_core::{Result, Tensor};
+use candle_nn::VarBuilder;
+
+use super::config::{SsmodeConfig, SweepSampling, MIN_CAMERAS};
+use super::cost_volume::cost_volume;
+use super::feature::FeatureExtractor;
+use super::hourglass::CostAggregation;
+use super::regression::{confidence, regress, RegressionHead};
+use crate::geometry::InverseDepthHypotheses;
+use crate::model::ops::OpsError;
+
+/// Image channels (RGB).
+const IMAGE_CHANNELS: usize = 3;
+
+/// What [`Ssmode::forward`] returns.
+#[derive(Clone, Debug)]
+pub struct SsmodeOutput {
+    /// Per hourglass, `(B, H, W)` range in metres; the last is the final estimate.
+    pub stages: Vec<Tensor>,
+    /// Per hourglass, `(B, H, W)` expected normalized inverse-depth index in [0, 1]
+    /// (0 = `max_depth_m`, 1 = `min_depth_m`).
+    pub inverse_depth_stages: Vec<Tensor>,
+    /// `(B, H, W)` probability mass within 2 hypotheses of the final argmax.
+    pub confidence: Tensor,
+}
+
+/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`.
+#[derive(Clone, Debug)]
+pub struct Ssmode {
+    cfg: SsmodeConfig,
+    hypotheses: InverseDepthHypotheses,
+    feature: FeatureExtractor,
+    aggregation: CostAggregation,
+    classif: Vec<RegressionHead>,
+}
+
+impl Ssmode {
+    pub fn new(cfg: &SsmodeConfig, vb: VarBuilder) -> Result<Self> {
+        cfg.validate().map_err(candle_core::Error::wrap)?;
+        let hypotheses = cfg.output_hypotheses().map_err(candle_core::Error::wrap)?;
+        Ok(Self {
+            cfg: cfg.clone(),
+            hypotheses,
+            feature: FeatureExtractor::new(cfg, vb.pp("feature"))?,
+            aggregation: CostAggregation::new(cfg, vb.pp("aggregation"))?,
+            classif: (0..cfg.hourglasses)
+                .map(|k| RegressionHead::new(cfg.hourglass_channels, vb.pp(format!("classif{k}"))))
+                .collect::<Result<_>>()?,
+        })
+    }
+
+    pub fn config(&self) -> &SsmodeConfig {
+        &self.cfg
+    }
+
+    /// The full-resolution hypotheses the range is regressed over.
+    pub fn hypotheses(&self) -> &InverseDepthHypotheses {
+        &self.hypotheses
+    }
+
+    fn check_images(&self, images: &[Tensor], sampling: &SweepSampling) -> Result<()> {
+        const OP: &str = "Ssmode::forward";
+        if images.len() < MIN_CAMERAS || images.len() != sampling.camera_count() {
+            return Err(OpsError::Shape {
+                op: OP,
+                what: format!(
+                    "{} images for a sweep of {} cameras (at least {MIN_CAMERAS})",
+                    images.len(),
+                    sampling.camera_count()
+                ),
+            }
+            .into());
+        }
+        let expected = sampling.geometry().output();
+        if expected.width() != self.cfg.feature_width() {
+            return Err(OpsError::Shape {
+                op: OP,
+                what: format!(
+                    "sweep sampling built for feature width {}, the config needs {}",
+                    expected.width(),
+                    self.cfg.feature_width()
+                ),
+            }
+            .into());
+        }
+        let first = images[0].dims().to_vec();
+        for (cam, img) in images.iter().enumerate() {
+            let dims = img.dims();
+            let ok = dims.len() == 4
+                && dims[1] == self.cfg.height()
+                && dims[2] == self.cfg.width
+                && dims[3] == IMAGE_CHANNELS
+                && dims == first.as_slice();
+            if !ok {
+                return Err(OpsError::Shape {
+                    op: OP,
+                    what: format!(
+                        "camera {cam}: image shape {dims:?}, expected (B, {}, {}, 3) like camera 0 {first:?}",
+                        self.cfg.height(),
+                        self.cfg.width
+                    ),
+                }
+                .into());
+            }
+        }
+        Ok(())
+    }
+
+    /// images: one `(B, H, W, 3)` f32 tensor in [0, 1] per camera, rig order (any count >= 2).
+    /// `train` is accepted for API stability (the network has no train-only layers).
+    pub fn forward(
+        &self,
+        images: &[Tensor],
+        sampling: &SweepSampling,
+        _train: bool,
+    ) -> Result<SsmodeOutput> {
+        self.check_images(images, sampling)?;
+        let cameras = images.len();
+        let batch = images[0].dim(0)?;
+        // (N B, H, W, 3)
+        let stacked = Tensor::cat(images, 0)?;
+        // (N B, H/4, W/4, Cf)
+        let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
+        // N x (B, H/4, W/4, Cf)
+        let per_camera = (0..cameras)
+            .map(|c| features.narrow(0, c * batch, batch))
+            .collect::<Result<Vec<_>>>()?;
+        // (B, D, H/4, W/4, 2 Cf)
+        let volume = cost_volume(&per_camera, sampling)?;
+        // K x (B, D, H/4, W/4, Ch)
+        let aggregated = self.aggregation.forward(&volume)?;
+        let mut stages = Vec::with_capacity(aggregated.len());
+        let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
+        let mut last_probabilities = None;
+        for (head, x) in self.classif.iter().zip(&aggregated) {
+            // (B, D, H/4, W/4)
+            let cost = head.forward(x)?;
+            // (B, H, W)
+            let r = regress(&cost, &self.hypotheses, self.cfg.height(), self.cfg.width)?;
+            stages.push(r.range_m);
+            inverse_depth_stages.push(r.inverse_depth_index);
+            last_probabilities = Some(r.probabilities);
+        }
+        let probabilities = last_probabilities.ok_or(OpsError::Shape {
+            op: "Ssmode::forward",
+            what: "no hourglass stages".to_string(),
+        })?;
+        Ok(SsmodeOutput {
+            stages,
+            inverse_depth_stages,
+            confidence: confidence(&probabilities)?,
+        })
+    }
+}

@@ -1,0 +1,90 @@
+//! SSMODE weight files: safetensors with the [`SsmodeConfig`] as JSON in the header metadata
+//! under [`CONFIG_METADATA_KEY`]. Tensor names are the `VarBuilder` paths of the network
+//! (`feature.layer1.0.conv1.weight`, `aggregation.hourglass0.conv1.weight`, ...).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{VarBuilder, VarMap};
+
+use super::{ModelError, SsmodeConfig};
+
+/// Header metadata key holding the config JSON.
+pub const CONFIG_METADATA_KEY: &str = "mode360.config";
+
+/// Writes every variable of `varmap` and `cfg` (as JSON metadata) to `path`.
+pub fn save_weights(
+    varmap: &VarMap,
+    cfg: &SsmodeConfig,
+    path: impl AsRef<Path>,
+) -> Result<(), ModelError> {
+    let path = path.as_ref();
+    let weights_err = |problem: String| ModelError::Weights {
+        path: path.display().to_string(),
+        problem,
+    };
+    let tensors: Vec<(String, Tensor)> = {
+        let data = varmap
+            .data()
+            .lock()
+            .map_err(|_| weights_err("variable map lock poisoned".to_string()))?;
+        data.iter()
+            .map(|(name, var)| (name.clone(), var.as_tensor().clone()))
+            .collect()
+    };
+    let config_json =
+        serde_json::to_string(cfg).map_err(|e| weights_err(format!("config to JSON: {e}")))?;
+    let metadata = HashMap::from([(CONFIG_METADATA_KEY.to_string(), config_json)]);
+    safetensors::serialize_to_file(tensors, Some(metadata), path)
+        .map_err(|e| weights_err(format!("writing safetensors: {e}")))
+}
+
+/// The config stored in a safetensors buffer's metadata.
+fn config_from_bytes(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelError> {
+    let weights_err = |problem: String| ModelError::Weights {
+        path: path.display().to_string(),
+        problem,
+    };
+    let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| weights_err(format!("not a safetensors file: {e}")))?;
+    let json = metadata
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get(CONFIG_METADATA_KEY))
+        .ok_or_else(|| weights_err(format!("no '{CONFIG_METADATA_KEY}' header metadata")))?;
+    let cfg: SsmodeConfig = serde_json::from_str(json)
+        .map_err(|e| weights_err(format!("metadata '{CONFIG_METADATA_KEY}': {e}")))?;
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+fn read_bytes(path: &Path) -> Result<Vec<u8>, ModelError> {
+    std::fs::read(path).map_err(|source| ModelError::Io {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+/// Only the config of a weights file.
+pub fn read_config(path: impl AsRef<Path>) -> Result<SsmodeConfig, ModelError> {
+    let path = path.as_ref();
+    config_from_bytes(&read_bytes(path)?, path)
+}
+
+/// The config and a `VarBuilder` over the tensors of a weights file (f32 on `device`).
+/// To resume training into an existing `VarMap`, use `VarMap::load(path)` instead.
+pub fn load_weights(
+    path: impl AsRef<Path>,
+    device: &Device,
+) -> Result<(SsmodeConfig, VarBuilder<'static>), ModelError> {
+    let path = path.as_ref();
+    let bytes = read_bytes(path)?;
+    let cfg = config_from_bytes(&bytes, path)?;
+    let tensors =
+        candle_core::safetensors::load_buffer(&bytes, device).map_err(|e| ModelError::Weights {
+            path: path.display().to_string(),
+            problem: format!("reading tensors: {e}"),
+        })?;
+    Ok((cfg, VarBuilder::from_tensors(tensors, DType::F32, device)))
+}

@@ -1,0 +1,335 @@
+//! SSMODE network: shapes for any camera count, parameter count of the paper preset, gradient
+//! flow, overfitting one synthetic frame, weight round trip, and the sweep tables.
+
+use candle_core::{DType, Device, Tensor, Var};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
+use mode360::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360::model::cost_volume::cost_volume;
+use mode360::model::{load_weights, save_weights, Ssmode, SsmodeConfig, SweepSampling};
+use mode360::synth::{SynthConfig, SynthRenderer};
+
+const RIG_PATH: &str = "launch_configs/rig_deep360.yaml";
+/// The paper's SSMODE has about 5.5M parameters.
+const PAPER_PARAMS: f64 = 5.5e6;
+const PAPER_PARAMS_TOLERANCE: f64 = 0.15;
+
+fn rig() -> Rig {
+    Rig::from_file(format!("{}/{RIG_PATH}", env!("CARGO_MANIFEST_DIR"))).expect("rig file")
+}
+
+fn model(cfg: &SsmodeConfig) -> (VarMap, Ssmode) {
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    let net = Ssmode::new(cfg, vb).expect("network");
+    (varmap, net)
+}
+
+/// Deterministic pseudo-random images in [0, 1], one `(1, H, W, 3)` per camera.
+fn noise_images(cfg: &SsmodeConfig, cameras: usize, seed: u64) -> Vec<Tensor> {
+    (0..cameras)
+        .map(|c| {
+            let n = cfg.height() * cfg.width * 3;
+            let mut state = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(c as u64 + 1);
+            let data: Vec<f32> = (0..n)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (state >> 40) as f32 / (1u64 << 24) as f32
+                })
+                .collect();
+            Tensor::from_vec(data, (1, cfg.height(), cfg.width, 3), &Device::Cpu).expect("tensor")
+        })
+        .collect()
+}
+
+fn param_count(varmap: &VarMap) -> usize {
+    varmap.all_vars().iter().map(|v| v.elem_count()).sum()
+}
+
+#[test]
+fn same_weights_run_on_two_three_and_four_cameras() {
+    let cfg = SsmodeConfig::tiny();
+    let (_vm, net) = model(&cfg);
+    let full = rig();
+    for cams in [2usize, 3, 4] {
+        let indices: Vec<usize> = (0..cams).collect();
+        let sub = full.subset(&indices).expect("subset");
+        let sampling = SweepSampling::new(&sub, &cfg).expect("sampling");
+        let out = net
+            .forward(&noise_images(&cfg, cams, 7), &sampling, false)
+            .expect("forward");
+        assert_eq!(out.stages.len(), cfg.hourglasses);
+        assert_eq!(out.inverse_depth_stages.len(), cfg.hourglasses);
+        for (range, index) in out.stages.iter().zip(&out.inverse_depth_stages) {
+            assert_eq!(range.dims(), &[1, cfg.height(), cfg.width]);
+            assert_eq!(index.dims(), &[1, cfg.height(), cfg.width]);
+            let r: Vec<f32> = range.flatten_all().unwrap().to_vec1().unwrap();
+            let lo = r.iter().cloned().fold(f32::INFINITY, f32::min);
+            let hi = r.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+            assert!(
+                lo >= cfg.min_depth_m as f32 * 0.999 && hi <= cfg.max_depth_m as f32 * 1.001,
+                "{cams} cameras: range {lo}..{hi} outside the sweep"
+            );
+            let i: Vec<f32> = index.flatten_all().unwrap().to_vec1().unwrap();
+            assert!(i.iter().all(|&x| (-1e-5..=1.0 + 1e-5).contains(&x)));
+        }
+        let c: Vec<f32> = out.confidence.flatten_all().unwrap().to_vec1().unwrap();
+        assert_eq!(c.len(), cfg.height() * cfg.width);
+        assert!(c.iter().all(|&x| (0.0..=1.0 + 1e-5).contains(&x)));
+        // at least 5 of N hypotheses' mass: never below a uniform distribution's share
+        let uniform_share = 5.0 / cfg.hypotheses as f32;
+        assert!(c.iter().all(|&x| x >= uniform_share * 0.5));
+    }
+}
+
+#[test]
+fn paper_preset_has_about_5_5m_parameters() {
+    for cfg in [SsmodeConfig::paper(), SsmodeConfig::compact()] {
+        let (varmap, _net) = model(&cfg);
+        let n = param_count(&varmap);
+        println!("preset {}: {n} parameters", cfg.name);
+        if cfg.name == "paper" {
+            let rel = (n as f64 - PAPER_PARAMS).abs() / PAPER_PARAMS;
+            assert!(
+                rel <= PAPER_PARAMS_TOLERANCE,
+                "paper preset has {n} parameters"
+            );
+        } else {
+            assert!(n < 1_000_000, "compact preset has {n} parameters");
+        }
+    }
+}
+
+#[test]
+fn gradients_reach_every_parameter() {
+    let cfg = SsmodeConfig::tiny();
+    let (varmap, net) = model(&cfg);
+    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+    let out = net
+        .forward(&noise_images(&cfg, 4, 3), &sampling, true)
+        .expect("forward");
+    // A loss touching every stage: mean squared normalized index against 0.3.
+    let mut loss = Tensor::new(0f32, &Device::Cpu).unwrap();
+    for s in &out.inverse_depth_stages {
+        loss = (loss + (s - 0.3).unwrap().sqr().unwrap().mean_all().unwrap()).unwrap();
+    }
+    let grads = loss.backward().expect("backward");
+    let data = varmap.data().lock().unwrap();
+    let mut names: Vec<&String> = data.keys().collect();
+    names.sort();
+    assert!(names.len() > 20, "only {} variables", names.len());
+    for name in names {
+        let var: &Var = &data[name];
+        let g = grads
+            .get(var.as_tensor())
+            .unwrap_or_else(|| panic!("no gradient for {name}"));
+        let norm: f32 = g.abs().unwrap().sum_all().unwrap().to_scalar().unwrap();
+        assert!(norm > 0.0 && norm.is_finite(), "{name}: gradient L1 {norm}");
+    }
+}
+
+/// Normalized inverse-depth index of a range: `(1/r - 1/max) / (1/min - 1/max)`, clamped.
+fn index_of_range(cfg: &SsmodeConfig, r: f32) -> f32 {
+    let inv = 1.0 / r as f64;
+    let (lo, hi) = (1.0 / cfg.max_depth_m, 1.0 / cfg.min_depth_m);
+    ((inv - lo) / (hi - lo)).clamp(0.0, 1.0) as f32
+}
+
+#[test]
+fn tiny_network_overfits_one_synthetic_frame() {
+    let cfg = SsmodeConfig::tiny();
+    let rig = rig();
+    let renderer = SynthRenderer::new(SynthConfig {
+        width: cfg.width,
+        max_depth_m: cfg.max_depth_m,
+        ..SynthConfig::default()
+    })
+    .expect("renderer");
+    let frame = renderer.render_frame(&rig, 0);
+    let images: Vec<Tensor> = frame
+        .images
+        .iter()
+        .map(|img| {
+            let data: Vec<f32> = img.as_raw().iter().map(|&b| b as f32 / 255.0).collect();
+            Tensor::from_vec(data, (1, cfg.height(), cfg.width, 3), &Device::Cpu).unwrap()
+        })
+        .collect();
+    let gt = frame.ground_truth.expect("ground truth");
+    let target: Vec<f32> = gt.data.iter().map(|&r| index_of_range(&cfg, r)).collect();
+    let target = Tensor::from_vec(target, (1, cfg.height(), cfg.width), &Device::Cpu).unwrap();
+
+    let (varmap, net) = model(&cfg);
+    let sampling = SweepSampling::new(&rig, &cfg).expect("sampling");
+    let mut opt = AdamW::new(
+        varmap.all_vars(),
+        ParamsAdamW {
+            lr: 3e-3,
+            weight_decay: 0.0,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    const STEPS: usize = 30;
+    let mut losses = Vec::with_capacity(STEPS);
+    for _ in 0..STEPS {
+        let out = net.forward(&images, &sampling, true).unwrap();
+        let mut loss = Tensor::new(0f32, &Device::Cpu).unwrap();
+        for s in &out.inverse_depth_stages {
+            let l1 = (s - &target).unwrap().abs().unwrap().mean_all().unwrap();
+            loss = (loss + l1).unwrap();
+        }
+        losses.push(loss.to_scalar::<f32>().unwrap());
+        opt.backward_step(&loss).unwrap();
+    }
+    let first = losses[0];
+    let last_few = losses[STEPS - 3..].iter().sum::<f32>() / 3.0;
+    println!("overfit losses: {losses:?}");
+    assert!(
+        last_few < 0.5 * first,
+        "loss went {first} -> {last_few} in {STEPS} steps"
+    );
+}
+
+#[test]
+fn weights_round_trip_is_bit_identical() {
+    let cfg = SsmodeConfig::tiny();
+    let (varmap, net) = model(&cfg);
+    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+    let images = noise_images(&cfg, 4, 11);
+    let before = net.forward(&images, &sampling, false).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tiny.safetensors");
+    save_weights(&varmap, &cfg, &path).expect("save");
+    let (cfg_back, vb) = load_weights(&path, &Device::Cpu).expect("load");
+    assert_eq!(cfg_back, cfg);
+    let net_back = Ssmode::new(&cfg_back, vb).expect("network from file");
+    let after = net_back.forward(&images, &sampling, false).unwrap();
+    for (a, b) in before.stages.iter().zip(&after.stages) {
+        let a: Vec<f32> = a.flatten_all().unwrap().to_vec1().unwrap();
+        let b: Vec<f32> = b.flatten_all().unwrap().to_vec1().unwrap();
+        assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+    }
+    // A file without the config metadata is rejected with its path in the message.
+    let bare = dir.path().join("bare.safetensors");
+    let t = Tensor::zeros(3, DType::F32, &Device::Cpu).unwrap();
+    candle_core::safetensors::save(&std::collections::HashMap::from([("x", t)]), &bare).unwrap();
+    let err = load_weights(&bare, &Device::Cpu)
+        .err()
+        .expect("must fail")
+        .to_string();
+    assert!(
+        err.contains("bare.safetensors") && err.contains("mode360.config"),
+        "{err}"
+    );
+}
+
+#[test]
+fn cost_volume_samples_features_where_the_sweep_geometry_says() {
+    let cfg = SsmodeConfig::tiny();
+    let rig = rig();
+    let sampling = SweepSampling::new(&rig, &cfg).expect("sampling");
+    let geo = sampling.geometry();
+    let grid: ErpGrid = geo.output();
+    let (h, w, c) = (grid.height(), grid.width(), 2usize);
+    // Feature of camera k, pixel p, channel ch: a smooth but non-trivial function.
+    let feat = |k: usize, p: usize, ch: usize| -> f32 {
+        ((p * 7 + k * 13 + ch * 5) % 23) as f32 / 23.0 + ch as f32
+    };
+    let cameras = rig.cameras.len();
+    let features: Vec<Tensor> = (0..cameras)
+        .map(|k| {
+            let data: Vec<f32> = (0..h * w)
+                .flat_map(|p| (0..c).map(move |ch| feat(k, p, ch)))
+                .collect();
+            Tensor::from_vec(data, (1, h, w, c), &Device::Cpu).unwrap()
+        })
+        .collect();
+    let volume = cost_volume(&features, &sampling).expect("cost volume");
+    assert_eq!(volume.dims(), &[1, cfg.spheres, h, w, 2 * c]);
+    let vol: Vec<f32> = volume.flatten_all().unwrap().to_vec1().unwrap();
+    let mut checked = 0;
+    for sphere in [0, cfg.spheres / 2, cfg.spheres - 1] {
+        for (u, v) in [
+            (0usize, 0usize),
+            (3, 2),
+            (w - 1, h / 2),
+            (w / 2, h - 1),
+            (5, 5),
+        ] {
+            for ch in 0..c {
+                let samples: Vec<f64> = (0..cameras)
+                    .map(|k| {
+                        let q = geo.sample(
+                            k,
+                            sphere,
+                            PixelCoord {
+                                u: u as f64,
+                                v: v as f64,
+                            },
+                        );
+                        let taps = geo.camera_grid(k).bilinear_taps(q);
+                        taps.index
+                            .iter()
+                            .zip(taps.weight.iter())
+                            .map(|(&i, &wt)| wt as f64 * feat(k, i as usize, ch) as f64)
+                            .sum()
+                    })
+                    .collect();
+                let n = cameras as f64;
+                let mean = samples.iter().sum::<f64>() / n;
+                let var = samples.iter().map(|x| x * x).sum::<f64>() / n - mean * mean;
+                let base = (((sphere * h + v) * w) + u) * 2 * c;
+                assert!(
+                    (vol[base + ch] as f64 - mean).abs() < 1e-4,
+                    "mean at {sphere},{v},{u}"
+                );
+                assert!(
+                    (vol[base + c + ch] as f64 - var).abs() < 1e-3,
+                    "var at {sphere},{v},{u}"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert_eq!(checked, 3 * 5 * c);
+}
+
+/// Forward timing at 512x256 input for the compact and paper architectures; run with
+/// `cargo test --release --test model_ssmode -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn forward_timing_512x256() {
+    const WIDTH: usize = 512;
+    const RUNS: usize = 3;
+    for mut cfg in [SsmodeConfig::compact(), SsmodeConfig::paper()] {
+        let native = cfg.width;
+        cfg.width = WIDTH;
+        let (varmap, net) = model(&cfg);
+        let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+        let images = noise_images(&cfg, 4, 5);
+        let _warm = net.forward(&images, &sampling, false).unwrap();
+        let t0 = std::time::Instant::now();
+        for _ in 0..RUNS {
+            let out = net.forward(&images, &sampling, false).unwrap();
+            let _ = out.stages.last().unwrap().sum_all().unwrap();
+        }
+        let per = t0.elapsed().as_secs_f64() / RUNS as f64;
+        let hwm = std::fs::read_to_string("/proc/self/status")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find(|l| l.starts_with("VmHWM"))
+                    .map(str::to_string)
+            })
+            .unwrap_or_default();
+        println!(
+            "{} (native width {native}) at {WIDTH}x{}: {} params, forward {per:.3} s, {hwm}",
+            cfg.name,
+            WIDTH / 2,
+            param_count(&varmap)
+        );
+    }
+}
