@@ -22,4 +22,9 @@ pub mod data;
 pub mod log;
 pub mod loss;
 pub mod optim;
-// runner.rs (run_training) is enabled once the model branch is merged.
+mod runner;
+
+pub use runner::{
+    run_training, CheckpointState, TrainError, TrainOptions, TrainSummary, CHECKPOINT_DIR,
+    CURVES_PNG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TRAIN_CSV, VAL_CSV,
+};
