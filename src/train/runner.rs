@@ -659,7 +659,7 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
             "loss {step_loss:.4} lr {lr:.2e} {step_secs:.2}s/step"
         ));
         bar.set_position(state.step as u64);
-        if opts.val_every > 0 && state.step.is_multiple_of(opts.val_every) {
+        if opts.val_every > 0 && opts.val_samples > 0 && state.step.is_multiple_of(opts.val_every) {
             if val_set.is_none() {
                 let set = validation_specs(opts.val_samples)
                     .iter()
