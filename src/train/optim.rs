@@ -86,7 +86,9 @@ impl AdamW {
             let Some(g) = grads.get(s.var.as_tensor()) else {
                 continue;
             };
-            let g = g.to_dtype(DType::F32)?;
+            // Detached: gradients carry autograd history (they are built from variables), and
+            // moments computed from them would otherwise chain every step's graph (a leak).
+            let g = g.detach().to_dtype(DType::F32)?;
             let m = ((&s.m * p.beta1)? + (&g * (1.0 - p.beta1))?)?;
             let v = ((&s.v * p.beta2)? + (g.sqr()? * (1.0 - p.beta2))?)?;
             let m_hat = (&m * scale_m)?;
@@ -94,8 +96,8 @@ impl AdamW {
             let decayed = (s.var.as_tensor() * (1.0 - lr * p.weight_decay))?;
             let update = ((m_hat / (v_hat.sqrt()? + p.eps)?)? * lr)?;
             s.var.set(&(decayed - update)?)?;
-            s.m = m;
-            s.v = v;
+            s.m = m.detach();
+            s.v = v.detach();
         }
         Ok(())
     }
