@@ -27,6 +27,8 @@ const TRAIN_COLOUR: Rgb<u8> = Rgb([40, 90, 200]);
 const VAL_COLOUR: Rgb<u8> = Rgb([220, 60, 40]);
 /// Horizontal grid lines per panel.
 const GRID_LINES: usize = 4;
+/// Top of the delta1 axis, percent.
+const PERCENT_MAX: f64 = 100.0;
 /// Bytes per kibibyte and mebibyte.
 const KIB: f64 = 1024.0;
 
@@ -194,36 +196,56 @@ fn line(img: &mut RgbImage, a: (i64, i64), b: (i64, i64), c: Rgb<u8>) {
     }
 }
 
-/// Draws `series` (x ascending) into `panel`, scaled to the data's own bounds; returns the
-/// drawn pixel positions.
-fn draw_series(img: &mut RgbImage, panel: Panel, series: &[(f64, f64)], c: Rgb<u8>) {
-    let finite: Vec<(f64, f64)> = series
+/// Data bounds of a plot panel.
+#[derive(Clone, Copy, Debug)]
+struct Bounds {
+    x_min: f64,
+    x_max: f64,
+    y_min: f64,
+    y_max: f64,
+}
+
+/// Bounds of the finite points of `series`, `None` if there are none.
+fn bounds_of(series: &[&[(f64, f64)]]) -> Option<Bounds> {
+    let mut b = Bounds {
+        x_min: f64::INFINITY,
+        x_max: f64::NEG_INFINITY,
+        y_min: f64::INFINITY,
+        y_max: f64::NEG_INFINITY,
+    };
+    for &(x, y) in series.iter().flat_map(|s| s.iter()) {
+        if x.is_finite() && y.is_finite() {
+            b.x_min = b.x_min.min(x);
+            b.x_max = b.x_max.max(x);
+            b.y_min = b.y_min.min(y);
+            b.y_max = b.y_max.max(y);
+        }
+    }
+    b.x_min.is_finite().then_some(b)
+}
+
+/// Draws `series` (x ascending) into `panel` mapped through `bounds`.
+fn draw_series(
+    img: &mut RgbImage,
+    panel: Panel,
+    bounds: Bounds,
+    series: &[(f64, f64)],
+    c: Rgb<u8>,
+) {
+    let xspan = (bounds.x_max - bounds.x_min).max(f64::EPSILON);
+    let yspan = (bounds.y_max - bounds.y_min).max(f64::EPSILON);
+    let to_px = |(x, y): (f64, f64)| {
+        (
+            panel.x0 + ((x - bounds.x_min) / xspan * (panel.x1 - panel.x0) as f64).round() as i64,
+            panel.y1 - ((y - bounds.y_min) / yspan * (panel.y1 - panel.y0) as f64).round() as i64,
+        )
+    };
+    let pts: Vec<(i64, i64)> = series
         .iter()
         .copied()
         .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .map(to_px)
         .collect();
-    if finite.is_empty() {
-        return;
-    }
-    let (xmin, xmax) = finite
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.0), b.max(p.0))
-        });
-    let (ymin, ymax) = finite
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.1), b.max(p.1))
-        });
-    let xspan = (xmax - xmin).max(f64::EPSILON);
-    let yspan = (ymax - ymin).max(f64::EPSILON);
-    let to_px = |(x, y): (f64, f64)| {
-        (
-            panel.x0 + ((x - xmin) / xspan * (panel.x1 - panel.x0) as f64).round() as i64,
-            panel.y1 - ((y - ymin) / yspan * (panel.y1 - panel.y0) as f64).round() as i64,
-        )
-    };
-    let pts: Vec<(i64, i64)> = finite.into_iter().map(to_px).collect();
     for w in pts.windows(2) {
         line(img, w[0], w[1], c);
     }
@@ -235,6 +257,15 @@ fn draw_series(img: &mut RgbImage, panel: Panel, series: &[(f64, f64)], c: Rgb<u
     }
 }
 
+/// `(x, log10 y)` of the positive points.
+fn log10_series(series: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    series
+        .iter()
+        .filter(|(_, y)| *y > 0.0)
+        .map(|&(x, y)| (x, y.log10()))
+        .collect()
+}
+
 fn draw_frame(img: &mut RgbImage, p: Panel) {
     for k in 1..GRID_LINES {
         let y = p.y0 + (p.y1 - p.y0) * k as i64 / GRID_LINES as i64;
@@ -244,9 +275,10 @@ fn draw_frame(img: &mut RgbImage, p: Panel) {
     line(img, (p.x0, p.y0), (p.x0, p.y1), AXIS);
 }
 
-/// Re-plots `curves.png`: top panel training loss (blue) and validation loss (red) vs step,
-/// bottom panel validation delta1 (red) vs step. Each series is scaled to its own range
-/// (the CSV files hold the numbers; the plot shows trends).
+/// Re-plots `curves.png` (no text; the CSV files hold the numbers): top panel training loss
+/// (blue) and validation loss (red) vs step on one shared log10 scale spanning the data;
+/// bottom panel validation delta1 (red) vs step on a fixed 0..100 % scale, grid lines every
+/// 25 %. Both panels share the step axis.
 pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(), String> {
     let train = if train_csv.exists() {
         read_columns(train_csv, "step", "loss")
@@ -280,9 +312,19 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
     };
     draw_frame(&mut img, top);
     draw_frame(&mut img, bottom);
-    draw_series(&mut img, top, &train, TRAIN_COLOUR);
-    draw_series(&mut img, top, &val_loss, VAL_COLOUR);
-    draw_series(&mut img, bottom, &val_d1, VAL_COLOUR);
+    let (train_log, val_log) = (log10_series(&train), log10_series(&val_loss));
+    if let Some(b) = bounds_of(&[&train_log, &val_log]) {
+        draw_series(&mut img, top, b, &train_log, TRAIN_COLOUR);
+        draw_series(&mut img, top, b, &val_log, VAL_COLOUR);
+    }
+    if let Some(b) = bounds_of(&[&train, &val_d1]) {
+        let pct = Bounds {
+            y_min: 0.0,
+            y_max: PERCENT_MAX,
+            ..b
+        };
+        draw_series(&mut img, bottom, pct, &val_d1, VAL_COLOUR);
+    }
     let tmp = out_png.with_extension("png.tmp");
     img.save_with_format(&tmp, image::ImageFormat::Png)
         .map_err(|e| format!("{}: {e}", tmp.display()))?;
