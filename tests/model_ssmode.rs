@@ -58,10 +58,19 @@ fn same_weights_run_on_two_three_and_four_cameras() {
         let indices: Vec<usize> = (0..cams).collect();
         let sub = full.subset(&indices).expect("subset");
         let sampling = SweepSampling::new(&sub, &cfg).expect("sampling");
-        let out = net
-            .forward(&noise_images(&cfg, cams, 7), &sampling, false)
-            .expect("forward");
+        let images = noise_images(&cfg, cams, 7);
+        let out = net.forward(&images, &sampling, true).expect("forward");
         assert_eq!(out.stages.len(), cfg.hourglasses);
+        // Inference regresses only the final stage, bit-identical to training mode's last.
+        let eval = net.forward(&images, &sampling, false).expect("forward");
+        assert_eq!(eval.stages.len(), 1);
+        let last: Vec<f32> = out.stages[cfg.hourglasses - 1]
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        let only: Vec<f32> = eval.stages[0].flatten_all().unwrap().to_vec1().unwrap();
+        assert_eq!(last, only);
         assert_eq!(out.inverse_depth_stages.len(), cfg.hourglasses);
         for (range, index) in out.stages.iter().zip(&out.inverse_depth_stages) {
             assert_eq!(range.dims(), &[1, cfg.height(), cfg.width]);
@@ -297,16 +306,18 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
     assert_eq!(checked, 3 * 5 * c);
 }
 
-/// Forward timing at 512x256 input for the compact and paper architectures; run with
-/// `cargo test --release --test model_ssmode -- --ignored --nocapture`.
+/// Inference timing (4 cameras) of compact at 256x128 (what the estimator runs) and of the
+/// compact and paper architectures at 512x256; run with
+/// `cargo test --test model_ssmode -- --ignored --nocapture forward_timing`.
 #[test]
 #[ignore]
 fn forward_timing_512x256() {
-    const WIDTH: usize = 512;
-    const RUNS: usize = 3;
-    for mut cfg in [SsmodeConfig::compact(), SsmodeConfig::paper()] {
+    const RUNS: usize = 2;
+    const CASES: [(&str, usize); 3] = [("compact", 256), ("compact", 512), ("paper", 512)];
+    for (preset, width) in CASES {
+        let mut cfg = SsmodeConfig::preset(preset).unwrap();
         let native = cfg.width;
-        cfg.width = WIDTH;
+        cfg.width = width;
         let (varmap, net) = model(&cfg);
         let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
         let images = noise_images(&cfg, 4, 5);
@@ -326,10 +337,85 @@ fn forward_timing_512x256() {
             })
             .unwrap_or_default();
         println!(
-            "{} (native width {native}) at {WIDTH}x{}: {} params, forward {per:.3} s, {hwm}",
+            "{} (native width {native}) at {width}x{}: {} params, forward {per:.3} s, {hwm}",
             cfg.name,
-            WIDTH / 2,
+            width / 2,
             param_count(&varmap)
         );
     }
+}
+
+/// Per-stage forward timing of the compact architecture at its native and at 512 width; run with
+/// `cargo test --test model_ssmode -- --ignored --nocapture stage_timing`.
+#[test]
+#[ignore]
+fn stage_timing() {
+    use mode360::model::feature::FeatureExtractor;
+    use mode360::model::hourglass::CostAggregation;
+    use mode360::model::regression::{regress, RegressionHead};
+    for width in [256usize, 512] {
+        let mut cfg = SsmodeConfig::compact();
+        cfg.width = width;
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let feature = FeatureExtractor::new(&cfg, vb.pp("feature")).unwrap();
+        let agg = CostAggregation::new(&cfg, vb.pp("aggregation")).unwrap();
+        let head = RegressionHead::new(cfg.hourglass_channels, vb.pp("classif0")).unwrap();
+        let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+        let images = Tensor::cat(&noise_images(&cfg, 4, 5), 0).unwrap();
+        let t = std::time::Instant::now();
+        let f = feature.forward(&images, sampling.sphere_conv()).unwrap();
+        let t_feat = t.elapsed().as_secs_f64();
+        let per: Vec<Tensor> = (0..4).map(|c| f.narrow(0, c, 1).unwrap()).collect();
+        let t = std::time::Instant::now();
+        let vol = cost_volume(&per, &sampling).unwrap();
+        let t_vol = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let outs = agg.forward(&vol).unwrap();
+        let t_agg = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let cost = head.forward(&outs[0]).unwrap();
+        let t_head = t.elapsed().as_secs_f64();
+        let hyps = cfg.output_hypotheses().unwrap();
+        let t = std::time::Instant::now();
+        let r = regress(&cost, &hyps, cfg.height(), cfg.width).unwrap();
+        let _ = r.range_m.sum_all().unwrap();
+        let t_reg = t.elapsed().as_secs_f64();
+        println!(
+            "width {width}: feature {t_feat:.3} s, volume {t_vol:.3} s, aggregation {t_agg:.3} s, head {t_head:.3} s, regression {t_reg:.3} s"
+        );
+    }
+}
+
+/// One training step (forward, backward, AdamW) of the compact preset at 256x128, 4 cameras;
+/// run with `cargo test --test model_ssmode -- --ignored --nocapture train_step_timing`.
+#[test]
+#[ignore]
+fn train_step_timing() {
+    const STEPS: usize = 3;
+    let cfg = SsmodeConfig::compact();
+    let (varmap, net) = model(&cfg);
+    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+    let images = noise_images(&cfg, 4, 9);
+    let mut opt = AdamW::new(varmap.all_vars(), ParamsAdamW::default()).unwrap();
+    let mut times = Vec::with_capacity(STEPS);
+    for _ in 0..STEPS {
+        let t = std::time::Instant::now();
+        let out = net.forward(&images, &sampling, true).unwrap();
+        let mut loss = Tensor::new(0f32, &Device::Cpu).unwrap();
+        for s in &out.inverse_depth_stages {
+            loss = (loss + (s - 0.4).unwrap().abs().unwrap().mean_all().unwrap()).unwrap();
+        }
+        opt.backward_step(&loss).unwrap();
+        times.push(t.elapsed().as_secs_f64());
+    }
+    let hwm = std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM"))
+                .map(str::to_string)
+        })
+        .unwrap_or_default();
+    println!("compact train step at 256x128: {times:?} s, {hwm}");
 }

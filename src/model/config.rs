@@ -1,5 +1,6 @@
 //! SSMODE hyper-parameters (presets) and the per-rig sweep sampling tables.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::sphere_conv::SphereConvTable;
@@ -49,7 +50,7 @@ impl SsmodeConfig {
             name: "paper".to_string(),
             width: 1024,
             feature_channels: [32, 64, 64, 128],
-            feature_blocks: [3, 12, 3, 3],
+            feature_blocks: [3, 16, 3, 7],
             feature_out_channels: 32,
             spheres: 48,
             hypotheses: 192,
@@ -60,7 +61,9 @@ impl SsmodeConfig {
         }
     }
 
-    /// The shipped CPU default: 256x128 input, 32 spheres, two hourglasses on 16 channels.
+    /// The shipped CPU default: 256x128 input, 32 spheres, 64 hypotheses, two hourglasses on
+    /// 16 channels, about 0.4M parameters (measured on 2 shared cores: about 0.34 s per 4-camera
+    /// forward, 1.1 s per training step).
     pub fn compact() -> Self {
         Self {
             name: "compact".to_string(),
@@ -69,7 +72,7 @@ impl SsmodeConfig {
             feature_blocks: [1, 2, 1, 1],
             feature_out_channels: 16,
             spheres: 32,
-            hypotheses: 128,
+            hypotheses: 64,
             min_depth_m: crate::geometry::sweep::PAPER_MIN_DEPTH_M,
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 16,
@@ -220,19 +223,23 @@ impl SweepSampling {
         let geometry =
             SweepGeometry::new(rig, grid, vec![grid; cameras], cfg.sphere_hypotheses()?)?;
         let w = grid.width();
+        let pixels = grid.len();
         let sweep_tables = (0..cameras)
             .map(|cam| {
                 let camera_grid = geometry.camera_grid(cam);
-                let mut taps = Vec::with_capacity(cfg.spheres * grid.len());
-                for sphere in 0..cfg.spheres {
-                    for k in 0..grid.len() {
+                // sample index (sphere H + v) W + u
+                let taps: Vec<_> = (0..cfg.spheres * pixels)
+                    .into_par_iter()
+                    .with_min_len(w)
+                    .map(|n| {
+                        let (sphere, k) = (n / pixels, n % pixels);
                         let p = PixelCoord {
                             u: (k % w) as f64,
                             v: (k / w) as f64,
                         };
-                        taps.push(camera_grid.bilinear_taps(geometry.sample(cam, sphere, p)));
-                    }
-                }
+                        camera_grid.bilinear_taps(geometry.sample(cam, sphere, p))
+                    })
+                    .collect();
                 SampleTable::new(&taps)
             })
             .collect();

@@ -1,10 +1,10 @@
 //! Spherical feature extraction (paper section 4.1), shared by all cameras.
 //!
 //! ```text
-//! image (B, H, W, 3) -> firstconv: 3x3 s2, 3x3             (B, c0, H/2, W/2)
-//!   layer1: residual blocks                                  (B, c0, H/2, W/2)
-//!   layer2: residual blocks, first with stride 2             (B, c1, H/4, W/4)
-//!   layer3: residual blocks, dilation 2                      (B, c2, H/4, W/4)
+//! image (B, H, W, 3) -> firstconv: 3x3 s2, 3x3             (B, H/2, W/2, c0)
+//!   layer1: residual blocks                                  (B, H/2, W/2, c0)
+//!   layer2: residual blocks, first with stride 2             (B, H/4, W/4, c1)
+//!   layer3: residual blocks, dilation 2                      (B, H/4, W/4, c2)
 //!   layer4: residual blocks of spherical convolutions        (B, H/4, W/4, c3)
 //!   fuse: concat(layer2, layer3, layer4) -> 3x3 -> 1x1       (B, H/4, W/4, Cf)
 //! ```
@@ -12,7 +12,9 @@
 //! Planar convolutions pad the ERP circularly in longitude and with zeros at the poles.
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Conv2d, Conv2dConfig, VarBuilder};
+use candle_nn::{Init, VarBuilder};
+
+use crate::model::ops::conv3d;
 
 use super::config::SsmodeConfig;
 use super::sphere_conv::{SphereConv, SphereConvTable};
@@ -24,23 +26,29 @@ const STAGE3_DILATION: usize = 2;
 /// Stride of the downsampling convolutions.
 const DOWNSAMPLE_STRIDE: usize = 2;
 
-/// Pads `x (B, C, H, W)` by `pad` pixels: circular along W (longitude), zeros along H.
+/// Pads `x (B, H, W, C)` by `pad` pixels: circular along W (longitude), zeros along H.
 pub fn erp_pad(x: &Tensor, pad: usize) -> Result<Tensor> {
     if pad == 0 {
         return Ok(x.clone());
     }
-    let w = x.dim(3)?;
-    let left = x.narrow(3, w - pad, pad)?;
-    let right = x.narrow(3, 0, pad)?;
-    // (B, C, H, W + 2 pad) -> (B, C, H + 2 pad, W + 2 pad)
-    Tensor::cat(&[&left, x, &right], 3)?.pad_with_zeros(2, pad, pad)
+    let w = x.dim(2)?;
+    let left = x.narrow(2, w - pad, pad)?;
+    let right = x.narrow(2, 0, pad)?;
+    // (B, H, W + 2 pad, C) -> (B, H + 2 pad, W + 2 pad, C)
+    Tensor::cat(&[&left, x, &right], 2)?.pad_with_zeros(1, pad, pad)
 }
 
-/// A planar conv with ERP padding: `k x k`, stride, dilation, bias.
+/// A planar conv with ERP padding, channels-last: `k x k`, stride, dilation, bias; weight
+/// `(1, k, k, Cin, Cout)` run by the fast `conv3d` kernel on a depth-1 volume. A dilated conv
+/// (stride 1) is the plain conv applied to the `d x d` polyphase sub-images (space to batch),
+/// which also keeps the longitude wrap exact for widths divisible by `d`.
 #[derive(Clone, Debug)]
 pub struct ErpConv {
-    conv: Conv2d,
-    pad: usize,
+    weight: Tensor,
+    bias: Tensor,
+    kernel: usize,
+    stride: usize,
+    dilation: usize,
 }
 
 impl ErpConv {
@@ -52,22 +60,69 @@ impl ErpConv {
         dilation: usize,
         vb: VarBuilder,
     ) -> Result<Self> {
-        let cfg = Conv2dConfig {
-            padding: 0,
+        if dilation == 0 || stride == 0 || (dilation > 1 && stride > 1) {
+            candle_core::bail!(
+                "ErpConv {}: stride {stride} with dilation {dilation} is not supported",
+                vb.prefix()
+            );
+        }
+        let fan_in = kernel * kernel * c_in;
+        let bound = (6.0 / fan_in as f64).sqrt();
+        let weight = vb.get_with_hints(
+            (1, kernel, kernel, c_in, c_out),
+            "weight",
+            Init::Uniform {
+                lo: -bound,
+                up: bound,
+            },
+        )?;
+        let bias = vb.get_with_hints(c_out, "bias", Init::Const(0.0))?;
+        Ok(Self {
+            weight,
+            bias,
+            kernel,
             stride,
             dilation,
-            groups: 1,
-            cudnn_fwd_algo: None,
-        };
-        Ok(Self {
-            conv: candle_nn::conv2d(c_in, c_out, kernel, cfg, vb)?,
-            pad: dilation * (kernel / 2),
         })
     }
 
-    /// `(B, Cin, H, W)` -> `(B, Cout, H / stride, W / stride)`.
+    /// Undilated conv: `(B, H, W, Cin)` -> `(B, H / stride, W / stride, Cout)`.
+    fn forward_plain(&self, x: &Tensor) -> Result<Tensor> {
+        // (B, 1, H + 2p, W + 2p, Cin)
+        let padded = erp_pad(x, self.kernel / 2)?.unsqueeze(1)?;
+        // (B, 1, Ho, Wo, Cout)
+        let y = conv3d(
+            &padded,
+            &self.weight,
+            [1, self.stride, self.stride],
+            [0, 0, 0],
+        )?;
+        y.squeeze(1)?.broadcast_add(&self.bias)
+    }
+
+    /// `(B, H, W, Cin)` -> `(B, H / stride, W / stride, Cout)`.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        self.conv.forward(&erp_pad(x, self.pad)?)
+        let d = self.dilation;
+        if d == 1 {
+            return self.forward_plain(x);
+        }
+        let (b, h, w, c) = x.dims4()?;
+        if !h.is_multiple_of(d) || !w.is_multiple_of(d) {
+            candle_core::bail!("ErpConv: {w}x{h} is not divisible by the dilation {d}");
+        }
+        // (B, H/d, d, W/d, d, C) -> (B, d, d, H/d, W/d, C) -> (B d d, H/d, W/d, C)
+        let phases = x
+            .reshape((b, h / d, d, w / d, d, c))?
+            .permute((0, 2, 4, 1, 3, 5))?
+            .contiguous()?
+            .reshape((b * d * d, h / d, w / d, c))?;
+        let y = self.forward_plain(&phases)?;
+        let c_out = y.dim(3)?;
+        // (B, d, d, H/d, W/d, Co) -> (B, H/d, d, W/d, d, Co) -> (B, H, W, Co)
+        y.reshape((b, d, d, h / d, w / d, c_out))?
+            .permute((0, 3, 1, 4, 2, 5))?
+            .contiguous()?
+            .reshape((b, h, w, c_out))
     }
 }
 
@@ -107,7 +162,7 @@ impl ResidualBlock {
         })
     }
 
-    /// `(B, Cin, H, W)` -> `(B, Cout, H / stride, W / stride)`.
+    /// `(B, H, W, Cin)` -> `(B, H / stride, W / stride, Cout)`.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let y = self.conv2.forward(&self.conv1.forward(x)?.relu()?)?;
         let skip = match &self.downsample {
@@ -235,38 +290,108 @@ impl FeatureExtractor {
 
     /// images `(B, H, W, 3)` in [0, 1] -> features `(B, H/4, W/4, Cf)` channels-last.
     pub fn forward(&self, images: &Tensor, sphere_table: &SphereConvTable) -> Result<Tensor> {
-        // (B, 3, H, W), centred
-        let x = images
-            .permute((0, 3, 1, 2))?
-            .contiguous()?
-            .affine(2.0, -1.0)?;
-        // (B, c0, H/2, W/2)
+        // (B, H, W, 3), centred
+        let x = images.affine(2.0, -1.0)?;
+        // (B, H/2, W/2, c0)
         let mut x = self.firstconv[0].forward(&x)?.relu()?;
         x = self.firstconv[1].forward(&x)?.relu()?;
         for block in &self.layer1 {
             x = block.forward(&x)?;
         }
-        // (B, c1, H/4, W/4)
+        // (B, H/4, W/4, c1)
         for block in &self.layer2 {
             x = block.forward(&x)?;
         }
         let stage2 = x.clone();
-        // (B, c2, H/4, W/4)
+        // (B, H/4, W/4, c2)
         for block in &self.layer3 {
             x = block.forward(&x)?;
         }
         let stage3 = x.clone();
         // (B, H/4, W/4, c3)
-        let mut y = x.permute((0, 2, 3, 1))?.contiguous()?;
         for block in &self.layer4 {
-            y = block.forward(&y, sphere_table)?;
+            x = block.forward(&x, sphere_table)?;
         }
-        let stage4 = y.permute((0, 3, 1, 2))?;
-        // (B, c1 + c2 + c3, H/4, W/4) -> (B, Cf, H/4, W/4)
-        let cat = Tensor::cat(&[&stage2, &stage3, &stage4], 1)?;
+        // (B, H/4, W/4, c1 + c2 + c3) -> (B, H/4, W/4, Cf)
+        let cat = Tensor::cat(&[&stage2, &stage3, &x], 3)?;
         let f = self.fuse[0].forward(&cat)?.relu()?;
-        let f = self.fuse[1].forward(&f)?;
-        // (B, H/4, W/4, Cf)
-        f.permute((0, 2, 3, 1))?.contiguous()
+        self.fuse[1].forward(&f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{DType, Device};
+    use candle_nn::VarMap;
+
+    /// Direct loops: `y[v, u, o] = b[o] + sum_{i, j, c} w[i, j, c, o] x[v + d(i-1), (u + d(j-1)) mod W, c]`
+    /// with zero rows outside the image.
+    fn reference(
+        x: &[f32],
+        w: &[f32],
+        b: &[f32],
+        dims: (usize, usize, usize, usize),
+        d: i64,
+    ) -> Vec<f32> {
+        let (h, wd, c, o) = dims;
+        let mut y = vec![0.0; h * wd * o];
+        for v in 0..h as i64 {
+            for u in 0..wd as i64 {
+                for oc in 0..o {
+                    let mut acc = b[oc];
+                    for i in 0..KERNEL as i64 {
+                        for j in 0..KERNEL as i64 {
+                            let vv = v + d * (i - 1);
+                            if vv < 0 || vv >= h as i64 {
+                                continue;
+                            }
+                            let uu = (u + d * (j - 1)).rem_euclid(wd as i64);
+                            for ci in 0..c {
+                                let xi = ((vv as usize * wd) + uu as usize) * c + ci;
+                                let wi = ((i as usize * KERNEL + j as usize) * c + ci) * o + oc;
+                                acc += w[wi] * x[xi];
+                            }
+                        }
+                    }
+                    y[((v as usize * wd) + u as usize) * o + oc] = acc;
+                }
+            }
+        }
+        y
+    }
+
+    #[test]
+    fn erp_conv_matches_direct_loops_with_wrap_and_dilation() {
+        const H: usize = 4;
+        const W: usize = 8;
+        const C: usize = 2;
+        const O: usize = 3;
+        for dilation in [1usize, 2] {
+            let varmap = VarMap::new();
+            let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+            let conv = ErpConv::new(C, O, KERNEL, 1, dilation, vb.pp("c")).expect("conv");
+            let data: Vec<f32> = (0..H * W * C)
+                .map(|k| ((k * 37) % 11) as f32 - 5.0)
+                .collect();
+            let x = Tensor::from_vec(data.clone(), (1, H, W, C), &Device::Cpu).unwrap();
+            let y: Vec<f32> = conv
+                .forward(&x)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1()
+                .unwrap();
+            let w: Vec<f32> = conv.weight.flatten_all().unwrap().to_vec1().unwrap();
+            let b: Vec<f32> = conv.bias.to_vec1().unwrap();
+            let expected = reference(&data, &w, &b, (H, W, C, O), dilation as i64);
+            assert_eq!(y.len(), expected.len());
+            for (k, (a, e)) in y.iter().zip(&expected).enumerate() {
+                assert!(
+                    (a - e).abs() < 1e-4,
+                    "dilation {dilation}, element {k}: {a} vs {e}"
+                );
+            }
+        }
     }
 }

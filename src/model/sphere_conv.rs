@@ -129,3 +129,48 @@ impl SphereConv {
         out.reshape((b, h, w, self.c_out))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The continuous `u` of a tap from its bilinear weights (columns `u0`, `u0 + 1`).
+    fn tap_u(t: &crate::geometry::BilinearTaps, width: usize) -> f64 {
+        let u0 = (t.index[0] as usize % width) as f64;
+        u0 + (t.weight[1] + t.weight[3]) as f64
+    }
+
+    #[test]
+    fn centre_tap_is_the_pixel_and_equator_neighbours_are_one_pixel_away() {
+        const WIDTH: usize = 64;
+        let grid = ErpGrid::new(WIDTH).expect("grid");
+        let t = SphereConvTable::new(grid);
+        assert_eq!(t.table().len(), grid.len() * SPHERE_TAPS);
+        let idx = t.table().flat_indices();
+        let wts = t.table().flat_weights();
+        let tap = |p: usize, k: usize| crate::geometry::BilinearTaps {
+            index: [0, 1, 2, 3].map(|i| idx[(p * SPHERE_TAPS + k) * 4 + i]),
+            weight: [0, 1, 2, 3].map(|i| wts[(p * SPHERE_TAPS + k) * 4 + i]),
+        };
+        // Centre tap (k = 4) of pixel (10, 5): all weight on that pixel.
+        let p = 5 * WIDTH + 10;
+        let c = tap(p, 4);
+        assert_eq!(c.index[0] as usize, p);
+        assert!((c.weight[0] - 1.0).abs() < 1e-6);
+        // Row 15 of 32 is just above the equator (lat = pi/64): the right neighbour (k = 5)
+        // is within 0.01 px of one pixel to the right.
+        let p = 15 * WIDTH + 20;
+        let right = tap_u(&tap(p, 5), WIDTH);
+        assert!((right - 21.0).abs() < 0.01, "right tap at u = {right}");
+        // Near the pole (row 1, lat = 84.4 deg) the same tangent step spans about
+        // 1 / cos(lat) = 10 columns of the ERP.
+        let p = WIDTH + 20;
+        let ll = grid.lonlat_from_pixel(PixelCoord { u: 20.0, v: 1.0 });
+        let right = tap_u(&tap(p, 5), WIDTH) - 20.0;
+        let expected = 1.0 / ll.lat_rad.cos();
+        assert!(
+            right > 0.8 * expected && right < 1.2 * expected,
+            "{right} vs {expected}"
+        );
+    }
+}

@@ -26,9 +26,10 @@ const IMAGE_CHANNELS: usize = 3;
 /// What [`Ssmode::forward`] returns.
 #[derive(Clone, Debug)]
 pub struct SsmodeOutput {
-    /// Per hourglass, `(B, H, W)` range in metres; the last is the final estimate.
+    /// Per hourglass, `(B, H, W)` range in metres; the last is the final estimate (only the
+    /// final one when `forward` runs with `train = false`).
     pub stages: Vec<Tensor>,
-    /// Per hourglass, `(B, H, W)` expected normalized inverse-depth index in [0, 1]
+    /// Like `stages`: `(B, H, W)` expected normalized inverse-depth index in [0, 1]
     /// (0 = `max_depth_m`, 1 = `min_depth_m`).
     pub inverse_depth_stages: Vec<Tensor>,
     /// `(B, H, W)` probability mass within 2 hypotheses of the final argmax.
@@ -118,12 +119,14 @@ impl Ssmode {
     }
 
     /// images: one `(B, H, W, 3)` f32 tensor in [0, 1] per camera, rig order (any count >= 2).
-    /// `train` is accepted for API stability (the network has no train-only layers).
+    /// With `train` every hourglass is regressed (for the stacked loss); without it only the
+    /// last one, so `stages` and `inverse_depth_stages` then hold just the final estimate.
+    /// The network has no train-only layers: the final stage is identical either way.
     pub fn forward(
         &self,
         images: &[Tensor],
         sampling: &SweepSampling,
-        _train: bool,
+        train: bool,
     ) -> Result<SsmodeOutput> {
         self.check_images(images, sampling)?;
         let cameras = images.len();
@@ -143,7 +146,12 @@ impl Ssmode {
         let mut stages = Vec::with_capacity(aggregated.len());
         let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
         let mut last_probabilities = None;
-        for (head, x) in self.classif.iter().zip(&aggregated) {
+        let skip = if train {
+            0
+        } else {
+            aggregated.len().saturating_sub(1)
+        };
+        for (head, x) in self.classif.iter().zip(&aggregated).skip(skip) {
             // (B, D, H/4, W/4)
             let cost = head.forward(x)?;
             // (B, H, W)

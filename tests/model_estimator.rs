@@ -1,0 +1,93 @@
+//! The SSMODE estimator: loads a weights file, resizes images in and range out, and errors
+//! clearly on a missing file.
+
+use candle_core::{DType, Device};
+use candle_nn::{VarBuilder, VarMap};
+use mode360::estimator::ssmode::{resample_erp, SsmodeEstimator};
+use mode360::estimator::DepthEstimator;
+use mode360::geometry::{ErpGrid, Rig};
+use mode360::model::{save_weights, Ssmode, SsmodeConfig};
+use mode360::synth::{SynthConfig, SynthRenderer};
+
+fn rig() -> Rig {
+    Rig::from_file(format!(
+        "{}/launch_configs/rig_deep360.yaml",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .expect("rig")
+}
+
+#[test]
+fn missing_weights_name_the_path() {
+    let err = SsmodeEstimator::load("/nonexistent/ssmode_x.safetensors")
+        .err()
+        .expect("must fail")
+        .to_string();
+    assert!(err.contains("/nonexistent/ssmode_x.safetensors"), "{err}");
+}
+
+#[test]
+fn estimator_resizes_in_and_out() {
+    let cfg = SsmodeConfig::tiny();
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    let _net = Ssmode::new(&cfg, vb).expect("network");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tiny.safetensors");
+    save_weights(&varmap, &cfg, &path).unwrap();
+    let mut est = SsmodeEstimator::load(&path).expect("load");
+    assert_eq!(est.config(), &cfg);
+    let rig = rig();
+    const INPUT_WIDTH: usize = 128;
+    const OUTPUT_WIDTH: usize = 32;
+    let renderer = SynthRenderer::new(SynthConfig {
+        width: INPUT_WIDTH,
+        ..SynthConfig::default()
+    })
+    .unwrap();
+    let frame = renderer.render_frame(&rig, 0);
+    let output = ErpGrid::new(OUTPUT_WIDTH).unwrap();
+    let est1 = est.estimate(&rig, &frame.images, output).expect("estimate");
+    assert_eq!(
+        (est1.range_m.width, est1.range_m.height),
+        (OUTPUT_WIDTH, OUTPUT_WIDTH / 2)
+    );
+    assert_eq!(est1.range_m.data.len(), output.len());
+    assert!(est1
+        .range_m
+        .data
+        .iter()
+        .all(|&r| r >= cfg.min_depth_m as f32 * 0.999 && r <= cfg.max_depth_m as f32 * 1.001));
+    assert!(est1
+        .confidence
+        .data
+        .iter()
+        .all(|&c| (0.0..=1.0 + 1e-5).contains(&c)));
+    // Same rig again (cached tables): identical result.
+    let est2 = est.estimate(&rig, &frame.images, output).unwrap();
+    assert_eq!(est1.range_m.data, est2.range_m.data);
+    // Wrong image count is an error.
+    assert!(est.estimate(&rig, &frame.images[..2], output).is_err());
+}
+
+#[test]
+fn erp_resampling_halves_exactly_and_wraps() {
+    let src = ErpGrid::new(8).unwrap();
+    let dst = ErpGrid::new(4).unwrap();
+    // value = column index: 2x downsampling averages columns (2i, 2i+1) -> 2i + 0.5
+    let data: Vec<f32> = (0..src.len()).map(|k| (k % 8) as f32).collect();
+    let out = resample_erp(&data, 1, src, dst);
+    for v in 0..2 {
+        for u in 0..4 {
+            assert!((out[v * 4 + u] - (2 * u) as f32 - 0.5).abs() < 1e-6);
+        }
+    }
+    // Upsampling: the first column of the 16-wide grid sits at u = -0.25 of the 8-wide one,
+    // between column 7 (weight 0.25) and column 0 (0.75) across the seam.
+    let up = resample_erp(&data, 1, src, ErpGrid::new(16).unwrap());
+    assert!(
+        (up[0] - (0.25 * 7.0 + 0.75 * 0.0)).abs() < 1e-6,
+        "{}",
+        up[0]
+    );
+}
