@@ -5,6 +5,7 @@
 //! panoramas into an ERP range image, scored against ground truth by [`metrics`] in [`eval`].
 
 pub mod bag;
+pub mod deep360;
 pub mod estimator;
 pub mod eval;
 pub mod frame;
@@ -15,4 +16,5 @@ pub mod msgs;
 pub mod record;
 pub mod sync;
 pub mod synth;
+pub mod train;
 pub mod viz;

@@ -1,0 +1,323 @@
+//! On-the-fly training data: synthetic street frames rendered for randomized rigs.
+//!
+//! Sample `k` of a stream with seed `s` is a pure function of `(s, k)`: the world seed, the
+//! frame index along the street, the rig and the soiling all come from
+//! `Rng::new(&[s, k, SAMPLE_TAG])`. The data "RNG position" of a training run is therefore
+//! just the index of the next sample, which makes resuming exact.
+//!
+//! Rigs (flexibility goal): with probability `deep360_fraction` the paper's Deep360 rig,
+//! otherwise a random roof rack: `2..=5` cameras placed uniformly in a
+//! `RACK_HALF_SIZE_M`-square around the rig origin (at least `MIN_CAMERA_SEPARATION_M`
+//! apart), heights in `[MIN_HEIGHT_M, MAX_HEIGHT_M]`, small random roll/pitch/yaw per camera.
+//! Camera 1 is the reference and output frame, so the ground truth is camera 1's range.
+//!
+//! Training world seeds have the top bit clear, validation world seeds have it set, so the
+//! held-out set never shares a world with training.
+
+use crate::deep360::deep360_rig;
+use crate::frame::{FloatImage, RgbImage};
+use crate::geometry::{Rig, RigError};
+use crate::synth::noise::{hash_words, Rng};
+use crate::synth::{SynthConfig, SynthError, SynthRenderer};
+use candle_core::{Device, Tensor};
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::thread::JoinHandle;
+
+/// Fewest cameras of a random rig.
+pub const MIN_RIG_CAMERAS: usize = 2;
+/// Most cameras of a random rig.
+pub const MAX_RIG_CAMERAS: usize = 5;
+/// Cameras are placed in `[-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M]^2` (a 1.5 m roof rack).
+pub const RACK_HALF_SIZE_M: f64 = 0.75;
+/// Two cameras of a random rig are at least this far apart horizontally.
+pub const MIN_CAMERA_SEPARATION_M: f64 = 0.3;
+/// Camera heights above the road, metres.
+pub const MIN_HEIGHT_M: f64 = 1.5;
+pub const MAX_HEIGHT_M: f64 = 2.2;
+/// Largest random roll, pitch and yaw of a camera, radians (5 degrees).
+pub const MAX_TILT_RAD: f64 = 0.087;
+/// Placement attempts per camera before the separation constraint is relaxed.
+const PLACEMENT_ATTEMPTS: usize = 64;
+/// Frames along the street a sample may be taken from.
+pub const STREET_FRAMES: usize = 400;
+/// Domain-separation words for the sample and world seeds.
+const SAMPLE_TAG: u64 = 0x7A41_0001;
+const VALIDATION_TAG: u64 = 0x7A41_0002;
+/// Set in validation world seeds, clear in training world seeds.
+const VALIDATION_SEED_BIT: u64 = 1 << 63;
+/// Maximum 8-bit channel value, for normalising to `[0, 1]`.
+const CHANNEL_MAX: f32 = 255.0;
+
+/// Errors producing training data.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("training data: renderer: {0}")]
+    Synth(#[from] SynthError),
+    #[error("training data: rig: {0}")]
+    Rig(#[from] RigError),
+    #[error("training data: tensor: {0}")]
+    Tensor(#[from] candle_core::Error),
+    #[error("training data: {0}")]
+    Config(String),
+}
+
+/// How samples are drawn.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DataConfig {
+    /// Stream seed.
+    pub seed: u64,
+    /// ERP width of the images and ground truth; height is `width / 2`.
+    pub width: usize,
+    /// Sky / clamp range of the ground truth, metres.
+    pub max_depth_m: f64,
+    /// Fraction of training samples with lens soiling.
+    pub soiled_fraction: f64,
+    /// Fraction of training samples on the Deep360 rig (the rest use random rigs).
+    pub deep360_fraction: f64,
+}
+
+impl DataConfig {
+    fn validate(&self) -> Result<(), DataError> {
+        for (name, v) in [
+            ("soiled_fraction", self.soiled_fraction),
+            ("deep360_fraction", self.deep360_fraction),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(DataError::Config(format!(
+                    "field '{name}' must be in [0, 1], got {v}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Which rig a sample uses.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RigChoice {
+    Deep360,
+    /// A random rig, a function of this seed.
+    Random(u64),
+}
+
+/// Everything that determines one sample.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SampleSpec {
+    pub world_seed: u64,
+    pub frame_index: usize,
+    pub soiled: bool,
+    pub rig: RigChoice,
+}
+
+/// One rendered sample.
+#[derive(Clone, Debug)]
+pub struct TrainSample {
+    pub spec: SampleSpec,
+    pub rig: Rig,
+    /// Per camera (rig order): `(1, H, W, 3)` f32 in `[0, 1]` on the CPU.
+    pub images: Vec<Tensor>,
+    /// Ground-truth range of the output frame (camera 1), metres; sky = `max_depth_m`.
+    pub range_m: FloatImage,
+}
+
+/// A random roof-rack rig (see the module docs), validated by [`Rig::from_yaml_str`].
+pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
+    let mut rng = Rng::new(&[seed, 0x416]);
+    let n = MIN_RIG_CAMERAS + rng.index(MAX_RIG_CAMERAS - MIN_RIG_CAMERAS + 1);
+    let mut xy: Vec<[f64; 2]> = Vec::with_capacity(n);
+    for _ in 0..n {
+        let mut best = [0.0, 0.0];
+        let mut best_sep = f64::NEG_INFINITY;
+        for _ in 0..PLACEMENT_ATTEMPTS {
+            let p = [
+                rng.range(-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M),
+                rng.range(-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M),
+            ];
+            let sep = xy
+                .iter()
+                .map(|q| (p[0] - q[0]).hypot(p[1] - q[1]))
+                .fold(f64::INFINITY, f64::min);
+            if sep > best_sep {
+                best = p;
+                best_sep = sep;
+            }
+            if sep >= MIN_CAMERA_SEPARATION_M {
+                break;
+            }
+        }
+        xy.push(best);
+    }
+    let mut yaml = String::from("rig_frame: base_link\nreference_camera: cam1\ncameras:\n");
+    for (k, p) in xy.iter().enumerate() {
+        let z = rng.range(MIN_HEIGHT_M, MAX_HEIGHT_M);
+        let rpy = [
+            rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
+            rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
+            rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
+        ];
+        let c = k + 1;
+        yaml.push_str(&format!(
+            "  - name: cam{c}\n    topic: /cam{c}/image_raw\n    frame_id: cam{c}_link\n    \
+             projection: equirectangular\n    rig_from_cam: {{translation: [{:.17e}, {:.17e}, {:.17e}], \
+             rotation_rpy: [{:.17e}, {:.17e}, {:.17e}]}}\n",
+            p[0], p[1], z, rpy[0], rpy[1], rpy[2]
+        ));
+    }
+    Rig::from_yaml_str(&yaml, &format!("<random rig {seed}>"))
+}
+
+/// The spec of training sample `index` of the stream `cfg.seed`.
+pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
+    let mut rng = Rng::new(&[cfg.seed, index, SAMPLE_TAG]);
+    let world_seed = rng.next_u64() & !VALIDATION_SEED_BIT;
+    let frame_index = rng.index(STREET_FRAMES);
+    let soiled = rng.chance(cfg.soiled_fraction);
+    let rig = if rng.chance(cfg.deep360_fraction) {
+        RigChoice::Deep360
+    } else {
+        RigChoice::Random(rng.next_u64())
+    };
+    SampleSpec {
+        world_seed,
+        frame_index,
+        soiled,
+        rig,
+    }
+}
+
+/// The held-out validation set: `count` frames on the Deep360 rig from worlds training never
+/// uses, alternating clean and soiled. Independent of the training seed.
+pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
+    (0..count as u64)
+        .map(|k| {
+            let mut rng = Rng::new(&[k, VALIDATION_TAG]);
+            SampleSpec {
+                world_seed: rng.next_u64() | VALIDATION_SEED_BIT,
+                frame_index: rng.index(STREET_FRAMES),
+                soiled: k % 2 == 1,
+                rig: RigChoice::Deep360,
+            }
+        })
+        .collect()
+}
+
+/// `(1, H, W, 3)` f32 tensor in `[0, 1]` from an 8-bit image.
+pub fn image_tensor(img: &RgbImage) -> Result<Tensor, candle_core::Error> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let data: Vec<f32> = img
+        .as_raw()
+        .iter()
+        .map(|&b| f32::from(b) / CHANNEL_MAX)
+        .collect();
+    Tensor::from_vec(data, (1, h, w, 3), &Device::Cpu)
+}
+
+/// Renders the sample `spec` at `cfg.width`.
+pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample, DataError> {
+    let rig = match spec.rig {
+        RigChoice::Deep360 => deep360_rig()?,
+        RigChoice::Random(seed) => random_rig(seed)?,
+    };
+    let renderer = SynthRenderer::new(SynthConfig {
+        seed: spec.world_seed,
+        width: cfg.width,
+        soiled: spec.soiled,
+        max_depth_m: cfg.max_depth_m,
+        ..SynthConfig::default()
+    })?;
+    let frame = renderer.render_frame(&rig, spec.frame_index);
+    let images = frame
+        .images
+        .iter()
+        .map(image_tensor)
+        .collect::<Result<Vec<_>, _>>()?;
+    let range_m = frame.ground_truth.ok_or_else(|| {
+        DataError::Config("renderer returned no ground truth for the output frame".into())
+    })?;
+    Ok(TrainSample {
+        spec: spec.clone(),
+        rig,
+        images,
+        range_m,
+    })
+}
+
+/// Training sample `index` of the stream.
+pub fn training_sample(cfg: &DataConfig, index: u64) -> Result<TrainSample, DataError> {
+    cfg.validate()?;
+    render_sample(cfg, &training_spec(cfg, index))
+}
+
+/// A sample and its index in the stream.
+pub struct IndexedSample {
+    pub index: u64,
+    pub sample: Result<TrainSample, DataError>,
+}
+
+/// Samples `start, start + 1, ...` rendered in a background thread, at most `capacity` ahead
+/// of the consumer (a bounded channel), so rendering overlaps training.
+pub struct SampleStream {
+    rx: Option<Receiver<IndexedSample>>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl SampleStream {
+    pub fn start(cfg: DataConfig, start: u64, capacity: usize) -> Result<Self, DataError> {
+        cfg.validate()?;
+        let (tx, rx) = sync_channel(capacity.max(1));
+        let handle = std::thread::Builder::new()
+            .name("mode360-train-data".into())
+            .spawn(move || {
+                for index in start.. {
+                    let sample = training_sample(&cfg, index);
+                    if tx.send(IndexedSample { index, sample }).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| DataError::Config(format!("cannot start data thread: {e}")))?;
+        Ok(Self {
+            rx: Some(rx),
+            handle: Some(handle),
+        })
+    }
+
+    /// The next sample (blocks until rendered).
+    pub fn next_sample(&mut self) -> Result<IndexedSample, DataError> {
+        self.rx
+            .as_ref()
+            .and_then(|rx| rx.recv().ok())
+            .ok_or_else(|| DataError::Config("data thread stopped".into()))
+    }
+}
+
+impl Drop for SampleStream {
+    fn drop(&mut self) {
+        // Closing the receiver makes the producer's next send fail, ending its loop.
+        self.rx = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// A stable 64-bit fingerprint of a sample's content (images and ground truth), for tests
+/// and logs.
+pub fn sample_fingerprint(sample: &TrainSample) -> Result<u64, candle_core::Error> {
+    let mut words = vec![sample.images.len() as u64];
+    for t in &sample.images {
+        let v: Vec<f32> = t.flatten_all()?.to_vec1()?;
+        words.push(hash_words(
+            &v.iter().map(|x| u64::from(x.to_bits())).collect::<Vec<_>>(),
+        ));
+    }
+    words.push(hash_words(
+        &sample
+            .range_m
+            .data
+            .iter()
+            .map(|x| u64::from(x.to_bits()))
+            .collect::<Vec<_>>(),
+    ));
+    Ok(hash_words(&words))
+}

@@ -1,0 +1,30 @@
+//! SSMODE training (`mode360 train`): on-the-fly synthetic data on randomized rigs, the
+//! multi-stage inverse-depth loss, AdamW with warmup + cosine decay, exact checkpoint/resume,
+//! held-out validation, CSV logs and a curve plot.
+//!
+//! * Data ([`data`]): sample `k` is a pure function of `(seed, k)`, rendered in a background
+//!   thread. Step `s` uses samples `s B .. (s + 1) B` (`B = batch_size`).
+//! * Batching: random rigs differ per sample (camera count, sweep tables), so a batch is
+//!   gradient accumulation over `B` single-sample forward/backward passes, each loss scaled by
+//!   `1 / B`; memory stays that of one sample.
+//! * Loss ([`loss`]): `sum_s w_s SmoothL1` on the inverse-depth index, masked to valid pixels.
+//! * Checkpoint: `out_dir/checkpoint/` holds `model.safetensors` (the model's `save_weights`,
+//!   config in the header), `optimizer.safetensors` (AdamW moments) and `state.json` (step,
+//!   next sample index = the data RNG position, options that must match on resume). It is
+//!   written into `checkpoint.tmp/` and renamed into place, so a crash never leaves a torn
+//!   checkpoint; written every `checkpoint_every_steps` steps, when `checkpoint_every_secs`
+//!   have passed since the last one, and at the end.
+//! * Logs: `train.csv` every step, `val.csv` and `curves.png` every `val_every` steps (see
+//!   [`log`]), peak RSS from `/proc/self/status` in both CSVs. Final weights are copied to
+//!   `out_dir/ssmode_<preset>.safetensors`.
+
+pub mod data;
+pub mod log;
+pub mod loss;
+pub mod optim;
+mod runner;
+
+pub use runner::{
+    run_training, CheckpointState, TrainError, TrainOptions, TrainSummary, CHECKPOINT_DIR,
+    CURVES_PNG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TRAIN_CSV, VAL_CSV,
+};
