@@ -26,6 +26,42 @@ enum Command {
     Synth(SynthArgs),
     /// Score a depth estimator on rig bags with the paper's metrics.
     Eval(EvalArgs),
+    /// Train SSMODE on synthetic scenes rendered on the fly (randomized rigs, clean and soiled).
+    Train(TrainArgs),
+}
+
+#[derive(Args)]
+struct TrainArgs {
+    /// Network preset: compact (the shipped default), paper, tiny.
+    #[arg(long, default_value = "compact")]
+    preset: String,
+    /// Override the preset's input width (height = width / 2).
+    #[arg(long)]
+    width: Option<usize>,
+    /// Total optimizer steps (a resumed run continues up to this).
+    #[arg(long, default_value_t = 10_000)]
+    steps: usize,
+    /// Run folder: checkpoint/, train.csv, val.csv, curves.png, final weights.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue from <out>/checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// Samples per step (gradient accumulation).
+    #[arg(long, default_value_t = 1)]
+    batch_size: usize,
+    /// Peak learning rate (linear warmup, then cosine decay).
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Validate on the held-out set every this many steps.
+    #[arg(long, default_value_t = 250)]
+    val_every: usize,
+    /// Checkpoint every this many steps (also every 5 minutes).
+    #[arg(long, default_value_t = 250)]
+    checkpoint_every: usize,
+    /// Data seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
 }
 
 #[derive(Args)]
@@ -61,7 +97,7 @@ struct EvalArgs {
     /// Bag(s) to evaluate (repeat for clean and soiled bags).
     #[arg(long = "bag", required = true)]
     bags: Vec<PathBuf>,
-    /// Estimator: photometric.
+    /// Estimator: photometric or ssmode.
     #[arg(long, default_value = "photometric")]
     estimator: String,
     /// Cameras to use, 1-based in rig order, e.g. 1,2,3 (default: all).
@@ -88,6 +124,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Synth(a) => synth(a),
         Command::Eval(a) => run_eval(a),
+        Command::Train(a) => train(a),
     }
 }
 
@@ -145,5 +182,34 @@ fn run_eval(a: EvalArgs) -> Result<()> {
     std::fs::write(&a.json, serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("writing {}", a.json.display()))?;
     println!("wrote {}", a.json.display());
+    Ok(())
+}
+
+fn train(a: TrainArgs) -> Result<()> {
+    let opts = mode360::train::TrainOptions {
+        preset: a.preset,
+        width: a.width,
+        steps: a.steps,
+        out_dir: a.out,
+        resume: a.resume,
+        batch_size: a.batch_size,
+        lr: a.lr,
+        val_every: a.val_every,
+        checkpoint_every_steps: a.checkpoint_every,
+        seed: a.seed,
+        ..mode360::train::TrainOptions::default()
+    };
+    let s = mode360::train::run_training(&opts)?;
+    println!(
+        "trained steps {}..{} ({:.2} s/step, peak RSS {:.0} MiB); weights: {}",
+        s.start_step,
+        s.final_step,
+        s.mean_secs_per_step,
+        s.peak_rss_mb,
+        s.weights_path.display()
+    );
+    if let Some(v) = s.last_validation {
+        println!("last validation: {v:?}");
+    }
     Ok(())
 }
