@@ -34,7 +34,7 @@ const MAX_DEPTH_M: f64 = 1000.0;
 const PLAY_RATE: f64 = 0.25;
 /// Lowest acceptable delta1 (%) of a received depth image (replay measures the same
 /// estimator on these frames; see tests/replay_bag.rs).
-const MIN_DELTA1_PCT: f64 = 0.0;
+const MIN_DELTA1_PCT: f64 = 55.0;
 const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 const RECEIVE_TIMEOUT: Duration = Duration::from_secs(30);
 const POLL: Duration = Duration::from_millis(20);
