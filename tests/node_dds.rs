@@ -47,6 +47,7 @@ fn reliable_qos() -> QosProfile {
 
 #[test]
 fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
+    let t_start = Instant::now();
     let dir = tempfile::tempdir()?;
     let bag_path = dir.path().join("in.mcap");
     let rig = Rig::from_file(RIG_PATH)?;
@@ -82,6 +83,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         ..Default::default()
     };
     let node = spawn_node(params, dds.clone())?;
+    eprintln!("[{:?}] spawned", t_start.elapsed());
 
     // Listener.
     let context = dds_context(&dds)?;
@@ -98,6 +100,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
     {
         std::thread::sleep(POLL);
     }
+    eprintln!("[{:?}] discovery done", t_start.elapsed());
     let played = play_bag(&PlayOptions {
         input: bag_path.clone(),
         rate: PLAY_RATE,
@@ -111,6 +114,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         assert_eq!(played.published.get(&cam.topic), Some(&(FRAMES as u64)));
     }
 
+    eprintln!("[{:?}] played", t_start.elapsed());
     // Collect outputs until every played stamp was answered or time runs out (the 1-slot
     // mailbox may drop a group when inference falls behind; at least one must arrive).
     let mut depths: BTreeMap<u64, Image> = BTreeMap::new();
@@ -162,8 +166,11 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         }
     }
 
+    eprintln!("[{:?}] phase1 checked", t_start.elapsed());
     // Bad input: wrong encoding on cam1, truncated data on cam2, then good groups.
-    let mut sender = SpunNode::new(&context, "/", "mode360_test_sender")?;
+    // Own context: a second node on the listener's context would not see discovery events.
+    let sender_context = dds_context(&dds)?;
+    let mut sender = SpunNode::new(&sender_context, "/", "mode360_test_sender")?;
     let pubs = rig
         .cameras
         .iter()
@@ -177,6 +184,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
     {
         std::thread::sleep(POLL);
     }
+    eprintln!("[{:?}] sender matched", t_start.elapsed());
     let frame = &frames[0];
     let late = frame.stamp_ns + LATE_OFFSET_NS;
     let mut wrong = image_msg_from_rgb(
@@ -236,11 +244,13 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
     assert!(r0.contains("16UC1"), "{r0}");
     assert!(r1.contains("bytes"), "{r1}");
 
+    eprintln!("[{:?}] phase2 done", t_start.elapsed());
     drop(pubs);
     sender.stop()?;
     drop(depth_sub);
     drop(points_sub);
     listener.stop()?;
+    eprintln!("[{:?}] listener stopped", t_start.elapsed());
     let final_health = node.shutdown()?;
     assert!(final_health.groups_processed >= 2);
     Ok(())

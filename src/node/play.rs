@@ -22,6 +22,8 @@ use std::time::{Duration, Instant};
 
 /// How often the subscriber wait re-checks matches.
 const MATCH_POLL: Duration = Duration::from_millis(50);
+/// Largest wait before one message, seconds (guards against bags with absurd time gaps).
+const MAX_OFFSET_SECS: f64 = 24.0 * 3600.0;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlayError {
@@ -171,6 +173,16 @@ pub fn play_bag(opts: &PlayOptions) -> Result<PlaySummary, PlayError> {
             std::thread::sleep(MATCH_POLL);
         }
     }
+    // Latched topics first: /tf_static may be logged at time 0, long before the data.
+    if let Some(p) = publishers.get(TF_STATIC_TOPIC) {
+        for msg in bag.messages_on(TF_STATIC_TOPIC) {
+            p.publish(&msg)?;
+            *summary
+                .published
+                .entry(TF_STATIC_TOPIC.to_string())
+                .or_default() += 1;
+        }
+    }
     let t0 = Instant::now();
     let mut first_log_ns: Option<u64> = None;
     let mut last_clock_ns: Option<u64> = None;
@@ -180,10 +192,14 @@ pub fn play_bag(opts: &PlayOptions) -> Result<PlaySummary, PlayError> {
         let mut loop_end = offset;
         for msg in bag.messages() {
             let msg = msg?;
+            if msg.topic == TF_STATIC_TOPIC {
+                continue;
+            }
             let first = *first_log_ns.get_or_insert(msg.log_time_ns);
             let at = loop_start
                 + Duration::from_secs_f64(
-                    msg.log_time_ns.saturating_sub(first) as f64 / 1e9 / opts.rate,
+                    (msg.log_time_ns.saturating_sub(first) as f64 / 1e9 / opts.rate)
+                        .min(MAX_OFFSET_SECS),
                 );
             loop_end = loop_end.max(at);
             let now = t0.elapsed();
