@@ -662,8 +662,8 @@ fn dds_main(
                     // Cameras silent for longer than the timeout are no longer waited for,
                     // as long as at least MIN_ACTIVE_CAMERAS stay active.
                     let mut groups = Vec::new();
-                    for i in 0..n {
-                        let silent_since = cams[i].last_receipt.unwrap_or(started);
+                    for (i, cam) in cams.iter().enumerate() {
+                        let silent_since = cam.last_receipt.unwrap_or(started);
                         let active_count = (0..n).filter(|&k| sync.is_active(k)).count();
                         if sync.is_active(i)
                             && now.duration_since(silent_since) > timeout
