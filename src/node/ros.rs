@@ -525,7 +525,11 @@ fn dds_main(
         let context = dds_context(&dds)?;
         let mut spun = SpunNode::new(&context, &params.namespace, &params.node_name)?;
         let ns = params.namespace.clone();
-        let topic = |name: &str| params.remap(&resolve_topic(&ns, name));
+        let topic = |name: &str| match params.remaps.get(name) {
+            // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
+            Some(to) => resolve_topic(&ns, to),
+            None => params.remap(&resolve_topic(&ns, name)),
+        };
         let node = &mut spun.node;
         let publishers = OutputPublishers {
             depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
