@@ -1,0 +1,459 @@
+//! Node parameters from ROS 2 command-line arguments and params files.
+//!
+//! Accepted `--ros-args` forms (as `ros2 run` passes them): `--params-file FILE`,
+//! `-p name:=value` / `--param name:=value`, `-r from:=to` / `--remap from:=to`,
+//! `-r __ns:=/x`, `-r __node:=name`, and `--` (or a later `--ros-args`) closing a section.
+//! Params files use the ROS 2 layout: `node_name: {ros__parameters: {...}}` where the key may
+//! be the node name, `/node_name`, `/ns/node_name` or the wildcard `/**`. Nested maps become
+//! dotted names (`sync: {tolerance_secs: 0.01}` is `sync.tolerance_secs`). Later sources win.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Default node name.
+pub const DEFAULT_NODE_NAME: &str = "mode360";
+/// Default rig calibration.
+pub const DEFAULT_RIG_FILE: &str = "launch_configs/rig_deep360.yaml";
+/// Key under a node name holding its parameters.
+pub const ROS_PARAMETERS_KEY: &str = "ros__parameters";
+/// Wildcard node key matching every node.
+pub const WILDCARD_NODE_KEY: &str = "/**";
+
+/// How a camera's images arrive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageTransport {
+    /// `sensor_msgs/Image` on the camera's topic.
+    Raw,
+    /// `sensor_msgs/CompressedImage` on `<topic>/compressed`.
+    Compressed,
+}
+
+impl ImageTransport {
+    fn parse(value: &str) -> Option<Self> {
+        match value {
+            "raw" => Some(Self::Raw),
+            "compressed" => Some(Self::Compressed),
+            _ => None,
+        }
+    }
+}
+
+/// Bad arguments or parameters.
+#[derive(Debug, thiserror::Error)]
+pub enum ParamsError {
+    #[error("argument '{arg}': {problem}")]
+    Argument { arg: String, problem: String },
+    #[error("params file '{file}': {problem}")]
+    File { file: String, problem: String },
+    #[error("parameter '{name}' = '{value}': {problem}")]
+    Value {
+        name: String,
+        value: String,
+        problem: String,
+    },
+}
+
+/// Everything the node is configured with.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeParams {
+    pub node_name: String,
+    /// Namespace, `/` or `/a/b`.
+    pub namespace: String,
+    pub rig_file: PathBuf,
+    pub estimator: String,
+    pub output_width: usize,
+    pub sync_tolerance_secs: f64,
+    pub sync_queue_size: usize,
+    /// A camera silent for longer is no longer waited for.
+    pub camera_timeout_secs: f64,
+    pub max_depth_m: f64,
+    pub use_sim_time: bool,
+    /// Transport for cameras not named in `image_transport_per_camera`.
+    pub image_transport_default: ImageTransport,
+    /// Per camera name.
+    pub image_transport_per_camera: BTreeMap<String, ImageTransport>,
+    /// Topic remappings `from -> to` (names as written on the command line).
+    pub remaps: BTreeMap<String, String>,
+}
+
+impl Default for NodeParams {
+    fn default() -> Self {
+        Self {
+            node_name: DEFAULT_NODE_NAME.into(),
+            namespace: "/".into(),
+            rig_file: DEFAULT_RIG_FILE.into(),
+            estimator: "photometric".into(),
+            output_width: 512,
+            sync_tolerance_secs: 0.01,
+            sync_queue_size: 5,
+            camera_timeout_secs: 1.0,
+            max_depth_m: 1000.0,
+            use_sim_time: false,
+            image_transport_default: ImageTransport::Raw,
+            image_transport_per_camera: BTreeMap::new(),
+            remaps: BTreeMap::new(),
+        }
+    }
+}
+
+/// A parameter source in command-line order.
+enum Source {
+    File(PathBuf),
+    Param { name: String, value: String },
+}
+
+impl NodeParams {
+    /// Parses everything after `mode360 node` (ROS arguments must follow `--ros-args`).
+    pub fn from_args(args: &[String]) -> Result<Self, ParamsError> {
+        let mut params = Self::default();
+        let mut sources = Vec::new();
+        let mut in_ros_args = false;
+        let mut it = args.iter();
+        while let Some(arg) = it.next() {
+            let mut value_of = |flag: &str| {
+                it.next().cloned().ok_or_else(|| ParamsError::Argument {
+                    arg: flag.to_string(),
+                    problem: "needs a value".into(),
+                })
+            };
+            match arg.as_str() {
+                "--ros-args" => in_ros_args = true,
+                "--" if in_ros_args => in_ros_args = false,
+                _ if !in_ros_args => {
+                    return Err(ParamsError::Argument {
+                        arg: arg.clone(),
+                        problem: "unexpected; node settings go after --ros-args".into(),
+                    })
+                }
+                "--params-file" => sources.push(Source::File(value_of(arg)?.into())),
+                "-p" | "--param" => {
+                    let (name, value) = split_assignment(arg, &value_of(arg)?)?;
+                    sources.push(Source::Param { name, value });
+                }
+                "-r" | "--remap" => {
+                    let (from, to) = split_assignment(arg, &value_of(arg)?)?;
+                    match from.as_str() {
+                        "__ns" => params.namespace = normalize_namespace(&to),
+                        "__node" | "__name" => params.node_name = to,
+                        _ => {
+                            params.remaps.insert(from, to);
+                        }
+                    }
+                }
+                "--log-level" | "--enclave" => {
+                    value_of(arg)?;
+                }
+                "--disable-rosout-logs" | "--disable-stdout-logs" | "--enable-rosout-logs" => {}
+                other => {
+                    return Err(ParamsError::Argument {
+                        arg: other.into(),
+                        problem: "unknown ROS argument".into(),
+                    })
+                }
+            }
+        }
+        for source in sources {
+            match source {
+                Source::File(path) => {
+                    let file = path.display().to_string();
+                    let text = std::fs::read_to_string(&path).map_err(|e| ParamsError::File {
+                        file: file.clone(),
+                        problem: e.to_string(),
+                    })?;
+                    for (name, value) in params.file_parameters(&text, &file)? {
+                        params.set(&name, &value)?;
+                    }
+                }
+                Source::Param { name, value } => params.set(&name, &value)?,
+            }
+        }
+        Ok(params)
+    }
+
+    /// Fully qualified node name, `/ns/name`.
+    pub fn fully_qualified_name(&self) -> String {
+        format!(
+            "{}/{}",
+            self.namespace.trim_end_matches('/'),
+            self.node_name
+        )
+    }
+
+    /// The parameters in `text` (a params file) that apply to this node, as dotted names
+    /// and YAML scalar text, wildcard entries first so that named entries override them.
+    fn file_parameters(
+        &self,
+        text: &str,
+        file: &str,
+    ) -> Result<Vec<(String, String)>, ParamsError> {
+        let err = |problem: String| ParamsError::File {
+            file: file.to_string(),
+            problem,
+        };
+        let doc: serde_yaml::Value =
+            serde_yaml::from_str(text).map_err(|e| err(format!("not YAML: {e}")))?;
+        let map = doc
+            .as_mapping()
+            .ok_or_else(|| err("top level must map node names to ros__parameters".into()))?;
+        let fq = self.fully_qualified_name();
+        let matches = |key: &str| -> Option<u8> {
+            if key == WILDCARD_NODE_KEY {
+                Some(0)
+            } else if key == self.node_name
+                || key.trim_start_matches('/') == self.node_name
+                || key == fq
+                || key == format!("{}/**", self.namespace.trim_end_matches('/'))
+            {
+                Some(1)
+            } else {
+                None
+            }
+        };
+        let mut entries: Vec<(u8, &serde_yaml::Value)> = Vec::new();
+        for (key, value) in map {
+            let key = key
+                .as_str()
+                .ok_or_else(|| err("node keys must be strings".into()))?;
+            if let Some(rank) = matches(key) {
+                entries.push((rank, value));
+            }
+        }
+        entries.sort_by_key(|(rank, _)| *rank);
+        let mut out = Vec::new();
+        for (_, node_value) in entries {
+            let params = node_value
+                .get(ROS_PARAMETERS_KEY)
+                .ok_or_else(|| err(format!("node entry has no '{ROS_PARAMETERS_KEY}' key")))?;
+            flatten("", params, &mut out).map_err(err)?;
+        }
+        Ok(out)
+    }
+
+    /// Sets one parameter from its text value.
+    pub fn set(&mut self, name: &str, value: &str) -> Result<(), ParamsError> {
+        let bad = |problem: &str| ParamsError::Value {
+            name: name.to_string(),
+            value: value.to_string(),
+            problem: problem.to_string(),
+        };
+        let positive_f64 = || -> Result<f64, ParamsError> {
+            value
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite() && *v > 0.0)
+                .ok_or_else(|| bad("expected a positive number"))
+        };
+        let positive_usize = || -> Result<usize, ParamsError> {
+            value
+                .parse::<usize>()
+                .ok()
+                .filter(|v| *v > 0)
+                .ok_or_else(|| bad("expected a positive integer"))
+        };
+        match name {
+            "rig_file" => self.rig_file = value.into(),
+            "estimator" => self.estimator = value.into(),
+            "output_width" => {
+                let w = positive_usize()?;
+                if w % 2 != 0 {
+                    return Err(bad("output width must be even"));
+                }
+                self.output_width = w;
+            }
+            "sync.tolerance_secs" => self.sync_tolerance_secs = positive_f64()?,
+            "sync.queue_size" => self.sync_queue_size = positive_usize()?,
+            "camera_timeout_secs" => self.camera_timeout_secs = positive_f64()?,
+            "max_depth_m" => self.max_depth_m = positive_f64()?,
+            "use_sim_time" => {
+                self.use_sim_time = match value {
+                    "true" | "True" => true,
+                    "false" | "False" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
+            "image_transport" => {
+                self.image_transport_default =
+                    ImageTransport::parse(value).ok_or_else(|| bad("expected raw or compressed"))?
+            }
+            _ => {
+                if let Some(camera) = name.strip_prefix("image_transport.") {
+                    let t = ImageTransport::parse(value)
+                        .ok_or_else(|| bad("expected raw or compressed"))?;
+                    self.image_transport_per_camera
+                        .insert(camera.to_string(), t);
+                } else {
+                    return Err(bad("unknown parameter"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Transport used for `camera`.
+    pub fn image_transport(&self, camera: &str) -> ImageTransport {
+        self.image_transport_per_camera
+            .get(camera)
+            .copied()
+            .unwrap_or(self.image_transport_default)
+    }
+
+    /// `topic` after remapping (exact match of the name as written).
+    pub fn remap(&self, topic: &str) -> String {
+        self.remaps
+            .get(topic)
+            .cloned()
+            .unwrap_or_else(|| topic.to_string())
+    }
+}
+
+/// Splits `name:=value`.
+fn split_assignment(flag: &str, text: &str) -> Result<(String, String), ParamsError> {
+    text.split_once(":=")
+        .map(|(a, b)| (a.trim().to_string(), b.trim().to_string()))
+        .filter(|(a, _)| !a.is_empty())
+        .ok_or_else(|| ParamsError::Argument {
+            arg: format!("{flag} {text}"),
+            problem: "expected name:=value".into(),
+        })
+}
+
+/// `/`-prefixed namespace without a trailing slash (except the root `/`).
+fn normalize_namespace(ns: &str) -> String {
+    let trimmed = ns.trim_matches('/');
+    format!("/{trimmed}")
+}
+
+/// Dotted names and scalar text of a nested YAML map.
+fn flatten(
+    prefix: &str,
+    value: &serde_yaml::Value,
+    out: &mut Vec<(String, String)>,
+) -> Result<(), String> {
+    use serde_yaml::Value;
+    let scalar = match value {
+        Value::Mapping(map) => {
+            for (k, v) in map {
+                let key = k
+                    .as_str()
+                    .ok_or_else(|| format!("parameter names must be strings (under '{prefix}')"))?;
+                let name = if prefix.is_empty() {
+                    key.to_string()
+                } else {
+                    format!("{prefix}.{key}")
+                };
+                flatten(&name, v, out)?;
+            }
+            return Ok(());
+        }
+        Value::Bool(b) => b.to_string(),
+        Value::Number(n) => n.to_string(),
+        Value::String(s) => s.clone(),
+        Value::Null => return Err(format!("parameter '{prefix}' has no value")),
+        Value::Sequence(_) | Value::Tagged(_) => {
+            return Err(format!("parameter '{prefix}': lists are not supported"))
+        }
+    };
+    out.push((prefix.to_string(), scalar));
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(list: &[&str]) -> Vec<String> {
+        list.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn command_line_params_and_remaps() {
+        let p = NodeParams::from_args(&args(&[
+            "--ros-args",
+            "-p",
+            "output_width:=256",
+            "-p",
+            "sync.tolerance_secs:=0.02",
+            "--param",
+            "use_sim_time:=true",
+            "-r",
+            "__ns:=/robot1/",
+            "-r",
+            "__node:=depth360",
+            "-r",
+            "/cam1/image_raw:=/front/image",
+            "-p",
+            "image_transport.cam2:=compressed",
+        ]))
+        .unwrap();
+        assert_eq!(p.output_width, 256);
+        assert_eq!(p.sync_tolerance_secs, 0.02);
+        assert!(p.use_sim_time);
+        assert_eq!(p.namespace, "/robot1");
+        assert_eq!(p.node_name, "depth360");
+        assert_eq!(p.fully_qualified_name(), "/robot1/depth360");
+        assert_eq!(p.remap("/cam1/image_raw"), "/front/image");
+        assert_eq!(p.remap("/cam3/image_raw"), "/cam3/image_raw");
+        assert_eq!(p.image_transport("cam2"), ImageTransport::Compressed);
+        assert_eq!(p.image_transport("cam1"), ImageTransport::Raw);
+    }
+
+    #[test]
+    fn params_file_layout_with_wildcard_and_named_node() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("p.yaml");
+        std::fs::write(
+            &file,
+            "/**:\n  ros__parameters:\n    use_sim_time: true\n    max_depth_m: 50.0\n\
+             mode360:\n  ros__parameters:\n    estimator: photometric\n    max_depth_m: 80\n\
+             \x20   sync:\n      tolerance_secs: 0.005\n      queue_size: 3\n\
+             \x20   image_transport:\n      cam4: compressed\n\
+             other_node:\n  ros__parameters:\n    output_width: 64\n",
+        )
+        .unwrap();
+        let f = file.display().to_string();
+        let p = NodeParams::from_args(&args(&[
+            "--ros-args",
+            "--params-file",
+            &f,
+            "-p",
+            "sync.queue_size:=7",
+        ]))
+        .unwrap();
+        assert!(p.use_sim_time);
+        assert_eq!(p.max_depth_m, 80.0);
+        assert_eq!(p.sync_tolerance_secs, 0.005);
+        assert_eq!(p.sync_queue_size, 7);
+        assert_eq!(p.output_width, NodeParams::default().output_width);
+        assert_eq!(p.image_transport("cam4"), ImageTransport::Compressed);
+    }
+
+    #[test]
+    fn shipped_params_file_parses_to_defaults() {
+        let p = NodeParams::from_args(&args(&[
+            "--ros-args",
+            "--params-file",
+            "launch_configs/mode360.params.yaml",
+        ]))
+        .unwrap();
+        assert_eq!(p, NodeParams::default());
+    }
+
+    #[test]
+    fn bad_input_names_the_culprit() {
+        let e = NodeParams::from_args(&args(&["--ros-args", "-p", "output_width:=33"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("output_width") && e.contains("even"), "{e}");
+        let e = NodeParams::from_args(&args(&["--ros-args", "-p", "nonsense:=1"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("nonsense"), "{e}");
+        let e = NodeParams::from_args(&args(&["--ros-args", "--params-file", "/no/such.yaml"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/no/such.yaml"), "{e}");
+        assert!(NodeParams::from_args(&args(&["--frobnicate"])).is_err());
+        assert!(NodeParams::from_args(&args(&["--ros-args", "-p"])).is_err());
+        assert!(NodeParams::from_args(&args(&["--ros-args", "-p", "x=1"])).is_err());
+    }
+}

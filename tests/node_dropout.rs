@@ -1,0 +1,119 @@
+//! Camera dropout over DDS (loopback, own domain): a camera that falls silent is timed out,
+//! the node keeps publishing from the other three, and takes the camera back when it returns.
+
+use mode360::geometry::Rig;
+use mode360::msgs::image::image_msg_from_rgb;
+use mode360::msgs::{Header, Image};
+use mode360::node::ros::{
+    create_publisher, create_subscription, dds_context, sensor_qos, SpunNode,
+};
+use mode360::node::{spawn_node, DdsOptions, NodeParams};
+use mode360::synth::{SynthConfig, SynthRenderer};
+use ros2_client::qos::History;
+use ros2_client::QosProfile;
+use std::time::{Duration, Instant};
+
+type TestResult = Result<(), Box<dyn std::error::Error>>;
+
+const RIG_PATH: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/launch_configs/rig_deep360.yaml"
+);
+/// Unique domain of this test file.
+const DOMAIN_ID: u16 = 42;
+const WIDTH: usize = 64;
+const CAMERA_TIMEOUT_SECS: f64 = 0.5;
+const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
+const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
+const SEND_PERIOD: Duration = Duration::from_millis(200);
+const POLL: Duration = Duration::from_millis(20);
+const STAMP_STEP_NS: u64 = 10_000_000;
+const DROPPED_CAMERA: usize = 3;
+
+#[test]
+fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
+    let rig = Rig::from_file(RIG_PATH)?;
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: 5,
+        width: WIDTH,
+        ..Default::default()
+    })?
+    .render_frame(&rig, 0);
+    let dds = DdsOptions {
+        domain_id: DOMAIN_ID,
+        loopback_only: true,
+    };
+    let node = spawn_node(
+        NodeParams {
+            rig_file: RIG_PATH.into(),
+            output_width: WIDTH,
+            camera_timeout_secs: CAMERA_TIMEOUT_SECS,
+            ..Default::default()
+        },
+        dds.clone(),
+    )?;
+    let context = dds_context(&dds)?;
+    let mut client = SpunNode::new(&context, "/", "mode360_dropout_client")?;
+    let depth_sub = create_subscription::<Image>(
+        &mut client.node,
+        "/depth",
+        QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
+    )?;
+    let pubs = rig
+        .cameras
+        .iter()
+        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let t0 = Instant::now();
+    while pubs
+        .iter()
+        .any(|p| p.get_subscription_count(&client.node) == 0)
+        && t0.elapsed() < DISCOVERY_TIMEOUT
+    {
+        std::thread::sleep(POLL);
+    }
+    let mut stamp = frame.stamp_ns;
+    let mut send = |cams: &[usize]| -> Result<u64, String> {
+        stamp += STAMP_STEP_NS;
+        for &i in cams {
+            let msg = image_msg_from_rgb(
+                Header::new(stamp, &rig.cameras[i].frame_id),
+                &frame.images[i],
+            );
+            pubs[i].publish(msg).map_err(|e| format!("{e:?}"))?;
+        }
+        Ok(stamp)
+    };
+    // Phase 1: three cameras only; after the timeout the node publishes without cam4.
+    let three: Vec<usize> = (0..rig.cameras.len())
+        .filter(|&i| i != DROPPED_CAMERA)
+        .collect();
+    let mut got_degraded = false;
+    let t0 = Instant::now();
+    while !got_degraded && t0.elapsed() < PHASE_TIMEOUT {
+        let sent = send(&three)?;
+        std::thread::sleep(SEND_PERIOD);
+        while let Some((m, _)) = depth_sub.take()? {
+            got_degraded |= m.header.stamp.to_nanos() <= sent;
+        }
+    }
+    let h = node.health();
+    assert!(got_degraded, "no depth without the silent camera: {h:?}");
+    assert!(!h.cameras[DROPPED_CAMERA].active);
+    assert!(h.cameras[..DROPPED_CAMERA].iter().all(|c| c.active));
+    // Phase 2: all four again; the camera is taken back.
+    let t0 = Instant::now();
+    while !node.health().cameras[DROPPED_CAMERA].active && t0.elapsed() < PHASE_TIMEOUT {
+        send(&[0, 1, 2, 3])?;
+        std::thread::sleep(SEND_PERIOD);
+    }
+    let h = node.health();
+    assert!(h.cameras[DROPPED_CAMERA].active, "{h:?}");
+    assert!(h.cameras[DROPPED_CAMERA].received >= 1);
+    drop(pubs);
+    drop(depth_sub);
+    client.stop()?;
+    let final_health = node.shutdown()?;
+    assert!(final_health.groups_processed >= 1);
+    Ok(())
+}
