@@ -28,6 +28,50 @@ enum Command {
     Eval(EvalArgs),
     /// Train SSMODE on synthetic scenes rendered on the fly (randomized rigs, clean and soiled).
     Train(TrainArgs),
+    /// Run the ROS 2 node: `mode360 node --ros-args --params-file launch_configs/mode360.params.yaml`.
+    #[command(disable_help_flag = true)]
+    Node {
+        /// Arguments as `ros2 run` / `ros2 launch` pass them (`--ros-args ...`).
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
+    /// Run every frame of a rig bag through the node's pipeline (no DDS) into an output bag.
+    Replay(ReplayArgs),
+    /// Publish a bag on DDS with its original timing (like `ros2 bag play`).
+    Play(PlayArgs),
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    /// Input rig bag.
+    input: PathBuf,
+    /// Output bag: inputs plus depth, points, confidence, /tf_static, /diagnostics.
+    #[arg(long)]
+    out: PathBuf,
+    /// Estimator: photometric or ssmode.
+    #[arg(long, default_value = "photometric")]
+    estimator: String,
+    /// Output panorama width (default: the input width).
+    #[arg(long)]
+    output_width: Option<usize>,
+    /// Process at most this many frames.
+    #[arg(long)]
+    max_frames: Option<usize>,
+}
+
+#[derive(Args)]
+struct PlayArgs {
+    /// Bag to publish.
+    input: PathBuf,
+    /// Playback speed factor (1 = recorded timing).
+    #[arg(long, default_value_t = 1.0)]
+    rate: f64,
+    /// Play the bag this many times.
+    #[arg(long, default_value_t = 1)]
+    loops: usize,
+    /// Do not publish /clock.
+    #[arg(long)]
+    no_clock: bool,
 }
 
 #[derive(Args)]
@@ -125,6 +169,9 @@ fn main() -> Result<()> {
         Command::Synth(a) => synth(a),
         Command::Eval(a) => run_eval(a),
         Command::Train(a) => train(a),
+        Command::Node { args } => Ok(mode360::node::run_node(args)?),
+        Command::Replay(a) => replay(a),
+        Command::Play(a) => play(a),
     }
 }
 
@@ -211,5 +258,43 @@ fn train(a: TrainArgs) -> Result<()> {
     if let Some(v) = s.last_validation {
         println!("last validation: {v:?}");
     }
+    Ok(())
+}
+
+fn replay(a: ReplayArgs) -> Result<()> {
+    let summary = mode360::replay::replay_bag(&mode360::replay::ReplayOptions {
+        input: a.input,
+        output: a.out.clone(),
+        estimator: a.estimator,
+        output_width: a.output_width,
+        max_depth_m: None,
+        max_frames: a.max_frames,
+    })?;
+    println!(
+        "replayed {} frames into {} (mean latency {:.0} ms)",
+        summary.frames,
+        a.out.display(),
+        summary.mean_latency_ms()
+    );
+    if let Some(m) = summary.metrics {
+        println!(
+            "against ground truth: delta1 {:.2} %, AbsRel {:.4}, MAE {:.3} m",
+            m.delta1_pct, m.abs_rel, m.mae_m
+        );
+    }
+    Ok(())
+}
+
+fn play(a: PlayArgs) -> Result<()> {
+    let summary = mode360::node::play_bag(&mode360::node::PlayOptions {
+        input: a.input,
+        rate: a.rate,
+        loops: a.loops,
+        publish_clock: !a.no_clock,
+        dds: mode360::node::DdsOptions::from_env()?,
+        wait_for_subscribers: None,
+        wait_topics: Vec::new(),
+    })?;
+    println!("played {summary:?}");
     Ok(())
 }
