@@ -16,6 +16,21 @@ pub struct DepthEstimate {
     pub confidence: FloatImage,
 }
 
+impl DepthEstimate {
+    /// An estimate on `output` from row-major range and confidence values.
+    pub fn on_grid(output: ErpGrid, range_m: Vec<f32>, confidence: Vec<f32>) -> Self {
+        let image = |data| FloatImage {
+            width: output.width(),
+            height: output.height(),
+            data,
+        };
+        Self {
+            range_m: image(range_m),
+            confidence: image(confidence),
+        }
+    }
+}
+
 /// Why an estimator could not produce depth for a frame.
 #[derive(Debug, thiserror::Error)]
 pub enum EstimatorError {

@@ -33,7 +33,7 @@ mod sampling;
 mod sgm;
 
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use crate::frame::{FloatImage, RgbImage};
+use crate::frame::RgbImage;
 use crate::geometry::{DepthRange, ErpGrid, InverseDepthHypotheses, Rig};
 use cost::{PairCostParams, ViewStats};
 use nalgebra::Isometry3;
@@ -492,18 +492,7 @@ impl PhotometricSweep {
                 (range_m as f32, m.margin / (m.margin + margin_scale))
             })
             .unzip();
-        DepthEstimate {
-            range_m: FloatImage {
-                width: output.width(),
-                height: output.height(),
-                data: range,
-            },
-            confidence: FloatImage {
-                width: output.width(),
-                height: output.height(),
-                data: conf,
-            },
-        }
+        DepthEstimate::on_grid(output, range, conf)
     }
 
     /// Like [`DepthEstimator::estimate`], optionally without the parabolic refinement (plain

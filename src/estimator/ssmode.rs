@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use candle_core::{Device, Tensor};
 
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use crate::frame::{FloatImage, RgbImage};
+use crate::frame::RgbImage;
 use crate::geometry::{ErpGrid, PixelCoord, Rig};
 use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
 
@@ -170,17 +170,6 @@ impl DepthEstimator for SsmodeEstimator {
         };
         let range = resample_erp(&to_vec(final_range)?, 1, net_grid, output);
         let conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
-        Ok(DepthEstimate {
-            range_m: FloatImage {
-                width: output.width(),
-                height: output.height(),
-                data: range,
-            },
-            confidence: FloatImage {
-                width: output.width(),
-                height: output.height(),
-                data: conf,
-            },
-        })
+        Ok(DepthEstimate::on_grid(output, range, conf))
     }
 }
