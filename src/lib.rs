@@ -6,6 +6,7 @@
 
 pub mod bag;
 pub mod deep360;
+pub mod demo;
 pub mod estimator;
 pub mod eval;
 pub mod frame;

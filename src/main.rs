@@ -9,6 +9,9 @@ use mode360::record::{self, RecordOptions};
 use mode360::synth::SynthConfig;
 use std::path::PathBuf;
 
+/// Log filter when RUST_LOG is unset: RustDDS is quiet unless asked (RUST_LOG=info,rustdds=warn).
+const DEFAULT_LOG_FILTER: &str = "info,rustdds=off";
+
 #[derive(Parser)]
 #[command(
     name = "mode360",
@@ -39,6 +42,30 @@ enum Command {
     Replay(ReplayArgs),
     /// Publish a bag on DDS with its original timing (like `ros2 bag play`).
     Play(PlayArgs),
+    /// The whole thing: node + bag played into it over loopback DDS, outputs recorded, previews, metrics.
+    Demo(DemoArgs),
+}
+
+#[derive(Args)]
+struct DemoArgs {
+    /// Bag to play into the node.
+    #[arg(long, default_value = "bags/demo_deep360.mcap")]
+    bag: PathBuf,
+    /// Rig calibration YAML.
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    rig: PathBuf,
+    /// Estimator: photometric or ssmode.
+    #[arg(long, default_value = "photometric")]
+    estimator: String,
+    /// Output bag: inputs plus what the node published.
+    #[arg(long, default_value = "demo_out.mcap")]
+    out: PathBuf,
+    /// Folder for the preview PNGs.
+    #[arg(long, default_value = "demo_out")]
+    png_dir: PathBuf,
+    /// Playback speed factor: slow enough that every frame is processed.
+    #[arg(long, default_value_t = 0.03)]
+    rate: f64,
 }
 
 #[derive(Args)]
@@ -161,7 +188,8 @@ struct EvalArgs {
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| DEFAULT_LOG_FILTER.into()),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -172,6 +200,7 @@ fn main() -> Result<()> {
         Command::Node { args } => Ok(mode360::node::run_node(args)?),
         Command::Replay(a) => replay(a),
         Command::Play(a) => play(a),
+        Command::Demo(a) => demo(a),
     }
 }
 
@@ -296,5 +325,35 @@ fn play(a: PlayArgs) -> Result<()> {
         wait_topics: Vec::new(),
     })?;
     println!("played {summary:?}");
+    Ok(())
+}
+
+fn demo(a: DemoArgs) -> Result<()> {
+    let mut dds = mode360::node::DdsOptions::from_env()?;
+    dds.loopback_only = true;
+    let s = mode360::demo::run_demo(&mode360::demo::DemoOptions {
+        bag: a.bag,
+        rig_file: a.rig,
+        estimator: a.estimator,
+        out_bag: a.out.clone(),
+        png_dir: a.png_dir.clone(),
+        rate: a.rate,
+        dds,
+    })?;
+    println!(
+        "played {} frames; received {} depth images and {} point clouds ({:.0} points each)",
+        s.frames_played, s.depth_received, s.points_received, s.mean_points
+    );
+    if let Some(m) = s.metrics {
+        println!(
+            "depth vs ground truth: MAE {:.3} m, RMSE {:.3} m, AbsRel {:.4}, SqRel {:.3}, SILog {:.3}, delta1 {:.2} %, delta2 {:.2} %, delta3 {:.2} %",
+            m.mae_m, m.rmse_m, m.abs_rel, m.sq_rel_m, m.silog, m.delta1_pct, m.delta2_pct, m.delta3_pct
+        );
+    }
+    println!(
+        "wrote {} and previews in {}",
+        a.out.display(),
+        a.png_dir.display()
+    );
     Ok(())
 }

@@ -1,0 +1,242 @@
+//! `mode360 demo`: the node, fed by the bundled bag over loopback DDS, end to end.
+//!
+//! Starts the node in-process, plays the bag into it, receives `depth`, `points` and
+//! `confidence`, writes them with the inputs to an output bag, writes PNG previews
+//! (colour-mapped depth under the panorama; a top-down view of the point cloud) and scores the
+//! received depth against the bag's ground truth.
+
+use crate::bag::{BagWriter, RigBagReader};
+use crate::frame::{FloatImage, RgbImage};
+use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
+use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
+use crate::msgs::{Header, Image, PointCloud2};
+use crate::node::pipeline::decode_points;
+use crate::node::ros::{create_subscription, dds_context, SpunNode};
+use crate::node::{play_bag, spawn_node, DdsOptions, NodeParams, PlayOptions};
+use crate::viz::{colorize_range, stack_vertical};
+use image::Rgb;
+use ros2_client::qos::History;
+use ros2_client::QosProfile;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// How long to wait for DDS discovery.
+const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(15);
+/// How long to wait for outputs after the last frame was played.
+const RECEIVE_TIMEOUT: Duration = Duration::from_secs(60);
+const POLL: Duration = Duration::from_millis(20);
+/// Top-down preview: image side in pixels and metres per pixel.
+const TOP_VIEW_PX: u32 = 512;
+const TOP_VIEW_M_PER_PX: f32 = 0.1;
+/// Nearest range of the preview colour map, metres.
+const PREVIEW_MIN_DEPTH_M: f32 = 1.0;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error(transparent)]
+    Bag(#[from] crate::bag::BagError),
+    #[error(transparent)]
+    Node(#[from] crate::node::NodeError),
+    #[error(transparent)]
+    Play(#[from] crate::node::PlayError),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct DemoOptions {
+    pub bag: PathBuf,
+    pub rig_file: PathBuf,
+    pub estimator: String,
+    pub out_bag: PathBuf,
+    pub png_dir: PathBuf,
+    /// Playback speed factor; slow enough that inference keeps up.
+    pub rate: f64,
+    pub dds: DdsOptions,
+}
+
+/// What came back.
+#[derive(Clone, Debug)]
+pub struct DemoSummary {
+    pub frames_played: usize,
+    pub depth_received: usize,
+    pub points_received: usize,
+    pub mean_points: f64,
+    pub metrics: Option<DepthMetrics>,
+}
+
+fn other(e: impl std::fmt::Display) -> DemoError {
+    DemoError::Other(e.to_string())
+}
+
+/// Runs the demo (see the module docs).
+pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
+    let reader = RigBagReader::open(&opts.bag)?;
+    let rig = reader.rig().clone();
+    let max_depth_m = reader
+        .info()
+        .get(crate::eval::MAX_DEPTH_KEY)
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or(crate::eval::DEFAULT_MAX_DEPTH_M);
+    let frames: Vec<_> = reader.frames().collect::<Result<_, _>>()?;
+    let width = frames
+        .first()
+        .map(|f| f.images[0].width() as usize)
+        .unwrap_or(0);
+    let params = NodeParams {
+        rig_file: opts.rig_file.clone(),
+        estimator: opts.estimator.clone(),
+        output_width: width,
+        max_depth_m,
+        camera_timeout_secs: 60.0,
+        ..Default::default()
+    };
+    let node = spawn_node(params, opts.dds.clone())?;
+    let context = dds_context(&opts.dds)?;
+    let mut listener = SpunNode::new(&context, "/", "mode360_demo_listener")?;
+    let qos = QosProfile::publisher_default().history(History::KeepLast { depth: 10 });
+    let depth_sub = create_subscription::<Image>(&mut listener.node, "/depth", qos.clone())?;
+    let points_sub =
+        create_subscription::<PointCloud2>(&mut listener.node, "/points", qos.clone())?;
+    let conf_sub = create_subscription::<Image>(&mut listener.node, "/confidence", qos)?;
+    let t0 = Instant::now();
+    while (depth_sub.get_publisher_count(&listener.node) == 0
+        || points_sub.get_publisher_count(&listener.node) == 0)
+        && t0.elapsed() < DISCOVERY_TIMEOUT
+    {
+        std::thread::sleep(POLL);
+    }
+    tracing::info!(
+        "node up; playing {} frames of {}",
+        frames.len(),
+        opts.bag.display()
+    );
+    play_bag(&PlayOptions {
+        input: opts.bag.clone(),
+        rate: opts.rate,
+        loops: 1,
+        publish_clock: true,
+        dds: opts.dds.clone(),
+        wait_for_subscribers: Some(DISCOVERY_TIMEOUT),
+        wait_topics: rig.cameras.iter().map(|c| c.topic.clone()).collect(),
+    })?;
+    let mut depths: BTreeMap<u64, Image> = BTreeMap::new();
+    let mut clouds: BTreeMap<u64, PointCloud2> = BTreeMap::new();
+    let mut confs: BTreeMap<u64, Image> = BTreeMap::new();
+    let t0 = Instant::now();
+    loop {
+        while let Some((m, _)) = depth_sub.take().map_err(other)? {
+            depths.insert(m.header.stamp.to_nanos(), m);
+        }
+        while let Some((m, _)) = points_sub.take().map_err(other)? {
+            clouds.insert(m.header.stamp.to_nanos(), m);
+        }
+        while let Some((m, _)) = conf_sub.take().map_err(other)? {
+            confs.insert(m.header.stamp.to_nanos(), m);
+        }
+        let h = node.health();
+        let settled = (h.groups_processed + h.groups_dropped) as usize >= frames.len()
+            && depths.len() as u64 >= h.groups_processed
+            && clouds.len() as u64 >= h.groups_processed;
+        if settled || t0.elapsed() > RECEIVE_TIMEOUT {
+            break;
+        }
+        std::thread::sleep(POLL);
+    }
+    listener.stop()?;
+    node.shutdown()?;
+
+    // Output bag: inputs, then what the node published.
+    let mut out = BagWriter::create(&opts.out_bag)?;
+    out.write_metadata(
+        crate::bag::RIG_METADATA,
+        BTreeMap::from([(crate::bag::RIG_YAML_KEY.to_string(), rig.to_yaml())]),
+    )?;
+    for f in &frames {
+        for (cam, img) in rig.cameras.iter().zip(&f.images) {
+            out.write(
+                &cam.topic,
+                f.stamp_ns,
+                &image_msg_from_rgb(Header::new(f.stamp_ns, cam.frame_id.clone()), img),
+            )?;
+        }
+    }
+    for (stamp, m) in &depths {
+        out.write("/mode360/depth", *stamp, m)?;
+    }
+    for (stamp, m) in &clouds {
+        out.write("/mode360/points", *stamp, m)?;
+    }
+    for (stamp, m) in &confs {
+        out.write("/mode360/confidence", *stamp, m)?;
+    }
+    out.finish()?;
+
+    // Metrics and previews.
+    std::fs::create_dir_all(&opts.png_dir).map_err(other)?;
+    let mut average = FrameAverage::default();
+    let mut total_points = 0usize;
+    for (n, f) in frames.iter().enumerate() {
+        let Some(depth) = depths.get(&f.stamp_ns) else {
+            continue;
+        };
+        let pred = float_from_image_msg(depth).map_err(other)?;
+        if let Some(gt) = &f.ground_truth {
+            average.push(
+                depth_metrics(&pred.data, &gt.data, max_depth_m).map_err(other)?,
+                None,
+            );
+        }
+        let mut rows = vec![
+            f.images[rig.reference].clone(),
+            colorize_range(&pred, PREVIEW_MIN_DEPTH_M, max_depth_m as f32),
+        ];
+        if let Some(gt) = &f.ground_truth {
+            rows.push(colorize_range(gt, PREVIEW_MIN_DEPTH_M, max_depth_m as f32));
+        }
+        stack_vertical(&rows)
+            .save(opts.png_dir.join(format!("demo_depth_{n:03}.png")))
+            .map_err(other)?;
+        if let Some(points) = clouds.get(&f.stamp_ns).and_then(decode_points) {
+            total_points += points.len();
+            top_view(&points)
+                .save(opts.png_dir.join(format!("demo_points_top_{n:03}.png")))
+                .map_err(other)?;
+        }
+    }
+    Ok(DemoSummary {
+        frames_played: frames.len(),
+        depth_received: depths.len(),
+        points_received: clouds.len(),
+        mean_points: total_points as f64 / clouds.len().max(1) as f64,
+        metrics: (average.frames() > 0).then(|| average.depth()),
+    })
+}
+
+/// Top-down view of a cloud (x forward = up in the image, y left = left), coloured by the
+/// points' own colours, the highest point winning each pixel.
+fn top_view(points: &[crate::node::pipeline::DecodedPoint]) -> RgbImage {
+    let mut img = RgbImage::from_pixel(TOP_VIEW_PX, TOP_VIEW_PX, Rgb([20, 20, 20]));
+    let mut height = FloatImage::filled(
+        TOP_VIEW_PX as usize,
+        TOP_VIEW_PX as usize,
+        f32::NEG_INFINITY,
+    );
+    let c = TOP_VIEW_PX as f32 / 2.0;
+    for p in points {
+        let col = c - p.y_m / TOP_VIEW_M_PER_PX;
+        let row = c - p.x_m / TOP_VIEW_M_PER_PX;
+        if col < 0.0 || row < 0.0 || col >= TOP_VIEW_PX as f32 || row >= TOP_VIEW_PX as f32 {
+            continue;
+        }
+        let (u, v) = (col as usize, row as usize);
+        let k = v * TOP_VIEW_PX as usize + u;
+        if p.z_m > height.data[k] {
+            height.data[k] = p.z_m;
+            img.put_pixel(u as u32, v as u32, Rgb(p.rgb));
+        }
+    }
+    img
+}
