@@ -39,7 +39,7 @@ pub enum DemoError {
     #[error(transparent)]
     Node(#[from] crate::node::NodeError),
     #[error(transparent)]
-    Play(#[from] crate::node::PlayError),
+    Play(Box<crate::node::PlayError>),
     #[error("{0}")]
     Other(String),
 }
@@ -65,6 +65,12 @@ pub struct DemoSummary {
     pub points_received: usize,
     pub mean_points: f64,
     pub metrics: Option<DepthMetrics>,
+}
+
+impl From<crate::node::PlayError> for DemoError {
+    fn from(e: crate::node::PlayError) -> Self {
+        Self::Play(Box::new(e))
+    }
 }
 
 fn other(e: impl std::fmt::Display) -> DemoError {
