@@ -1,11 +1,13 @@
 //! Regression heads: cost `(B, D, H/4, W/4)` -> trilinear upsampling to `(B, N, H, W)` ->
-//! softmax over the `N` hypotheses -> range (paper eq. 7):
+//! softmax over the `N` hypotheses -> soft-argmin in inverse depth:
 //!
 //! ```text
-//! p_i = softmax_i(cost_i),   range = sum_i p_i rho_i,   index = sum_i p_i i / (N - 1)
+//! p_i = softmax_i(cost_i),   k = sum_i p_i i / (N - 1),   range = 1 / (inv_far + k (inv_near - inv_far))
 //! ```
 //!
-//! with `rho_i` uniform in inverse depth (index 0 the farthest). The confidence is the
+//! with hypotheses uniform in inverse depth (index 0 the farthest). The paper's eq. 7 takes the
+//! expected depth `sum_i p_i rho_i` instead; over 0.5 m to 1000 m that is dominated by the far
+//! spheres, so the expectation is taken where the hypotheses are uniform. The confidence is the
 //! probability mass within `CONFIDENCE_RADIUS` hypotheses of the argmax (PSMODE).
 
 use candle_core::{DType, Result, Tensor};
@@ -66,14 +68,19 @@ pub fn regress(
     // (B, N, H, W)
     let up = upsample_trilinear(cost, n, height, width)?;
     let probabilities = candle_nn::ops::softmax(&up, HYPOTHESIS_AXIS)?;
-    let depths: Vec<f32> = hypotheses.depths_m().iter().map(|&d| d as f32).collect();
-    // (1, N, 1, 1)
-    let depths = Tensor::from_vec(depths, (1, n, 1, 1), device)?;
     let index: Vec<f32> = (0..n).map(|i| i as f32 / (n - 1) as f32).collect();
+    // (1, N, 1, 1)
     let index = Tensor::from_vec(index, (1, n, 1, 1), device)?;
     // (B, H, W)
-    let range_m = probabilities.broadcast_mul(&depths)?.sum(HYPOTHESIS_AXIS)?;
     let inverse_depth_index = probabilities.broadcast_mul(&index)?.sum(HYPOTHESIS_AXIS)?;
+    // Range from the expected inverse depth, `1 / (inv_far + k (inv_near - inv_far))`, not the
+    // expected depth of eq. 7: with hypotheses from 0.5 m to 1000 m uniform in inverse depth,
+    // 1 % of probability on the farthest sphere alone would add 10 m to every pixel's range.
+    let inv_far = hypotheses.inverse_depth(0.0);
+    let inv_near = hypotheses.inverse_depth((n - 1) as f64);
+    let range_m = inverse_depth_index
+        .affine(inv_near - inv_far, inv_far)?
+        .recip()?;
     Ok(Regression {
         range_m,
         inverse_depth_index,
