@@ -5,6 +5,7 @@
 //! panoramas into an ERP range image, scored against ground truth by [`metrics`] in [`eval`].
 
 pub mod bag;
+pub mod bench;
 pub mod deep360;
 pub mod demo;
 pub mod estimator;

@@ -44,6 +44,35 @@ enum Command {
     Play(PlayArgs),
     /// The whole thing: node + bag played into it over loopback DDS, outputs recorded, previews, metrics.
     Demo(DemoArgs),
+    /// Benchmark SSMODE forward passes: time and GFLOP/s per stage, end-to-end time, peak memory.
+    BenchModel(BenchModelArgs),
+}
+
+#[derive(Args)]
+struct BenchModelArgs {
+    /// Presets to measure (comma separated): compact, paper, tiny.
+    #[arg(long, value_delimiter = ',', default_value = "compact,paper")]
+    presets: Vec<String>,
+    /// Input widths (comma separated, height = width / 2).
+    #[arg(long, value_delimiter = ',', default_value = "512,1024")]
+    widths: Vec<usize>,
+    /// Trained weights for the compact preset (default: the shipped ones when present; random
+    /// weights cost the same).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Rig calibration YAML (its camera count is the number of views).
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    rig: PathBuf,
+    /// Timed passes per case (after one warm-up pass).
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Write all cases as JSON here.
+    #[arg(long, default_value = "bench_model.json")]
+    json: PathBuf,
+    /// Run the cases in this process instead of one child process per case (peak memory then
+    /// includes earlier cases where the kernel cannot reset it).
+    #[arg(long)]
+    in_process: bool,
 }
 
 #[derive(Args)]
@@ -183,6 +212,9 @@ struct EvalArgs {
     /// Write preview PNGs (panorama, predicted and true range) of the first frames here.
     #[arg(long)]
     png_dir: Option<PathBuf>,
+    /// SSMODE weights file (default: models/ssmode_compact.safetensors).
+    #[arg(long)]
+    weights: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -201,6 +233,7 @@ fn main() -> Result<()> {
         Command::Replay(a) => replay(a),
         Command::Play(a) => play(a),
         Command::Demo(a) => demo(a),
+        Command::BenchModel(a) => bench_model(a),
     }
 }
 
@@ -243,7 +276,8 @@ fn run_eval(a: EvalArgs) -> Result<()> {
             Some(list.iter().map(|c| c - 1).collect())
         }
     };
-    let mut est: Box<dyn DepthEstimator> = estimator::by_name(&a.estimator)?;
+    let mut est: Box<dyn DepthEstimator> =
+        estimator::by_name_with_weights(&a.estimator, a.weights.as_deref())?;
     let report = eval::evaluate(
         &EvalOptions {
             bags: a.bags,
@@ -356,4 +390,78 @@ fn demo(a: DemoArgs) -> Result<()> {
         a.png_dir.display()
     );
     Ok(())
+}
+
+fn bench_model(a: BenchModelArgs) -> Result<()> {
+    use mode360::bench::{bench_model_case, format_table, ModelBenchCase, ModelBenchOptions};
+    let rig = Rig::from_file(&a.rig)?;
+    let shipped = mode360::estimator::ssmode::default_weights_path();
+    let mut cases: Vec<ModelBenchCase> = Vec::new();
+    for preset in &a.presets {
+        for &width in &a.widths {
+            let weights = match (&a.weights, preset.as_str()) {
+                (Some(w), "compact") => Some(w.clone()),
+                (None, "compact") if shipped.exists() => Some(shipped.clone()),
+                _ => None,
+            };
+            eprintln!("bench-model: {preset} at {width}x{} ...", width / 2);
+            let case = if a.in_process || (a.presets.len() == 1 && a.widths.len() == 1) {
+                bench_model_case(&ModelBenchOptions {
+                    preset: preset.clone(),
+                    width: Some(width),
+                    weights,
+                    rig: rig.clone(),
+                    runs: a.runs,
+                    seed: 1,
+                })?
+            } else {
+                bench_model_child(&a, preset, width, weights.as_deref())?
+            };
+            cases.push(case);
+        }
+    }
+    print!("{}", format_table(&cases));
+    std::fs::write(&a.json, serde_json::to_string_pretty(&cases)?)
+        .with_context(|| format!("writing {}", a.json.display()))?;
+    println!("wrote {}", a.json.display());
+    Ok(())
+}
+
+/// One case in a child process, so that its peak memory is its own.
+fn bench_model_child(
+    a: &BenchModelArgs,
+    preset: &str,
+    width: usize,
+    weights: Option<&std::path::Path>,
+) -> Result<mode360::bench::ModelBenchCase> {
+    let json = std::env::temp_dir().join(format!(
+        "mode360-bench-{}-{preset}-{width}.json",
+        std::process::id()
+    ));
+    let exe = std::env::current_exe().context("locating the mode360 binary")?;
+    let mut cmd = std::process::Command::new(exe);
+    cmd.arg("bench-model")
+        .args(["--presets", preset])
+        .args(["--widths", &width.to_string()])
+        .args(["--runs", &a.runs.to_string()])
+        .arg("--rig")
+        .arg(&a.rig)
+        .arg("--json")
+        .arg(&json)
+        .stdout(std::process::Stdio::null());
+    if let Some(w) = weights {
+        cmd.arg("--weights").arg(w);
+    }
+    let status = cmd.status().context("starting the bench child process")?;
+    if !status.success() {
+        bail!("bench-model case {preset} at width {width} failed ({status})");
+    }
+    let text =
+        std::fs::read_to_string(&json).with_context(|| format!("reading {}", json.display()))?;
+    // Best effort: a leftover file in the temp dir is harmless.
+    let _ = std::fs::remove_file(&json);
+    let mut cases: Vec<mode360::bench::ModelBenchCase> = serde_json::from_str(&text)?;
+    cases
+        .pop()
+        .with_context(|| format!("{} holds no case", json.display()))
 }

@@ -306,85 +306,54 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
     assert_eq!(checked, 3 * 5 * c);
 }
 
-/// Inference timing (4 cameras) of compact at 256x128 (what the estimator runs) and of the
-/// compact and paper architectures at 512x256; run with
-/// `cargo test --test model_ssmode -- --ignored --nocapture forward_timing`.
+/// The per-stage profile of `mode360 bench-model`: every stage is reported, and the FLOPs it
+/// counts scale exactly with the pixel count (the same network at twice the width does four
+/// times the convolution work in every stage that has any).
 #[test]
-#[ignore]
-fn forward_timing_512x256() {
-    const RUNS: usize = 2;
-    const CASES: [(&str, usize); 3] = [("compact", 256), ("compact", 512), ("paper", 512)];
-    for (preset, width) in CASES {
-        let mut cfg = SsmodeConfig::preset(preset).unwrap();
-        let native = cfg.width;
-        cfg.width = width;
-        let (varmap, net) = model(&cfg);
-        let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
-        let images = noise_images(&cfg, 4, 5);
-        let _warm = net.forward(&images, &sampling, false).unwrap();
-        let t0 = std::time::Instant::now();
-        for _ in 0..RUNS {
-            let out = net.forward(&images, &sampling, false).unwrap();
-            let _ = out.stages.last().unwrap().sum_all().unwrap();
+fn bench_profile_flops_scale_with_pixels() {
+    use mode360::bench::{bench_model_case, ModelBenchOptions};
+    let case = |width: usize| {
+        bench_model_case(&ModelBenchOptions {
+            preset: "tiny".into(),
+            width: Some(width),
+            weights: None,
+            rig: rig(),
+            runs: 1,
+            seed: 2,
+        })
+        .expect("bench case")
+    };
+    let (small, large) = (case(64), case(128));
+    let names: Vec<&str> = small.stages.iter().map(|s| s.stage.as_str()).collect();
+    assert_eq!(
+        names,
+        ["feature", "cost_volume", "aggregation", "regression"]
+    );
+    let (tiny_params, _) = {
+        let cfg = SsmodeConfig::tiny();
+        let (varmap, _net) = model(&cfg);
+        (param_count(&varmap), ())
+    };
+    assert_eq!(small.parameters, tiny_params);
+    assert_eq!((small.width, small.height, large.width), (64, 32, 128));
+    for (s, l) in small.stages.iter().zip(&large.stages) {
+        if s.stage == "cost_volume" {
+            assert_eq!((s.gflop, l.gflop), (0.0, 0.0), "the sweep is sampling only");
+            continue;
         }
-        let per = t0.elapsed().as_secs_f64() / RUNS as f64;
-        let hwm = std::fs::read_to_string("/proc/self/status")
-            .ok()
-            .and_then(|s| {
-                s.lines()
-                    .find(|l| l.starts_with("VmHWM"))
-                    .map(str::to_string)
-            })
-            .unwrap_or_default();
-        println!(
-            "{} (native width {native}) at {width}x{}: {} params, forward {per:.3} s, {hwm}",
-            cfg.name,
-            width / 2,
-            param_count(&varmap)
+        assert!(s.gflop > 0.0, "{}: no FLOPs counted", s.stage);
+        let ratio = l.gflop / s.gflop;
+        assert!(
+            (ratio - 4.0).abs() < 1e-6,
+            "{}: {} GFLOP at 64 wide, {} at 128 wide (ratio {ratio})",
+            s.stage,
+            s.gflop,
+            l.gflop
         );
     }
-}
-
-/// Per-stage forward timing of the compact architecture at its native and at 512 width; run with
-/// `cargo test --test model_ssmode -- --ignored --nocapture stage_timing`.
-#[test]
-#[ignore]
-fn stage_timing() {
-    use mode360::model::feature::FeatureExtractor;
-    use mode360::model::hourglass::CostAggregation;
-    use mode360::model::regression::{regress, RegressionHead};
-    for width in [256usize, 512] {
-        let mut cfg = SsmodeConfig::compact();
-        cfg.width = width;
-        let varmap = VarMap::new();
-        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-        let feature = FeatureExtractor::new(&cfg, vb.pp("feature")).unwrap();
-        let agg = CostAggregation::new(&cfg, vb.pp("aggregation")).unwrap();
-        let head = RegressionHead::new(cfg.hourglass_channels, vb.pp("classif0")).unwrap();
-        let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
-        let images = Tensor::cat(&noise_images(&cfg, 4, 5), 0).unwrap();
-        let t = std::time::Instant::now();
-        let f = feature.forward(&images, sampling.sphere_conv()).unwrap();
-        let t_feat = t.elapsed().as_secs_f64();
-        let per: Vec<Tensor> = (0..4).map(|c| f.narrow(0, c, 1).unwrap()).collect();
-        let t = std::time::Instant::now();
-        let vol = cost_volume(&per, &sampling).unwrap();
-        let t_vol = t.elapsed().as_secs_f64();
-        let t = std::time::Instant::now();
-        let outs = agg.forward(&vol).unwrap();
-        let t_agg = t.elapsed().as_secs_f64();
-        let t = std::time::Instant::now();
-        let cost = head.forward(&outs[0]).unwrap();
-        let t_head = t.elapsed().as_secs_f64();
-        let hyps = cfg.output_hypotheses().unwrap();
-        let t = std::time::Instant::now();
-        let r = regress(&cost, &hyps, cfg.height(), cfg.width).unwrap();
-        let _ = r.range_m.sum_all().unwrap();
-        let t_reg = t.elapsed().as_secs_f64();
-        println!(
-            "width {width}: feature {t_feat:.3} s, volume {t_vol:.3} s, aggregation {t_agg:.3} s, head {t_head:.3} s, regression {t_reg:.3} s"
-        );
-    }
+    let stage_sum: f64 = small.stages.iter().map(|s| s.median_s).sum();
+    assert!(small.network_median_s > 0.0 && stage_sum <= small.network_median_s * 1.01);
+    assert!(small.peak_rss_mb >= small.rss_start_mb || !small.peak_reset);
 }
 
 /// One training step (forward, backward, AdamW) of the compact preset at 256x128, 4 cameras;

@@ -70,16 +70,33 @@ pub trait DepthEstimator: Send {
 /// Estimator names accepted by [`by_name`].
 pub const ESTIMATOR_NAMES: &[&str] = &["photometric", "ssmode"];
 
-/// The estimator called `name`, with its default settings.
+/// The estimator called `name`, with its default settings (SSMODE: the shipped weights).
 pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
-    match name {
-        "photometric" => Ok(Box::new(photometric::PhotometricSweep::new(
+    by_name_with_weights(name, None)
+}
+
+/// Like [`by_name`]; `weights` replaces SSMODE's shipped weights (an error for estimators
+/// without weights, so that a mistyped estimator name does not silently ignore them).
+pub fn by_name_with_weights(
+    name: &str,
+    weights: Option<&std::path::Path>,
+) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+    match (name, weights) {
+        ("photometric", None) => Ok(Box::new(photometric::PhotometricSweep::new(
             photometric::PhotometricConfig::default(),
         )?)),
-        "ssmode" => Ok(Box::new(ssmode::SsmodeEstimator::load(
-            ssmode::DEFAULT_WEIGHTS_PATH,
+        ("photometric", Some(path)) => Err(EstimatorError::BadConfig {
+            field: "weights".to_string(),
+            problem: format!(
+                "the photometric estimator has no weights (got {})",
+                path.display()
+            ),
+        }),
+        ("ssmode", Some(path)) => Ok(Box::new(ssmode::SsmodeEstimator::load(path)?)),
+        ("ssmode", None) => Ok(Box::new(ssmode::SsmodeEstimator::load(
+            ssmode::default_weights_path(),
         )?)),
-        other => Err(EstimatorError::UnknownEstimator {
+        (other, _) => Err(EstimatorError::UnknownEstimator {
             name: other.to_string(),
             known: ESTIMATOR_NAMES.join(", "),
         }),

@@ -11,8 +11,24 @@ use crate::frame::RgbImage;
 use crate::geometry::{ErpGrid, PixelCoord, Rig};
 use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
 
-/// Weights loaded by `by_name("ssmode")`.
+/// Weights loaded by `by_name("ssmode")`, relative to the working directory or, failing that,
+/// to the source tree the binary was built from (see [`default_weights_path`]).
 pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
+
+/// [`DEFAULT_WEIGHTS_PATH`] under the working directory when it exists there, else under the
+/// crate's source tree (so `mode360` finds the shipped weights when run from elsewhere).
+pub fn default_weights_path() -> PathBuf {
+    let local = PathBuf::from(DEFAULT_WEIGHTS_PATH);
+    if local.exists() {
+        return local;
+    }
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_WEIGHTS_PATH);
+    if shipped.exists() {
+        shipped
+    } else {
+        local
+    }
+}
 /// 8-bit colour to [0, 1].
 const BYTE_SCALE: f32 = 1.0 / 255.0;
 /// Channels of an RGB pixel.
@@ -60,6 +76,16 @@ impl SsmodeEstimator {
         })
     }
 
+    /// Wraps an already built network; `label` names its weights in messages.
+    pub fn from_model(model: Ssmode, label: impl Into<PathBuf>) -> Self {
+        Self {
+            weights_path: label.into(),
+            model,
+            device: Device::Cpu,
+            cached: None,
+        }
+    }
+
     pub fn config(&self) -> &SsmodeConfig {
         self.model.config()
     }
@@ -68,19 +94,14 @@ impl SsmodeEstimator {
         &self.weights_path
     }
 
-    fn sampling(&mut self, rig: &Rig) -> Result<&SweepSampling, EstimatorError> {
+    /// Rebuilds the cached sampling tables when the rig changed; returns them.
+    fn refresh_sampling(&mut self, rig: &Rig) -> Result<(), EstimatorError> {
         let stale = self.cached.as_ref().is_none_or(|(r, _)| r != rig);
         if stale {
             let sampling = SweepSampling::new(rig, self.model.config()).map_err(model_err)?;
             self.cached = Some((rig.clone(), sampling));
         }
-        match &self.cached {
-            Some((_, s)) => Ok(s),
-            None => Err(model_err(ModelError::BadConfig {
-                field: "rig".to_string(),
-                problem: "sweep sampling cache is empty".to_string(),
-            })),
-        }
+        Ok(())
     }
 }
 
@@ -152,10 +173,19 @@ impl DepthEstimator for SsmodeEstimator {
                 .map_err(model_err)?;
             tensors.push(t);
         }
-        let sampling = self.sampling(rig)?.clone();
+        self.refresh_sampling(rig)?;
+        let sampling = match &self.cached {
+            Some((_, s)) => s,
+            None => {
+                return Err(model_err(ModelError::BadConfig {
+                    field: "rig".to_string(),
+                    problem: "sweep sampling cache is empty".to_string(),
+                }))
+            }
+        };
         let out = self
             .model
-            .forward(&tensors, &sampling, false)
+            .forward(&tensors, sampling, false)
             .map_err(model_err)?;
         let final_range = out.stages.last().ok_or_else(|| {
             model_err(ModelError::BadConfig {

@@ -18,7 +18,7 @@ pub mod ssmode;
 pub mod weights;
 
 pub use config::{SsmodeConfig, SweepSampling};
-pub use ssmode::{Ssmode, SsmodeOutput};
+pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use weights::{load_weights, read_config, save_weights};
 
 /// Errors of the model code (configs, sampling tables, weight files).

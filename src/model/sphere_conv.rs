@@ -19,7 +19,7 @@ use candle_core::{Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
 use crate::geometry::{ErpGrid, LonLat, PixelCoord};
-use crate::model::ops::{table_sample, SampleTable};
+use crate::model::ops::{count_flops, table_sample, SampleTable};
 
 /// Kernel side (3x3 taps).
 pub const SPHERE_KERNEL: usize = 3;
@@ -124,6 +124,7 @@ impl SphereConv {
         let sampled = table_sample(x, table.table())?;
         // (B H W, SPHERE_TAPS Cin) x (SPHERE_TAPS Cin, Cout) -> (B H W, Cout)
         let flat = sampled.reshape((b * h * w, SPHERE_TAPS * self.c_in))?;
+        count_flops(2.0 * (b * h * w * SPHERE_TAPS * self.c_in * self.c_out) as f64);
         let out = flat.matmul(&self.weight)?.broadcast_add(&self.bias)?;
         // (B, H, W, Cout)
         out.reshape((b, h, w, self.c_out))

@@ -9,6 +9,8 @@
 //! regression                -> K x (B, H, W) range, index; confidence of the last
 //! ```
 
+use std::time::{Duration, Instant};
+
 use candle_core::{Result, Tensor};
 use candle_nn::VarBuilder;
 
@@ -18,7 +20,7 @@ use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::regression::{confidence, regress, RegressionHead};
 use crate::geometry::InverseDepthHypotheses;
-use crate::model::ops::OpsError;
+use crate::model::ops::{flop_count, OpsError};
 
 /// Image channels (RGB).
 const IMAGE_CHANNELS: usize = 3;
@@ -34,6 +36,70 @@ pub struct SsmodeOutput {
     pub inverse_depth_stages: Vec<Tensor>,
     /// `(B, H, W)` probability mass within 2 hypotheses of the final argmax.
     pub confidence: Tensor,
+}
+
+/// Wall time and floating-point work of one stage of a forward pass.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageTiming {
+    /// `feature`, `cost_volume`, `aggregation` or `regression`.
+    pub stage: &'static str,
+    pub elapsed: Duration,
+    /// Convolution and matrix-product FLOPs issued by the stage (multiply-add = 2).
+    pub flops: u64,
+}
+
+impl StageTiming {
+    /// `flops / elapsed` in GFLOP/s (0 for an instantaneous stage).
+    pub fn gflops_per_s(&self) -> f64 {
+        let secs = self.elapsed.as_secs_f64();
+        if secs > 0.0 {
+            self.flops as f64 / secs / 1e9
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Collects [`StageTiming`]s during [`Ssmode::forward_profiled`]. Candle's CPU ops run
+/// eagerly, so a stage's time is the time between two marks.
+#[derive(Clone, Debug)]
+pub struct StageProfiler {
+    last: Instant,
+    flops_at_last: u64,
+    stages: Vec<StageTiming>,
+}
+
+impl Default for StageProfiler {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl StageProfiler {
+    pub fn new() -> Self {
+        Self {
+            last: Instant::now(),
+            flops_at_last: flop_count(),
+            stages: Vec::new(),
+        }
+    }
+
+    /// Ends the stage `stage` (started at the previous mark) and starts the next one.
+    fn mark(&mut self, stage: &'static str) {
+        let now = Instant::now();
+        let flops = flop_count();
+        self.stages.push(StageTiming {
+            stage,
+            elapsed: now - self.last,
+            flops: flops.saturating_sub(self.flops_at_last),
+        });
+        self.last = now;
+        self.flops_at_last = flops;
+    }
+
+    pub fn stages(&self) -> &[StageTiming] {
+        &self.stages
+    }
 }
 
 /// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`.
@@ -128,6 +194,22 @@ impl Ssmode {
         sampling: &SweepSampling,
         train: bool,
     ) -> Result<SsmodeOutput> {
+        self.forward_profiled(images, sampling, train, None)
+    }
+
+    /// [`Ssmode::forward`], recording per-stage timings into `profiler` when given.
+    pub fn forward_profiled(
+        &self,
+        images: &[Tensor],
+        sampling: &SweepSampling,
+        train: bool,
+        mut profiler: Option<&mut StageProfiler>,
+    ) -> Result<SsmodeOutput> {
+        let mut mark = |stage: &'static str| {
+            if let Some(p) = profiler.as_deref_mut() {
+                p.mark(stage);
+            }
+        };
         self.check_images(images, sampling)?;
         let cameras = images.len();
         let batch = images[0].dim(0)?;
@@ -135,14 +217,20 @@ impl Ssmode {
         let stacked = Tensor::cat(images, 0)?;
         // (N B, H/4, W/4, Cf)
         let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
+        mark("feature");
         // N x (B, H/4, W/4, Cf)
         let per_camera = (0..cameras)
             .map(|c| features.narrow(0, c * batch, batch))
             .collect::<Result<Vec<_>>>()?;
         // (B, D, H/4, W/4, 2 Cf)
         let volume = cost_volume(&per_camera, sampling)?;
+        drop(per_camera);
+        drop(features);
+        mark("cost_volume");
         // K x (B, D, H/4, W/4, Ch)
         let aggregated = self.aggregation.forward(&volume)?;
+        drop(volume);
+        mark("aggregation");
         let mut stages = Vec::with_capacity(aggregated.len());
         let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
         let mut last_probabilities = None;
@@ -164,10 +252,12 @@ impl Ssmode {
             op: "Ssmode::forward",
             what: "no hourglass stages".to_string(),
         })?;
+        let confidence = confidence(&probabilities)?;
+        mark("regression");
         Ok(SsmodeOutput {
             stages,
             inverse_depth_stages,
-            confidence: confidence(&probabilities)?,
+            confidence,
         })
     }
 }

@@ -14,7 +14,7 @@ use candle_core::{CpuStorage, CustomOp2, Layout, Result, Shape, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
 
-use super::{composite, dims_of, has_custom_kernels, OpsError, SPATIAL_AXES_3D};
+use super::{composite, count_flops, dims_of, has_custom_kernels, OpsError, SPATIAL_AXES_3D};
 
 /// Rank of a channels-last volume `(B, D, H, W, C)` and of a 3-D kernel `(kD, kH, kW, Cin, Cout)`.
 const VOLUME_RANK: usize = 5;
@@ -132,6 +132,7 @@ impl Conv3dGeometry {
 /// `broadcast_add`). Gradients flow to `x` and `w`.
 pub fn conv3d(x: &Tensor, w: &Tensor, stride: [usize; 3], padding: [usize; 3]) -> Result<Tensor> {
     let geom = conv_geometry_from(x, w, stride, padding, "conv3d")?;
+    count_flops(geom.flops());
     if !has_custom_kernels(x.device()) {
         return composite::conv3d_composite(x, w, stride, padding);
     }
@@ -175,8 +176,10 @@ pub fn conv3d_input_grad(
         .into());
     }
     if !has_custom_kernels(dy.device()) {
+        count_flops(geom.flops());
         return composite::conv3d_input_grad_composite(dy, w, stride, padding, in_dims);
     }
+    count_flops(geom.flops());
     // (B, Do, Ho, Wo, Cout) x (kD, kH, kW, Cin, Cout) -> (B, D, H, W, Cin)
     dy.contiguous()?
         .apply_op2(&w.contiguous()?, Conv3dInputGradOp { geom })
@@ -213,6 +216,7 @@ pub fn conv3d_weight_grad(
         }
         .into());
     }
+    count_flops(geom.flops());
     if !has_custom_kernels(x.device()) {
         return composite::conv3d_weight_grad_composite(x, dy, kernel, stride, padding);
     }

@@ -21,6 +21,8 @@ mod conv3d;
 mod linear_axis;
 mod table;
 
+use std::cell::Cell;
+
 use candle_core::{Device, Tensor};
 use thiserror::Error;
 
@@ -66,6 +68,23 @@ impl From<OpsError> for candle_core::Error {
     fn from(e: OpsError) -> Self {
         candle_core::Error::wrap(e)
     }
+}
+
+thread_local! {
+    /// Floating-point operations issued from this thread by the convolutions and matrix
+    /// products of the model (multiply-adds count two), for the benchmark's GFLOP/s. Per
+    /// thread, so that concurrent passes on other threads do not count.
+    static FLOPS: Cell<u64> = const { Cell::new(0) };
+}
+
+/// Floating-point operations this thread issued so far (see [`count_flops`]); take differences.
+pub fn flop_count() -> u64 {
+    FLOPS.with(Cell::get)
+}
+
+/// Adds `flops` to this thread's counter read by [`flop_count`].
+pub fn count_flops(flops: f64) {
+    FLOPS.with(|f| f.set(f.get().wrapping_add(flops as u64)));
 }
 
 /// Whether the fast custom CPU kernels can run on tensors on `device`.
