@@ -12,10 +12,11 @@
 
 use candle_core::{DType, Result, Tensor};
 use candle_nn::VarBuilder;
+use rayon::prelude::*;
 
 use super::hourglass::Conv3d;
 use crate::geometry::InverseDepthHypotheses;
-use crate::model::ops::upsample_trilinear;
+use crate::model::ops::{resample_linear_axis, upsample_trilinear, LinearAxisMap};
 
 /// Hypotheses either side of the argmax counted in the confidence.
 pub const CONFIDENCE_RADIUS: f64 = 2.0;
@@ -103,4 +104,100 @@ pub fn confidence(probabilities: &Tensor) -> Result<Tensor> {
         .le(CONFIDENCE_RADIUS)?
         .to_dtype(DType::F32)?;
     (p * near)?.sum(HYPOTHESIS_AXIS)
+}
+
+/// What [`regress_inference`] returns, each `(B, H, W)`.
+#[derive(Clone, Debug)]
+pub struct InferenceRegression {
+    pub range_m: Tensor,
+    pub inverse_depth_index: Tensor,
+    pub confidence: Tensor,
+}
+
+/// [`regress`] and [`confidence`] fused for inference (no gradient): the cost is upsampled in
+/// `H` and `W` as a tensor, then one pass per pixel interpolates its `N` hypotheses from the `D`
+/// spheres, takes the softmax, the expected index, the argmax and the mass near it, without
+/// materialising the `(B, N, H, W)` volume. Same values as the unfused path (to rounding).
+pub fn regress_inference(
+    cost: &Tensor,
+    hypotheses: &InverseDepthHypotheses,
+    height: usize,
+    width: usize,
+) -> Result<InferenceRegression> {
+    let n = hypotheses.count();
+    let (b, d, _, _) = cost.dims4()?;
+    // (B, D, h, w) -> (B, D, h, W) -> (B, D, H, W)
+    let spatial = resample_linear_axis(&resample_linear_axis(cost, 3, width)?, 2, height)?;
+    let data = spatial.flatten_all()?.to_vec1::<f32>()?;
+    let axis = LinearAxisMap::new(d, n)?;
+    let pixels = height * width;
+    let mut index = vec![0f32; b * pixels];
+    let mut conf = vec![0f32; b * pixels];
+    let radius = CONFIDENCE_RADIUS as usize;
+    index
+        .par_chunks_mut(width)
+        .zip(conf.par_chunks_mut(width))
+        .enumerate()
+        .for_each(|(row, (index_row, conf_row))| {
+            let (bi, v) = (row / height, row % height);
+            // (W, D): this row's sphere costs, pixel-major
+            let mut spheres = vec![0f32; width * d];
+            for k in 0..d {
+                let src = &data[(bi * d + k) * pixels + v * width..][..width];
+                for (u, &c) in src.iter().enumerate() {
+                    spheres[u * d + k] = c;
+                }
+            }
+            let mut p = vec![0f32; n];
+            for u in 0..width {
+                let s = &spheres[u * d..(u + 1) * d];
+                let (lo, hi, lam) = (
+                    axis.lower_indices(),
+                    axis.upper_indices(),
+                    axis.upper_weights(),
+                );
+                let mut max = f32::NEG_INFINITY;
+                for i in 0..n {
+                    let c = (1.0 - lam[i]) * s[lo[i] as usize] + lam[i] * s[hi[i] as usize];
+                    p[i] = c;
+                    max = max.max(c);
+                }
+                let mut sum = 0f32;
+                for x in p.iter_mut() {
+                    *x = (*x - max).exp();
+                    sum += *x;
+                }
+                let inv_sum = 1.0 / sum;
+                // Argmax of the probabilities, first of equals (as the unfused path): costs a
+                // rounding error apart can have equal probabilities.
+                let mut arg = 0;
+                for i in 1..n {
+                    if p[i] * inv_sum > p[arg] * inv_sum {
+                        arg = i;
+                    }
+                }
+                let mut expected = 0f32;
+                for (i, &x) in p.iter().enumerate() {
+                    expected += x * i as f32;
+                }
+                let near: f32 = p[arg.saturating_sub(radius)..(arg + radius + 1).min(n)]
+                    .iter()
+                    .sum();
+                index_row[u] = expected * inv_sum / (n - 1) as f32;
+                conf_row[u] = near * inv_sum;
+            }
+        });
+    let device = cost.device();
+    let inverse_depth_index = Tensor::from_vec(index, (b, height, width), device)?;
+    let confidence = Tensor::from_vec(conf, (b, height, width), device)?;
+    let inv_far = hypotheses.inverse_depth(0.0);
+    let inv_near = hypotheses.inverse_depth((n - 1) as f64);
+    let range_m = inverse_depth_index
+        .affine(inv_near - inv_far, inv_far)?
+        .recip()?;
+    Ok(InferenceRegression {
+        range_m,
+        inverse_depth_index,
+        confidence,
+    })
 }

@@ -18,7 +18,7 @@ use super::config::{SsmodeConfig, SweepSampling, MIN_CAMERAS};
 use super::cost_volume::cost_volume;
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
-use super::regression::{confidence, regress, RegressionHead};
+use super::regression::{confidence, regress, regress_inference, RegressionHead};
 use crate::geometry::InverseDepthHypotheses;
 use crate::model::ops::{flop_count, OpsError};
 
@@ -231,15 +231,32 @@ impl Ssmode {
         let aggregated = self.aggregation.forward(&volume)?;
         drop(volume);
         mark("aggregation");
+        if !train {
+            // Inference: only the last hourglass, regressed by the fused kernel.
+            let (head, x) = self
+                .classif
+                .last()
+                .zip(aggregated.last())
+                .ok_or(OpsError::Shape {
+                    op: "Ssmode::forward",
+                    what: "no hourglass stages".to_string(),
+                })?;
+            // (B, D, H/4, W/4)
+            let cost = head.forward(x)?;
+            drop(aggregated);
+            // (B, H, W) each
+            let r = regress_inference(&cost, &self.hypotheses, self.cfg.height(), self.cfg.width)?;
+            mark("regression");
+            return Ok(SsmodeOutput {
+                stages: vec![r.range_m],
+                inverse_depth_stages: vec![r.inverse_depth_index],
+                confidence: r.confidence,
+            });
+        }
         let mut stages = Vec::with_capacity(aggregated.len());
         let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
         let mut last_probabilities = None;
-        let skip = if train {
-            0
-        } else {
-            aggregated.len().saturating_sub(1)
-        };
-        for (head, x) in self.classif.iter().zip(&aggregated).skip(skip) {
+        for (head, x) in self.classif.iter().zip(&aggregated) {
             // (B, D, H/4, W/4)
             let cost = head.forward(x)?;
             // (B, H, W)
