@@ -401,13 +401,13 @@ fn fused_inference_regression_equals_the_training_path() {
     let cfg = SsmodeConfig::tiny();
     let hyps = cfg.output_hypotheses().expect("hypotheses");
     let (height, width) = (18, 36);
-    for scale in [0.5f32, 8.0] {
+    for (scale, far) in [(0.5f32, 0.7), (8.0, 0.7), (8.0, 0.3), (8.0, 2.0)] {
         // (B, D, h, w) with odd h and w
         let cost = (Tensor::randn(0f32, 1f32, (2, 5, 5, 9), &Device::Cpu).unwrap() * scale as f64)
             .unwrap();
-        let slow = regress(&cost, &hyps, height, width).unwrap();
+        let slow = regress(&cost, &hyps, height, width, far).unwrap();
         let slow_conf = confidence(&slow.probabilities).unwrap();
-        let fast = regress_inference(&cost, &hyps, height, width).unwrap();
+        let fast = regress_inference(&cost, &hyps, height, width, far).unwrap();
         let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         let max_abs = |a: &Tensor, b: &Tensor| {
             flat(a)
@@ -447,6 +447,16 @@ fn fused_inference_regression_equals_the_training_path() {
             );
         }
         assert!(compared * 2 > a.len(), "only {compared} untied pixels");
+        // Far-plane readout: exactly the pixels with p_0 >= far read max depth, in both paths.
+        let max_depth = hyps.depth_m(0.0) as f32;
+        let expected_far = (0..a.len()).filter(|&i| f64::from(probs[i * n]) >= far).count();
+        for range in [&fast.range_m, &slow.range_m] {
+            let snapped = flat(range).iter().filter(|&&r| r == max_depth).count();
+            assert_eq!(snapped, expected_far, "far-plane pixels at threshold {far}");
+        }
+        if far < 0.5 {
+            assert!(expected_far > 0, "no pixel reached the far plane at {far}");
+        }
         let rel = flat(&fast.range_m)
             .iter()
             .zip(flat(&slow.range_m))

@@ -40,6 +40,18 @@ pub struct SsmodeConfig {
     pub hourglass_channels: usize,
     /// Stacked hourglasses (one regression head each).
     pub hourglasses: usize,
+    /// Far-plane readout: a pixel whose probability on the farthest hypothesis is at least
+    /// this is given `max_depth_m` instead of the soft-argmin (see [`crate::model::regression`]);
+    /// above 1 disables it. Chosen on the validation split; files without it get the default.
+    #[serde(default = "default_far_plane_probability")]
+    pub far_plane_probability: f64,
+}
+
+/// [`SsmodeConfig::far_plane_probability`] of the presets.
+pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.7;
+
+fn default_far_plane_probability() -> f64 {
+    DEFAULT_FAR_PLANE_PROBABILITY
 }
 
 impl SsmodeConfig {
@@ -58,6 +70,7 @@ impl SsmodeConfig {
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 32,
             hourglasses: 3,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
         }
     }
 
@@ -77,6 +90,7 @@ impl SsmodeConfig {
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 16,
             hourglasses: 2,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
         }
     }
 
@@ -94,6 +108,7 @@ impl SsmodeConfig {
             max_depth_m: 100.0,
             hourglass_channels: 8,
             hourglasses: 2,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
         }
     }
 
@@ -163,6 +178,12 @@ impl SsmodeConfig {
             return bad(
                 "channels",
                 "every channel count must be positive".to_string(),
+            );
+        }
+        if !(self.far_plane_probability > 0.0) {
+            return bad(
+                "far_plane_probability",
+                format!("{} must be positive", self.far_plane_probability),
             );
         }
         if self.hourglasses == 0 {

@@ -9,6 +9,13 @@
 //! expected depth `sum_i p_i rho_i` instead; over 0.5 m to 1000 m that is dominated by the far
 //! spheres, so the expectation is taken where the hypotheses are uniform. The confidence is the
 //! probability mass within `CONFIDENCE_RADIUS` hypotheses of the argmax (PSMODE).
+//!
+//! Far-plane readout: the mean of a distribution piled against the end of the hypothesis
+//! range is biased inwards, and at the far end a bias of a hundredth of a hypothesis step is
+//! hundreds of metres (with 64 hypotheses over 0.5 to 1000 m, index 1 is already 31 m). So a
+//! pixel with `p_0 >= far_plane_probability` (the far plane holds most of the mass, as for
+//! the sky) is read out as the far plane itself, `max_depth_m`, like the ground truth encodes
+//! the sky. Only the range is affected; the index the loss trains is the plain expectation.
 
 use candle_core::{DType, Result, Tensor};
 use candle_nn::VarBuilder;
@@ -57,12 +64,14 @@ pub struct Regression {
     pub probabilities: Tensor,
 }
 
-/// Upsamples `cost (B, D, h, w)` to `(B, N, height, width)` and regresses range and index.
+/// Upsamples `cost (B, D, h, w)` to `(B, N, height, width)` and regresses range and index,
+/// with the far-plane readout at `far_plane_probability` (see the module docs).
 pub fn regress(
     cost: &Tensor,
     hypotheses: &InverseDepthHypotheses,
     height: usize,
     width: usize,
+    far_plane_probability: f64,
 ) -> Result<Regression> {
     let n = hypotheses.count();
     let device = cost.device();
@@ -79,9 +88,17 @@ pub fn regress(
     // 1 % of probability on the farthest sphere alone would add 10 m to every pixel's range.
     let inv_far = hypotheses.inverse_depth(0.0);
     let inv_near = hypotheses.inverse_depth((n - 1) as f64);
-    let range_m = inverse_depth_index
+    let soft_range_m = inverse_depth_index
         .affine(inv_near - inv_far, inv_far)?
         .recip()?;
+    // (B, H, W): probability of the far plane
+    let far = probabilities
+        .narrow(HYPOTHESIS_AXIS, 0, 1)?
+        .squeeze(HYPOTHESIS_AXIS)?;
+    let max_depth = Tensor::full(hypotheses.depth_m(0.0) as f32, far.shape(), device)?;
+    let range_m = far
+        .ge(far_plane_probability)?
+        .where_cond(&max_depth, &soft_range_m)?;
     Ok(Regression {
         range_m,
         inverse_depth_index,
@@ -123,6 +140,7 @@ pub fn regress_inference(
     hypotheses: &InverseDepthHypotheses,
     height: usize,
     width: usize,
+    far_plane_probability: f64,
 ) -> Result<InferenceRegression> {
     let n = hypotheses.count();
     let (b, d, _, _) = cost.dims4()?;
@@ -133,12 +151,14 @@ pub fn regress_inference(
     let pixels = height * width;
     let mut index = vec![0f32; b * pixels];
     let mut conf = vec![0f32; b * pixels];
+    let mut far_plane = vec![false; b * pixels];
     let radius = CONFIDENCE_RADIUS as usize;
     index
         .par_chunks_mut(width)
         .zip(conf.par_chunks_mut(width))
+        .zip(far_plane.par_chunks_mut(width))
         .enumerate()
-        .for_each(|(row, (index_row, conf_row))| {
+        .for_each(|(row, ((index_row, conf_row), far_row))| {
             let (bi, v) = (row / height, row % height);
             // (W, D): this row's sphere costs, pixel-major
             let mut spheres = vec![0f32; width * d];
@@ -185,16 +205,26 @@ pub fn regress_inference(
                     .sum();
                 index_row[u] = expected * inv_sum / (n - 1) as f32;
                 conf_row[u] = near * inv_sum;
+                far_row[u] = f64::from(p[0] * inv_sum) >= far_plane_probability;
             }
         });
     let device = cost.device();
-    let inverse_depth_index = Tensor::from_vec(index, (b, height, width), device)?;
-    let confidence = Tensor::from_vec(conf, (b, height, width), device)?;
     let inv_far = hypotheses.inverse_depth(0.0);
     let inv_near = hypotheses.inverse_depth((n - 1) as f64);
-    let range_m = inverse_depth_index
-        .affine(inv_near - inv_far, inv_far)?
-        .recip()?;
+    let range: Vec<f32> = index
+        .iter()
+        .zip(&far_plane)
+        .map(|(&k, &far)| {
+            if far {
+                (1.0 / inv_far) as f32
+            } else {
+                (1.0 / (inv_far + f64::from(k) * (inv_near - inv_far))) as f32
+            }
+        })
+        .collect();
+    let range_m = Tensor::from_vec(range, (b, height, width), device)?;
+    let inverse_depth_index = Tensor::from_vec(index, (b, height, width), device)?;
+    let confidence = Tensor::from_vec(conf, (b, height, width), device)?;
     Ok(InferenceRegression {
         range_m,
         inverse_depth_index,

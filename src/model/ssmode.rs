@@ -197,6 +197,40 @@ impl Ssmode {
         self.forward_profiled(images, sampling, train, None)
     }
 
+    /// `(B, N, H, W)` softmax over the hypotheses of the final stage (for analysis tools).
+    pub fn forward_probabilities(
+        &self,
+        images: &[Tensor],
+        sampling: &SweepSampling,
+    ) -> Result<Tensor> {
+        self.check_images(images, sampling)?;
+        let batch = images[0].dim(0)?;
+        let stacked = Tensor::cat(images, 0)?;
+        let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
+        let per_camera = (0..images.len())
+            .map(|c| features.narrow(0, c * batch, batch))
+            .collect::<Result<Vec<_>>>()?;
+        let volume = cost_volume(&per_camera, sampling)?;
+        let aggregated = self.aggregation.forward(&volume)?;
+        let (head, x) = self
+            .classif
+            .last()
+            .zip(aggregated.last())
+            .ok_or(OpsError::Shape {
+                op: "Ssmode::forward_probabilities",
+                what: "no hourglass stages".to_string(),
+            })?;
+        let cost = head.forward(x)?;
+        Ok(regress(
+            &cost,
+            &self.hypotheses,
+            self.cfg.height(),
+            self.cfg.width,
+            self.cfg.far_plane_probability,
+        )?
+        .probabilities)
+    }
+
     /// [`Ssmode::forward`], recording per-stage timings into `profiler` when given.
     pub fn forward_profiled(
         &self,
@@ -245,7 +279,13 @@ impl Ssmode {
             let cost = head.forward(x)?;
             drop(aggregated);
             // (B, H, W) each
-            let r = regress_inference(&cost, &self.hypotheses, self.cfg.height(), self.cfg.width)?;
+            let r = regress_inference(
+                &cost,
+                &self.hypotheses,
+                self.cfg.height(),
+                self.cfg.width,
+                self.cfg.far_plane_probability,
+            )?;
             mark("regression");
             return Ok(SsmodeOutput {
                 stages: vec![r.range_m],
@@ -260,7 +300,13 @@ impl Ssmode {
             // (B, D, H/4, W/4)
             let cost = head.forward(x)?;
             // (B, H, W)
-            let r = regress(&cost, &self.hypotheses, self.cfg.height(), self.cfg.width)?;
+            let r = regress(
+                &cost,
+                &self.hypotheses,
+                self.cfg.height(),
+                self.cfg.width,
+                self.cfg.far_plane_probability,
+            )?;
             stages.push(r.range_m);
             inverse_depth_stages.push(r.inverse_depth_index);
             last_probabilities = Some(r.probabilities);
