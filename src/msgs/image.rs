@@ -2,7 +2,8 @@
 //!
 //! An `Image` holds `height` rows of `step` bytes; row `v` starts at byte `v * step` and
 //! its pixel `u` at `v * step + u * bytes_per_pixel`, so `step >= width * bytes_per_pixel`
-//! (the rest of a row is padding) and `data.len() >= height * step`.
+//! (the rest of a row is padding) and `data.len() == height * step` (the size the message
+//! definition gives; more data means width, height or step do not describe it).
 
 use super::types::{CompressedImage, Header, Image};
 use crate::frame::{FloatImage, RgbImage};
@@ -44,9 +45,20 @@ pub enum ImageMsgError {
     },
     #[error(
         "data holds {actual} bytes but height {height} x step {step} needs {expected} \
-         (encoding '{encoding}')"
+         (encoding '{encoding}'): truncated"
     )]
     DataTooShort {
+        encoding: String,
+        height: u32,
+        step: u32,
+        expected: usize,
+        actual: usize,
+    },
+    #[error(
+        "data holds {actual} bytes but height {height} x step {step} is {expected} \
+         (encoding '{encoding}'): height or step do not describe the data"
+    )]
+    DataTooLong {
         encoding: String,
         height: u32,
         step: u32,
@@ -90,7 +102,8 @@ fn colour_layout(encoding: &str) -> Option<ColourLayout> {
     }
 }
 
-/// Checks `step` and the data length against `width`, `height` and `bytes_per_pixel`.
+/// Checks `step` and the data length against `width`, `height` and `bytes_per_pixel`:
+/// `step >= width * bytes_per_pixel` and `data.len() == height * step`.
 fn check_layout(msg: &Image, bytes_per_pixel: usize) -> Result<(), ImageMsgError> {
     let too_large = || ImageMsgError::TooLarge {
         width: u64::from(msg.width),
@@ -112,6 +125,15 @@ fn check_layout(msg: &Image, bytes_per_pixel: usize) -> Result<(), ImageMsgError
         .ok_or_else(too_large)?;
     if msg.data.len() < expected {
         return Err(ImageMsgError::DataTooShort {
+            encoding: msg.encoding.clone(),
+            height: msg.height,
+            step: msg.step,
+            expected,
+            actual: msg.data.len(),
+        });
+    }
+    if msg.data.len() > expected {
+        return Err(ImageMsgError::DataTooLong {
             encoding: msg.encoding.clone(),
             height: msg.height,
             step: msg.step,
@@ -307,6 +329,50 @@ mod tests {
         assert!(matches!(
             rgb_from_image_msg(&msg),
             Err(ImageMsgError::UnsupportedEncoding { .. })
+        ));
+    }
+
+    #[test]
+    fn data_longer_than_height_times_step_is_rejected() {
+        // Claims 2x1 rgb8 but carries 2x2 worth of bytes.
+        let msg = Image {
+            header: header(),
+            height: 1,
+            width: 2,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: 6,
+            data: vec![0; 12],
+        };
+        let err = rgb_from_image_msg(&msg).err();
+        assert_eq!(
+            err,
+            Some(ImageMsgError::DataTooLong {
+                encoding: "rgb8".into(),
+                height: 1,
+                step: 6,
+                expected: 6,
+                actual: 12,
+            })
+        );
+        let text = err.map(|e| e.to_string()).unwrap_or_default();
+        assert!(
+            text.contains("12 bytes") && text.contains("height 1 x step 6 is 6"),
+            "{text}"
+        );
+        let float = Image {
+            encoding: "32FC1".into(),
+            step: 8,
+            data: vec![0; 9],
+            ..msg
+        };
+        assert!(matches!(
+            float_from_image_msg(&float),
+            Err(ImageMsgError::DataTooLong {
+                expected: 8,
+                actual: 9,
+                ..
+            })
         ));
     }
 

@@ -49,13 +49,10 @@ pub enum PipelineError {
     GroupSize { got: usize, expected: usize },
     #[error("only {present} cameras present in the group; at least {MIN_CAMERAS} are needed")]
     TooFewCameras { present: usize },
-    #[error("camera '{camera}': image is {width}x{height}, others are {expected_width}x{expected_height}")]
+    #[error("the cameras' images differ in size ({sizes}); all must be the same")]
     SizeMismatch {
-        camera: String,
-        width: u32,
-        height: u32,
-        expected_width: u32,
-        expected_height: u32,
+        /// Every camera of the group with its image size, e.g. `cam1 128x64, cam2 64x32`.
+        sizes: String,
     },
     #[error("estimator: {0}")]
     Estimator(#[from] EstimatorError),
@@ -142,17 +139,23 @@ impl Pipeline {
                 present: present.len(),
             });
         }
-        let (w0, h0) = images[0].dimensions();
-        for (k, img) in images.iter().enumerate() {
-            if img.dimensions() != (w0, h0) {
-                return Err(PipelineError::SizeMismatch {
-                    camera: self.rig.cameras[present[k]].name.clone(),
-                    width: img.width(),
-                    height: img.height(),
-                    expected_width: w0,
-                    expected_height: h0,
-                });
-            }
+        let first = images[0].dimensions();
+        if images.iter().any(|img| img.dimensions() != first) {
+            // Name every camera: which one is "wrong" is not knowable from the sizes alone.
+            let sizes = present
+                .iter()
+                .zip(&images)
+                .map(|(&i, img)| {
+                    format!(
+                        "{} {}x{}",
+                        self.rig.cameras[i].name,
+                        img.width(),
+                        img.height()
+                    )
+                })
+                .collect::<Vec<_>>()
+                .join(", ");
+            return Err(PipelineError::SizeMismatch { sizes });
         }
         let estimate = if missing_cameras.is_empty() {
             self.estimator.estimate(&self.rig, &images, self.grid)?
@@ -450,5 +453,23 @@ mod tests {
             p.process(vec![None], 5),
             Err(PipelineError::GroupSize { got: 1, .. })
         ));
+    }
+
+    #[test]
+    fn mixed_image_sizes_name_every_camera() {
+        let width = 16;
+        let mut p = pipeline(width);
+        let n = p.rig().cameras.len();
+        let mut group: Vec<_> = (0..n).map(|_| Some(test_image(width as u32))).collect();
+        // The odd one is the first camera: the error must not blame the others.
+        group[0] = Some(test_image(8));
+        let err = p.process(group, 5).err().map(|e| e.to_string());
+        let names: Vec<String> = p.rig().cameras.iter().map(|c| c.name.clone()).collect();
+        let expected = format!(
+            "the cameras' images differ in size ({} 8x4, {} 16x8, {} 16x8, {} 16x8); all must be \
+             the same",
+            names[0], names[1], names[2], names[3]
+        );
+        assert_eq!(err, Some(expected));
     }
 }

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Prepares the third-party readers used by tests/bag_interop.rs. Idempotent.
+# Prepares the third-party peers used by tests/bag_interop.rs (bag readers) and
+# tests/node_cyclone.rs (Cyclone DDS). Idempotent.
 #
 # Usage: tests/interop/setup.sh DIR
-#   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support and rosbags
+#   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support, rosbags and cyclonedds
+#     (its wheel bundles the Cyclone DDS C library)
 #     (skipped when it already imports them);
 #   - runs `npm install` (from package.json / package-lock.json) into tests/interop
 #     (skipped when node_modules already holds the pinned packages).
@@ -19,9 +21,9 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 venv="$root/.venv"
 python="$venv/bin/python"
 # Pinned to the versions the checks were written against.
-python_packages=(mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9)
+python_packages=(mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9 cyclonedds==11.0.1)
 
-if [[ -x "$python" ]] && "$python" -c "import mcap, mcap_ros2, rosbags" 2>/dev/null; then
+if [[ -x "$python" ]] && "$python" -c "import mcap, mcap_ros2, rosbags, cyclonedds" 2>/dev/null; then
   echo "python: $venv already has ${python_packages[*]}"
 else
   if [[ ! -x "$python" ]]; then

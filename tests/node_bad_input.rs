@@ -1,0 +1,443 @@
+//! Bad camera input over DDS (loopback, own domain), the node in-process. Each case is sent
+//! on its own, then followed by a good group, and checked on `/diagnostics` received over DDS:
+//!
+//! 1. one bad message per camera at once: an unsupported encoding, truncated data, a step
+//!    smaller than a row, and a size (64x32) that disagrees with the data (128x64 worth);
+//! 2. a whole group older than the last processed one (stamps out of order);
+//! 3. one camera sending a well-formed image of another resolution than the others;
+//! 4. one camera silent: after `camera_timeout_secs` the node publishes without it.
+//!
+//! Every bad message must be dropped (no depth carries its stamp), counted for its camera with
+//! a reason naming what is wrong, and the node must publish depth for the next good group.
+
+use mode360::frame::RgbImage;
+use mode360::geometry::Rig;
+use mode360::msgs::image::image_msg_from_rgb;
+use mode360::msgs::{DiagnosticArray, DiagnosticStatus, Header, Image};
+use mode360::node::diagnostics::{diagnostic_value, DIAGNOSTIC_PREFIX};
+use mode360::node::ros::{
+    create_publisher, create_subscription, dds_context, sensor_qos, SpunNode,
+};
+use mode360::node::{spawn_node, DdsOptions, NodeHandle, NodeParams, DIAGNOSTICS_TOPIC};
+use mode360::synth::{SynthConfig, SynthRenderer};
+use ros2_client::qos::History;
+use ros2_client::{Publisher, QosProfile, Subscription};
+use std::collections::BTreeSet;
+use std::time::{Duration, Instant};
+
+type TestResult = Result<(), Box<dyn std::error::Error>>;
+
+const RIG_PATH: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/launch_configs/rig_deep360.yaml"
+);
+/// Unique domain of this test file.
+const DOMAIN_ID: u16 = 45;
+const WIDTH: usize = 128;
+/// Long enough that the pauses between cases (a diagnostics period or two) never time a
+/// camera out; short enough for case 4 to stay quick.
+const CAMERA_TIMEOUT_SECS: f64 = 3.0;
+const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a good group may take to come back as depth.
+const DEPTH_TIMEOUT: Duration = Duration::from_secs(15);
+/// How long a diagnostics condition may take (diagnostics come once a second).
+const DIAGNOSTICS_TIMEOUT: Duration = Duration::from_secs(5);
+const SILENT_CASE_TIMEOUT: Duration = Duration::from_secs(20);
+/// Period of the groups sent while waiting for the silent camera to be timed out.
+const SEND_PERIOD: Duration = Duration::from_millis(200);
+const POLL: Duration = Duration::from_millis(20);
+const STAMP_STEP_NS: u64 = 100_000_000;
+const SILENT_CAMERA: usize = 3;
+
+struct Harness {
+    node: NodeHandle,
+    client: SpunNode,
+    rig: Rig,
+    images: Vec<RgbImage>,
+    pubs: Vec<Publisher<Image>>,
+    depth_sub: Subscription<Image>,
+    diagnostics_sub: Subscription<DiagnosticArray>,
+    /// Stamps of every depth image received.
+    depth_stamps: BTreeSet<u64>,
+}
+
+impl Harness {
+    /// The good rgb8 message of camera `i` stamped `stamp_ns`.
+    fn good(&self, i: usize, stamp_ns: u64) -> Image {
+        image_msg_from_rgb(
+            Header::new(stamp_ns, &self.rig.cameras[i].frame_id),
+            &self.images[i],
+        )
+    }
+
+    /// Publishes `msgs[i]` on camera `i`'s topic (`None`: nothing for that camera).
+    fn send(&self, msgs: Vec<Option<Image>>) -> Result<(), String> {
+        for (p, msg) in self.pubs.iter().zip(msgs) {
+            if let Some(msg) = msg {
+                p.publish(msg).map_err(|e| format!("{e:?}"))?;
+            }
+        }
+        Ok(())
+    }
+
+    fn send_good(&self, stamp_ns: u64) -> Result<(), String> {
+        self.send(
+            (0..self.pubs.len())
+                .map(|i| Some(self.good(i, stamp_ns)))
+                .collect(),
+        )
+    }
+
+    fn take_depth(&mut self) {
+        while let Ok(Some((m, _))) = self.depth_sub.take() {
+            self.depth_stamps.insert(m.header.stamp.to_nanos());
+        }
+    }
+
+    /// Waits until a depth image stamped `stamp_ns` has arrived.
+    fn await_depth(&mut self, stamp_ns: u64) -> Result<(), String> {
+        let t0 = Instant::now();
+        loop {
+            self.take_depth();
+            if self.depth_stamps.contains(&stamp_ns) {
+                return Ok(());
+            }
+            if t0.elapsed() > DEPTH_TIMEOUT {
+                return Err(format!(
+                    "no depth for good group {stamp_ns} within {DEPTH_TIMEOUT:?}; health {:?}",
+                    self.node.health()
+                ));
+            }
+            std::thread::sleep(POLL);
+        }
+    }
+
+    /// The first `/diagnostics` message received from now on that satisfies `done`.
+    fn await_diagnostics(
+        &mut self,
+        what: &str,
+        done: impl Fn(&DiagnosticArray) -> bool,
+    ) -> Result<DiagnosticArray, String> {
+        let t0 = Instant::now();
+        let mut last = None;
+        loop {
+            while let Ok(Some((m, _))) = self.diagnostics_sub.take() {
+                if done(&m) {
+                    return Ok(m);
+                }
+                last = Some(m);
+            }
+            self.take_depth();
+            if t0.elapsed() > DIAGNOSTICS_TIMEOUT {
+                return Err(format!(
+                    "/diagnostics did not show {what} within {DIAGNOSTICS_TIMEOUT:?}; last: {last:#?}"
+                ));
+            }
+            std::thread::sleep(POLL);
+        }
+    }
+}
+
+fn camera_status(cam: &str) -> String {
+    format!("{DIAGNOSTIC_PREFIX}: camera {cam}")
+}
+
+fn pipeline_status() -> String {
+    format!("{DIAGNOSTIC_PREFIX}: pipeline")
+}
+
+fn level(array: &DiagnosticArray, name: &str) -> Option<u8> {
+    array
+        .status
+        .iter()
+        .find(|s| s.name == name)
+        .map(|s| s.level)
+}
+
+fn message<'a>(array: &'a DiagnosticArray, name: &str) -> Option<&'a str> {
+    array
+        .status
+        .iter()
+        .find(|s| s.name == name)
+        .map(|s| s.message.as_str())
+}
+
+#[test]
+fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
+    let t_start = Instant::now();
+    let rig = Rig::from_file(RIG_PATH)?;
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: 9,
+        width: WIDTH,
+        ..Default::default()
+    })?
+    .render_frame(&rig, 0);
+    let dds = DdsOptions {
+        domain_id: DOMAIN_ID,
+        loopback_only: true,
+    };
+    let node = spawn_node(
+        NodeParams {
+            rig_file: RIG_PATH.into(),
+            output_width: WIDTH,
+            camera_timeout_secs: CAMERA_TIMEOUT_SECS,
+            ..Default::default()
+        },
+        dds.clone(),
+    )?;
+    let context = dds_context(&dds)?;
+    let mut client = SpunNode::new(&context, "/", "mode360_bad_input_client")?;
+    let reliable = QosProfile::publisher_default().history(History::KeepLast { depth: 10 });
+    let depth_sub = create_subscription::<Image>(&mut client.node, "/depth", reliable.clone())?;
+    let diagnostics_sub =
+        create_subscription::<DiagnosticArray>(&mut client.node, DIAGNOSTICS_TOPIC, reliable)?;
+    let pubs = rig
+        .cameras
+        .iter()
+        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut h = Harness {
+        node,
+        client,
+        rig: rig.clone(),
+        images: frame.images.clone(),
+        pubs,
+        depth_sub,
+        diagnostics_sub,
+        depth_stamps: BTreeSet::new(),
+    };
+    let t0 = Instant::now();
+    while (h
+        .pubs
+        .iter()
+        .any(|p| p.get_subscription_count(&h.client.node) == 0)
+        || h.depth_sub.get_publisher_count(&h.client.node) == 0
+        || h.diagnostics_sub.get_publisher_count(&h.client.node) == 0)
+        && t0.elapsed() < DISCOVERY_TIMEOUT
+    {
+        std::thread::sleep(POLL);
+    }
+    let names: Vec<String> = rig.cameras.iter().map(|c| c.name.clone()).collect();
+    let stamp = |k: u64| frame.stamp_ns + k * STAMP_STEP_NS;
+
+    // Case 0: a good group is answered.
+    h.send_good(stamp(1))?;
+    h.await_depth(stamp(1))?;
+    eprintln!("[{:?}] baseline depth", t_start.elapsed());
+
+    // Case 1: one malformed message per camera, all with stamp 2.
+    let mut wrong_encoding = h.good(0, stamp(2));
+    wrong_encoding.encoding = "yuv422".into();
+    let mut truncated = h.good(1, stamp(2));
+    truncated.data.truncate(truncated.data.len() / 2);
+    let mut short_step = h.good(2, stamp(2));
+    short_step.step = 3 * WIDTH as u32 - 1;
+    let mut wrong_size = h.good(3, stamp(2));
+    (wrong_size.width, wrong_size.height, wrong_size.step) =
+        (WIDTH as u32 / 2, WIDTH as u32 / 4, 3 * WIDTH as u32 / 2);
+    h.send(vec![
+        Some(wrong_encoding),
+        Some(truncated),
+        Some(short_step),
+        Some(wrong_size),
+    ])?;
+    let bad_count_is = |n: &'static str| {
+        let names = names.clone();
+        move |a: &DiagnosticArray| {
+            names
+                .iter()
+                .all(|c| diagnostic_value(a, &camera_status(c), "bad_messages") == Some(n))
+        }
+    };
+    let diag = h.await_diagnostics("one bad message per camera", bad_count_is("1"))?;
+    let reason = |a: &DiagnosticArray, i: usize| {
+        diagnostic_value(a, &camera_status(&names[i]), "last_bad_reason")
+            .unwrap_or_default()
+            .to_string()
+    };
+    let full_bytes = 3 * WIDTH * WIDTH / 2;
+    let expected_reasons = [
+        "unsupported encoding 'yuv422' (expected one of: rgb8, bgr8, rgba8, bgra8, mono8)"
+            .to_string(),
+        format!(
+            "data holds {} bytes but height {} x step {} needs {full_bytes} (encoding 'rgb8'): \
+             truncated",
+            full_bytes / 2,
+            WIDTH / 2,
+            3 * WIDTH
+        ),
+        format!(
+            "step {} is smaller than width {WIDTH} x 3 bytes per pixel for encoding 'rgb8'",
+            3 * WIDTH - 1
+        ),
+        format!(
+            "data holds {full_bytes} bytes but height {} x step {} is {} (encoding 'rgb8'): \
+             height or step do not describe the data",
+            WIDTH / 4,
+            3 * WIDTH / 2,
+            full_bytes / 4
+        ),
+    ];
+    for (i, expected) in expected_reasons.iter().enumerate() {
+        assert_eq!(&reason(&diag, i), expected, "camera {}", names[i]);
+        let status = camera_status(&names[i]);
+        assert_eq!(level(&diag, &status), Some(DiagnosticStatus::WARN));
+        assert_eq!(
+            message(&diag, &status),
+            Some("receiving, some messages dropped")
+        );
+        assert_eq!(
+            diagnostic_value(&diag, &status, "topic"),
+            Some(rig.cameras[i].topic.as_str())
+        );
+        assert_eq!(diagnostic_value(&diag, &status, "received"), Some("1"));
+        assert_eq!(diagnostic_value(&diag, &status, "active"), Some("true"));
+    }
+    h.send_good(stamp(3))?;
+    h.await_depth(stamp(3))?;
+    eprintln!("[{:?}] case 1 (malformed) done", t_start.elapsed());
+
+    // Case 2: a whole group older than the last processed one (stamp 2 < 3).
+    h.send_good(stamp(2))?;
+    let diag = h.await_diagnostics("out-of-order stamps", |a| {
+        bad_count_is("2")(a)
+            && diagnostic_value(a, &pipeline_status(), "sync_out_of_order") == Some("4")
+    })?;
+    for (i, name) in names.iter().enumerate() {
+        let expected = format!(
+            "stream {i}: stamp {} ns is older than the previous message ({} ns)",
+            stamp(2),
+            stamp(3)
+        );
+        assert_eq!(reason(&diag, i), expected, "camera {name}");
+    }
+    h.send_good(stamp(4))?;
+    h.await_depth(stamp(4))?;
+    eprintln!("[{:?}] case 2 (out of order) done", t_start.elapsed());
+
+    // Case 3: camera 1 sends a well-formed image of half the resolution. The group cannot be
+    // processed; the pipeline error names every camera's size.
+    let errors_before = h.node.health().pipeline_errors;
+    let half = image::imageops::resize(
+        &h.images[0],
+        WIDTH as u32 / 2,
+        WIDTH as u32 / 4,
+        image::imageops::FilterType::Triangle,
+    );
+    let mut msgs: Vec<Option<Image>> = (0..names.len())
+        .map(|i| Some(h.good(i, stamp(5))))
+        .collect();
+    msgs[0] = Some(image_msg_from_rgb(
+        Header::new(stamp(5), &rig.cameras[0].frame_id),
+        &half,
+    ));
+    h.send(msgs)?;
+    let expected_error = format!(
+        "the cameras' images differ in size ({} {}x{}, {} {WIDTH}x{}, {} {WIDTH}x{}, {} \
+         {WIDTH}x{}); all must be the same",
+        names[0],
+        WIDTH / 2,
+        WIDTH / 4,
+        names[1],
+        WIDTH / 2,
+        names[2],
+        WIDTH / 2,
+        names[3],
+        WIDTH / 2
+    );
+    let diag = h.await_diagnostics("the size mismatch", |a| {
+        diagnostic_value(a, &pipeline_status(), "last_pipeline_error")
+            == Some(expected_error.as_str())
+    })?;
+    assert_eq!(
+        diagnostic_value(&diag, &pipeline_status(), "pipeline_errors"),
+        Some((errors_before + 1).to_string().as_str())
+    );
+    assert_eq!(
+        level(&diag, &pipeline_status()),
+        Some(DiagnosticStatus::WARN)
+    );
+    h.send_good(stamp(6))?;
+    h.await_depth(stamp(6))?;
+    eprintln!("[{:?}] case 3 (mixed sizes) done", t_start.elapsed());
+
+    // Case 4: the last camera falls silent; the others keep sending. After the timeout the
+    // node publishes without it and reports it as degraded.
+    let others: Vec<usize> = (0..names.len()).filter(|&i| i != SILENT_CAMERA).collect();
+    let t0 = Instant::now();
+    let mut k = 7;
+    let degraded_stamp = loop {
+        let s = stamp(k);
+        h.send(
+            (0..names.len())
+                .map(|i| others.contains(&i).then(|| h.good(i, s)))
+                .collect(),
+        )?;
+        std::thread::sleep(SEND_PERIOD);
+        h.take_depth();
+        if let Some(&got) = h.depth_stamps.range(stamp(7)..).next() {
+            break got;
+        }
+        if t0.elapsed() > SILENT_CASE_TIMEOUT {
+            return Err(format!(
+                "no depth without the silent camera within {SILENT_CASE_TIMEOUT:?}; health {:?}",
+                h.node.health()
+            )
+            .into());
+        }
+        k += 1;
+    };
+    let waited = t0.elapsed().as_secs_f64();
+    assert!(
+        waited >= CAMERA_TIMEOUT_SECS * 0.9,
+        "depth without the silent camera after only {waited:.2} s"
+    );
+    let silent = camera_status(&names[SILENT_CAMERA]);
+    let diag = h.await_diagnostics("the silent camera", |a| {
+        diagnostic_value(a, &silent, "active") == Some("false")
+    })?;
+    assert_eq!(level(&diag, &silent), Some(DiagnosticStatus::WARN));
+    assert_eq!(message(&diag, &silent), Some("timed out, not waited for"));
+    assert_eq!(
+        diagnostic_value(&diag, &pipeline_status(), "degraded_cameras"),
+        Some(names[SILENT_CAMERA].as_str())
+    );
+    assert_eq!(
+        message(&diag, &pipeline_status()),
+        Some(format!("degraded: without {}", names[SILENT_CAMERA]).as_str())
+    );
+    eprintln!(
+        "[{:?}] case 4 (silent camera) done: depth {degraded_stamp} after {waited:.2} s",
+        t_start.elapsed()
+    );
+
+    // No depth ever carried the stamp of a dropped message or group.
+    h.take_depth();
+    assert!(!h.depth_stamps.contains(&stamp(2)), "{:?}", h.depth_stamps);
+    assert!(!h.depth_stamps.contains(&stamp(5)), "{:?}", h.depth_stamps);
+    assert!(!h.node.is_finished(), "node stopped");
+    let Harness {
+        node,
+        client,
+        pubs,
+        depth_sub,
+        diagnostics_sub,
+        ..
+    } = h;
+    drop(pubs);
+    drop(depth_sub);
+    drop(diagnostics_sub);
+    client.stop()?;
+    let health = node.shutdown()?;
+    assert!(health.groups_processed >= 4, "{health:?}");
+    assert_eq!(
+        health
+            .cameras
+            .iter()
+            .map(|c| c.bad_messages)
+            .collect::<Vec<_>>(),
+        vec![2, 2, 2, 2]
+    );
+    eprintln!("[{:?}] done", t_start.elapsed());
+    Ok(())
+}
