@@ -180,7 +180,7 @@ impl SsmodeConfig {
                 "every channel count must be positive".to_string(),
             );
         }
-        if !(self.far_plane_probability > 0.0) {
+        if self.far_plane_probability.is_nan() || self.far_plane_probability <= 0.0 {
             return bad(
                 "far_plane_probability",
                 format!("{} must be positive", self.far_plane_probability),
