@@ -65,6 +65,15 @@ fn same_weights_run_on_two_three_and_four_cameras() {
         // last to rounding.
         let eval = net.forward(&images, &sampling, false).expect("forward");
         assert_eq!(eval.stages.len(), 1);
+        let probabilities = out
+            .probabilities
+            .as_ref()
+            .expect("training keeps probabilities");
+        assert_eq!(
+            probabilities.dims(),
+            [1, cfg.hypotheses, cfg.height(), cfg.width]
+        );
+        assert!(eval.probabilities.is_none());
         let last: Vec<f32> = out.stages[cfg.hourglasses - 1]
             .flatten_all()
             .unwrap()
@@ -449,7 +458,9 @@ fn fused_inference_regression_equals_the_training_path() {
         assert!(compared * 2 > a.len(), "only {compared} untied pixels");
         // Far-plane readout: exactly the pixels with p_0 >= far read max depth, in both paths.
         let max_depth = hyps.depth_m(0.0) as f32;
-        let expected_far = (0..a.len()).filter(|&i| f64::from(probs[i * n]) >= far).count();
+        let expected_far = (0..a.len())
+            .filter(|&i| f64::from(probs[i * n]) >= far)
+            .count();
         for range in [&fast.range_m, &slow.range_m] {
             let snapped = flat(range).iter().filter(|&&r| r == max_depth).count();
             assert_eq!(snapped, expected_far, "far-plane pixels at threshold {far}");

@@ -36,6 +36,9 @@ pub struct SsmodeOutput {
     pub inverse_depth_stages: Vec<Tensor>,
     /// `(B, H, W)` probability mass within 2 hypotheses of the final argmax.
     pub confidence: Tensor,
+    /// `(B, N, H, W)` softmax over the hypotheses of the final stage; only with `train` (the
+    /// inference path never materialises it).
+    pub probabilities: Option<Tensor>,
 }
 
 /// Wall time and floating-point work of one stage of a forward pass.
@@ -197,40 +200,6 @@ impl Ssmode {
         self.forward_profiled(images, sampling, train, None)
     }
 
-    /// `(B, N, H, W)` softmax over the hypotheses of the final stage (for analysis tools).
-    pub fn forward_probabilities(
-        &self,
-        images: &[Tensor],
-        sampling: &SweepSampling,
-    ) -> Result<Tensor> {
-        self.check_images(images, sampling)?;
-        let batch = images[0].dim(0)?;
-        let stacked = Tensor::cat(images, 0)?;
-        let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
-        let per_camera = (0..images.len())
-            .map(|c| features.narrow(0, c * batch, batch))
-            .collect::<Result<Vec<_>>>()?;
-        let volume = cost_volume(&per_camera, sampling)?;
-        let aggregated = self.aggregation.forward(&volume)?;
-        let (head, x) = self
-            .classif
-            .last()
-            .zip(aggregated.last())
-            .ok_or(OpsError::Shape {
-                op: "Ssmode::forward_probabilities",
-                what: "no hourglass stages".to_string(),
-            })?;
-        let cost = head.forward(x)?;
-        Ok(regress(
-            &cost,
-            &self.hypotheses,
-            self.cfg.height(),
-            self.cfg.width,
-            self.cfg.far_plane_probability,
-        )?
-        .probabilities)
-    }
-
     /// [`Ssmode::forward`], recording per-stage timings into `profiler` when given.
     pub fn forward_profiled(
         &self,
@@ -291,6 +260,7 @@ impl Ssmode {
                 stages: vec![r.range_m],
                 inverse_depth_stages: vec![r.inverse_depth_index],
                 confidence: r.confidence,
+                probabilities: None,
             });
         }
         let mut stages = Vec::with_capacity(aggregated.len());
@@ -321,6 +291,7 @@ impl Ssmode {
             stages,
             inverse_depth_stages,
             confidence,
+            probabilities: Some(probabilities),
         })
     }
 }
