@@ -188,6 +188,12 @@ struct TrainArgs {
     /// Data seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Mix training frames of the paper's Deep360 dataset at this root into the samples.
+    #[arg(long)]
+    deep360: Option<PathBuf>,
+    /// Fraction of samples taken from --deep360 (the rest are rendered).
+    #[arg(long, default_value_t = 1.0, requires = "deep360")]
+    deep360_fraction: f64,
 }
 
 #[derive(Args)]
@@ -334,6 +340,8 @@ fn train(a: TrainArgs) -> Result<()> {
         val_every: a.val_every,
         checkpoint_every_steps: a.checkpoint_every,
         seed: a.seed,
+        deep360_disk: a.deep360,
+        deep360_disk_fraction: a.deep360_fraction,
         ..mode360::train::TrainOptions::default()
     };
     let s = mode360::train::run_training(&opts)?;
