@@ -39,8 +39,13 @@ pub const CASSINI_WIDTH: usize = 512;
 pub const CASSINI_HEIGHT: usize = 1024;
 /// Key of the range array inside the depth `.npz`.
 pub const DEPTH_NPZ_KEY: &str = "arr_0";
-/// Deep360 frames are 10 Hz apart; frame `k` gets stamp `k * FRAME_PERIOD_NS`.
+/// Deep360 frames are 10 Hz apart; see [`Deep360FrameId::stamp_ns`].
 pub const FRAME_PERIOD_NS: u64 = 100_000_000;
+/// Frame slots per episode in the stamp scheme: frame `k` of episode `e` is stamped
+/// `(e * EPISODE_FRAME_SLOTS + k) * FRAME_PERIOD_NS` (episodes hold 500 frames).
+pub const EPISODE_FRAME_SLOTS: u64 = 1000;
+/// Largest range of the dataset's ground truth (the paper's maximum depth), metres.
+pub const DEEP360_MAX_DEPTH_M: f64 = 1000.0;
 /// Number of episodes in the dataset.
 pub const EPISODES: u32 = 6;
 /// Magic bytes at the start of every `.npy` file.
@@ -93,6 +98,22 @@ pub enum Deep360Split {
     Testing,
 }
 
+impl std::str::FromStr for Deep360Split {
+    type Err = String;
+
+    /// `train`/`training`, `val`/`validation`, `test`/`testing`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "train" | "training" => Ok(Self::Training),
+            "val" | "validation" => Ok(Self::Validation),
+            "test" | "testing" => Ok(Self::Testing),
+            other => Err(format!(
+                "unknown Deep360 split '{other}' (expected train, val or test)"
+            )),
+        }
+    }
+}
+
 impl Deep360Split {
     /// Directory name of the split.
     pub fn dir_name(self) -> &'static str {
@@ -111,6 +132,27 @@ pub struct Deep360FrameId {
     pub episode: u32,
     /// Frame number within the split directory.
     pub frame: u32,
+}
+
+impl Deep360FrameId {
+    /// Header stamp of the frame in a bag: `(episode * EPISODE_FRAME_SLOTS + frame) * 100 ms`,
+    /// unique across episodes as long as `frame < EPISODE_FRAME_SLOTS`.
+    pub fn stamp_ns(self) -> u64 {
+        (u64::from(self.episode) * EPISODE_FRAME_SLOTS + u64::from(self.frame)) * FRAME_PERIOD_NS
+    }
+}
+
+impl std::fmt::Display for Deep360FrameId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "episode {} frame {:06}", self.episode, self.frame)
+    }
+}
+
+/// A frame with one of its image sets: `rgb/` (clean) or `rgb_soiled/`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Deep360FrameVariant {
+    pub id: Deep360FrameId,
+    pub soiled: bool,
 }
 
 /// A dense row-major `f32` array read from `.npy`.
@@ -215,8 +257,47 @@ impl Deep360Dataset {
         Ok(ids)
     }
 
+    /// The root directory (the one holding the `ep*_500frames` folders).
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// Every frame of `split` (see [`Self::frame_ids`]) once per image directory its episode
+    /// has (`rgb/` clean, `rgb_soiled/` soiled), sorted.
+    pub fn frame_variants(
+        &self,
+        split: Deep360Split,
+    ) -> Result<Vec<Deep360FrameVariant>, Deep360Error> {
+        let mut out = Vec::new();
+        for id in self.frame_ids(split)? {
+            let dir = self.split_dir(id.episode, split);
+            for (soiled, sub) in [(false, "rgb"), (true, "rgb_soiled")] {
+                if dir.join(sub).is_dir() {
+                    out.push(Deep360FrameVariant { id, soiled });
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The first of a frame's five files (four camera PNGs, the depth `.npz`) that is not on
+    /// disk, if any: a cheap check before a long conversion.
+    pub fn missing_file(
+        &self,
+        id: Deep360FrameId,
+        split: Deep360Split,
+        soiled: bool,
+    ) -> Option<PathBuf> {
+        (1..=DEEP360_CAMERAS)
+            .map(|cam| self.image_path(id, split, cam, soiled))
+            .chain(std::iter::once(self.depth_path(id, split)))
+            .find(|p| !p.is_file())
+    }
+
     /// Loads one frame as ERP images of `erp_width` columns in the rig's camera order, with
-    /// the ground-truth range of camera 1 (NaN where the file holds a non-finite value).
+    /// the ground-truth range of camera 1 as stored (nearest-neighbour resampled; infinite or
+    /// out-of-range values are kept: [`clamp_range_to_max`] applies the project's convention).
+    /// The stamp is [`Deep360FrameId::stamp_ns`].
     pub fn load_frame(
         &self,
         id: Deep360FrameId,
@@ -249,7 +330,7 @@ impl Deep360Dataset {
             data: range.data,
         };
         Ok(RigFrame {
-            stamp_ns: u64::from(id.frame) * FRAME_PERIOD_NS,
+            stamp_ns: id.stamp_ns(),
             images,
             ground_truth: Some(cassini_to_erp_range(&cassini_range, grid)),
         })
@@ -278,6 +359,20 @@ fn read_cassini_png(path: &Path) -> Result<RgbImage, Deep360Error> {
         });
     }
     Ok(img)
+}
+
+/// Makes a range image follow the project's convention (design.md): values beyond
+/// `max_depth_m`, infinity included (sky), become `max_depth_m`; NaN, non-positive and
+/// negative-infinite values become NaN (invalid).
+pub fn clamp_range_to_max(range: &mut FloatImage, max_depth_m: f64) {
+    let max = max_depth_m as f32;
+    for v in &mut range.data {
+        if v.is_nan() || *v <= 0.0 {
+            *v = f32::NAN;
+        } else if *v > max {
+            *v = max;
+        }
+    }
 }
 
 // ---- Cassini <-> ERP ------------------------------------------------------------------
@@ -677,6 +772,33 @@ mod tests {
         assert!(parse_npy(b"not an npy file").is_err());
         let truncated = &bytes[..bytes.len() - 4];
         assert!(parse_npy(truncated).unwrap_err().contains("truncated"));
+    }
+
+    #[test]
+    fn splits_stamps_and_range_convention() {
+        for (text, split) in [
+            ("train", Deep360Split::Training),
+            ("validation", Deep360Split::Validation),
+            ("test", Deep360Split::Testing),
+        ] {
+            assert_eq!(text.parse::<Deep360Split>().unwrap(), split);
+        }
+        assert!("bogus"
+            .parse::<Deep360Split>()
+            .unwrap_err()
+            .contains("train, val or test"));
+        let id = |episode, frame| Deep360FrameId { episode, frame };
+        assert_eq!(id(2, 42).stamp_ns(), 204_200_000_000);
+        assert!(id(1, 499).stamp_ns() < id(2, 0).stamp_ns());
+        assert_eq!(id(3, 7).to_string(), "episode 3 frame 000007");
+        let mut r = FloatImage {
+            width: 6,
+            height: 1,
+            data: vec![5.0, 1e6, f32::INFINITY, f32::NAN, 0.0, -2.0],
+        };
+        clamp_range_to_max(&mut r, DEEP360_MAX_DEPTH_M);
+        assert_eq!(&r.data[..3], &[5.0, 1000.0, 1000.0]);
+        assert!(r.data[3..].iter().all(|v| v.is_nan()));
     }
 
     #[test]

@@ -7,6 +7,7 @@
 pub mod bag;
 pub mod bench;
 pub mod deep360;
+pub mod deep360_bag;
 pub mod demo;
 pub mod estimator;
 pub mod eval;

@@ -46,6 +46,32 @@ enum Command {
     Demo(DemoArgs),
     /// Benchmark SSMODE forward passes: time and GFLOP/s per stage, end-to-end time, peak memory.
     BenchModel(BenchModelArgs),
+    /// Convert frames of the paper's Deep360 dataset on disk into a rig bag (for eval, replay).
+    Deep360Bag(Deep360BagArgs),
+}
+
+#[derive(Args)]
+struct Deep360BagArgs {
+    /// Dataset root: the directory holding ep1_500frames ... ep6_500frames.
+    root: PathBuf,
+    /// Split: train, val or test.
+    #[arg(long)]
+    split: mode360::deep360::Deep360Split,
+    /// Use the soiled images (rgb_soiled/) instead of the clean ones (rgb/).
+    #[arg(long)]
+    soiled: bool,
+    /// Panorama width in pixels (height = width / 2).
+    #[arg(long, default_value_t = 512)]
+    width: usize,
+    /// Convert at most this many frames.
+    #[arg(long)]
+    max_frames: Option<usize>,
+    /// Only this episode (1 to 6).
+    #[arg(long)]
+    episode: Option<u32>,
+    /// Output bag.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -162,6 +188,12 @@ struct TrainArgs {
     /// Data seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Mix training frames of the paper's Deep360 dataset at this root into the samples.
+    #[arg(long)]
+    deep360: Option<PathBuf>,
+    /// Fraction of samples taken from --deep360 (the rest are rendered).
+    #[arg(long, default_value_t = 1.0, requires = "deep360")]
+    deep360_fraction: f64,
 }
 
 #[derive(Args)]
@@ -234,6 +266,7 @@ fn main() -> Result<()> {
         Command::Play(a) => play(a),
         Command::Demo(a) => demo(a),
         Command::BenchModel(a) => bench_model(a),
+        Command::Deep360Bag(a) => deep360_bag(a),
     }
 }
 
@@ -307,6 +340,8 @@ fn train(a: TrainArgs) -> Result<()> {
         val_every: a.val_every,
         checkpoint_every_steps: a.checkpoint_every,
         seed: a.seed,
+        deep360_disk: a.deep360,
+        deep360_disk_fraction: a.deep360_fraction,
         ..mode360::train::TrainOptions::default()
     };
     let s = mode360::train::run_training(&opts)?;
@@ -464,4 +499,29 @@ fn bench_model_child(
     cases
         .pop()
         .with_context(|| format!("{} holds no case", json.display()))
+}
+
+fn deep360_bag(a: Deep360BagArgs) -> Result<()> {
+    use mode360::deep360_bag::{convert_deep360_to_bag, Deep360BagOptions};
+    let s = convert_deep360_to_bag(&Deep360BagOptions {
+        root: a.root,
+        split: a.split,
+        soiled: a.soiled,
+        width: a.width,
+        max_frames: a.max_frames,
+        episode: a.episode,
+        out: a.out.clone(),
+        show_progress: true,
+    })
+    .with_context(|| format!("converting Deep360 into {}", a.out.display()))?;
+    println!(
+        "wrote {} Deep360 frames ({} .. {}) to {} ({:.1} MB) in {:.1} s",
+        s.frames,
+        s.first,
+        s.last,
+        a.out.display(),
+        s.bytes as f64 / 1e6,
+        s.seconds
+    );
+    Ok(())
 }

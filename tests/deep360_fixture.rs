@@ -5,22 +5,27 @@ use mode360::deep360::{
     deep360_rig, erp_to_cassini_range, erp_to_cassini_rgb, write_npz, Deep360Dataset, Deep360Error,
     Deep360FrameId, Deep360Split, CASSINI_HEIGHT, CASSINI_WIDTH, DEPTH_NPZ_KEY,
 };
+use mode360::frame::RigFrame;
 use mode360::synth::{SynthConfig, SynthRenderer};
+use std::path::Path;
 
 const ERP_WIDTH: usize = 256;
 const FRAME: u32 = 42;
 
-fn write_fixture(root: &std::path::Path) -> mode360::frame::RigFrame {
-    let rig = deep360_rig().unwrap();
-    let renderer = SynthRenderer::new(SynthConfig {
-        seed: 11,
-        width: ERP_WIDTH,
-        ..SynthConfig::default()
-    })
-    .unwrap();
-    let frame = renderer.render_frame(&rig, 3);
-    let split = root.join("ep2_500frames").join("validation");
-    std::fs::create_dir_all(split.join("rgb")).unwrap();
+/// Writes `frame` in the dataset's layout: its four cameras as RGBA Cassini PNGs under
+/// `ep{episode}_500frames/{split}/{image_dir}/` and, with `with_depth`, its range as the
+/// depth `.npz`.
+fn write_frame_files(
+    root: &Path,
+    episode: u32,
+    split: &str,
+    frame_number: u32,
+    frame: &RigFrame,
+    image_dir: &str,
+    with_depth: bool,
+) {
+    let split = root.join(format!("ep{episode}_500frames")).join(split);
+    std::fs::create_dir_all(split.join(image_dir)).unwrap();
     std::fs::create_dir_all(split.join("depth")).unwrap();
     for (k, img) in frame.images.iter().enumerate() {
         let cam = k + 1;
@@ -30,20 +35,41 @@ fn write_fixture(root: &std::path::Path) -> mode360::frame::RigFrame {
         let rgba = image::DynamicImage::ImageRgb8(cassini).to_rgba8();
         rgba.save(
             split
-                .join("rgb")
-                .join(format!("{FRAME:06}_{pair}_rgb{cam}.png")),
+                .join(image_dir)
+                .join(format!("{frame_number:06}_{pair}_rgb{cam}.png")),
         )
         .unwrap();
     }
-    let gt = frame.ground_truth.as_ref().unwrap();
-    let cassini_range = erp_to_cassini_range(gt, CASSINI_WIDTH, CASSINI_HEIGHT);
-    write_npz(
-        &split.join("depth").join(format!("{FRAME:06}_depth.npz")),
-        DEPTH_NPZ_KEY,
-        &[CASSINI_HEIGHT, CASSINI_WIDTH],
-        &cassini_range.data,
-    )
+    if with_depth {
+        let gt = frame.ground_truth.as_ref().unwrap();
+        let cassini_range = erp_to_cassini_range(gt, CASSINI_WIDTH, CASSINI_HEIGHT);
+        write_npz(
+            &split
+                .join("depth")
+                .join(format!("{frame_number:06}_depth.npz")),
+            DEPTH_NPZ_KEY,
+            &[CASSINI_HEIGHT, CASSINI_WIDTH],
+            &cassini_range.data,
+        )
+        .unwrap();
+    }
+}
+
+/// A synthetic frame on the Deep360 rig at `ERP_WIDTH`, clean or soiled.
+fn render(index: usize, soiled: bool) -> RigFrame {
+    let renderer = SynthRenderer::new(SynthConfig {
+        seed: 11,
+        width: ERP_WIDTH,
+        soiled,
+        ..SynthConfig::default()
+    })
     .unwrap();
+    renderer.render_frame(&deep360_rig().unwrap(), index)
+}
+
+fn write_fixture(root: &Path) -> RigFrame {
+    let frame = render(3, false);
+    write_frame_files(root, 2, "validation", FRAME, &frame, "rgb", true);
     frame
 }
 
@@ -117,4 +143,628 @@ fn missing_and_corrupt_files_are_named() {
     assert!(matches!(err, Deep360Error::Npz { .. }));
     assert!(err.to_string().contains("000042_depth.npz"), "{err}");
     assert!(Deep360Dataset::open(dir.path().join("nope")).is_err());
+}
+
+// ---- Conversion to a rig bag, evaluation, fine-tuning ----------------------------------
+
+use mode360::bag::RigBagReader;
+use mode360::deep360::{Deep360FrameVariant, DEEP360_MAX_DEPTH_M};
+use mode360::deep360_bag::{convert_deep360_to_bag, Deep360BagError, Deep360BagOptions};
+use mode360::estimator::{DepthEstimate, DepthEstimator, EstimatorError};
+use mode360::eval::{evaluate, EvalOptions, MAX_DEPTH_KEY, SOILED_KEY};
+use mode360::frame::{FloatImage, RgbImage};
+use mode360::geometry::{ErpGrid, Rig};
+use mode360::metrics::{depth_metrics, FrameAverage};
+use mode360::train::data::{
+    image_tensor, sample_fingerprint, training_sample, training_spec, DataConfig, Deep360Mix,
+    RigChoice, SampleStream,
+};
+use std::collections::VecDeque;
+
+/// ERP width of the converted bags (half the fixture's rendering width).
+const BAG_WIDTH: usize = 128;
+
+/// Frames of the fixture's testing split: (episode, frame, render index).
+const TEST_FRAMES: [(u32, u32, usize); 3] = [(1, 7, 20), (1, 8, 21), (3, 7, 40)];
+
+/// One fixture frame: its id and the clean and soiled renderings it was written from.
+struct Written {
+    id: Deep360FrameId,
+    clean: RigFrame,
+    soiled: RigFrame,
+}
+
+/// Writes `frames` (clean in `rgb/`, soiled in `rgb_soiled/`) into `split`.
+fn write_split(root: &Path, split: &str, frames: &[(u32, u32, usize)]) -> Vec<Written> {
+    frames
+        .iter()
+        .map(|&(episode, frame, index)| {
+            let clean = render(index, false);
+            let soiled = render(index, true);
+            write_frame_files(root, episode, split, frame, &clean, "rgb", true);
+            write_frame_files(root, episode, split, frame, &soiled, "rgb_soiled", false);
+            Written {
+                id: Deep360FrameId { episode, frame },
+                clean,
+                soiled,
+            }
+        })
+        .collect()
+}
+
+fn convert(root: &Path, soiled: bool, out: &Path) -> Result<usize, Deep360BagError> {
+    convert_deep360_to_bag(&Deep360BagOptions {
+        root: root.to_path_buf(),
+        split: Deep360Split::Testing,
+        soiled,
+        width: BAG_WIDTH,
+        max_frames: None,
+        episode: None,
+        out: out.to_path_buf(),
+        show_progress: false,
+    })
+    .map(|s| s.frames)
+}
+
+/// 2x2 box average (the fixture renders at twice the bag's width).
+fn half(img: &RgbImage) -> RgbImage {
+    RgbImage::from_fn(img.width() / 2, img.height() / 2, |x, y| {
+        let mut acc = [0u32; 3];
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let p = img.get_pixel(2 * x + dx, 2 * y + dy).0;
+            for c in 0..3 {
+                acc[c] += u32::from(p[c]);
+            }
+        }
+        image::Rgb(acc.map(|a| ((a + 2) / 4) as u8))
+    })
+}
+
+fn mean_abs_diff(a: &RgbImage, b: &RgbImage) -> f64 {
+    let n = a.as_raw().len() as f64;
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| (f64::from(x) - f64::from(y)).abs())
+        .sum::<f64>()
+        / n
+}
+
+#[test]
+fn converted_bag_reads_back_with_rig_stamps_images_and_ground_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let written = write_split(dir.path(), "testing", &TEST_FRAMES);
+    let out = dir.path().join("deep360_test_soiled.mcap");
+    assert_eq!(convert(dir.path(), true, &out).unwrap(), 3);
+
+    let reader = RigBagReader::open(&out).unwrap();
+    assert_eq!(reader.rig(), &deep360_rig().unwrap());
+    let info = reader.info();
+    assert_eq!(info[SOILED_KEY], "true");
+    assert_eq!(
+        info[MAX_DEPTH_KEY].parse::<f64>().unwrap(),
+        DEEP360_MAX_DEPTH_M
+    );
+    assert_eq!(info["split"], "testing");
+    let frames: Vec<RigFrame> = reader.frames().collect::<Result<_, _>>().unwrap();
+    // Stamps: (episode * 1000 + frame) * 100 ms, unique across episodes, in (episode, frame)
+    // order.
+    let stamps: Vec<u64> = frames.iter().map(|f| f.stamp_ns).collect();
+    assert_eq!(
+        stamps,
+        vec![100_700_000_000, 100_800_000_000, 300_700_000_000]
+    );
+
+    let ds = Deep360Dataset::open(dir.path()).unwrap();
+    for (w, f) in written.iter().zip(&frames) {
+        assert_eq!(f.stamp_ns, w.id.stamp_ns());
+        assert_eq!(f.images.len(), 4);
+        // Images: exactly what the reader gives for the soiled set, and closer to the soiled
+        // rendering than to the clean one.
+        let direct = ds
+            .load_frame(w.id, Deep360Split::Testing, true, BAG_WIDTH)
+            .unwrap();
+        let (mut to_soiled, mut to_clean) = (0.0, 0.0);
+        for (k, img) in f.images.iter().enumerate() {
+            assert_eq!(img.dimensions(), (BAG_WIDTH as u32, BAG_WIDTH as u32 / 2));
+            assert_eq!(img, &direct.images[k], "camera {}", k + 1);
+            to_soiled += mean_abs_diff(img, &half(&w.soiled.images[k]));
+            to_clean += mean_abs_diff(img, &half(&w.clean.images[k]));
+        }
+        assert!(
+            to_soiled < to_clean,
+            "{}: images differ from the soiled rendering by {to_soiled}, from the clean by {to_clean}",
+            w.id
+        );
+        // Ground truth: nearest neighbour twice (ERP 256 -> Cassini -> ERP 128), so every
+        // pixel away from the poles holds the fixture's range of a pixel at most one
+        // rendering pixel from its ray's corner of the 2x2 block it covers.
+        let gt = f.ground_truth.as_ref().unwrap();
+        let orig = w.clean.ground_truth.as_ref().unwrap();
+        assert_eq!((gt.width, gt.height), (BAG_WIDTH, BAG_WIDTH / 2));
+        let near_original = |u: usize, v: usize| {
+            let g = gt.get(u, v);
+            (-1i64..=2).any(|dv| {
+                (-1i64..=2).any(|du| {
+                    let ou = (2 * u as i64 + du).rem_euclid(orig.width as i64) as usize;
+                    let ov = (2 * v as i64 + dv).clamp(0, orig.height as i64 - 1) as usize;
+                    (orig.get(ou, ov) - g).abs() <= 1e-4 * g
+                })
+            })
+        };
+        let margin = BAG_WIDTH / 16;
+        for v in margin..gt.height - margin {
+            for u in 0..gt.width {
+                assert!(near_original(u, v), "{}: pixel ({u}, {v})", w.id);
+            }
+        }
+        // A few pixels by hand: straight ahead, left, behind, below the horizon.
+        for (u, v) in [(64, 31), (32, 31), (0, 31), (64, 48), (100, 40)] {
+            assert!(near_original(u, v), "{}: pixel ({u}, {v})", w.id);
+        }
+        assert!(gt.data.iter().all(|r| *r > 0.0 && *r <= 1000.0));
+    }
+}
+
+/// Returns the queued ground truths in order: a perfect estimator.
+struct Oracle(VecDeque<FloatImage>);
+
+impl DepthEstimator for Oracle {
+    fn name(&self) -> &str {
+        "oracle"
+    }
+
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        assert_eq!(images.len(), rig.cameras.len());
+        let range = self.0.pop_front().expect("one ground truth per frame");
+        assert_eq!(
+            (range.width, range.height),
+            (output.width(), output.height())
+        );
+        let n = range.data.len();
+        Ok(DepthEstimate::on_grid(output, range.data, vec![1.0; n]))
+    }
+}
+
+/// The same range everywhere.
+struct Constant(f32);
+
+impl DepthEstimator for Constant {
+    fn name(&self) -> &str {
+        "constant"
+    }
+
+    fn estimate(
+        &mut self,
+        _rig: &Rig,
+        _images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        let n = output.width() * output.height();
+        Ok(DepthEstimate::on_grid(
+            output,
+            vec![self.0; n],
+            vec![1.0; n],
+        ))
+    }
+}
+
+#[test]
+fn evaluating_converted_bags() {
+    let dir = tempfile::tempdir().unwrap();
+    write_split(dir.path(), "testing", &TEST_FRAMES);
+    let clean = dir.path().join("clean.mcap");
+    let soiled = dir.path().join("soiled.mcap");
+    convert(dir.path(), false, &clean).unwrap();
+    convert(dir.path(), true, &soiled).unwrap();
+    let ground_truths: Vec<FloatImage> = [&clean, &soiled]
+        .iter()
+        .flat_map(|p| {
+            RigBagReader::open(p)
+                .unwrap()
+                .frames()
+                .map(|f| f.unwrap().ground_truth.unwrap())
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    assert_eq!(ground_truths.len(), 6);
+    let opts = EvalOptions {
+        bags: vec![clean.clone(), soiled.clone()],
+        cameras: None,
+        max_frames: None,
+        show_progress: false,
+        png_dir: None,
+    };
+
+    // The ground truth against itself is perfect, through metrics directly ...
+    for gt in &ground_truths {
+        let m = depth_metrics(&gt.data, &gt.data, DEEP360_MAX_DEPTH_M).unwrap();
+        assert_eq!(
+            (m.mae_m, m.rmse_m, m.abs_rel, m.silog),
+            (0.0, 0.0, 0.0, 0.0)
+        );
+        assert_eq!((m.delta1_pct, m.coverage_pct), (100.0, 100.0));
+    }
+    // ... and through `eval` on the bags, one row per condition from the `soiled` metadata.
+    let report = evaluate(&opts, &mut Oracle(ground_truths.iter().cloned().collect())).unwrap();
+    let conditions: Vec<&str> = report.rows.iter().map(|r| r.condition.as_str()).collect();
+    assert_eq!(conditions, vec!["clean", "soiled"]);
+    for row in &report.rows {
+        assert_eq!(row.frames, 3);
+        assert_eq!(row.cameras, vec!["cam1", "cam2", "cam3", "cam4"]);
+        assert_eq!(row.depth.mae_m, 0.0);
+        assert_eq!(row.depth.abs_rel, 0.0);
+        assert_eq!(row.depth.delta1_pct, 100.0);
+        let disp = row.disparity.unwrap();
+        assert_eq!((disp.mae_px, disp.px1_pct, disp.d1_pct), (0.0, 0.0, 0.0));
+    }
+
+    // A constant 20 m scores exactly what the metrics give on the bags' ground truth, with
+    // max_depth_m = 1000 from the metadata.
+    let report = evaluate(&opts, &mut Constant(20.0)).unwrap();
+    for (row, gts) in report.rows.iter().zip(ground_truths.chunks(3)) {
+        let mut avg = FrameAverage::default();
+        for gt in gts {
+            let pred = vec![20.0; gt.data.len()];
+            avg.push(depth_metrics(&pred, &gt.data, 1000.0).unwrap(), None);
+        }
+        let (a, b) = (row.depth, avg.depth());
+        for (x, y) in [
+            (a.mae_m, b.mae_m),
+            (a.rmse_m, b.rmse_m),
+            (a.abs_rel, b.abs_rel),
+            (a.delta1_pct, b.delta1_pct),
+        ] {
+            assert!((x - y).abs() <= 1e-9 * y.abs().max(1.0), "{x} vs {y}");
+        }
+        assert!(a.mae_m > 1.0 && a.delta1_pct < 100.0);
+    }
+}
+
+#[test]
+fn conversion_errors_name_the_frame_and_file() {
+    let dir = tempfile::tempdir().unwrap();
+    write_split(dir.path(), "testing", &TEST_FRAMES);
+    let out = dir.path().join("out.mcap");
+    let opts = Deep360BagOptions {
+        root: dir.path().to_path_buf(),
+        split: Deep360Split::Testing,
+        soiled: true,
+        width: BAG_WIDTH,
+        max_frames: None,
+        episode: None,
+        out: out.clone(),
+        show_progress: false,
+    };
+    // --episode and --max-frames select frames; stamps keep the episode.
+    let s = convert_deep360_to_bag(&Deep360BagOptions {
+        episode: Some(3),
+        max_frames: Some(1),
+        ..opts.clone()
+    })
+    .unwrap();
+    assert_eq!(
+        (s.frames, s.first),
+        (
+            1,
+            Deep360FrameId {
+                episode: 3,
+                frame: 7
+            }
+        )
+    );
+    let f: Vec<_> = RigBagReader::open(&out)
+        .unwrap()
+        .frames()
+        .map(|f| f.unwrap().stamp_ns)
+        .collect();
+    assert_eq!(f, vec![300_700_000_000]);
+    std::fs::remove_file(&out).unwrap();
+
+    let err = |o: &Deep360BagOptions| convert_deep360_to_bag(o).unwrap_err().to_string();
+    let e = err(&Deep360BagOptions {
+        split: Deep360Split::Validation,
+        ..opts.clone()
+    });
+    assert!(
+        e.contains("no Deep360 frames") && e.contains("validation"),
+        "{e}"
+    );
+    let e = err(&Deep360BagOptions {
+        episode: Some(2),
+        ..opts.clone()
+    });
+    assert!(e.contains("episode 2"), "{e}");
+    let e = err(&Deep360BagOptions {
+        episode: Some(9),
+        ..opts.clone()
+    });
+    assert!(e.contains("episode must be 1 to 6"), "{e}");
+    let e = err(&Deep360BagOptions {
+        width: 99,
+        ..opts.clone()
+    });
+    assert!(e.contains("99"), "{e}");
+    let e = err(&Deep360BagOptions {
+        root: dir.path().join("nowhere"),
+        ..opts.clone()
+    });
+    assert!(e.contains("nowhere"), "{e}");
+
+    // A missing image is found before anything is written.
+    let ds = Deep360Dataset::open(dir.path()).unwrap();
+    let id = Deep360FrameId {
+        episode: 3,
+        frame: 7,
+    };
+    let png = ds.image_path(id, Deep360Split::Testing, 3, true);
+    std::fs::remove_file(&png).unwrap();
+    let e = err(&opts);
+    assert!(e.contains("episode 3 frame 000007"), "{e}");
+    assert!(e.contains("rgb_soiled/000007_34_rgb3.png"), "{e}");
+    assert!(!out.exists());
+    // The clean set of that frame is complete.
+    convert_deep360_to_bag(&Deep360BagOptions {
+        soiled: false,
+        ..opts.clone()
+    })
+    .unwrap();
+    std::fs::remove_file(&out).unwrap();
+    // A corrupt image fails during conversion; the half-written bag is removed.
+    std::fs::write(&png, b"not a png").unwrap();
+    let e = err(&opts);
+    assert!(e.contains("episode 3 frame 000007"), "{e}");
+    assert!(
+        e.contains("000007_34_rgb3.png") && e.contains("decode"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}
+
+fn mode360_cli(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_mode360"))
+        .args(args)
+        .output()
+        .expect("the mode360 binary runs")
+}
+
+#[test]
+fn cli_converts_then_evaluates_and_replays() {
+    let dir = tempfile::tempdir().unwrap();
+    write_split(dir.path(), "testing", &TEST_FRAMES[..2]);
+    let bag = dir.path().join("d.mcap");
+    let json = dir.path().join("eval.json");
+    let replayed = dir.path().join("replay.mcap");
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let o = mode360_cli(&[
+        &os("deep360-bag"),
+        dir.path().as_os_str(),
+        &os("--split"),
+        &os("test"),
+        &os("--width"),
+        &os("64"),
+        &os("--out"),
+        bag.as_os_str(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("wrote 2 Deep360 frames"), "{stdout}");
+
+    let o = mode360_cli(&[
+        &os("eval"),
+        &os("--bag"),
+        bag.as_os_str(),
+        &os("--json"),
+        json.as_os_str(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(report["rows"][0]["condition"], "clean");
+    assert_eq!(report["rows"][0]["frames"], 2);
+
+    let o = mode360_cli(&[
+        &os("replay"),
+        bag.as_os_str(),
+        &os("--out"),
+        replayed.as_os_str(),
+        &os("--max-frames"),
+        &os("1"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(replayed.is_file());
+
+    // Errors: unknown split, missing root (named), no exit through a panic.
+    let o = mode360_cli(&[
+        &os("deep360-bag"),
+        dir.path().as_os_str(),
+        &os("--split"),
+        &os("bogus"),
+        &os("--out"),
+        bag.as_os_str(),
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("expected train, val or test"));
+    let missing = dir.path().join("no_such_root");
+    let o = mode360_cli(&[
+        &os("deep360-bag"),
+        missing.as_os_str(),
+        &os("--split"),
+        &os("val"),
+        &os("--out"),
+        bag.as_os_str(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("no_such_root"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+/// Training split of the fine-tuning fixture: two frames of episode 1 with both image sets,
+/// and a frame of episode 2 with clean images only.
+fn write_training_split(root: &Path) {
+    write_split(root, "training", &[(1, 0, 5), (1, 1, 6)]);
+    write_frame_files(root, 2, "training", 5, &render(9, false), "rgb", true);
+}
+
+fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
+    DataConfig {
+        seed: 3,
+        width: 64,
+        max_depth_m: DEEP360_MAX_DEPTH_M,
+        soiled_fraction: 0.5,
+        deep360_fraction: 0.25,
+        deep360_disk: mix,
+    }
+}
+
+#[test]
+fn deep360_training_samples_come_from_the_fixture() {
+    let dir = tempfile::tempdir().unwrap();
+    write_training_split(dir.path());
+    let mix = Deep360Mix::open(dir.path(), 1.0).unwrap();
+    let variant = |episode, frame, soiled| Deep360FrameVariant {
+        id: Deep360FrameId { episode, frame },
+        soiled,
+    };
+    assert_eq!(
+        mix.frames,
+        vec![
+            variant(1, 0, false),
+            variant(1, 0, true),
+            variant(1, 1, false),
+            variant(1, 1, true),
+            variant(2, 5, false),
+        ]
+    );
+    let cfg = data_cfg(Some(mix.clone()));
+
+    // Fraction 1: every sample is a fixture frame, all five get picked.
+    let specs: Vec<_> = (0..60).map(|k| training_spec(&cfg, k)).collect();
+    let mut picked = std::collections::BTreeSet::new();
+    for s in &specs {
+        let id = s.deep360_frame.expect("a Deep360 frame");
+        assert_eq!(s.rig, RigChoice::Deep360);
+        assert!(mix.frames.contains(&Deep360FrameVariant {
+            id,
+            soiled: s.soiled
+        }));
+        picked.insert((id, s.soiled));
+    }
+    assert_eq!(picked.len(), 5);
+
+    // A sample holds the frame as the reader gives it at the training width.
+    let ds = Deep360Dataset::open(dir.path()).unwrap();
+    for k in [0, 1] {
+        let sample = training_sample(&cfg, k).unwrap();
+        let id = sample.spec.deep360_frame.unwrap();
+        let direct = ds
+            .load_frame(id, Deep360Split::Training, sample.spec.soiled, 64)
+            .unwrap();
+        assert_eq!(sample.rig, deep360_rig().unwrap());
+        assert_eq!(sample.images.len(), 4);
+        for (t, img) in sample.images.iter().zip(&direct.images) {
+            assert_eq!(t.dims(), &[1, 32, 64, 3]);
+            let a: Vec<f32> = t.flatten_all().unwrap().to_vec1().unwrap();
+            let b: Vec<f32> = image_tensor(img)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1()
+                .unwrap();
+            assert_eq!(a, b);
+        }
+        assert_eq!((sample.range_m.width, sample.range_m.height), (64, 32));
+        assert_eq!(sample.range_m, direct.ground_truth.unwrap());
+    }
+    // The background stream yields the same samples (resume reads the same frames).
+    let mut stream = SampleStream::start(cfg.clone(), 1, 1).unwrap();
+    let s = stream.next_sample().unwrap();
+    assert_eq!(s.index, 1);
+    assert_eq!(
+        sample_fingerprint(&s.sample.unwrap()).unwrap(),
+        sample_fingerprint(&training_sample(&cfg, 1).unwrap()).unwrap()
+    );
+
+    // Fraction 0.5: about half; the rendered ones are exactly the stream without a dataset.
+    let half_cfg = data_cfg(Some(Deep360Mix {
+        fraction: 0.5,
+        ..mix.clone()
+    }));
+    let plain = data_cfg(None);
+    let mut from_disk = 0;
+    for k in 0..400 {
+        let s = training_spec(&half_cfg, k);
+        match s.deep360_frame {
+            Some(_) => from_disk += 1,
+            None => assert_eq!(s, training_spec(&plain, k)),
+        }
+    }
+    assert!(
+        (150..=250).contains(&from_disk),
+        "{from_disk}/400 from disk"
+    );
+    // Fraction 0: none.
+    let none_cfg = data_cfg(Some(Deep360Mix {
+        fraction: 0.0,
+        ..mix
+    }));
+    assert!((0..100).all(|k| training_spec(&none_cfg, k).deep360_frame.is_none()));
+
+    // A root without training frames is an error naming it.
+    let empty = tempfile::tempdir().unwrap();
+    let e = Deep360Mix::open(empty.path(), 1.0).unwrap_err().to_string();
+    assert!(e.contains("no Deep360 training frames"), "{e}");
+    assert!(Deep360Mix::open(dir.path(), 1.5).is_err());
+}
+
+#[test]
+fn fine_tune_runs_on_the_fixture_and_resume_checks_the_dataset() {
+    use mode360::train::{run_training, CheckpointState, TrainOptions, CHECKPOINT_DIR, STATE_FILE};
+    let dir = tempfile::tempdir().unwrap();
+    write_training_split(dir.path());
+    let out = tempfile::tempdir().unwrap();
+    let opts = TrainOptions {
+        preset: "tiny".into(),
+        steps: 2,
+        out_dir: out.path().to_path_buf(),
+        warmup_steps: 1,
+        val_every: 0,
+        checkpoint_every_steps: 1,
+        seed: 3,
+        deep360_disk: Some(dir.path().to_path_buf()),
+        deep360_disk_fraction: 1.0,
+        show_progress: false,
+        ..TrainOptions::default()
+    };
+    let s = run_training(&opts).unwrap();
+    assert_eq!(s.final_step, 2);
+    assert!(s.last_loss.is_finite() && s.last_loss > 0.0);
+    let state: CheckpointState = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join(CHECKPOINT_DIR).join(STATE_FILE)).unwrap(),
+    )
+    .unwrap();
+    let disk = state.deep360_disk.unwrap();
+    assert_eq!((disk.frames, disk.fraction), (5, 1.0));
+    assert_eq!(state.next_sample_index, 2);
+    // The two samples trained on were fixture frames.
+    let cfg = data_cfg(Some(Deep360Mix::open(dir.path(), 1.0).unwrap()));
+    for k in 0..2 {
+        assert!(training_spec(&cfg, k).deep360_frame.is_some());
+    }
+    // Resuming without the dataset would change the stream: refused, naming the option.
+    let e = run_training(&TrainOptions {
+        steps: 3,
+        resume: true,
+        deep360_disk: None,
+        ..opts
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("deep360_disk"), "{e}");
 }

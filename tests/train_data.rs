@@ -16,6 +16,7 @@ fn cfg(seed: u64) -> DataConfig {
         max_depth_m: 100.0,
         soiled_fraction: 0.5,
         deep360_fraction: 0.25,
+        deep360_disk: None,
     }
 }
 

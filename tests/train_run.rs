@@ -22,6 +22,8 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         seed: 5,
         soiled_fraction: 0.5,
         deep360_fraction: 0.3,
+        deep360_disk: None,
+        deep360_disk_fraction: 1.0,
         show_progress: false,
     }
 }

@@ -11,15 +11,26 @@
 //! apart), heights in `[MIN_HEIGHT_M, MAX_HEIGHT_M]`, small random roll/pitch/yaw per camera.
 //! Camera 1 is the reference and output frame, so the ground truth is camera 1's range.
 //!
+//! Deep360 on disk (fine-tuning): with [`DataConfig::deep360_disk`] set, sample `k` is, with
+//! probability [`Deep360Mix::fraction`], a frame of the dataset's training split read from
+//! disk instead of a rendered one. That choice and the frame (an index into the sorted list of
+//! frames and image sets, clean and soiled) come from a separate stream
+//! `Rng::new(&[s, k, DEEP360_DISK_TAG])`, so samples stay a pure function of `(s, k)` and the
+//! synthetic samples of a stream do not change when a dataset is added.
+//!
 //! Training world seeds have the top bit clear, validation world seeds have it set, so the
 //! held-out set never shares a world with training.
 
-use crate::deep360::deep360_rig;
+use crate::deep360::{
+    clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId,
+    Deep360FrameVariant, Deep360Split,
+};
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{Rig, RigError};
 use crate::synth::noise::{hash_words, Rng};
 use crate::synth::{SynthConfig, SynthError, SynthRenderer};
 use candle_core::{Device, Tensor};
+use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::thread::JoinHandle;
 
@@ -43,6 +54,7 @@ pub const STREET_FRAMES: usize = 400;
 /// Domain-separation words for the sample and world seeds.
 const SAMPLE_TAG: u64 = 0x7A41_0001;
 const VALIDATION_TAG: u64 = 0x7A41_0002;
+const DEEP360_DISK_TAG: u64 = 0x7A41_0003;
 /// Set in validation world seeds, clear in training world seeds.
 const VALIDATION_SEED_BIT: u64 = 1 << 63;
 /// Maximum 8-bit channel value, for normalising to `[0, 1]`.
@@ -59,6 +71,8 @@ pub enum DataError {
     Tensor(#[from] candle_core::Error),
     #[error("training data: {0}")]
     Config(String),
+    #[error("training data: {0}")]
+    Deep360(#[from] Deep360Error),
 }
 
 /// How samples are drawn.
@@ -72,8 +86,63 @@ pub struct DataConfig {
     pub max_depth_m: f64,
     /// Fraction of training samples with lens soiling.
     pub soiled_fraction: f64,
-    /// Fraction of training samples on the Deep360 rig (the rest use random rigs).
+    /// Fraction of rendered training samples on the Deep360 rig (the rest use random rigs).
     pub deep360_fraction: f64,
+    /// Deep360 training frames from disk mixed into the stream (fine-tuning).
+    pub deep360_disk: Option<Deep360Mix>,
+}
+
+/// The paper's Deep360 dataset on disk as a source of training samples.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Deep360Mix {
+    /// Directory holding the `ep*_500frames` folders.
+    pub root: PathBuf,
+    /// Probability that a training sample is a Deep360 frame.
+    pub fraction: f64,
+    /// The training split's frames with each image set on disk (clean, soiled), sorted,
+    /// listed once so that a sample picks by index.
+    pub frames: Vec<Deep360FrameVariant>,
+}
+
+impl Deep360Mix {
+    /// Lists the training split under `root`; an error if it holds no frames.
+    pub fn open(root: impl AsRef<Path>, fraction: f64) -> Result<Self, DataError> {
+        let ds = Deep360Dataset::open(root.as_ref())?;
+        let frames = ds.frame_variants(Deep360Split::Training)?;
+        let mix = Self {
+            root: ds.root().to_path_buf(),
+            fraction,
+            frames,
+        };
+        mix.validate()?;
+        Ok(mix)
+    }
+
+    fn validate(&self) -> Result<(), DataError> {
+        if !(0.0..=1.0).contains(&self.fraction) {
+            return Err(DataError::Config(format!(
+                "Deep360 fraction must be in [0, 1], got {}",
+                self.fraction
+            )));
+        }
+        if self.frames.is_empty() {
+            return Err(DataError::Config(format!(
+                "no Deep360 training frames under {} (looked for \
+                 ep*_500frames/training/depth/*_depth.npz with rgb/ or rgb_soiled/)",
+                self.root.display()
+            )));
+        }
+        Ok(())
+    }
+
+    /// The frame training sample `index` of stream `seed` reads, or `None` for a rendered one.
+    pub fn pick(&self, seed: u64, index: u64) -> Option<Deep360FrameVariant> {
+        let mut rng = Rng::new(&[seed, index, DEEP360_DISK_TAG]);
+        if self.frames.is_empty() || !rng.chance(self.fraction) {
+            return None;
+        }
+        Some(self.frames[rng.index(self.frames.len())])
+    }
 }
 
 impl DataConfig {
@@ -88,7 +157,9 @@ impl DataConfig {
                 )));
             }
         }
-        Ok(())
+        self.deep360_disk
+            .as_ref()
+            .map_or(Ok(()), Deep360Mix::validate)
     }
 }
 
@@ -107,6 +178,9 @@ pub struct SampleSpec {
     pub frame_index: usize,
     pub soiled: bool,
     pub rig: RigChoice,
+    /// `Some`: the sample is this Deep360 training frame read from disk (rig Deep360,
+    /// `soiled` picks `rgb_soiled/`); `world_seed` and `frame_index` are then unused.
+    pub deep360_frame: Option<Deep360FrameId>,
 }
 
 /// One rendered sample.
@@ -177,11 +251,25 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
     } else {
         RigChoice::Random(rng.next_u64())
     };
-    SampleSpec {
+    let spec = SampleSpec {
         world_seed,
         frame_index,
         soiled,
         rig,
+        deep360_frame: None,
+    };
+    match cfg
+        .deep360_disk
+        .as_ref()
+        .and_then(|m| m.pick(cfg.seed, index))
+    {
+        Some(v) => SampleSpec {
+            soiled: v.soiled,
+            rig: RigChoice::Deep360,
+            deep360_frame: Some(v.id),
+            ..spec
+        },
+        None => spec,
     }
 }
 
@@ -196,6 +284,7 @@ pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
                 frame_index: rng.index(STREET_FRAMES),
                 soiled: k % 2 == 1,
                 rig: RigChoice::Deep360,
+                deep360_frame: None,
             }
         })
         .collect()
@@ -212,8 +301,12 @@ pub fn image_tensor(img: &RgbImage) -> Result<Tensor, candle_core::Error> {
     Tensor::from_vec(data, (1, h, w, 3), &Device::Cpu)
 }
 
-/// Renders the sample `spec` at `cfg.width`.
+/// Renders the sample `spec` at `cfg.width` (or reads it from disk, see
+/// [`SampleSpec::deep360_frame`]).
 pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample, DataError> {
+    if let Some(id) = spec.deep360_frame {
+        return load_deep360_sample(cfg, spec, id);
+    }
     let rig = match spec.rig {
         RigChoice::Deep360 => deep360_rig()?,
         RigChoice::Random(seed) => random_rig(seed)?,
@@ -237,6 +330,37 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
     Ok(TrainSample {
         spec: spec.clone(),
         rig,
+        images,
+        range_m,
+    })
+}
+
+/// Reads Deep360 training frame `id` at `cfg.width`, sky and far range clamped to
+/// `cfg.max_depth_m` like rendered ground truth.
+fn load_deep360_sample(
+    cfg: &DataConfig,
+    spec: &SampleSpec,
+    id: Deep360FrameId,
+) -> Result<TrainSample, DataError> {
+    let mix = cfg.deep360_disk.as_ref().ok_or_else(|| {
+        DataError::Config(format!(
+            "sample names Deep360 {id} but no Deep360 root is configured"
+        ))
+    })?;
+    let ds = Deep360Dataset::open(&mix.root)?;
+    let frame = ds.load_frame(id, Deep360Split::Training, spec.soiled, cfg.width)?;
+    let mut range_m = frame
+        .ground_truth
+        .ok_or_else(|| DataError::Config(format!("Deep360 {id} has no ground-truth range")))?;
+    clamp_range_to_max(&mut range_m, cfg.max_depth_m);
+    let images = frame
+        .images
+        .iter()
+        .map(image_tensor)
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(TrainSample {
+        spec: spec.clone(),
+        rig: ds.rig().clone(),
         images,
         range_m,
     })

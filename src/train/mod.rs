@@ -3,7 +3,8 @@
 //! held-out validation, CSV logs and a curve plot.
 //!
 //! * Data ([`data`]): sample `k` is a pure function of `(seed, k)`, rendered in a background
-//!   thread. Step `s` uses samples `s B .. (s + 1) B` (`B = batch_size`).
+//!   thread. Step `s` uses samples `s B .. (s + 1) B` (`B = batch_size`). With
+//!   `deep360_disk`, a fraction of them are Deep360 training frames read from disk.
 //! * Batching: random rigs differ per sample (camera count, sweep tables), so a batch is
 //!   gradient accumulation over `B` single-sample forward/backward passes, each loss scaled by
 //!   `1 / B`; memory stays that of one sample.
@@ -25,6 +26,6 @@ pub mod optim;
 mod runner;
 
 pub use runner::{
-    run_training, CheckpointState, TrainError, TrainOptions, TrainSummary, CHECKPOINT_DIR,
-    CURVES_PNG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TRAIN_CSV, VAL_CSV,
+    run_training, CheckpointState, Deep360DiskState, TrainError, TrainOptions, TrainSummary,
+    CHECKPOINT_DIR, CURVES_PNG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TRAIN_CSV, VAL_CSV,
 };

@@ -1,7 +1,7 @@
 //! The training loop behind [`run_training`] (see the module docs of [`crate::train`]).
 
 use super::data::{
-    render_sample, validation_specs, DataConfig, DataError, SampleStream, TrainSample,
+    render_sample, validation_specs, DataConfig, DataError, Deep360Mix, SampleStream, TrainSample,
 };
 use super::log::{TrainRecord, ValRecord};
 use super::loss::{LossConfig, LossError, PSMNET_STAGE_WEIGHTS};
@@ -99,6 +99,10 @@ pub struct TrainOptions {
     pub seed: u64,
     pub soiled_fraction: f64,
     pub deep360_fraction: f64,
+    /// Root of the paper's Deep360 dataset: its training frames are mixed into the stream.
+    pub deep360_disk: Option<PathBuf>,
+    /// Fraction of training samples read from `deep360_disk` (when set).
+    pub deep360_disk_fraction: f64,
     pub show_progress: bool,
 }
 
@@ -121,6 +125,8 @@ impl Default for TrainOptions {
             seed: 1,
             soiled_fraction: 0.3,
             deep360_fraction: 0.25,
+            deep360_disk: None,
+            deep360_disk_fraction: 1.0,
             show_progress: true,
         }
     }
@@ -158,6 +164,28 @@ pub struct CheckpointState {
     pub batch_size: usize,
     /// Training wall time so far, seconds.
     pub train_secs: f64,
+    /// The Deep360-on-disk part of the stream (absent in older checkpoints: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deep360_disk: Option<Deep360DiskState>,
+}
+
+/// What a resume must find again to read the same Deep360 frames for the same samples.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Deep360DiskState {
+    pub root: String,
+    pub fraction: f64,
+    /// Frame and image-set count of the training split (the picks are indices into it).
+    pub frames: usize,
+}
+
+impl Deep360DiskState {
+    fn of(mix: &Deep360Mix) -> Self {
+        Self {
+            root: mix.root.display().to_string(),
+            fraction: mix.fraction,
+            frames: mix.frames.len(),
+        }
+    }
 }
 
 fn resolve_config(opts: &TrainOptions) -> Result<SsmodeConfig, TrainError> {
@@ -395,6 +423,13 @@ fn load_checkpoint(
             expected.batch_size.to_string(),
         ));
     }
+    if state.deep360_disk != expected.deep360_disk {
+        return Err(mismatch(
+            "deep360_disk",
+            format!("{:?}", state.deep360_disk),
+            format!("{:?}", expected.deep360_disk),
+        ));
+    }
     let model_path = dir.join(MODEL_FILE);
     varmap
         .load(&model_path)
@@ -505,6 +540,12 @@ fn validate(
 /// Runs (or resumes) a training run; see the module docs.
 pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
     let cfg = resolve_config(opts)?;
+    // Listed once, before anything is written: the picks are indices into this list.
+    let deep360_disk = opts
+        .deep360_disk
+        .as_ref()
+        .map(|root| Deep360Mix::open(root, opts.deep360_disk_fraction))
+        .transpose()?;
     let device = Device::Cpu;
     std::fs::create_dir_all(&opts.out_dir).map_err(io_err(&opts.out_dir))?;
     let mut varmap = VarMap::new();
@@ -533,6 +574,7 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         seed: opts.seed,
         batch_size: opts.batch_size,
         train_secs: 0.0,
+        deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
     };
     if opts.resume {
         if let Some(dir) = find_checkpoint(&opts.out_dir) {
@@ -558,6 +600,7 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         max_depth_m: cfg.max_depth_m,
         soiled_fraction: opts.soiled_fraction,
         deep360_fraction: opts.deep360_fraction,
+        deep360_disk,
     };
     let loss_cfg = LossConfig {
         min_depth_m: cfg.min_depth_m,
