@@ -194,6 +194,10 @@ struct TrainArgs {
     /// Fraction of samples taken from --deep360 (the rest are rendered).
     #[arg(long, default_value_t = 1.0, requires = "deep360")]
     deep360_fraction: f64,
+    /// Fine-tune: start a new run from these weights (e.g. models/ssmode_compact.safetensors)
+    /// instead of a random initialisation. Ignored when --resume finds a checkpoint.
+    #[arg(long)]
+    init_weights: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -342,6 +346,7 @@ fn train(a: TrainArgs) -> Result<()> {
         seed: a.seed,
         deep360_disk: a.deep360,
         deep360_disk_fraction: a.deep360_fraction,
+        init_weights: a.init_weights,
         ..mode360::train::TrainOptions::default()
     };
     let s = mode360::train::run_training(&opts)?;

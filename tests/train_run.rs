@@ -24,6 +24,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         deep360_fraction: 0.3,
         deep360_disk: None,
         deep360_disk_fraction: 1.0,
+        init_weights: None,
         show_progress: false,
     }
 }
@@ -123,4 +124,40 @@ fn resume_is_exact_body() {
             .collect()
     };
     assert_eq!(strip(&va), strip(&vb));
+}
+
+/// Fine-tuning: a new run started from a weights file holds exactly those weights before its
+/// first step, and weights of another architecture are refused with both sizes named.
+#[test]
+fn init_weights_start_a_run_from_a_weights_file() {
+    let a = tempfile::tempdir().unwrap();
+    let b = tempfile::tempdir().unwrap();
+    let trained = run_training(&opts(a.path(), 2)).unwrap();
+    let mut start = opts(b.path(), 0);
+    start.seed = 6; // a different random initialisation, replaced by the file
+    start.init_weights = Some(trained.weights_path.clone());
+    let started = run_training(&start).unwrap();
+    assert_eq!(started.final_step, 0);
+    assert_eq!(
+        weights(&started.weights_path),
+        weights(&trained.weights_path)
+    );
+
+    let mut fresh = opts(b.path(), 0);
+    fresh.seed = 6;
+    let random = run_training(&fresh).unwrap();
+    assert_ne!(
+        weights(&random.weights_path),
+        weights(&trained.weights_path)
+    );
+
+    let c = tempfile::tempdir().unwrap();
+    let mut wrong = opts(c.path(), 0);
+    wrong.preset = "compact".into();
+    wrong.init_weights = Some(trained.weights_path);
+    let err = run_training(&wrong).unwrap_err().to_string();
+    assert!(
+        err.contains("init_weights") && err.contains("'tiny'"),
+        "{err}"
+    );
 }

@@ -103,6 +103,9 @@ pub struct TrainOptions {
     pub deep360_disk: Option<PathBuf>,
     /// Fraction of training samples read from `deep360_disk` (when set).
     pub deep360_disk_fraction: f64,
+    /// Start a new run (not a resumed one) from these weights instead of the random
+    /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
+    pub init_weights: Option<PathBuf>,
     pub show_progress: bool,
 }
 
@@ -127,6 +130,7 @@ impl Default for TrainOptions {
             deep360_fraction: 0.25,
             deep360_disk: None,
             deep360_disk_fraction: 1.0,
+            init_weights: None,
             show_progress: true,
         }
     }
@@ -186,6 +190,47 @@ impl Deep360DiskState {
             frames: mix.frames.len(),
         }
     }
+}
+
+/// Layer sizes of `cfg` (what weights depend on; not the width, name or readout).
+fn architecture(cfg: &SsmodeConfig) -> String {
+    format!(
+        "features {:?} x {:?} -> {}, {} spheres, {} hourglasses of {} channels",
+        cfg.feature_channels,
+        cfg.feature_blocks,
+        cfg.feature_out_channels,
+        cfg.spheres,
+        cfg.hourglasses,
+        cfg.hourglass_channels
+    )
+}
+
+/// Loads fine-tuning start weights into `varmap` after checking their architecture.
+fn load_init_weights(
+    path: &Path,
+    cfg: &SsmodeConfig,
+    varmap: &mut VarMap,
+) -> Result<(), TrainError> {
+    let file_cfg = crate::model::read_config(path)?;
+    if architecture(&file_cfg) != architecture(cfg) {
+        return Err(TrainError::Option {
+            option: "init_weights",
+            problem: format!(
+                "{} holds a '{}' network ({}), the run trains '{}' ({})",
+                path.display(),
+                file_cfg.name,
+                architecture(&file_cfg),
+                cfg.name,
+                architecture(cfg)
+            ),
+        });
+    }
+    varmap.load(path).map_err(|e| {
+        TrainError::Model(ModelError::Weights {
+            path: path.display().to_string(),
+            problem: format!("loading the start weights: {e}"),
+        })
+    })
 }
 
 fn resolve_config(opts: &TrainOptions) -> Result<SsmodeConfig, TrainError> {
@@ -576,10 +621,15 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         train_secs: 0.0,
         deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
     };
+    let mut resumed = false;
     if opts.resume {
         if let Some(dir) = find_checkpoint(&opts.out_dir) {
             state = load_checkpoint(&dir, &mut varmap, &mut opt, &state, &device)?;
+            resumed = true;
         }
+    }
+    if let (false, Some(init)) = (resumed, &opts.init_weights) {
+        load_init_weights(init, &cfg, &mut varmap)?;
     }
     let train_csv = opts.out_dir.join(TRAIN_CSV);
     let val_csv = opts.out_dir.join(VAL_CSV);
