@@ -197,7 +197,11 @@ fn main() -> Result<()> {
         Command::Synth(a) => synth(a),
         Command::Eval(a) => run_eval(a),
         Command::Train(a) => train(a),
-        Command::Node { args } => Ok(mode360::node::run_node(args)?),
+        Command::Node { args } => {
+            let run = mode360::node::run_node(args)?;
+            println!("{}", run.summary_line());
+            Ok(())
+        }
         Command::Replay(a) => replay(a),
         Command::Play(a) => play(a),
         Command::Demo(a) => demo(a),
