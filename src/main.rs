@@ -93,9 +93,12 @@ struct PlayArgs {
     /// Playback speed factor (1 = recorded timing).
     #[arg(long, default_value_t = 1.0)]
     rate: f64,
-    /// Play the bag this many times.
+    /// Play the bag this many times (stamps keep increasing from one repetition to the next).
     #[arg(long, default_value_t = 1)]
     loops: usize,
+    /// Play the bag over and over until Ctrl-C (like `ros2 bag play --loop`).
+    #[arg(long = "loop", conflicts_with = "loops")]
+    forever: bool,
     /// Do not publish /clock.
     #[arg(long)]
     no_clock: bool,
@@ -319,16 +322,28 @@ fn replay(a: ReplayArgs) -> Result<()> {
 }
 
 fn play(a: PlayArgs) -> Result<()> {
-    let summary = mode360::node::play_bag(&mode360::node::PlayOptions {
-        input: a.input,
-        rate: a.rate,
-        loops: a.loops,
-        publish_clock: !a.no_clock,
-        dds: mode360::node::DdsOptions::from_env()?,
-        wait_for_subscribers: None,
-        wait_topics: Vec::new(),
-    })?;
-    println!("played {summary:?}");
+    let stop = mode360::node::stop_flag_on_signals()?;
+    let summary = mode360::node::play_bag_until(
+        &mode360::node::PlayOptions {
+            input: a.input,
+            rate: a.rate,
+            loops: if a.forever { usize::MAX } else { a.loops },
+            publish_clock: !a.no_clock,
+            dds: mode360::node::DdsOptions::from_env()?,
+            wait_for_subscribers: None,
+            wait_topics: Vec::new(),
+        },
+        &stop,
+        |_| {},
+    )?;
+    let total: u64 = summary.published.values().sum();
+    println!(
+        "played {total} messages in {:.1} s ({} repetitions); per topic: {:?}",
+        summary.seconds, summary.loops_played, summary.published
+    );
+    if !summary.skipped_topics.is_empty() {
+        println!("skipped (unsupported types): {:?}", summary.skipped_topics);
+    }
     Ok(())
 }
 

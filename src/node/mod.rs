@@ -2,7 +2,8 @@
 //!
 //! [`pipeline`] is the DDS-free core shared with offline replay ([`crate::replay`]),
 //! [`params`] parses `--ros-args` and params files, [`diagnostics`] builds `/diagnostics`,
-//! [`clock`] is the node's system or simulated clock.
+//! [`clock`] is the node's system or simulated clock,
+//! [`play`] feeds a bag onto DDS.
 
 pub mod clock;
 pub mod diagnostics;
@@ -42,4 +43,4 @@ pub use ros::{
     run_node, spawn_node, stop_flag_on_signals, DdsOptions, NodeError, NodeHandle, NodeRun,
 };
 pub mod play;
-pub use play::{play_bag, PlayError, PlayOptions, PlaySummary};
+pub use play::{play_bag, play_bag_until, PlayError, PlayOptions, PlaySummary};
