@@ -42,6 +42,8 @@ enum Command {
     Replay(ReplayArgs),
     /// Publish a bag on DDS with its original timing (like `ros2 bag play`).
     Play(PlayArgs),
+    /// Benchmark the live node: a looped bag over loopback DDS; latency, rates, memory.
+    BenchNode(BenchNodeArgs),
     /// The whole thing: node + bag played into it over loopback DDS, outputs recorded, previews, metrics.
     Demo(DemoArgs),
 }
@@ -66,6 +68,34 @@ struct DemoArgs {
     /// Playback speed factor: slow enough that every frame is processed.
     #[arg(long, default_value_t = 0.03)]
     rate: f64,
+}
+
+#[derive(Args)]
+struct BenchNodeArgs {
+    /// Estimator: photometric or ssmode.
+    #[arg(long, default_value = "photometric")]
+    estimator: String,
+    /// Output width (and width of rendered input); default: the bag's, or 512 without --bag.
+    #[arg(long)]
+    width: Option<usize>,
+    /// How long to play, seconds.
+    #[arg(long, default_value_t = 60.0)]
+    duration_s: f64,
+    /// Rig bag to play in a loop (default: the bundled bag, or frames rendered at --width).
+    #[arg(long)]
+    bag: Option<PathBuf>,
+    /// Rig calibration of rendered frames.
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    rig: PathBuf,
+    /// Playback speed factor (1 = the bag's frame rate).
+    #[arg(long, default_value_t = 1.0)]
+    rate: f64,
+    /// Private DDS domain (loopback only).
+    #[arg(long, default_value_t = mode360::node::bench::DEFAULT_BENCH_DOMAIN)]
+    domain_id: u16,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -207,6 +237,7 @@ fn main() -> Result<()> {
         }
         Command::Replay(a) => replay(a),
         Command::Play(a) => play(a),
+        Command::BenchNode(a) => bench_node(a),
         Command::Demo(a) => demo(a),
     }
 }
@@ -343,6 +374,31 @@ fn play(a: PlayArgs) -> Result<()> {
     );
     if !summary.skipped_topics.is_empty() {
         println!("skipped (unsupported types): {:?}", summary.skipped_topics);
+    }
+    Ok(())
+}
+
+fn bench_node(a: BenchNodeArgs) -> Result<()> {
+    if !(a.duration_s.is_finite() && a.duration_s > 0.0) {
+        bail!("--duration-s must be a positive number of seconds");
+    }
+    let report = mode360::node::bench::run_bench(&mode360::node::bench::BenchOptions {
+        estimator: a.estimator,
+        width: a.width,
+        duration: std::time::Duration::from_secs_f64(a.duration_s),
+        bag: a.bag,
+        rig_file: a.rig,
+        rate: a.rate,
+        dds: mode360::node::DdsOptions {
+            domain_id: a.domain_id,
+            loopback_only: true,
+        },
+    })?;
+    print!("{}", report.to_table());
+    if let Some(path) = a.json {
+        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
     }
     Ok(())
 }

@@ -2,9 +2,10 @@
 //!
 //! [`pipeline`] is the DDS-free core shared with offline replay ([`crate::replay`]),
 //! [`params`] parses `--ros-args` and params files, [`diagnostics`] builds `/diagnostics`,
-//! [`clock`] is the node's system or simulated clock,
-//! [`play`] feeds a bag onto DDS.
+//! [`clock`] is the node's system or simulated clock, [`play`] feeds a bag onto DDS and
+//! [`bench`] measures the live node.
 
+pub mod bench;
 pub mod clock;
 pub mod diagnostics;
 pub mod params;
