@@ -13,8 +13,8 @@
 //! synchronizer never sees a stamp go backwards. `/tf_static` is sent once, unchanged.
 
 use super::ros::{
-    create_publisher, dds_context, latched_qos, output_qos, sensor_qos, DdsOptions, NodeError,
-    SpunNode,
+    create_publisher, dds_context, latched_qos, output_qos, runtime, sensor_qos, DdsOptions,
+    NodeError, SpunNode,
 };
 use super::{CLOCK_TOPIC, TF_STATIC_TOPIC};
 use crate::bag::{BagError, BagMessage, BagReader};
@@ -22,14 +22,14 @@ use crate::msgs::{
     Clock, CompressedImage, DiagnosticArray, Header, Image, PointCloud2, RosMessage, TFMessage,
     Time,
 };
+use futures::future::BoxFuture;
+use futures::FutureExt;
 use ros2_client::Publisher;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-/// How often the subscriber wait re-checks matches.
-const MATCH_POLL: Duration = Duration::from_millis(50);
 /// Longest single sleep while pacing, so that a stop request is seen quickly.
 const STOP_POLL: Duration = Duration::from_millis(50);
 /// Largest wait before one message, seconds (guards against bags with absurd time gaps).
@@ -239,14 +239,15 @@ impl AnyPublisher {
         }
     }
 
-    fn subscription_count(&self, node: &ros2_client::Node) -> usize {
+    /// Resolves once a subscription matched (needs the node's spinner running).
+    fn wait_for_subscription<'a>(&'a self, node: &'a ros2_client::Node) -> BoxFuture<'a, ()> {
         match self {
-            Self::Image(p) => p.get_subscription_count(node),
-            Self::Compressed(p) => p.get_subscription_count(node),
-            Self::Points(p) => p.get_subscription_count(node),
-            Self::Tf(p) => p.get_subscription_count(node),
-            Self::Diagnostics(p) => p.get_subscription_count(node),
-            Self::Clock(p) => p.get_subscription_count(node),
+            Self::Image(p) => p.wait_for_subscription(node).boxed(),
+            Self::Compressed(p) => p.wait_for_subscription(node).boxed(),
+            Self::Points(p) => p.wait_for_subscription(node).boxed(),
+            Self::Tf(p) => p.wait_for_subscription(node).boxed(),
+            Self::Diagnostics(p) => p.wait_for_subscription(node).boxed(),
+            Self::Clock(p) => p.wait_for_subscription(node).boxed(),
         }
     }
 }
@@ -348,18 +349,23 @@ pub fn play_bag_until(
     let timing = LoopTiming::from_log_times(log_times.values().map(|v| v.as_slice()));
     summary.timing = timing;
     if let Some(limit) = opts.wait_for_subscribers {
-        let deadline = Instant::now() + limit;
-        while Instant::now() < deadline && !stop.load(Ordering::SeqCst) {
-            let all = opts.wait_topics.iter().all(|t| {
-                publishers
-                    .get(t)
-                    .is_some_and(|(p, _)| p.subscription_count(&spun.node) > 0)
-            });
-            if all {
-                break;
+        let matched = futures::future::join_all(
+            opts.wait_topics
+                .iter()
+                .filter_map(|t| publishers.get(t))
+                .map(|(p, _)| p.wait_for_subscription(&spun.node)),
+        );
+        let stopped = async {
+            while !stop.load(Ordering::SeqCst) {
+                tokio::time::sleep(STOP_POLL).await;
             }
-            std::thread::sleep(MATCH_POLL);
-        }
+        };
+        runtime()?.block_on(async {
+            tokio::select! {
+                _ = tokio::time::timeout(limit, matched) => {}
+                _ = stopped => {}
+            }
+        });
     }
     // Latched topics first: /tf_static may be logged at time 0, long before the data.
     if let Some((p, type_name)) = publishers.get(TF_STATIC_TOPIC) {

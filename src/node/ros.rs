@@ -343,10 +343,13 @@ impl SpunNode {
         })
     }
 
-    /// Stops the spinner and waits for it.
-    pub fn stop(mut self) -> Result<(), NodeError> {
-        self.node.stop_spinner();
-        if let Some(h) = self.spinner.take() {
+    /// Stops the spinner and waits for it. Dropping the node is what signals the spinner:
+    /// ros2-client signals it again on drop, which after `stop_spinner` would log an error
+    /// because the stopped spinner no longer listens.
+    pub fn stop(self) -> Result<(), NodeError> {
+        let Self { node, spinner } = self;
+        drop(node);
+        if let Some(h) = spinner {
             h.join().map_err(|_| NodeError::ThreadPanic {
                 thread: "spinner".into(),
             })?;
