@@ -12,7 +12,9 @@
 //!   never synchronized (lost on best-effort DDS or unmatched);
 //! * resident memory of the process (node, player and listener; VmRSS from
 //!   `/proc/self/status`) every second: start, max, end, and the least-squares slope in MB/min
-//!   over the samples after the first depth arrived (growth there means a leak).
+//!   over the steady state, the second half of the time after the first depth arrived
+//!   (allocator arenas and DDS buffers fill up during the first half; growth after that
+//!   means a leak).
 
 use super::play::{play_bag_until, PlayError, PlayOptions, Published};
 use super::ros::{create_subscription, dds_context, runtime, ShutdownSignals, SpunNode};
@@ -41,6 +43,9 @@ pub const RENDERED_FRAMES: usize = 8;
 pub const DEFAULT_BENCH_DOMAIN: u16 = 87;
 /// How long to wait for DDS discovery.
 const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(20);
+/// Longest wait for the node to synchronize groups in flight when playing stops.
+const SETTLE_TIMEOUT: Duration = Duration::from_secs(2);
+const SETTLE_POLL: Duration = Duration::from_millis(20);
 /// Memory sampling period.
 const RSS_PERIOD: Duration = Duration::from_secs(1);
 /// Seconds per minute, for the RSS slope.
@@ -199,8 +204,10 @@ pub struct RssStats {
     pub start_mb: f64,
     pub max_mb: f64,
     pub end_mb: f64,
-    /// Over the samples after the first depth (steady state).
+    /// Over the steady state: the second half of the time after the first depth.
     pub slope_mb_per_min: Option<f64>,
+    /// Start of the steady state, seconds since the start.
+    pub steady_from_s: Option<f64>,
     /// `(seconds since the start, MB)`, one a second.
     pub samples: Vec<(f64, f64)>,
 }
@@ -300,7 +307,11 @@ impl BenchReport {
             ));
             rows.push((
                 "RSS slope (steady state)".into(),
-                format!("{} MB/min", opt(r.slope_mb_per_min, 2)),
+                format!(
+                    "{} MB/min (from {} s on)",
+                    opt(r.slope_mb_per_min, 2),
+                    opt(r.steady_from_s, 0)
+                ),
             ));
         }
         rows.push((
@@ -426,10 +437,13 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
         "/depth",
         QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
     )?;
-    let t0 = Instant::now();
-    while depth_sub.get_publisher_count(&listener.node) == 0 && t0.elapsed() < DISCOVERY_TIMEOUT {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    rt.block_on(async {
+        let _ = tokio::time::timeout(
+            DISCOVERY_TIMEOUT,
+            depth_sub.wait_for_publisher(&listener.node),
+        )
+        .await;
+    });
     let mut rss_samples: Vec<(f64, f64)> = Vec::new();
     if let Some(mb) = rss_mb() {
         rss_samples.push((bench_start.elapsed().as_secs_f64(), mb));
@@ -524,6 +538,12 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
     let play_result = player
         .join()
         .map_err(|_| other("the player thread panicked"))?;
+    // Groups still in flight when the player stopped are not lost: let the node take them.
+    let groups_published = lock_published(&published).complete;
+    let t0 = Instant::now();
+    while node.health().sync.groups < groups_published && t0.elapsed() < SETTLE_TIMEOUT {
+        std::thread::sleep(SETTLE_POLL);
+    }
     if let Some(mb) = rss_mb() {
         rss_samples.push((bench_start.elapsed().as_secs_f64(), mb));
     }
@@ -536,18 +556,20 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
     if interrupted {
         tracing::warn!("interrupted: the figures cover {window_s:.1} s");
     }
-    let groups_published = lock_published(&published).complete;
+    let end_s = bench_start.elapsed().as_secs_f64();
+    let steady_from_s = first_depth_s.map(|f| f + (end_s - f) / 2.0);
     let rss = (!rss_samples.is_empty()).then(|| {
         let steady: Vec<(f64, f64)> = rss_samples
             .iter()
             .copied()
-            .filter(|(t, _)| first_depth_s.is_some_and(|f| *t >= f))
+            .filter(|(t, _)| steady_from_s.is_some_and(|f| *t >= f))
             .collect();
         RssStats {
             start_mb: rss_samples[0].1,
             max_mb: rss_samples.iter().map(|s| s.1).fold(f64::MIN, f64::max),
             end_mb: rss_samples[rss_samples.len() - 1].1,
             slope_mb_per_min: slope_mb_per_min(&steady),
+            steady_from_s,
             samples: rss_samples.clone(),
         }
     });
