@@ -9,8 +9,9 @@ use mode360::record::{self, RecordOptions};
 use mode360::synth::SynthConfig;
 use std::path::PathBuf;
 
-/// Log filter when RUST_LOG is unset: RustDDS is quiet unless asked (RUST_LOG=info,rustdds=warn).
-const DEFAULT_LOG_FILTER: &str = "info,rustdds=off";
+/// Log filter when RUST_LOG is unset: RustDDS is quiet and ros2-client reports only problems
+/// unless asked (RUST_LOG=info,rustdds=warn).
+const DEFAULT_LOG_FILTER: &str = "info,rustdds=off,ros2_client=warn";
 
 #[derive(Parser)]
 #[command(
