@@ -208,6 +208,9 @@ pub struct RssStats {
     pub slope_mb_per_min: Option<f64>,
     /// Start of the steady state, seconds since the start.
     pub steady_from_s: Option<f64>,
+    /// Band of the steady-state samples (RSS rises and falls with each inference).
+    pub steady_min_mb: Option<f64>,
+    pub steady_max_mb: Option<f64>,
     /// `(seconds since the start, MB)`, one a second.
     pub samples: Vec<(f64, f64)>,
 }
@@ -308,9 +311,11 @@ impl BenchReport {
             rows.push((
                 "RSS slope (steady state)".into(),
                 format!(
-                    "{} MB/min (from {} s on)",
+                    "{} MB/min (from {} s on, band {} to {} MB)",
                     opt(r.slope_mb_per_min, 2),
-                    opt(r.steady_from_s, 0)
+                    opt(r.steady_from_s, 0),
+                    opt(r.steady_min_mb, 0),
+                    opt(r.steady_max_mb, 0)
                 ),
             ));
         }
@@ -570,6 +575,8 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
             end_mb: rss_samples[rss_samples.len() - 1].1,
             slope_mb_per_min: slope_mb_per_min(&steady),
             steady_from_s,
+            steady_min_mb: steady.iter().map(|s| s.1).reduce(f64::min),
+            steady_max_mb: steady.iter().map(|s| s.1).reduce(f64::max),
             samples: rss_samples.clone(),
         }
     });
