@@ -9,8 +9,9 @@ use mode360::record::{self, RecordOptions};
 use mode360::synth::SynthConfig;
 use std::path::PathBuf;
 
-/// Log filter when RUST_LOG is unset: RustDDS is quiet unless asked (RUST_LOG=info,rustdds=warn).
-const DEFAULT_LOG_FILTER: &str = "info,rustdds=off";
+/// Log filter when RUST_LOG is unset: RustDDS is quiet and ros2-client reports only problems
+/// unless asked (RUST_LOG=info,rustdds=warn).
+const DEFAULT_LOG_FILTER: &str = "info,rustdds=off,ros2_client=warn";
 
 #[derive(Parser)]
 #[command(
@@ -42,6 +43,8 @@ enum Command {
     Replay(ReplayArgs),
     /// Publish a bag on DDS with its original timing (like `ros2 bag play`).
     Play(PlayArgs),
+    /// Benchmark the live node: a looped bag over loopback DDS; latency, rates, memory.
+    BenchNode(BenchNodeArgs),
     /// The whole thing: node + bag played into it over loopback DDS, outputs recorded, previews, metrics.
     Demo(DemoArgs),
     /// Benchmark SSMODE forward passes: time and GFLOP/s per stage, end-to-end time, peak memory.
@@ -124,6 +127,34 @@ struct DemoArgs {
 }
 
 #[derive(Args)]
+struct BenchNodeArgs {
+    /// Estimator: photometric or ssmode.
+    #[arg(long, default_value = "photometric")]
+    estimator: String,
+    /// Output width (and width of rendered input); default: the bag's, or 512 without --bag.
+    #[arg(long)]
+    width: Option<usize>,
+    /// How long to play, seconds.
+    #[arg(long, default_value_t = 60.0)]
+    duration_s: f64,
+    /// Rig bag to play in a loop (default: the bundled bag, or frames rendered at --width).
+    #[arg(long)]
+    bag: Option<PathBuf>,
+    /// Rig calibration of rendered frames.
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    rig: PathBuf,
+    /// Playback speed factor (1 = the bag's frame rate).
+    #[arg(long, default_value_t = 1.0)]
+    rate: f64,
+    /// Private DDS domain (loopback only).
+    #[arg(long, default_value_t = mode360::node::bench::DEFAULT_BENCH_DOMAIN)]
+    domain_id: u16,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Args)]
 struct ReplayArgs {
     /// Input rig bag.
     input: PathBuf,
@@ -148,9 +179,12 @@ struct PlayArgs {
     /// Playback speed factor (1 = recorded timing).
     #[arg(long, default_value_t = 1.0)]
     rate: f64,
-    /// Play the bag this many times.
+    /// Play the bag this many times (stamps keep increasing from one repetition to the next).
     #[arg(long, default_value_t = 1)]
     loops: usize,
+    /// Play the bag over and over until Ctrl-C (like `ros2 bag play --loop`).
+    #[arg(long = "loop", conflicts_with = "loops")]
+    forever: bool,
     /// Do not publish /clock.
     #[arg(long)]
     no_clock: bool,
@@ -265,9 +299,14 @@ fn main() -> Result<()> {
         Command::Synth(a) => synth(a),
         Command::Eval(a) => run_eval(a),
         Command::Train(a) => train(a),
-        Command::Node { args } => Ok(mode360::node::run_node(args)?),
+        Command::Node { args } => {
+            let run = mode360::node::run_node(args)?;
+            println!("{}", run.summary_line());
+            Ok(())
+        }
         Command::Replay(a) => replay(a),
         Command::Play(a) => play(a),
+        Command::BenchNode(a) => bench_node(a),
         Command::Demo(a) => demo(a),
         Command::BenchModel(a) => bench_model(a),
         Command::Deep360Bag(a) => deep360_bag(a),
@@ -389,16 +428,53 @@ fn replay(a: ReplayArgs) -> Result<()> {
 }
 
 fn play(a: PlayArgs) -> Result<()> {
-    let summary = mode360::node::play_bag(&mode360::node::PlayOptions {
-        input: a.input,
+    let stop = mode360::node::stop_flag_on_signals()?;
+    let summary = mode360::node::play_bag_until(
+        &mode360::node::PlayOptions {
+            input: a.input,
+            rate: a.rate,
+            loops: if a.forever { usize::MAX } else { a.loops },
+            publish_clock: !a.no_clock,
+            dds: mode360::node::DdsOptions::from_env()?,
+            wait_for_subscribers: None,
+            wait_topics: Vec::new(),
+        },
+        &stop,
+        |_| {},
+    )?;
+    let total: u64 = summary.published.values().sum();
+    println!(
+        "played {total} messages in {:.1} s ({} repetitions); per topic: {:?}",
+        summary.seconds, summary.loops_played, summary.published
+    );
+    if !summary.skipped_topics.is_empty() {
+        println!("skipped (unsupported types): {:?}", summary.skipped_topics);
+    }
+    Ok(())
+}
+
+fn bench_node(a: BenchNodeArgs) -> Result<()> {
+    if !(a.duration_s.is_finite() && a.duration_s > 0.0) {
+        bail!("--duration-s must be a positive number of seconds");
+    }
+    let report = mode360::node::bench::run_bench(&mode360::node::bench::BenchOptions {
+        estimator: a.estimator,
+        width: a.width,
+        duration: std::time::Duration::from_secs_f64(a.duration_s),
+        bag: a.bag,
+        rig_file: a.rig,
         rate: a.rate,
-        loops: a.loops,
-        publish_clock: !a.no_clock,
-        dds: mode360::node::DdsOptions::from_env()?,
-        wait_for_subscribers: None,
-        wait_topics: Vec::new(),
+        dds: mode360::node::DdsOptions {
+            domain_id: a.domain_id,
+            loopback_only: true,
+        },
     })?;
-    println!("played {summary:?}");
+    print!("{}", report.to_table());
+    if let Some(path) = a.json {
+        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }
 

@@ -1,12 +1,17 @@
 //! The ROS 2 node: synchronized camera streams in, depth, points and confidence out.
 //!
 //! [`pipeline`] is the DDS-free core shared with offline replay ([`crate::replay`]),
-//! [`params`] parses `--ros-args` and params files, [`diagnostics`] builds `/diagnostics`.
+//! [`params`] parses `--ros-args` and params files, [`diagnostics`] builds `/diagnostics`,
+//! [`clock`] is the node's system or simulated clock, [`play`] feeds a bag onto DDS and
+//! [`bench`] measures the live node.
 
+pub mod bench;
+pub mod clock;
 pub mod diagnostics;
 pub mod params;
 pub mod pipeline;
 
+pub use clock::{ClockSource, NodeClock};
 pub use diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
 pub use params::{ImageTransport, NodeParams, ParamsError};
 pub use pipeline::{Pipeline, PipelineError, PipelineOutput, PipelineParams};
@@ -35,6 +40,8 @@ pub fn resolve_topic(namespace: &str, name: &str) -> String {
 }
 
 pub mod ros;
-pub use ros::{run_node, spawn_node, DdsOptions, NodeError, NodeHandle};
+pub use ros::{
+    run_node, spawn_node, stop_flag_on_signals, DdsOptions, NodeError, NodeHandle, NodeRun,
+};
 pub mod play;
-pub use play::{play_bag, PlayError, PlayOptions, PlaySummary};
+pub use play::{play_bag, play_bag_until, PlayError, PlayOptions, PlaySummary};

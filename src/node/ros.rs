@@ -1,25 +1,33 @@
 //! The live ROS 2 node over ros2-client (RustDDS, no ROS install needed).
 //!
-//! Threads: a DDS thread receives every camera topic (sensor-data QoS: best effort, keep last),
-//! validates and decodes each image, feeds [`ApproxTimeSync`] and, at [`TICK`] intervals,
-//! times cameras out and publishes `/diagnostics` once a second. Complete groups go to a
-//! 1-slot mailbox: a newer group replaces an unprocessed older one (counted as dropped), so
-//! no queue grows without bound. An inference worker thread takes the newest group, runs the
-//! [`Pipeline`] and publishes `depth`, `points` and `confidence`. A third thread runs the
-//! ros2-client spinner (discovery); shutdown stops it and waits for it.
+//! Threads: a DDS thread runs a current-thread tokio runtime whose loop (`tokio::select!`)
+//! receives every camera topic (sensor-data QoS: best effort, keep last), validates and
+//! decodes each image and feeds [`ApproxTimeSync`]; with `use_sim_time` it also follows
+//! `/clock` ([`NodeClock`]); a `tokio::time` ticker ([`TICK`]) times cameras out and publishes
+//! `/diagnostics` once a second; a watch channel stops it. Complete groups go to a 1-slot
+//! mailbox: a newer group replaces an unprocessed older one (counted as dropped), so no queue
+//! grows without bound and inference never blocks DDS. An inference worker thread takes the
+//! newest group, runs the [`Pipeline`] and publishes `depth`, `points` and `confidence`. A
+//! third thread runs the ros2-client spinner (discovery) on its own tokio runtime; shutdown
+//! stops it and waits for it. [`run_node`] waits for SIGINT or SIGTERM ([`ShutdownSignals`])
+//! and then shuts everything down.
 
+use super::clock::{secs_between, NodeClock};
 use super::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
 use super::params::{ImageTransport, NodeParams, ParamsError};
 use super::pipeline::{Pipeline, PipelineError, PipelineParams};
 use super::{
-    resolve_topic, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC, POINTS_TOPIC, TF_STATIC_TOPIC,
+    resolve_topic, CLOCK_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC, POINTS_TOPIC,
+    TF_STATIC_TOPIC,
 };
 use crate::bag::rig_tf_static;
 use crate::estimator::{by_name, EstimatorError};
 use crate::frame::RgbImage;
 use crate::geometry::{Rig, RigError};
 use crate::msgs::image::{rgb_from_compressed, rgb_from_image_msg};
-use crate::msgs::{CompressedImage, DiagnosticArray, Image, PointCloud2, RosMessage, TFMessage};
+use crate::msgs::{
+    Clock, CompressedImage, DiagnosticArray, Image, PointCloud2, RosMessage, TFMessage,
+};
 use crate::sync::{ApproxTimeSync, SyncConfig, SyncGroup};
 use futures::StreamExt;
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
@@ -32,6 +40,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use tokio::sync::watch;
 
 /// Housekeeping period of the DDS thread (timeouts, shutdown, diagnostics schedule).
 pub const TICK: Duration = Duration::from_millis(50);
@@ -66,6 +75,90 @@ pub enum NodeError {
     Dds { what: String, problem: String },
     #[error("node thread '{thread}' panicked")]
     ThreadPanic { thread: String },
+    #[error("tokio: {what}: {problem}")]
+    Runtime { what: String, problem: String },
+}
+
+/// A current-thread tokio runtime with timers and the I/O driver (signals need it).
+pub fn runtime() -> Result<tokio::runtime::Runtime, NodeError> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| NodeError::Runtime {
+            what: "building the runtime".into(),
+            problem: e.to_string(),
+        })
+}
+
+/// SIGINT (Ctrl-C) and SIGTERM as one stream; install it before announcing that the
+/// process is up so that no signal can hit the default handler (which kills the process).
+pub struct ShutdownSignals {
+    #[cfg(unix)]
+    interrupt: tokio::signal::unix::Signal,
+    #[cfg(unix)]
+    terminate: tokio::signal::unix::Signal,
+}
+
+impl ShutdownSignals {
+    /// Installs the handlers; must be called inside a tokio runtime (`Runtime::enter`).
+    pub fn install() -> Result<Self, NodeError> {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            let err = |e: std::io::Error| NodeError::Runtime {
+                what: "installing signal handlers".into(),
+                problem: e.to_string(),
+            };
+            Ok(Self {
+                interrupt: signal(SignalKind::interrupt()).map_err(err)?,
+                terminate: signal(SignalKind::terminate()).map_err(err)?,
+            })
+        }
+        #[cfg(not(unix))]
+        Ok(Self {})
+    }
+
+    /// Waits for the next signal and returns its name (`SIGINT` or `SIGTERM`).
+    pub async fn recv(&mut self) -> &'static str {
+        #[cfg(unix)]
+        {
+            tokio::select! {
+                _ = self.interrupt.recv() => "SIGINT",
+                _ = self.terminate.recv() => "SIGTERM",
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            match tokio::signal::ctrl_c().await {
+                Ok(()) => "Ctrl-C",
+                Err(_) => std::future::pending().await,
+            }
+        }
+    }
+}
+
+/// A flag that turns true on SIGINT or SIGTERM (a background thread waits for them), for
+/// blocking loops such as [`super::play_bag_until`].
+pub fn stop_flag_on_signals() -> Result<Arc<AtomicBool>, NodeError> {
+    let rt = runtime()?;
+    let mut signals = {
+        let _guard = rt.enter();
+        ShutdownSignals::install()?
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    std::thread::Builder::new()
+        .name("mode360-signals".into())
+        .spawn(move || {
+            let name = rt.block_on(signals.recv());
+            tracing::info!("{name}: stopping");
+            flag.store(true, Ordering::SeqCst);
+        })
+        .map_err(|e| NodeError::Runtime {
+            what: "starting the signal thread".into(),
+            problem: e.to_string(),
+        })?;
+    Ok(stop)
 }
 
 fn dds_err(what: impl Into<String>) -> impl FnOnce(String) -> NodeError {
@@ -232,10 +325,11 @@ impl SpunNode {
             what: "creating the spinner".into(),
             problem: e.to_string(),
         })?;
+        let rt = runtime()?;
         let handle = std::thread::Builder::new()
             .name("mode360-spinner".into())
             .spawn(move || {
-                if let Err(e) = smol::block_on(spinner.spin()) {
+                if let Err(e) = rt.block_on(spinner.spin()) {
                     tracing::warn!("spinner stopped with error: {e}");
                 }
             })
@@ -249,10 +343,13 @@ impl SpunNode {
         })
     }
 
-    /// Stops the spinner and waits for it.
-    pub fn stop(mut self) -> Result<(), NodeError> {
-        self.node.stop_spinner();
-        if let Some(h) = self.spinner.take() {
+    /// Stops the spinner and waits for it. Dropping the node is what signals the spinner:
+    /// ros2-client signals it again on drop, which after `stop_spinner` would log an error
+    /// because the stopped spinner no longer listens.
+    pub fn stop(self) -> Result<(), NodeError> {
+        let Self { node, spinner } = self;
+        drop(node);
+        if let Some(h) = spinner {
             h.join().map_err(|_| NodeError::ThreadPanic {
                 thread: "spinner".into(),
             })?;
@@ -280,7 +377,9 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 /// A running node (in-process); [`NodeHandle::shutdown`] stops it.
 pub struct NodeHandle {
-    stop: Arc<AtomicBool>,
+    stop: watch::Sender<bool>,
+    /// Closed (its sender dropped) when the DDS thread ends.
+    done: watch::Receiver<()>,
     shared: Arc<Shared>,
     thread: Option<JoinHandle<Result<(), NodeError>>>,
 }
@@ -296,9 +395,14 @@ impl NodeHandle {
         self.thread.as_ref().is_none_or(|t| t.is_finished())
     }
 
+    /// Resolves when the node thread has ended (by error or shutdown).
+    pub async fn finished(&mut self) {
+        while self.done.changed().await.is_ok() {}
+    }
+
     /// Stops the node, waits for all its threads and returns its final health.
     pub fn shutdown(mut self) -> Result<NodeHealth, NodeError> {
-        self.stop.store(true, Ordering::SeqCst);
+        self.stop.send_replace(true);
         if let Some(t) = self.thread.take() {
             t.join().map_err(|_| NodeError::ThreadPanic {
                 thread: "dds".into(),
@@ -310,23 +414,74 @@ impl NodeHandle {
 
 impl Drop for NodeHandle {
     fn drop(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
+        self.stop.send_replace(true);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }
 }
 
-/// `mode360 node [--ros-args ...]`: runs until the process is stopped.
-pub fn run_node(args: Vec<String>) -> Result<(), NodeError> {
+/// How [`run_node`] ended.
+#[derive(Clone, Debug)]
+pub struct NodeRun {
+    /// The signal that stopped the node (`SIGINT`, `SIGTERM`).
+    pub stopped_by: String,
+    pub health: NodeHealth,
+}
+
+impl NodeRun {
+    /// One line for the terminal: camera groups (frames) synchronized, published and
+    /// dropped in the mailbox (including one left unprocessed at shutdown), pipeline errors,
+    /// and the image counters. Without pipeline errors `frames_in = frames_out +
+    /// frames_dropped`.
+    pub fn summary_line(&self) -> String {
+        let h = &self.health;
+        let images_in: u64 = h.cameras.iter().map(|c| c.received).sum();
+        let images_bad: u64 = h.cameras.iter().map(|c| c.bad_messages).sum();
+        format!(
+            "mode360 node stopped by {}: frames_in={} frames_out={} frames_dropped={} \
+             pipeline_errors={} images_in={} images_bad={} images_unmatched={}",
+            self.stopped_by,
+            h.sync.groups,
+            h.groups_processed,
+            h.groups_dropped,
+            h.pipeline_errors,
+            images_in,
+            images_bad,
+            h.sync.unmatched + h.sync.overflow,
+        )
+    }
+}
+
+/// `mode360 node [--ros-args ...]`: runs until SIGINT (Ctrl-C) or SIGTERM, then shuts down
+/// cleanly (inference finishes its group, DDS entities and the participant are disposed).
+pub fn run_node(args: Vec<String>) -> Result<NodeRun, NodeError> {
     let params = NodeParams::from_args(&args)?;
     let dds = DdsOptions::from_env()?;
-    let handle = spawn_node(params, dds)?;
-    tracing::info!("mode360 node running; stop with Ctrl-C");
-    while !handle.is_finished() {
-        std::thread::sleep(TICK);
+    let rt = runtime()?;
+    // Handlers first: a signal during setup is then a clean stop, not a kill.
+    let mut signals = {
+        let _guard = rt.enter();
+        ShutdownSignals::install()?
+    };
+    let name = params.fully_qualified_name();
+    let domain = dds.domain_id;
+    let mut handle = spawn_node(params, dds)?;
+    tracing::info!("mode360 node {name} up on domain {domain}; stop with Ctrl-C");
+    let stopped_by = rt.block_on(async {
+        tokio::select! {
+            name = signals.recv() => Some(name),
+            _ = handle.finished() => None,
+        }
+    });
+    if let Some(signal) = stopped_by {
+        tracing::info!("{signal}: shutting down");
     }
-    handle.shutdown().map(|_| ())
+    let health = handle.shutdown()?;
+    Ok(NodeRun {
+        stopped_by: stopped_by.unwrap_or("node thread end").to_string(),
+        health,
+    })
 }
 
 /// Starts the node on its own threads and returns once it is set up (publishers created,
@@ -359,21 +514,26 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
             ..Default::default()
         }),
     });
-    let stop = Arc::new(AtomicBool::new(false));
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (done_tx, done_rx) = watch::channel(());
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<(), NodeError>>();
     let thread = {
         let shared = shared.clone();
-        let stop = stop.clone();
         std::thread::Builder::new()
             .name("mode360-dds".into())
-            .spawn(move || dds_main(params, dds, rig, pipeline, shared, stop, ready_tx))
+            .spawn(move || {
+                let result = dds_main(params, dds, rig, pipeline, shared, stop_rx, ready_tx);
+                drop(done_tx);
+                result
+            })
             .map_err(|e| NodeError::Dds {
                 what: "starting the node thread".into(),
                 problem: e.to_string(),
             })?
     };
     let handle = NodeHandle {
-        stop,
+        stop: stop_tx,
+        done: done_rx,
         shared,
         thread: Some(thread),
     };
@@ -405,7 +565,8 @@ enum CameraMsg {
 
 /// Per-camera receive bookkeeping on the DDS thread.
 struct CameraState {
-    last_receipt: Option<Instant>,
+    /// Node-clock time of the newest good message.
+    last_receipt_ns: Option<u64>,
     received_in_period: u64,
 }
 
@@ -511,65 +672,187 @@ fn worker_main(mut pipeline: Pipeline, publishers: OutputPublishers, shared: Arc
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Everything the DDS thread sets up before it reports ready.
+struct DdsSetup {
+    context: Context,
+    spun: SpunNode,
+    publishers: OutputPublishers,
+    tf_static: Publisher<TFMessage>,
+    diagnostics: Publisher<DiagnosticArray>,
+    raw_subs: Vec<(usize, ros2_client::Subscription<Image>)>,
+    compressed_subs: Vec<(usize, ros2_client::Subscription<CompressedImage>)>,
+    clock_sub: Option<ros2_client::Subscription<Clock>>,
+}
+
+fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetup, NodeError> {
+    let context = dds_context(dds)?;
+    let mut spun = SpunNode::new(&context, &params.namespace, &params.node_name)?;
+    let ns = params.namespace.clone();
+    let topic = |name: &str| match params.remaps.get(name) {
+        // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
+        Some(to) => resolve_topic(&ns, to),
+        None => params.remap(&resolve_topic(&ns, name)),
+    };
+    let node = &mut spun.node;
+    let publishers = OutputPublishers {
+        depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
+        points: create_publisher(node, &topic(POINTS_TOPIC), output_qos())?,
+        confidence: create_publisher(node, &topic(CONFIDENCE_TOPIC), output_qos())?,
+    };
+    let tf_static: Publisher<TFMessage> = create_publisher(node, TF_STATIC_TOPIC, latched_qos())?;
+    let diagnostics: Publisher<DiagnosticArray> =
+        create_publisher(node, DIAGNOSTICS_TOPIC, output_qos())?;
+    let mut raw_subs = Vec::new();
+    let mut compressed_subs = Vec::new();
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        let t = camera_topic(params, &cam.name, &cam.topic);
+        match params.image_transport(&cam.name) {
+            ImageTransport::Raw => {
+                raw_subs.push((i, create_subscription::<Image>(node, &t, sensor_qos())?))
+            }
+            ImageTransport::Compressed => compressed_subs.push((
+                i,
+                create_subscription::<CompressedImage>(node, &t, sensor_qos())?,
+            )),
+        }
+    }
+    let clock_sub = if params.use_sim_time {
+        Some(create_subscription::<Clock>(
+            node,
+            CLOCK_TOPIC,
+            clock_qos(),
+        )?)
+    } else {
+        None
+    };
+    tf_static
+        .publish(rig_tf_static(rig))
+        .map_err(|e| format!("{e:?}"))
+        .map_err(dds_err("publishing /tf_static"))?;
+    Ok(DdsSetup {
+        context,
+        spun,
+        publishers,
+        tf_static,
+        diagnostics,
+        raw_subs,
+        compressed_subs,
+        clock_sub,
+    })
+}
+
+/// `/clock` subscription QoS (rclcpp's ClockQoS): best effort, keep last 1; matches
+/// reliable and best-effort publishers.
+pub fn clock_qos() -> QosProfile {
+    QosProfile::subscription_default().history(ros2_client::qos::History::KeepLast { depth: 1 })
+}
+
+/// Receive-side state of the DDS loop: synchronizer, clock, per-camera bookkeeping.
+struct Receiver {
+    sync: ApproxTimeSync<RgbImage>,
+    clock: NodeClock,
+    cams: Vec<CameraState>,
+    /// Node-clock time of the first tick or image (the baseline of cameras never heard).
+    started_ns: Option<u64>,
+    timeout_ns: u64,
+    shared: Arc<Shared>,
+    hardware_id: String,
+    last_diag: Instant,
+}
+
+impl Receiver {
+    fn on_camera(&mut self, i: usize, result: Result<CameraMsg, String>) {
+        let now_ns = self.clock.now_ns();
+        if let Some(now) = now_ns {
+            self.started_ns.get_or_insert(now);
+        }
+        let sync = &mut self.sync;
+        let outcome = result
+            .and_then(|msg| decode_camera(&msg))
+            .and_then(|(stamp_ns, img)| sync.push(i, stamp_ns, img).map_err(|e| e.to_string()));
+        let mut groups = Vec::new();
+        {
+            let mut h = lock(&self.shared.health);
+            match outcome {
+                Ok(g) => {
+                    groups = g;
+                    if now_ns.is_some() {
+                        self.cams[i].last_receipt_ns = now_ns;
+                    }
+                    self.cams[i].received_in_period += 1;
+                    h.cameras[i].received += 1;
+                    if !self.sync.is_active(i) {
+                        h.cameras[i].active = true;
+                        groups.extend(self.sync.set_active(i, true));
+                    }
+                }
+                Err(reason) => {
+                    h.cameras[i].bad_messages += 1;
+                    h.cameras[i].last_bad_reason = Some(reason);
+                }
+            }
+            h.sync = self.sync.stats();
+        }
+        post_groups(&self.shared, groups);
+    }
+
+    fn on_tick(&mut self, diagnostics: &Publisher<DiagnosticArray>) {
+        let now_ns = self.clock.now_ns();
+        if let Some(now) = now_ns {
+            let started = *self.started_ns.get_or_insert(now);
+            // Cameras silent for longer than the timeout are no longer waited for, as long
+            // as at least MIN_ACTIVE_CAMERAS stay active.
+            let mut groups = Vec::new();
+            for i in 0..self.cams.len() {
+                let silent_since = self.cams[i].last_receipt_ns.unwrap_or(started);
+                let active_count = (0..self.cams.len())
+                    .filter(|&k| self.sync.is_active(k))
+                    .count();
+                if self.sync.is_active(i)
+                    && now.saturating_sub(silent_since) > self.timeout_ns
+                    && active_count > MIN_ACTIVE_CAMERAS
+                {
+                    groups.extend(self.sync.set_active(i, false));
+                    lock(&self.shared.health).cameras[i].active = false;
+                }
+            }
+            post_groups(&self.shared, groups);
+        }
+        let period = self.last_diag.elapsed();
+        if period >= DIAGNOSTICS_PERIOD {
+            let report = {
+                let mut h = lock(&self.shared.health);
+                for (i, c) in self.cams.iter_mut().enumerate() {
+                    h.cameras[i].rate_hz = c.received_in_period as f64 / period.as_secs_f64();
+                    h.cameras[i].age_secs = match (c.last_receipt_ns, now_ns) {
+                        (Some(t), Some(now)) => Some(secs_between(t, now)),
+                        _ => None,
+                    };
+                    c.received_in_period = 0;
+                }
+                h.sync = self.sync.stats();
+                // Stamp 0 with simulated time before the first /clock, as in ROS 2.
+                diagnostic_array(now_ns.unwrap_or(0), &self.hardware_id, &h)
+            };
+            if let Err(e) = diagnostics.publish(report) {
+                tracing::warn!("publishing /diagnostics: {e:?}");
+            }
+            self.last_diag = Instant::now();
+        }
+    }
+}
+
 fn dds_main(
     params: NodeParams,
     dds: DdsOptions,
     rig: Rig,
     pipeline: Pipeline,
     shared: Arc<Shared>,
-    stop: Arc<AtomicBool>,
+    mut stop: watch::Receiver<bool>,
     ready: std::sync::mpsc::Sender<Result<(), NodeError>>,
 ) -> Result<(), NodeError> {
-    let setup = (|| {
-        let context = dds_context(&dds)?;
-        let mut spun = SpunNode::new(&context, &params.namespace, &params.node_name)?;
-        let ns = params.namespace.clone();
-        let topic = |name: &str| match params.remaps.get(name) {
-            // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
-            Some(to) => resolve_topic(&ns, to),
-            None => params.remap(&resolve_topic(&ns, name)),
-        };
-        let node = &mut spun.node;
-        let publishers = OutputPublishers {
-            depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
-            points: create_publisher(node, &topic(POINTS_TOPIC), output_qos())?,
-            confidence: create_publisher(node, &topic(CONFIDENCE_TOPIC), output_qos())?,
-        };
-        let tf_static: Publisher<TFMessage> =
-            create_publisher(node, TF_STATIC_TOPIC, latched_qos())?;
-        let diagnostics: Publisher<DiagnosticArray> =
-            create_publisher(node, DIAGNOSTICS_TOPIC, output_qos())?;
-        let mut raw_subs = Vec::new();
-        let mut compressed_subs = Vec::new();
-        for (i, cam) in rig.cameras.iter().enumerate() {
-            let t = camera_topic(&params, &cam.name, &cam.topic);
-            match params.image_transport(&cam.name) {
-                ImageTransport::Raw => {
-                    raw_subs.push((i, create_subscription::<Image>(node, &t, sensor_qos())?))
-                }
-                ImageTransport::Compressed => compressed_subs.push((
-                    i,
-                    create_subscription::<CompressedImage>(node, &t, sensor_qos())?,
-                )),
-            }
-        }
-        tf_static
-            .publish(rig_tf_static(&rig))
-            .map_err(|e| format!("{e:?}"))
-            .map_err(dds_err("publishing /tf_static"))?;
-        Ok::<_, NodeError>((
-            context,
-            spun,
-            publishers,
-            tf_static,
-            diagnostics,
-            raw_subs,
-            compressed_subs,
-        ))
-    })();
-    let (context, spun, publishers, tf_static, diagnostics, raw_subs, compressed_subs) = match setup
-    {
+    let setup = runtime().and_then(|rt| Ok((rt, dds_setup(&params, &dds, &rig)?)));
+    let (rt, setup) = match setup {
         Ok(s) => s,
         Err(e) => {
             let text = e.to_string();
@@ -580,6 +863,16 @@ fn dds_main(
             });
         }
     };
+    let DdsSetup {
+        context,
+        spun,
+        publishers,
+        tf_static,
+        diagnostics,
+        raw_subs,
+        compressed_subs,
+        clock_sub,
+    } = setup;
     let worker = {
         let shared = shared.clone();
         std::thread::Builder::new()
@@ -590,26 +883,30 @@ fn dds_main(
     };
     let _ = ready.send(Ok(()));
 
-    let hardware_id = params.fully_qualified_name();
     let n = rig.cameras.len();
-    let timeout = Duration::from_secs_f64(params.camera_timeout_secs);
-    let mut sync: ApproxTimeSync<RgbImage> = ApproxTimeSync::new(
-        n,
-        SyncConfig {
-            tolerance_ns: (params.sync_tolerance_secs * 1e9).round() as u64,
-            queue_size: params.sync_queue_size,
-        },
-    );
-    let mut cams: Vec<CameraState> = (0..n)
-        .map(|_| CameraState {
-            last_receipt: None,
-            received_in_period: 0,
-        })
-        .collect();
-    let started = Instant::now();
-    let mut last_diag = Instant::now();
+    let mut rx = Receiver {
+        sync: ApproxTimeSync::new(
+            n,
+            SyncConfig {
+                tolerance_ns: (params.sync_tolerance_secs * 1e9).round() as u64,
+                queue_size: params.sync_queue_size,
+            },
+        ),
+        clock: NodeClock::new(params.use_sim_time),
+        cams: (0..n)
+            .map(|_| CameraState {
+                last_receipt_ns: None,
+                received_in_period: 0,
+            })
+            .collect(),
+        started_ns: None,
+        timeout_ns: (params.camera_timeout_secs * 1e9).round() as u64,
+        shared: shared.clone(),
+        hardware_id: params.fully_qualified_name(),
+        last_diag: Instant::now(),
+    };
 
-    smol::block_on(async {
+    rt.block_on(async {
         let raw = futures::stream::select_all(raw_subs.iter().map(|(i, s)| {
             let i = *i;
             s.async_stream()
@@ -622,82 +919,25 @@ fn dds_main(
                 .map(move |r| (i, r.map(|(m, _)| CameraMsg::Compressed(m))))
                 .boxed()
         }));
-        let mut incoming = futures::stream::select(raw, compressed).fuse();
-        let mut ticker = smol::Timer::interval(TICK).fuse();
+        let mut incoming = futures::stream::select(raw, compressed);
+        let mut clock_msgs = match &clock_sub {
+            Some(s) => s.async_stream().boxed(),
+            None => futures::stream::pending().boxed(),
+        };
+        let mut ticker = tokio::time::interval(TICK);
+        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
-            futures::select! {
-                item = incoming.next() => {
-                    let Some((i, result)) = item else { continue };
-                    let now = Instant::now();
-                    let outcome = result
-                        .map_err(|e| format!("cannot deserialize: {e:?}"))
-                        .and_then(|msg| decode_camera(&msg))
-                        .and_then(|(stamp_ns, img)| {
-                            sync.push(i, stamp_ns, img).map_err(|e| e.to_string())
-                        });
-                    let mut groups = Vec::new();
-                    {
-                        let mut h = lock(&shared.health);
-                        match outcome {
-                            Ok(g) => {
-                                groups = g;
-                                cams[i].last_receipt = Some(now);
-                                cams[i].received_in_period += 1;
-                                h.cameras[i].received += 1;
-                                if !sync.is_active(i) {
-                                    h.cameras[i].active = true;
-                                    groups.extend(sync.set_active(i, true));
-                                }
-                            }
-                            Err(reason) => {
-                                h.cameras[i].bad_messages += 1;
-                                h.cameras[i].last_bad_reason = Some(reason);
-                            }
-                        }
-                        h.sync = sync.stats();
-                    }
-                    post_groups(&shared, groups);
+            tokio::select! {
+                // A stop request, or the handle dropped.
+                _ = stop.changed() => break,
+                Some((i, result)) = incoming.next() => {
+                    rx.on_camera(i, result.map_err(|e| format!("cannot deserialize: {e:?}")));
                 }
-                _ = ticker.next() => {
-                    if stop.load(Ordering::SeqCst) {
-                        break;
-                    }
-                    let now = Instant::now();
-                    // Cameras silent for longer than the timeout are no longer waited for,
-                    // as long as at least MIN_ACTIVE_CAMERAS stay active.
-                    let mut groups = Vec::new();
-                    for (i, cam) in cams.iter().enumerate() {
-                        let silent_since = cam.last_receipt.unwrap_or(started);
-                        let active_count = (0..n).filter(|&k| sync.is_active(k)).count();
-                        if sync.is_active(i)
-                            && now.duration_since(silent_since) > timeout
-                            && active_count > MIN_ACTIVE_CAMERAS
-                        {
-                            groups.extend(sync.set_active(i, false));
-                            lock(&shared.health).cameras[i].active = false;
-                        }
-                    }
-                    post_groups(&shared, groups);
-                    let period = now.duration_since(last_diag);
-                    if period >= DIAGNOSTICS_PERIOD {
-                        let report = {
-                            let mut h = lock(&shared.health);
-                            for (i, c) in cams.iter_mut().enumerate() {
-                                h.cameras[i].rate_hz =
-                                    c.received_in_period as f64 / period.as_secs_f64();
-                                h.cameras[i].age_secs =
-                                    c.last_receipt.map(|t| now.duration_since(t).as_secs_f64());
-                                c.received_in_period = 0;
-                            }
-                            h.sync = sync.stats();
-                            diagnostic_array(wall_clock_ns(), &hardware_id, &h)
-                        };
-                        if let Err(e) = diagnostics.publish(report) {
-                            tracing::warn!("publishing /diagnostics: {e:?}");
-                        }
-                        last_diag = now;
-                    }
-                }
+                Some(result) = clock_msgs.next() => match result {
+                    Ok((clock, _)) => rx.clock.on_clock(clock.clock.to_nanos()),
+                    Err(e) => tracing::warn!("/clock: cannot deserialize: {e:?}"),
+                },
+                _ = ticker.tick() => rx.on_tick(&diagnostics),
             }
         }
     });
@@ -705,24 +945,57 @@ fn dds_main(
     {
         let mut mb = lock(&shared.mailbox);
         mb.shutdown = true;
+        // A group still waiting for inference is not processed any more: dropped.
+        if mb.slot.take().is_some() {
+            lock(&shared.health).groups_dropped += 1;
+        }
     }
     shared.wake.notify_all();
     let worker_result = worker.join();
+    drop(clock_sub);
     drop(raw_subs);
     drop(compressed_subs);
     drop(tf_static);
     drop(diagnostics);
     spun.stop()?;
     drop(context);
+    drop(rt);
     worker_result.map_err(|_| NodeError::ThreadPanic {
         thread: "inference".into(),
     })
 }
 
-/// Wall-clock time in ns since the epoch (0 if the clock is before it).
-fn wall_clock_ns() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos() as u64)
-        .unwrap_or(0)
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sync::SyncStats;
+
+    #[test]
+    fn summary_line_counts_frames_and_images() {
+        let camera = |received, bad_messages| CameraHealth {
+            received,
+            bad_messages,
+            ..Default::default()
+        };
+        let run = NodeRun {
+            stopped_by: "SIGTERM".into(),
+            health: NodeHealth {
+                cameras: vec![camera(10, 0), camera(9, 2)],
+                sync: SyncStats {
+                    groups: 9,
+                    unmatched: 1,
+                    overflow: 2,
+                    out_of_order: 2,
+                },
+                groups_processed: 6,
+                groups_dropped: 3,
+                ..Default::default()
+            },
+        };
+        assert_eq!(
+            run.summary_line(),
+            "mode360 node stopped by SIGTERM: frames_in=9 frames_out=6 frames_dropped=3 \
+             pipeline_errors=0 images_in=19 images_bad=2 images_unmatched=3"
+        );
+    }
 }
