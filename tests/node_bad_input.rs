@@ -32,7 +32,7 @@ const RIG_PATH: &str = concat!(
     "/launch_configs/rig_deep360.yaml"
 );
 /// Unique domain of this test file.
-const DOMAIN_ID: u16 = 45;
+const DOMAIN_ID: u16 = 46;
 const WIDTH: usize = 128;
 /// Long enough that the pauses between cases (a diagnostics period or two) never time a
 /// camera out; short enough for case 4 to stay quick.

@@ -61,6 +61,8 @@ pub struct NodeParams {
     pub namespace: String,
     pub rig_file: PathBuf,
     pub estimator: String,
+    /// SSMODE weights file; `None` (parameter `weights` empty): the shipped weights.
+    pub weights: Option<PathBuf>,
     pub output_width: usize,
     pub sync_tolerance_secs: f64,
     pub sync_queue_size: usize,
@@ -83,6 +85,7 @@ impl Default for NodeParams {
             namespace: "/".into(),
             rig_file: DEFAULT_RIG_FILE.into(),
             estimator: "photometric".into(),
+            weights: None,
             output_width: 512,
             sync_tolerance_secs: 0.01,
             sync_queue_size: 5,
@@ -253,6 +256,7 @@ impl NodeParams {
         match name {
             "rig_file" => self.rig_file = value.into(),
             "estimator" => self.estimator = value.into(),
+            "weights" => self.weights = (!value.is_empty()).then(|| PathBuf::from(value)),
             "output_width" => {
                 let w = positive_usize()?;
                 if w % 2 != 0 {
@@ -383,8 +387,14 @@ mod tests {
             "/cam1/image_raw:=/front/image",
             "-p",
             "image_transport.cam2:=compressed",
+            "-p",
+            "weights:=runs/x/ssmode_compact.safetensors",
         ]))
         .unwrap();
+        assert_eq!(
+            p.weights.as_deref(),
+            Some(std::path::Path::new("runs/x/ssmode_compact.safetensors"))
+        );
         assert_eq!(p.output_width, 256);
         assert_eq!(p.sync_tolerance_secs, 0.02);
         assert!(p.use_sim_time);
