@@ -48,7 +48,7 @@ pub struct SsmodeConfig {
 }
 
 /// [`SsmodeConfig::far_plane_probability`] of the presets.
-pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.7;
+pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.8;
 
 fn default_far_plane_probability() -> f64 {
     DEFAULT_FAR_PLANE_PROBABILITY
