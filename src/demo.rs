@@ -11,7 +11,7 @@ use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use crate::msgs::{Header, Image, PointCloud2};
 use crate::node::pipeline::decode_points;
-use crate::node::ros::{create_subscription, dds_context, SpunNode};
+use crate::node::ros::{create_subscription, dds_context, runtime, SpunNode};
 use crate::node::{play_bag, spawn_node, DdsOptions, NodeParams, PlayOptions};
 use crate::viz::{colorize_range, stack_vertical};
 use image::Rgb;
@@ -107,13 +107,15 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
     let points_sub =
         create_subscription::<PointCloud2>(&mut listener.node, "/points", qos.clone())?;
     let conf_sub = create_subscription::<Image>(&mut listener.node, "/confidence", qos)?;
-    let t0 = Instant::now();
-    while (depth_sub.get_publisher_count(&listener.node) == 0
-        || points_sub.get_publisher_count(&listener.node) == 0)
-        && t0.elapsed() < DISCOVERY_TIMEOUT
-    {
-        std::thread::sleep(POLL);
-    }
+    // Wait for the node's publishers (ros2-client's match futures; a timeout here is not an
+    // error: play_bag waits for the node's subscriptions below and reports what is missing).
+    runtime()?.block_on(async {
+        let _ = tokio::time::timeout(DISCOVERY_TIMEOUT, async {
+            depth_sub.wait_for_publisher(&listener.node).await;
+            points_sub.wait_for_publisher(&listener.node).await;
+        })
+        .await;
+    });
     tracing::info!(
         "node up; playing {} frames of {}",
         frames.len(),
