@@ -16,13 +16,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::estimator::ssmode::SsmodeEstimator;
 use crate::estimator::{DepthEstimator, EstimatorError};
-use crate::frame::RgbImage;
 use crate::geometry::{ErpGrid, Rig};
 use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, StageProfiler, SweepSampling};
 use crate::synth::{SynthConfig, SynthRenderer};
+use crate::train::data::image_tensor;
 
-/// 8-bit colour to [0, 1].
-const BYTE_SCALE: f32 = 1.0 / 255.0;
 /// Bytes per mebibyte.
 const BYTES_PER_MB: f64 = 1024.0 * 1024.0;
 /// Value written to `/proc/self/clear_refs` to reset the peak resident set size.
@@ -118,12 +116,16 @@ pub fn reset_peak_resident() -> bool {
     std::fs::write("/proc/self/clear_refs", CLEAR_REFS_RESET_PEAK).is_ok()
 }
 
-fn proc_status_kb(key: &str) -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+/// The value in kB of the field `key` (e.g. `"VmRSS:"`) in the text of `/proc/<pid>/status`.
+pub fn status_field_kb(status: &str, key: &str) -> Option<f64> {
     status
         .lines()
         .find_map(|l| l.strip_prefix(key))
         .and_then(|rest| rest.trim().trim_end_matches("kB").trim().parse().ok())
+}
+
+fn proc_status_kb(key: &str) -> Option<f64> {
+    status_field_kb(&std::fs::read_to_string("/proc/self/status").ok()?, key)
 }
 
 /// The network with untracked weights: from `weights` (config from its metadata) or random
@@ -169,20 +171,6 @@ fn count_parameters(cfg: &SsmodeConfig, device: &Device) -> Result<usize, BenchE
     Ok(varmap.all_vars().iter().map(|v| v.elem_count()).sum())
 }
 
-fn image_tensor(img: &RgbImage, device: &Device) -> Result<Tensor, BenchError> {
-    let (w, h) = img.dimensions();
-    let data: Vec<f32> = img
-        .as_raw()
-        .iter()
-        .map(|&b| b as f32 * BYTE_SCALE)
-        .collect();
-    Ok(Tensor::from_vec(
-        data,
-        (1, h as usize, w as usize, 3),
-        device,
-    )?)
-}
-
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     match values.len() {
@@ -216,7 +204,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, Benc
     let images = frame
         .images
         .iter()
-        .map(|img| image_tensor(img, &device))
+        .map(image_tensor)
         .collect::<Result<Vec<_>, _>>()?;
 
     // Warm-up (page faults, thread pools), untimed.

@@ -151,14 +151,16 @@ pub fn regress_inference(
     let pixels = height * width;
     let mut index = vec![0f32; b * pixels];
     let mut conf = vec![0f32; b * pixels];
-    let mut far_plane = vec![false; b * pixels];
+    let mut range = vec![0f32; b * pixels];
+    let inv_far = hypotheses.inverse_depth(0.0);
+    let inv_near = hypotheses.inverse_depth((n - 1) as f64);
     let radius = CONFIDENCE_RADIUS as usize;
     index
         .par_chunks_mut(width)
         .zip(conf.par_chunks_mut(width))
-        .zip(far_plane.par_chunks_mut(width))
+        .zip(range.par_chunks_mut(width))
         .enumerate()
-        .for_each(|(row, ((index_row, conf_row), far_row))| {
+        .for_each(|(row, ((index_row, conf_row), range_row))| {
             let (bi, v) = (row / height, row % height);
             // (W, D): this row's sphere costs, pixel-major
             let mut spheres = vec![0f32; width * d];
@@ -203,25 +205,17 @@ pub fn regress_inference(
                 let near: f32 = p[arg.saturating_sub(radius)..(arg + radius + 1).min(n)]
                     .iter()
                     .sum();
-                index_row[u] = expected * inv_sum / (n - 1) as f32;
+                let k = expected * inv_sum / (n - 1) as f32;
+                index_row[u] = k;
                 conf_row[u] = near * inv_sum;
-                far_row[u] = f64::from(p[0] * inv_sum) >= far_plane_probability;
+                range_row[u] = if f64::from(p[0] * inv_sum) >= far_plane_probability {
+                    (1.0 / inv_far) as f32
+                } else {
+                    (1.0 / (inv_far + f64::from(k) * (inv_near - inv_far))) as f32
+                };
             }
         });
     let device = cost.device();
-    let inv_far = hypotheses.inverse_depth(0.0);
-    let inv_near = hypotheses.inverse_depth((n - 1) as f64);
-    let range: Vec<f32> = index
-        .iter()
-        .zip(&far_plane)
-        .map(|(&k, &far)| {
-            if far {
-                (1.0 / inv_far) as f32
-            } else {
-                (1.0 / (inv_far + f64::from(k) * (inv_near - inv_far))) as f32
-            }
-        })
-        .collect();
     let range_m = Tensor::from_vec(range, (b, height, width), device)?;
     let inverse_depth_index = Tensor::from_vec(index, (b, height, width), device)?;
     let confidence = Tensor::from_vec(conf, (b, height, width), device)?;

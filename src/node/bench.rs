@@ -183,9 +183,7 @@ pub fn rss_mb() -> Option<f64> {
 
 /// VmRSS in MB (10^6 bytes) from the text of `/proc/<pid>/status`.
 pub fn parse_vm_rss_mb(status: &str) -> Option<f64> {
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024.0 / 1e6)
+    crate::bench::status_field_kb(status, "VmRSS:").map(|kb| kb * 1024.0 / 1e6)
 }
 
 /// 1-minute load average, if readable.

@@ -263,18 +263,26 @@ pub fn latched_qos() -> QosProfile {
         .history(ros2_client::qos::History::KeepLast { depth: 1 })
 }
 
+/// The DDS topic `topic` carrying `T`.
+fn create_topic<T: RosMessage>(
+    node: &mut Node,
+    topic: &str,
+    qos: &QosProfile,
+) -> Result<ros2_client::dds::rustdds::Topic, NodeError> {
+    node.create_topic(&ros_name(topic)?, message_type_name::<T>(), qos)
+        .map_err(|e| NodeError::Dds {
+            what: format!("creating topic '{topic}'"),
+            problem: e.to_string(),
+        })
+}
+
 /// Creates a publisher of `T` on `topic`.
 pub fn create_publisher<T: RosMessage>(
     node: &mut Node,
     topic: &str,
     qos: QosProfile,
 ) -> Result<Publisher<T>, NodeError> {
-    let t = node
-        .create_topic(&ros_name(topic)?, message_type_name::<T>(), &qos)
-        .map_err(|e| NodeError::Dds {
-            what: format!("creating topic '{topic}'"),
-            problem: e.to_string(),
-        })?;
+    let t = create_topic::<T>(node, topic, &qos)?;
     node.create_publisher::<T>(&t, Some(qos))
         .map_err(|e| NodeError::Dds {
             what: format!("creating publisher on '{topic}'"),
@@ -288,12 +296,7 @@ pub fn create_subscription<T: RosMessage + 'static>(
     topic: &str,
     qos: QosProfile,
 ) -> Result<ros2_client::Subscription<T>, NodeError> {
-    let t = node
-        .create_topic(&ros_name(topic)?, message_type_name::<T>(), &qos)
-        .map_err(|e| NodeError::Dds {
-            what: format!("creating topic '{topic}'"),
-            problem: e.to_string(),
-        })?;
+    let t = create_topic::<T>(node, topic, &qos)?;
     node.create_subscription::<T>(&t, Some(qos))
         .map_err(|e| NodeError::Dds {
             what: format!("creating subscription on '{topic}'"),

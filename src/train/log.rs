@@ -29,8 +29,6 @@ const VAL_COLOUR: Rgb<u8> = Rgb([220, 60, 40]);
 const GRID_LINES: usize = 4;
 /// Top of the delta1 axis, percent.
 const PERCENT_MAX: f64 = 100.0;
-/// Bytes per kibibyte and mebibyte.
-const KIB: f64 = 1024.0;
 
 /// One row of `train.csv`.
 #[derive(Clone, Debug, PartialEq)]
@@ -54,16 +52,7 @@ pub struct ValRecord {
 /// Peak resident set size of this process (`VmHWM` in `/proc/self/status`), MiB; 0 where
 /// the file is unavailable.
 pub fn peak_rss_mb() -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1))
-                .and_then(|kb| kb.parse::<f64>().ok())
-        })
-        .map(|kb| kb / KIB)
-        .unwrap_or(0.0)
+    crate::bench::peak_resident_mb().unwrap_or(0.0)
 }
 
 fn append_line(path: &Path, header: &str, line: &str) -> std::io::Result<()> {
