@@ -4,6 +4,7 @@
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
 use mode360::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360::model::config::CostKind;
 use mode360::model::cost_volume::cost_volume;
 use mode360::model::{load_weights, save_weights, Ssmode, SsmodeConfig, SweepSampling};
 use mode360::synth::{SynthConfig, SynthRenderer};
@@ -51,7 +52,13 @@ fn param_count(varmap: &VarMap) -> usize {
 
 #[test]
 fn same_weights_run_on_two_three_and_four_cameras() {
-    let cfg = SsmodeConfig::tiny();
+    for cfg in [SsmodeConfig::tiny(), SsmodeConfig::tiny_parallax()] {
+        runs_on_two_three_and_four_cameras(&cfg);
+    }
+}
+
+fn runs_on_two_three_and_four_cameras(cfg: &SsmodeConfig) {
+    let cfg = cfg.clone();
     let (_vm, net) = model(&cfg);
     let full = rig();
     for cams in [2usize, 3, 4] {
@@ -127,11 +134,16 @@ fn paper_preset_has_about_5_5m_parameters() {
 
 #[test]
 fn gradients_reach_every_parameter() {
-    let cfg = SsmodeConfig::tiny();
-    let (varmap, net) = model(&cfg);
-    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+    for cfg in [SsmodeConfig::tiny(), SsmodeConfig::tiny_parallax()] {
+        gradients_reach_every_parameter_of(&cfg);
+    }
+}
+
+fn gradients_reach_every_parameter_of(cfg: &SsmodeConfig) {
+    let (varmap, net) = model(cfg);
+    let sampling = SweepSampling::new(&rig(), cfg).expect("sampling");
     let out = net
-        .forward(&noise_images(&cfg, 4, 3), &sampling, true)
+        .forward(&noise_images(cfg, 4, 3), &sampling, true)
         .expect("forward");
     // A loss touching every stage: mean squared normalized index against 0.3.
     let mut loss = Tensor::new(0f32, &Device::Cpu).unwrap();
@@ -149,7 +161,11 @@ fn gradients_reach_every_parameter() {
             .get(var.as_tensor())
             .unwrap_or_else(|| panic!("no gradient for {name}"));
         let norm: f32 = g.abs().unwrap().sum_all().unwrap().to_scalar().unwrap();
-        assert!(norm > 0.0 && norm.is_finite(), "{name}: gradient L1 {norm}");
+        assert!(
+            norm > 0.0 && norm.is_finite(),
+            "{}: {name}: gradient L1 {norm}",
+            cfg.name
+        );
     }
 }
 
@@ -269,7 +285,7 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
             Tensor::from_vec(data, (1, h, w, c), &Device::Cpu).unwrap()
         })
         .collect();
-    let volume = cost_volume(&features, &sampling).expect("cost volume");
+    let volume = cost_volume(&features, &sampling, CostKind::MeanVariance).expect("cost volume");
     assert_eq!(volume.dims(), &[1, cfg.spheres, h, w, 2 * c]);
     let vol: Vec<f32> = volume.flatten_all().unwrap().to_vec1().unwrap();
     let mut checked = 0;
@@ -480,4 +496,78 @@ fn fused_inference_regression_equals_the_training_path() {
             .fold(0f32, f32::max);
         assert!(rel < 1e-4, "range differs by {rel} relative");
     }
+}
+
+#[test]
+fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
+    let parallax = SsmodeConfig::parallax();
+    parallax.validate().expect("parallax preset is valid");
+    // 256 cells of 1.41 degrees: 1 m / 0.0245 rad = 40.7 m; sphere 1 of 96 at 45 m.
+    let r = parallax.resolved_range_m(1.0).expect("range");
+    assert!((40.0..41.0).contains(&r), "parallax resolves 1 m to {r} m");
+    // 64 cells of 5.6 degrees (10.2 m), sphere 1 of 32 at 15.5 m.
+    let r = SsmodeConfig::compact()
+        .resolved_range_m(1.0)
+        .expect("range");
+    assert!((10.0..10.5).contains(&r), "compact resolves 1 m to {r} m");
+    let (varmap, _net) = model(&parallax);
+    let n = param_count(&varmap);
+    println!("parallax preset: {n} parameters");
+    assert!(n < 1_000_000, "parallax preset has {n} parameters");
+}
+
+#[test]
+fn configs_with_unsupported_cost_layouts_are_rejected_by_field() {
+    let cases: [(&str, fn(&mut SsmodeConfig)); 4] = [
+        ("cost_downsample", |c| c.cost_downsample = 3),
+        ("aggregation_stride", |c| c.aggregation_stride = 4),
+        ("fine_channels", |c| c.fine_channels = 0),
+        ("spheres", |c| c.spheres = 12),
+    ];
+    for (field, spoil) in cases {
+        let mut cfg = SsmodeConfig::parallax();
+        spoil(&mut cfg);
+        let err = cfg.validate().expect_err(field).to_string();
+        assert!(err.contains(field), "{field}: {err}");
+    }
+}
+
+#[test]
+fn variance_volume_is_zero_where_every_camera_sees_the_same_feature() {
+    // Identical features in every camera: on the far sphere every camera looks along the same
+    // directions (the rig is 1 m across, the sphere 100 m away), so the variance there is
+    // about zero; on the nearest sphere the cameras disagree.
+    let cfg = SsmodeConfig::tiny_parallax();
+    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+    // A smooth pattern (a tenth of a cell of parallax barely changes it).
+    let (h, w) = (cfg.cost_height(), cfg.cost_width());
+    let data: Vec<f32> = (0..h * w * 3)
+        .map(|k| {
+            let (v, u, ch) = (k / (3 * w), (k / 3) % w, k % 3);
+            let lon = 2.0 * std::f32::consts::PI * u as f32 / w as f32;
+            ((ch + 1) as f32 * lon + 0.2 * v as f32).sin()
+        })
+        .collect();
+    let f = Tensor::from_vec(data, (1, h, w, 3), &Device::Cpu).unwrap();
+    let features = vec![f.clone(), f.clone(), f.clone(), f];
+    let volume = cost_volume(&features, &sampling, CostKind::Variance).expect("volume");
+    let (b, d, h, w, c) = volume.dims5().expect("rank 5");
+    assert_eq!(
+        (b, d, h, w, c),
+        (1, cfg.spheres, cfg.cost_height(), cfg.cost_width(), 3)
+    );
+    let mean_on = |sphere: usize| -> f32 {
+        volume
+            .narrow(1, sphere, 1)
+            .unwrap()
+            .mean_all()
+            .unwrap()
+            .to_scalar()
+            .unwrap()
+    };
+    let (far, near) = (mean_on(0), mean_on(d - 1));
+    assert!(
+        far < 0.1 * near,
+        "far sphere variance {far}, nearest {near}"
+    );
 }

@@ -4,7 +4,7 @@
 use candle_core::{Device, Tensor, Var};
 use mode360::geometry::{ErpGrid, PixelCoord};
 use mode360::model::ops::{
-    resample_linear_axis, table_sample, table_sample_composite, upsample_trilinear,
+    resample_linear_axis, sweep_variance, table_sample, table_sample_composite, upsample_trilinear,
     upsample_trilinear_composite, SampleTable,
 };
 
@@ -277,4 +277,73 @@ fn table_sample_dense_table_gradient_matches_composite() {
     let out = values(&table_sample(features.as_tensor(), &table).unwrap());
     let (l, rr) = (dot(&out, &rv), dot(&fv, &g));
     assert!((l - rr).abs() < 1e-3 * l.abs().max(1.0), "{l} vs {rr}");
+}
+
+#[test]
+fn sweep_variance_matches_a_per_camera_reference_with_gradients() {
+    // Three cameras, two batch items, 30 samples per camera table: the fused kernel against
+    // the variance of the bilinear reference samples, and its gradient against differences.
+    let grid = ErpGrid::new(8).unwrap(); // 4 x 8
+    let (h, w, c, b, m) = (grid.height(), grid.width(), 2, 2, 3);
+    let coords: Vec<Vec<PixelCoord>> = (0..m)
+        .map(|cam| {
+            pseudo_random(60, 20 + cam as u64)
+                .chunks(2)
+                .map(|p| PixelCoord {
+                    u: (p[0] + 1.0) * 0.5 * w as f64 - 0.5,
+                    v: (p[1] + 1.0) * 0.5 * h as f64 - 0.5,
+                })
+                .collect()
+        })
+        .collect();
+    let n = coords[0].len();
+    let tables: Vec<SampleTable> = coords
+        .iter()
+        .map(|cs| {
+            SampleTable::from(
+                cs.iter()
+                    .map(|&p| grid.bilinear_taps(p))
+                    .collect::<Vec<_>>(),
+            )
+        })
+        .collect();
+    let fv = pseudo_random(m * b * h * w * c, 30);
+    let rv = pseudo_random(b * n * c, 31);
+    let image = h * w * c;
+    let reference = |f: &[f64]| -> Vec<f64> {
+        let mut out = Vec::with_capacity(b * n * c);
+        for bi in 0..b {
+            for k in 0..n {
+                let samples: Vec<Vec<f64>> = (0..m)
+                    .map(|cam| {
+                        let img = &f[(cam * b + bi) * image..(cam * b + bi + 1) * image];
+                        erp_bilinear_ref(img, h, w, c, coords[cam][k])
+                    })
+                    .collect();
+                for ch in 0..c {
+                    let mean = samples.iter().map(|s| s[ch]).sum::<f64>() / m as f64;
+                    let var =
+                        samples.iter().map(|s| (s[ch] - mean).powi(2)).sum::<f64>() / m as f64;
+                    out.push(var);
+                }
+            }
+        }
+        out
+    };
+    let features = Var::from_tensor(&tensor(&fv, &[m * b, h, w, c])).unwrap();
+    let out = sweep_variance(features.as_tensor(), &tables).unwrap();
+    assert_eq!(out.dims(), &[b, n, c]);
+    let err = max_abs_diff(&values(&out), &reference(&fv));
+    assert!(err < FWD_TOL, "forward error {err}");
+    let r = tensor(&rv, &[b, n, c]);
+    let grads = (&out * &r).unwrap().sum_all().unwrap().backward().unwrap();
+    let g = values(grads.get(features.as_tensor()).unwrap());
+    let g_fd = fd_gradient(&fv, reference, &rv);
+    let err = max_abs_diff(&g, &g_fd);
+    assert!(err < GRAD_TOL, "gradient error {err}");
+    assert!(g.iter().any(|v| v.abs() > 1e-2));
+    // Mismatched tables are an error, not a panic.
+    let short = SampleTable::from(vec![grid.bilinear_taps(PixelCoord { u: 1.0, v: 1.0 })]);
+    let bad = [tables[0].clone(), short, tables[2].clone()];
+    assert!(sweep_variance(features.as_tensor(), &bad).is_err());
 }

@@ -16,6 +16,45 @@ pub const FEATURE_DOWNSAMPLE: usize = 4;
 pub const HOURGLASS_DIVISOR: usize = 4;
 /// Fewest cameras the sweep can aggregate (mean and variance over views).
 pub const MIN_CAMERAS: usize = 2;
+/// Cost-volume scales a config may use (input pixels per cost cell along each axis): full,
+/// half, or the feature trunk's quarter resolution.
+pub const COST_DOWNSAMPLES: [usize; 3] = [1, 2, FEATURE_DOWNSAMPLE];
+/// Strides the cost aggregation may enter with.
+pub const AGGREGATION_STRIDES: [usize; 2] = [1, 2];
+/// A config resolves a baseline at a range when the parallax there spans at least this many
+/// cost-volume cells (see [`SsmodeConfig::resolved_range_m`]).
+pub const RESOLVED_PARALLAX_CELLS: f64 = 1.0;
+
+/// How the sweep aggregates the cameras' sampled features into the cost volume.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CostKind {
+    /// `concat(mean, variance)` over views (`2 C` channels). The mean is close to the
+    /// reference view's own appearance, so the aggregation can regress depth from one image.
+    #[default]
+    MeanVariance,
+    /// Variance over views only (`C` channels, as MVSNet): zero wherever the views agree, so
+    /// the volume carries matching evidence and nothing of a single view's appearance.
+    Variance,
+}
+
+impl CostKind {
+    /// Cost-volume channels for `c` feature channels.
+    pub fn channels(self, c: usize) -> usize {
+        match self {
+            Self::MeanVariance => 2 * c,
+            Self::Variance => c,
+        }
+    }
+}
+
+fn default_cost_downsample() -> usize {
+    FEATURE_DOWNSAMPLE
+}
+
+fn default_aggregation_stride() -> usize {
+    1
+}
 
 /// Hyper-parameters of the SSMODE network.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -40,6 +79,21 @@ pub struct SsmodeConfig {
     pub hourglass_channels: usize,
     /// Stacked hourglasses (one regression head each).
     pub hourglasses: usize,
+    /// View aggregation of the cost volume (files without it: mean and variance).
+    #[serde(default)]
+    pub cost: CostKind,
+    /// Input pixels per cost-volume cell along each axis (1, 2 or 4; files without it: 4, the
+    /// feature trunk's resolution). Below 4, a fine branch computes matching features at this
+    /// scale from the image and the upsampled trunk features.
+    #[serde(default = "default_cost_downsample")]
+    pub cost_downsample: usize,
+    /// Channels of the fine branch's convolutions (used when `cost_downsample` < 4).
+    #[serde(default)]
+    pub fine_channels: usize,
+    /// Stride of the first 3-D convolution over the cost volume (1 or 2 along D, H and W): a
+    /// fine cost volume is matched at full detail and aggregated at half its size.
+    #[serde(default = "default_aggregation_stride")]
+    pub aggregation_stride: usize,
     /// Far-plane readout: a pixel whose probability on the farthest hypothesis is at least
     /// this is given `max_depth_m` instead of the soft-argmin (see [`crate::model::regression`]);
     /// above 1 disables it. Chosen on the validation split; files without it get the default.
@@ -70,6 +124,10 @@ impl SsmodeConfig {
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 32,
             hourglasses: 3,
+            cost: CostKind::MeanVariance,
+            cost_downsample: FEATURE_DOWNSAMPLE,
+            fine_channels: 0,
+            aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
         }
     }
@@ -90,6 +148,35 @@ impl SsmodeConfig {
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 16,
             hourglasses: 2,
+            cost: CostKind::MeanVariance,
+            cost_downsample: FEATURE_DOWNSAMPLE,
+            fine_channels: 0,
+            aggregation_stride: 1,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+        }
+    }
+
+    /// The multi-view default: 256x128 input matched at full resolution. Its cost volume has
+    /// 256x128 cells (1.4 degrees, so a 1 m baseline's parallax spans a cell out to 40 m) and
+    /// 96 spheres (sphere 1 at 45 m), holds only the variance over views (no monocular path),
+    /// and is aggregated at half size (48 x 64 x 128) by two hourglasses of 8 channels.
+    pub fn parallax() -> Self {
+        Self {
+            name: "parallax".to_string(),
+            width: 256,
+            feature_channels: [16, 24, 24, 32],
+            feature_blocks: [1, 2, 1, 1],
+            feature_out_channels: 8,
+            spheres: 96,
+            hypotheses: 192,
+            min_depth_m: crate::geometry::sweep::PAPER_MIN_DEPTH_M,
+            max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
+            hourglass_channels: 8,
+            hourglasses: 2,
+            cost: CostKind::Variance,
+            cost_downsample: 1,
+            fine_channels: 16,
+            aggregation_stride: 2,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
         }
     }
@@ -108,19 +195,43 @@ impl SsmodeConfig {
             max_depth_m: 100.0,
             hourglass_channels: 8,
             hourglasses: 2,
+            cost: CostKind::MeanVariance,
+            cost_downsample: FEATURE_DOWNSAMPLE,
+            fine_channels: 0,
+            aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
         }
     }
 
-    /// The preset called `name` (`paper`, `compact`, `tiny`).
+    /// [`Self::tiny`] with the parallax preset's layout (variance-only, fine cost volume,
+    /// strided aggregation), for tests.
+    pub fn tiny_parallax() -> Self {
+        Self {
+            name: "tiny_parallax".to_string(),
+            feature_out_channels: 4,
+            spheres: 16,
+            cost: CostKind::Variance,
+            cost_downsample: 1,
+            fine_channels: 4,
+            aggregation_stride: 2,
+            ..Self::tiny()
+        }
+    }
+
+    /// Names of the presets, for messages.
+    pub const PRESETS: &'static str = "parallax, compact, paper, tiny, tiny_parallax";
+
+    /// The preset called `name` (see [`Self::PRESETS`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {
         match name {
+            "parallax" => Ok(Self::parallax()),
             "paper" => Ok(Self::paper()),
             "compact" => Ok(Self::compact()),
             "tiny" => Ok(Self::tiny()),
+            "tiny_parallax" => Ok(Self::tiny_parallax()),
             other => Err(ModelError::UnknownPreset {
                 name: other.to_string(),
-                known: "paper, compact, tiny".to_string(),
+                known: Self::PRESETS.to_string(),
             }),
         }
     }
@@ -138,6 +249,38 @@ impl SsmodeConfig {
     /// Height of the quarter-resolution feature maps and cost volume.
     pub fn feature_height(&self) -> usize {
         self.feature_width() / 2
+    }
+
+    /// Width of the cost volume (input width / `cost_downsample`).
+    pub fn cost_width(&self) -> usize {
+        self.width / self.cost_downsample.max(1)
+    }
+
+    /// Height of the cost volume.
+    pub fn cost_height(&self) -> usize {
+        self.cost_width() / 2
+    }
+
+    /// Channels of the features the sweep samples.
+    pub fn matching_channels(&self) -> usize {
+        self.feature_out_channels
+    }
+
+    /// Whether the matching features come from a fine branch (cost finer than the trunk).
+    pub fn has_fine_branch(&self) -> bool {
+        self.cost_downsample < FEATURE_DOWNSAMPLE
+    }
+
+    /// The farthest range at which a baseline of `baseline_m` (seen side-on) is resolved by
+    /// the cost volume, metres: its parallax `baseline / rho` must span
+    /// [`RESOLVED_PARALLAX_CELLS`] cells of `2 pi / cost_width` radians, and a sphere other
+    /// than the far plane must lie at or beyond it, so
+    /// `min(baseline cost_width / (2 pi cells), rho(sphere 1))`.
+    pub fn resolved_range_m(&self, baseline_m: f64) -> Result<f64, ModelError> {
+        let cell_rad = 2.0 * std::f64::consts::PI / self.cost_width() as f64;
+        let by_cells = baseline_m / (RESOLVED_PARALLAX_CELLS * cell_rad);
+        let sphere1_m = self.sphere_hypotheses()?.depth_m(1.0);
+        Ok(by_cells.min(sphere1_m))
     }
 
     /// Checks the sizes the network needs.
@@ -159,12 +302,48 @@ impl SsmodeConfig {
                 ),
             );
         }
-        if self.spheres == 0 || !self.spheres.is_multiple_of(HOURGLASS_DIVISOR) {
+        if !COST_DOWNSAMPLES.contains(&self.cost_downsample) {
+            return bad(
+                "cost_downsample",
+                format!(
+                    "{} must be one of {COST_DOWNSAMPLES:?}",
+                    self.cost_downsample
+                ),
+            );
+        }
+        if !AGGREGATION_STRIDES.contains(&self.aggregation_stride) {
+            return bad(
+                "aggregation_stride",
+                format!(
+                    "{} must be one of {AGGREGATION_STRIDES:?}",
+                    self.aggregation_stride
+                ),
+            );
+        }
+        if self.has_fine_branch() && self.fine_channels == 0 {
+            return bad(
+                "fine_channels",
+                format!(
+                    "must be positive when cost_downsample ({}) is below {FEATURE_DOWNSAMPLE}",
+                    self.cost_downsample
+                ),
+            );
+        }
+        // The aggregation halves D, H and W twice after its entry stride.
+        let divisor = HOURGLASS_DIVISOR * self.aggregation_stride;
+        if self.spheres == 0 || !self.spheres.is_multiple_of(divisor) {
             return bad(
                 "spheres",
+                format!("{} must be a positive multiple of {divisor}", self.spheres),
+            );
+        }
+        if !self.cost_height().is_multiple_of(divisor) {
+            return bad(
+                "width",
                 format!(
-                    "{} must be a positive multiple of {HOURGLASS_DIVISOR}",
-                    self.spheres
+                    "{}: the cost volume's height {} must be a multiple of {divisor}",
+                    self.width,
+                    self.cost_height()
                 ),
             );
         }
@@ -218,10 +397,11 @@ impl SsmodeConfig {
 }
 
 /// Sampling tables for one rig at one configuration's resolution, built once:
-/// - one sweep table per camera: for every sphere `d` and quarter-res output pixel `(v, u)`
-///   (sample index `(d H + v) W + u`), the bilinear taps of
-///   `erp_c(cam_from_output * (rho_d * dir(u, v)))` in that camera's feature map;
-/// - the SphereNet kernel table of the stage-4 spherical convolution.
+/// - one sweep table per camera: for every sphere `d` and cost-volume cell `(v, u)` (sample
+///   index `(d H + v) W + u`, at [`SsmodeConfig::cost_width`]), the bilinear taps of
+///   `erp_c(cam_from_output * (rho_d * dir(u, v)))` in that camera's matching features (at the
+///   same resolution);
+/// - the SphereNet kernel table of the stage-4 spherical convolution (quarter resolution).
 #[derive(Clone, Debug)]
 pub struct SweepSampling {
     geometry: SweepGeometry,
@@ -240,7 +420,8 @@ impl SweepSampling {
                 min: MIN_CAMERAS,
             });
         }
-        let grid = ErpGrid::new(cfg.feature_width())?;
+        let grid = ErpGrid::new(cfg.cost_width())?;
+        let trunk_grid = ErpGrid::new(cfg.feature_width())?;
         let geometry =
             SweepGeometry::new(rig, grid, vec![grid; cameras], cfg.sphere_hypotheses()?)?;
         let w = grid.width();
@@ -266,12 +447,12 @@ impl SweepSampling {
             .collect();
         Ok(Self {
             sweep_tables,
-            sphere_conv: SphereConvTable::new(grid),
+            sphere_conv: SphereConvTable::new(trunk_grid),
             geometry,
         })
     }
 
-    /// The sweep geometry at quarter resolution.
+    /// The sweep geometry at the cost volume's resolution.
     pub fn geometry(&self) -> &SweepGeometry {
         &self.geometry
     }

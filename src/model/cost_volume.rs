@@ -6,16 +6,25 @@
 //! aggregated independently of their number `N` and order:
 //!
 //! ```text
-//! mean = (1/N) sum_c f_c,   var = (1/N) sum_c f_c^2 - mean^2,   volume = concat(mean, var)
+//! mean = (1/N) sum_c f_c,   var = (1/N) sum_c f_c^2 - mean^2
+//! volume = concat(mean, var)   (CostKind::MeanVariance)   or   var   (CostKind::Variance)
 //! ```
+//!
+//! The variance is zero wherever the views agree, whatever they show, so a variance-only
+//! volume holds matching evidence alone; the mean also carries the reference view's look.
 
 use candle_core::{Result, Tensor};
 
-use super::config::SweepSampling;
-use crate::model::ops::{table_sample, OpsError};
+use super::config::{CostKind, SweepSampling};
+use crate::model::ops::{has_custom_kernels, sweep_variance, table_sample, OpsError};
 
-/// Builds the `(B, D, H, W, 2 C)` cost volume from per-camera features `(B, H, W, C)`.
-pub fn cost_volume(features: &[Tensor], sampling: &SweepSampling) -> Result<Tensor> {
+/// Builds the `(B, D, H, W, C')` cost volume from per-camera features `(B, H, W, C)`, with
+/// `C' = kind.channels(C)`.
+pub fn cost_volume(
+    features: &[Tensor],
+    sampling: &SweepSampling,
+    kind: CostKind,
+) -> Result<Tensor> {
     const OP: &str = "cost_volume";
     if features.len() != sampling.camera_count() || features.is_empty() {
         return Err(OpsError::Shape {
@@ -41,6 +50,18 @@ pub fn cost_volume(features: &[Tensor], sampling: &SweepSampling) -> Result<Tens
             ),
         }
         .into());
+    }
+    if kind == CostKind::Variance && has_custom_kernels(features[0].device()) {
+        let tables = (0..features.len())
+            .map(|cam| {
+                sampling.sweep_table(cam).cloned().ok_or(OpsError::Shape {
+                    op: OP,
+                    what: format!("no sweep table for camera {cam}"),
+                })
+            })
+            .collect::<std::result::Result<Vec<_>, _>>()?;
+        // (M B, H, W, C) -> (B, D H W, C) -> (B, D, H, W, C)
+        return sweep_variance(&Tensor::cat(features, 0)?, &tables)?.reshape((b, spheres, h, w, c));
     }
     let mut sum: Option<Tensor> = None;
     let mut sum_sq: Option<Tensor> = None;
@@ -72,6 +93,10 @@ pub fn cost_volume(features: &[Tensor], sampling: &SweepSampling) -> Result<Tens
     // (B, D, H, W, C) each
     let mean = (sum / n)?;
     let var = ((sum_sq / n)? - mean.sqr()?)?;
-    // (B, D, H, W, 2 C)
-    Tensor::cat(&[&mean, &var], 4)
+    match kind {
+        // (B, D, H, W, 2 C)
+        CostKind::MeanVariance => Tensor::cat(&[&mean, &var], 4),
+        // (B, D, H, W, C)
+        CostKind::Variance => Ok(var),
+    }
 }

@@ -9,6 +9,16 @@
 //!   fuse: concat(layer2, layer3, layer4) -> 3x3 -> 1x1       (B, H/4, W/4, Cf)
 //! ```
 //!
+//! With a cost volume finer than the trunk (`cost_downsample` s of 1 or 2), a fine branch
+//! gives the sweep matching features at `H/s x W/s`, where a cell is small enough to see
+//! parallax:
+//!
+//! ```text
+//! image (B, H, W, 3) -> fine: 3x3 stride s, 3x3             (B, H/s, W/s, Cfine)
+//! trunk (B, H/4, W/4, Cf) -> nearest x(4/s)                (B, H/s, W/s, Cf)
+//! matching: concat -> 3x3 -> 1x1                            (B, H/s, W/s, Cf)
+//! ```
+//!
 //! Planar convolutions pad the ERP circularly in longitude and with zeros at the poles.
 
 use candle_core::{Module, Result, Tensor};
@@ -16,7 +26,7 @@ use candle_nn::{Init, VarBuilder};
 
 use crate::model::ops::conv3d;
 
-use super::config::SsmodeConfig;
+use super::config::{SsmodeConfig, FEATURE_DOWNSAMPLE};
 use super::sphere_conv::{SphereConv, SphereConvTable};
 
 /// Planar kernel side.
@@ -208,6 +218,58 @@ impl SphereBlock {
     }
 }
 
+/// Nearest-neighbour upsampling by an integer `factor`: `(B, H, W, C)` -> `(B, f H, f W, C)`
+/// (a broadcast, so the gradient sums each block).
+pub fn upsample_nearest(x: &Tensor, factor: usize) -> Result<Tensor> {
+    if factor == 1 {
+        return Ok(x.clone());
+    }
+    let (b, h, w, c) = x.dims4()?;
+    x.reshape((b, h, 1, w, 1, c))?
+        .broadcast_as((b, h, factor, w, factor, c))?
+        .reshape((b, h * factor, w * factor, c))
+}
+
+/// The fine matching branch (see the module docs). Variables `fine.{0,1}`, `matching.{0,1}`.
+#[derive(Clone, Debug)]
+pub struct FineBranch {
+    fine: [ErpConv; 2],
+    matching: [ErpConv; 2],
+    /// Trunk resolution over cost resolution (`4 / s`).
+    upsample: usize,
+}
+
+impl FineBranch {
+    pub fn new(cfg: &SsmodeConfig, fine_vb: VarBuilder, matching_vb: VarBuilder) -> Result<Self> {
+        let cf = cfg.fine_channels;
+        let c = cfg.feature_out_channels;
+        let s = cfg.cost_downsample;
+        Ok(Self {
+            fine: [
+                ErpConv::new(3, cf, KERNEL, s, 1, fine_vb.pp("0"))?,
+                ErpConv::new(cf, cf, KERNEL, 1, 1, fine_vb.pp("1"))?,
+            ],
+            matching: [
+                ErpConv::new(cf + c, cf, KERNEL, 1, 1, matching_vb.pp("0"))?,
+                ErpConv::new(cf, cfg.matching_channels(), 1, 1, 1, matching_vb.pp("1"))?,
+            ],
+            upsample: FEATURE_DOWNSAMPLE / s,
+        })
+    }
+
+    /// `image (B, H, W, 3)` centred, trunk features `(B, H/4, W/4, Cf)` -> matching features
+    /// `(B, H/s, W/s, Cf)`.
+    pub fn forward(&self, image: &Tensor, trunk: &Tensor) -> Result<Tensor> {
+        // (B, H/s, W/s, Cfine)
+        let x = self.fine[0].forward(image)?.relu()?;
+        let x = self.fine[1].forward(&x)?.relu()?;
+        // (B, H/s, W/s, Cfine + Cf)
+        let cat = Tensor::cat(&[&x, &upsample_nearest(trunk, self.upsample)?], 3)?;
+        let y = self.matching[0].forward(&cat)?.relu()?;
+        self.matching[1].forward(&y)
+    }
+}
+
 /// The per-camera spherical feature extractor.
 #[derive(Clone, Debug)]
 pub struct FeatureExtractor {
@@ -217,6 +279,7 @@ pub struct FeatureExtractor {
     layer3: Vec<ResidualBlock>,
     layer4: Vec<SphereBlock>,
     fuse: [ErpConv; 2],
+    fine: Option<FineBranch>,
 }
 
 fn stage(
@@ -278,6 +341,11 @@ impl FeatureExtractor {
                 vf.pp("1"),
             )?,
         ];
+        let fine = if cfg.has_fine_branch() {
+            Some(FineBranch::new(cfg, vb.pp("fine"), vb.pp("matching"))?)
+        } else {
+            None
+        };
         Ok(Self {
             firstconv,
             layer1,
@@ -285,15 +353,17 @@ impl FeatureExtractor {
             layer3,
             layer4,
             fuse,
+            fine,
         })
     }
 
-    /// images `(B, H, W, 3)` in [0, 1] -> features `(B, H/4, W/4, Cf)` channels-last.
+    /// images `(B, H, W, 3)` in [0, 1] -> matching features `(B, H/s, W/s, Cf)` channels-last,
+    /// `s` the config's `cost_downsample` (4: the trunk's own output).
     pub fn forward(&self, images: &Tensor, sphere_table: &SphereConvTable) -> Result<Tensor> {
         // (B, H, W, 3), centred
-        let x = images.affine(2.0, -1.0)?;
+        let centred = images.affine(2.0, -1.0)?;
         // (B, H/2, W/2, c0)
-        let mut x = self.firstconv[0].forward(&x)?.relu()?;
+        let mut x = self.firstconv[0].forward(&centred)?.relu()?;
         x = self.firstconv[1].forward(&x)?.relu()?;
         for block in &self.layer1 {
             x = block.forward(&x)?;
@@ -315,7 +385,12 @@ impl FeatureExtractor {
         // (B, H/4, W/4, c1 + c2 + c3) -> (B, H/4, W/4, Cf)
         let cat = Tensor::cat(&[&stage2, &stage3, &x], 3)?;
         let f = self.fuse[0].forward(&cat)?.relu()?;
-        self.fuse[1].forward(&f)
+        let trunk = self.fuse[1].forward(&f)?;
+        match &self.fine {
+            // (B, H/s, W/s, Cf)
+            Some(fine) => fine.forward(&centred, &trunk),
+            None => Ok(trunk),
+        }
     }
 }
 

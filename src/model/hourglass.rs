@@ -1,7 +1,8 @@
 //! 3-D stacked hourglass cost aggregation (PSMNet style), channels-last.
 //!
 //! ```text
-//! volume (B, D, H, W, 2 Cf) -> dres0: 2 convs -> dres1: residual pair   (B, D, H, W, Ch)
+//! volume (B, D, H, W, C') -> dres0: 2 convs (the first with stride s) -> dres1: residual pair
+//!                                                                         (B, D/s, H/s, W/s, Ch)
 //! hourglass k: conv1 s2 -> conv2 -> conv3 s2 -> conv4                      (B, D/4, H/4, W/4, 2 Ch)
 //!              conv5 deconv x2 (+ conv2 output) -> conv6 deconv x2 (+ input) (B, D, H, W, Ch)
 //! ```
@@ -112,18 +113,20 @@ impl Hourglass {
     }
 }
 
-/// `dres0`, `dres1` and the stacked hourglasses; returns every hourglass output.
+/// `dres0`, `dres1` and the stacked hourglasses; returns every hourglass output. `dres0.0`
+/// enters with the config's `aggregation_stride` along D, H and W.
 #[derive(Clone, Debug)]
 pub struct CostAggregation {
     dres0: [Conv3d; 2],
     dres1: [Conv3d; 2],
     hourglasses: Vec<Hourglass>,
+    entry_stride: [usize; 3],
 }
 
 impl CostAggregation {
     pub fn new(cfg: &SsmodeConfig, vb: VarBuilder) -> Result<Self> {
         let c = cfg.hourglass_channels;
-        let c_in = 2 * cfg.feature_out_channels;
+        let c_in = cfg.cost.channels(cfg.matching_channels());
         Ok(Self {
             dres0: [
                 Conv3d::new(c_in, c, vb.pp("dres0.0"))?,
@@ -136,13 +139,15 @@ impl CostAggregation {
             hourglasses: (0..cfg.hourglasses)
                 .map(|k| Hourglass::new(c, vb.pp(format!("hourglass{k}"))))
                 .collect::<Result<_>>()?,
+            entry_stride: [cfg.aggregation_stride; 3],
         })
     }
 
-    /// volume `(B, D, H, W, 2 Cf)` -> one `(B, D, H, W, Ch)` per hourglass.
+    /// volume `(B, D, H, W, C')` -> one `(B, D/s, H/s, W/s, Ch)` per hourglass, `s` the entry
+    /// stride.
     pub fn forward(&self, volume: &Tensor) -> Result<Vec<Tensor>> {
-        // (B, D, H, W, Ch)
-        let x = self.dres0[0].forward(volume, UNIT)?.relu()?;
+        // (B, D/s, H/s, W/s, Ch)
+        let x = self.dres0[0].forward(volume, self.entry_stride)?.relu()?;
         let x = self.dres0[1].forward(&x, UNIT)?.relu()?;
         let y = self.dres1[0].forward(&x, UNIT)?.relu()?;
         let mut x = (self.dres1[1].forward(&y, UNIT)? + x)?;

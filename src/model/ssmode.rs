@@ -2,10 +2,10 @@
 //!
 //! ```text
 //! images: N x (B, H, W, 3) -> stacked (N B, H, W, 3)
-//! feature                   -> (N B, H/4, W/4, Cf) -> N x (B, H/4, W/4, Cf)
-//! cost_volume               -> (B, D, H/4, W/4, 2 Cf)     mean and variance over views
-//! aggregation               -> K x (B, D, H/4, W/4, Ch)  stacked hourglasses
-//! classif{k}                -> K x (B, D, H/4, W/4)
+//! feature                   -> (N B, h, w, Cf) -> N x (B, h, w, Cf)   h = H / cost_downsample
+//! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
+//! aggregation               -> K x (B, D/s, h/s, w/s, Ch) stacked hourglasses, entry stride s
+//! classif{k}                -> K x (B, D/s, h/s, w/s)
 //! regression                -> K x (B, H, W) range, index; confidence of the last
 //! ```
 
@@ -153,13 +153,13 @@ impl Ssmode {
             .into());
         }
         let expected = sampling.geometry().output();
-        if expected.width() != self.cfg.feature_width() {
+        if expected.width() != self.cfg.cost_width() {
             return Err(OpsError::Shape {
                 op: OP,
                 what: format!(
-                    "sweep sampling built for feature width {}, the config needs {}",
+                    "sweep sampling built for cost width {}, the config needs {}",
                     expected.width(),
-                    self.cfg.feature_width()
+                    self.cfg.cost_width()
                 ),
             }
             .into());
@@ -218,19 +218,19 @@ impl Ssmode {
         let batch = images[0].dim(0)?;
         // (N B, H, W, 3)
         let stacked = Tensor::cat(images, 0)?;
-        // (N B, H/4, W/4, Cf)
+        // (N B, h, w, Cf)
         let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
         mark("feature");
-        // N x (B, H/4, W/4, Cf)
+        // N x (B, h, w, Cf)
         let per_camera = (0..cameras)
             .map(|c| features.narrow(0, c * batch, batch))
             .collect::<Result<Vec<_>>>()?;
-        // (B, D, H/4, W/4, 2 Cf)
-        let volume = cost_volume(&per_camera, sampling)?;
+        // (B, D, h, w, C')
+        let volume = cost_volume(&per_camera, sampling, self.cfg.cost)?;
         drop(per_camera);
         drop(features);
         mark("cost_volume");
-        // K x (B, D, H/4, W/4, Ch)
+        // K x (B, D/s, h/s, w/s, Ch)
         let aggregated = self.aggregation.forward(&volume)?;
         drop(volume);
         mark("aggregation");
@@ -244,7 +244,7 @@ impl Ssmode {
                     op: "Ssmode::forward",
                     what: "no hourglass stages".to_string(),
                 })?;
-            // (B, D, H/4, W/4)
+            // (B, D/s, h/s, w/s)
             let cost = head.forward(x)?;
             drop(aggregated);
             // (B, H, W) each
@@ -267,7 +267,7 @@ impl Ssmode {
         let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
         let mut last_probabilities = None;
         for (head, x) in self.classif.iter().zip(&aggregated) {
-            // (B, D, H/4, W/4)
+            // (B, D/s, h/s, w/s)
             let cost = head.forward(x)?;
             // (B, H, W)
             let r = regress(

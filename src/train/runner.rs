@@ -195,11 +195,16 @@ impl Deep360DiskState {
 /// Layer sizes of `cfg` (what weights depend on; not the width, name or readout).
 fn architecture(cfg: &SsmodeConfig) -> String {
     format!(
-        "features {:?} x {:?} -> {}, {} spheres, {} hourglasses of {} channels",
+        "features {:?} x {:?} -> {}, fine branch {} at 1/{}, {:?} cost over {} spheres, \
+         entry stride {}, {} hourglasses of {} channels",
         cfg.feature_channels,
         cfg.feature_blocks,
         cfg.feature_out_channels,
+        cfg.fine_channels,
+        cfg.cost_downsample,
+        cfg.cost,
         cfg.spheres,
+        cfg.aggregation_stride,
         cfg.hourglasses,
         cfg.hourglass_channels
     )

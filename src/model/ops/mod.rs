@@ -13,12 +13,14 @@
 //! | [`conv3d`] | x `(B, D, H, W, Cin)`, w `(kD, kH, kW, Cin, Cout)` | `(B, Do, Ho, Wo, Cout)` |
 //! | [`conv_transpose3d`] | x `(B, D, H, W, Cin)`, w `(kD, kH, kW, Cin, Cout)` | `(B, Do, Ho, Wo, Cout)` |
 //! | [`table_sample`] | features `(B, H, W, C)`, [`SampleTable`] of N taps | `(B, N, C)` |
+//! | [`sweep_variance`] | features `(M B, H, W, C)`, M tables of N samples | `(B, N, C)` |
 //! | [`upsample_trilinear`] | cost volume `(B, D, H, W)` | `(B, Do, Ho, Wo)` |
 //! | [`resample_linear_axis`] | any tensor, one axis | same rank, that axis resized |
 
 pub mod composite;
 mod conv3d;
 mod linear_axis;
+mod sweep;
 mod table;
 
 use std::cell::Cell;
@@ -33,6 +35,7 @@ pub use composite::{
 };
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d, Conv3dGeometry};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear, LinearAxisMap};
+pub use sweep::sweep_variance;
 pub use table::{table_sample, SampleTable};
 
 /// Number of spatial axes of a 3-D convolution (D, H, W).

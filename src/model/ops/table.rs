@@ -289,6 +289,24 @@ fn scatter_add(table: &SampleTable, g: &[f32], out: &mut [f32], c: usize, thread
         });
 }
 
+/// `out[p] += Σ_{(n, w) ∈ row p} w · g[n]` for one batch item: the adjoint of the table's
+/// gather, `g` `(N, C)` into `out` `(pixels, C)`, by scatter or transposed gather, whichever
+/// is faster for the table's shape.
+pub(super) fn adjoint_into(
+    table: &SampleTable,
+    g: &[f32],
+    out: &mut [f32],
+    pixels: usize,
+    c: usize,
+) {
+    let threads = rayon::current_num_threads().max(1);
+    if table.len() >= pixels * threads {
+        scatter_add(table, g, out, c, threads);
+    } else {
+        gather_transposed(&table.transposed(pixels), g, out, c);
+    }
+}
+
 /// The adjoint of [`TableSampleOp`]: `(B, N, C) -> (B, H, W, C)`.
 struct TableSampleTransposeOp {
     table: SampleTable,
@@ -307,15 +325,14 @@ impl CustomOp1 for TableSampleTransposeOp {
         let g = cpu_slice(storage, layout, self.name())?;
         let (n, c) = (self.table.len(), self.channels);
         let mut out = vec![0f32; self.batch * self.pixels * c];
-        let threads = rayon::current_num_threads().max(1);
-        let scatter = n >= self.pixels * threads;
         for (b, out_b) in out.chunks_mut(self.pixels * c).enumerate() {
-            let g_b = &g[b * n * c..(b + 1) * n * c];
-            if scatter {
-                scatter_add(&self.table, g_b, out_b, c, threads);
-            } else {
-                gather_transposed(&self.table.transposed(self.pixels), g_b, out_b, c);
-            }
+            adjoint_into(
+                &self.table,
+                &g[b * n * c..(b + 1) * n * c],
+                out_b,
+                self.pixels,
+                c,
+            );
         }
         let [h, w] = self.image;
         Ok((CpuStorage::F32(out), Shape::from((self.batch, h, w, c))))

@@ -1,0 +1,267 @@
+//! The variance over views of a spherical sweep, fused: every camera's features are gathered
+//! through its table and reduced per sample in one pass, so no per-camera `(B, N, C)` volume
+//! is ever materialised (at 256x128 cells, 96 spheres and 8 channels each would be 100 MB).
+//!
+//! With `v_c[b, n] = Σ_k weight_c[n][k] · f_c[b, index_c[n][k]]` (camera `c` of `M`):
+//!
+//! ```text
+//! var[b, n] = (1/M) Σ_c v_c²  -  ((1/M) Σ_c v_c)²
+//! ∂L/∂v_c   = (2/M) · g[b, n] · (v_c - mean)        then through table c's adjoint to f_c
+//! ```
+
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor};
+use rayon::prelude::*;
+
+use super::conv3d::cpu_slice;
+use super::table::adjoint_into;
+use super::{composite, dims_of, has_custom_kernels, OpsError, SampleTable};
+
+/// Rank of the stacked features `(M B, H, W, C)`.
+const FEATURE_RANK: usize = 4;
+/// Output samples per rayon task.
+const SAMPLES_PER_TASK: usize = 256;
+
+/// Shapes shared by the forward and gradient kernels.
+#[derive(Clone, Debug)]
+struct SweepShape {
+    tables: Vec<SampleTable>,
+    batch: usize,
+    pixels: usize,
+    image: [usize; 2],
+    channels: usize,
+}
+
+impl SweepShape {
+    fn cameras(&self) -> usize {
+        self.tables.len()
+    }
+
+    fn samples(&self) -> usize {
+        self.tables.first().map_or(0, SampleTable::len)
+    }
+
+    /// `v_c[b, n, :]` into `out`.
+    #[inline]
+    fn gather(&self, f: &[f32], cam: usize, b: usize, n: usize, out: &mut [f32]) {
+        let c = self.channels;
+        let table = &self.tables[cam];
+        let base = (cam * self.batch + b) * self.pixels * c;
+        let s = n * SampleTable::TAPS;
+        let index = &table.flat_indices()[s..s + SampleTable::TAPS];
+        let weight = &table.flat_weights()[s..s + SampleTable::TAPS];
+        let p = |k: usize| &f[base + index[k] as usize * c..base + (index[k] as usize + 1) * c];
+        let (p0, p1, p2, p3) = (p(0), p(1), p(2), p(3));
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = weight[0] * p0[j] + weight[1] * p1[j] + weight[2] * p2[j] + weight[3] * p3[j];
+        }
+    }
+
+    /// Per sample of batch item `b`: the mean over cameras into `mean_b` `(N, C)`, and the
+    /// variance into `var_b` when given.
+    fn moments(&self, f: &[f32], b: usize, mean_b: &mut [f32], mut var_b: Option<&mut [f32]>) {
+        let c = self.channels;
+        let inv_m = 1.0 / self.cameras() as f32;
+        let task = SAMPLES_PER_TASK * c;
+        let fill = |t: usize, mean_t: &mut [f32], var_t: Option<&mut [f32]>| {
+            let mut v = vec![0f32; c];
+            let mut sq = vec![0f32; c];
+            let mut var_t = var_t;
+            for (j, m) in mean_t.chunks_mut(c).enumerate() {
+                let n = t * SAMPLES_PER_TASK + j;
+                m.fill(0.0);
+                sq.fill(0.0);
+                for cam in 0..self.cameras() {
+                    self.gather(f, cam, b, n, &mut v);
+                    for ((m, s), x) in m.iter_mut().zip(sq.iter_mut()).zip(&v) {
+                        *m += x;
+                        *s += x * x;
+                    }
+                }
+                for x in m.iter_mut() {
+                    *x *= inv_m;
+                }
+                if let Some(var) = var_t.as_deref_mut() {
+                    for ((o, s), m) in var[j * c..(j + 1) * c].iter_mut().zip(&sq).zip(m.iter()) {
+                        *o = s * inv_m - m * m;
+                    }
+                }
+            }
+        };
+        match var_b.as_deref_mut() {
+            Some(var_b) => mean_b
+                .par_chunks_mut(task)
+                .zip(var_b.par_chunks_mut(task))
+                .enumerate()
+                .for_each(|(t, (mean_t, var_t))| fill(t, mean_t, Some(var_t))),
+            None => mean_b
+                .par_chunks_mut(task)
+                .enumerate()
+                .for_each(|(t, mean_t)| fill(t, mean_t, None)),
+        }
+    }
+}
+
+/// Variance over cameras of the table-sampled features: stacked features `(M B, H, W, C)`
+/// (camera-major: camera `c`'s batch at rows `c B .. (c + 1) B`) and one table of `N` samples
+/// per camera -> `(B, N, C)`. Gradients flow to the features.
+pub fn sweep_variance(features: &Tensor, tables: &[SampleTable]) -> Result<Tensor> {
+    const OP: &str = "sweep_variance";
+    let dims = dims_of(features, OP, "features", FEATURE_RANK)?;
+    let cameras = tables.len();
+    let samples = tables.first().map_or(0, SampleTable::len);
+    if cameras == 0 || dims.contains(&0) || !dims[0].is_multiple_of(cameras) {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!("features {dims:?} for {cameras} cameras' tables"),
+        }
+        .into());
+    }
+    if let Some(t) = tables.iter().find(|t| t.len() != samples) {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!("tables of {} and {samples} samples", t.len()),
+        }
+        .into());
+    }
+    let pixels = dims[1] * dims[2];
+    for t in tables {
+        t.check_pixels(pixels, OP)?;
+    }
+    let batch = dims[0] / cameras;
+    if !has_custom_kernels(features.device()) {
+        return sweep_variance_composite(features, tables, batch);
+    }
+    features
+        .contiguous()?
+        .apply_op1(SweepVarianceOp(SweepShape {
+            tables: tables.to_vec(),
+            batch,
+            pixels,
+            image: [dims[1], dims[2]],
+            channels: dims[3],
+        }))
+}
+
+/// [`sweep_variance`] from candle ops (devices without the custom kernels).
+fn sweep_variance_composite(
+    features: &Tensor,
+    tables: &[SampleTable],
+    batch: usize,
+) -> Result<Tensor> {
+    let mut sum: Option<Tensor> = None;
+    let mut sum_sq: Option<Tensor> = None;
+    for (cam, table) in tables.iter().enumerate() {
+        // (B, N, C)
+        let v = composite::table_sample_composite(&features.narrow(0, cam * batch, batch)?, table)?;
+        let sq = v.sqr()?;
+        sum = Some(match sum {
+            Some(s) => (s + v)?,
+            None => v,
+        });
+        sum_sq = Some(match sum_sq {
+            Some(s) => (s + sq)?,
+            None => sq,
+        });
+    }
+    let m = tables.len() as f64;
+    match (sum, sum_sq) {
+        (Some(s), Some(q)) => {
+            let mean = (s / m)?;
+            (q / m)? - mean.sqr()?
+        }
+        _ => candle_core::bail!("sweep_variance: no cameras"),
+    }
+}
+
+struct SweepVarianceOp(SweepShape);
+
+impl CustomOp1 for SweepVarianceOp {
+    fn name(&self) -> &'static str {
+        "sweep_variance"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        let f = cpu_slice(storage, layout, self.name())?;
+        let sh = &self.0;
+        let (n, c) = (sh.samples(), sh.channels);
+        let mut var = vec![0f32; sh.batch * n * c];
+        let mut mean = vec![0f32; n * c];
+        for (b, var_b) in var.chunks_mut(n * c).enumerate() {
+            sh.moments(f, b, &mut mean, Some(var_b));
+        }
+        Ok((CpuStorage::F32(var), Shape::from((sh.batch, n, c))))
+    }
+
+    fn bwd(&self, features: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
+        let grad = features
+            .contiguous()?
+            .apply_op2(&grad_out.contiguous()?, SweepVarianceGradOp(self.0.clone()))?;
+        Ok(Some(grad))
+    }
+}
+
+/// `(features (M B, H, W, C), grad (B, N, C))` -> gradient of the features.
+struct SweepVarianceGradOp(SweepShape);
+
+impl CustomOp2 for SweepVarianceGradOp {
+    fn name(&self) -> &'static str {
+        "sweep_variance_grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let f = cpu_slice(s1, l1, self.name())?;
+        let g = cpu_slice(s2, l2, self.name())?;
+        let sh = &self.0;
+        let (n, c, m) = (sh.samples(), sh.channels, sh.cameras());
+        let scale = 2.0 / m as f32;
+        let mut out = vec![0f32; m * sh.batch * sh.pixels * c];
+        let mut mean = vec![0f32; n * c];
+        let mut g_cam = vec![0f32; n * c];
+        for b in 0..sh.batch {
+            sh.moments(f, b, &mut mean, None);
+            let g_b = &g[b * n * c..(b + 1) * n * c];
+            for cam in 0..m {
+                g_cam
+                    .par_chunks_mut(SAMPLES_PER_TASK * c)
+                    .enumerate()
+                    .for_each(|(t, gc)| {
+                        let mut v = vec![0f32; c];
+                        for (j, o) in gc.chunks_mut(c).enumerate() {
+                            let s = t * SAMPLES_PER_TASK + j;
+                            sh.gather(f, cam, b, s, &mut v);
+                            let (gs, ms) = (&g_b[s * c..(s + 1) * c], &mean[s * c..(s + 1) * c]);
+                            for (((o, x), gv), mv) in o.iter_mut().zip(&v).zip(gs).zip(ms) {
+                                *o = scale * gv * (x - mv);
+                            }
+                        }
+                    });
+                let base = (cam * sh.batch + b) * sh.pixels * c;
+                adjoint_into(
+                    &sh.tables[cam],
+                    &g_cam,
+                    &mut out[base..base + sh.pixels * c],
+                    sh.pixels,
+                    c,
+                );
+            }
+        }
+        let [h, w] = sh.image;
+        Ok((CpuStorage::F32(out), Shape::from((m * sh.batch, h, w, c))))
+    }
+
+    fn bwd(
+        &self,
+        _f: &Tensor,
+        _g: &Tensor,
+        _out: &Tensor,
+        _grad_out: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        candle_core::bail!("sweep_variance: second derivatives are not implemented")
+    }
+}
