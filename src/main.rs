@@ -192,8 +192,8 @@ struct PlayArgs {
 
 #[derive(Args)]
 struct TrainArgs {
-    /// Network preset: compact (the shipped default), paper, tiny.
-    #[arg(long, default_value = "compact")]
+    /// Network preset: parallax (the shipped default), compact, paper, tiny.
+    #[arg(long, default_value = "parallax")]
     preset: String,
     /// Override the preset's input width (height = width / 2).
     #[arg(long)]
@@ -232,6 +232,20 @@ struct TrainArgs {
     /// instead of a random initialisation. Ignored when --resume finds a checkpoint.
     #[arg(long)]
     init_weights: Option<PathBuf>,
+    /// Fraction of rendered samples that are random-objects scenes (1: pretraining for
+    /// matching; the rest are streets).
+    #[arg(long, default_value_t = 0.0)]
+    objects_fraction: f64,
+    /// Layout variation of the training streets.
+    #[arg(long, value_enum, default_value_t = mode360::synth::StreetStyle::Regular)]
+    street: mode360::synth::StreetStyle,
+    /// Fraction of samples with lens soiling.
+    #[arg(long, default_value_t = 0.3)]
+    soiled_fraction: f64,
+    /// Fraction of rendered street and object samples on the Deep360 rig (the rest on random
+    /// roof racks of 2 to 5 cameras).
+    #[arg(long, default_value_t = 0.25)]
+    deep360_rig_fraction: f64,
 }
 
 #[derive(Args)]
@@ -386,6 +400,10 @@ fn train(a: TrainArgs) -> Result<()> {
         deep360_disk: a.deep360,
         deep360_disk_fraction: a.deep360_fraction,
         init_weights: a.init_weights,
+        objects_fraction: a.objects_fraction,
+        street: a.street,
+        soiled_fraction: a.soiled_fraction,
+        deep360_fraction: a.deep360_rig_fraction,
         ..mode360::train::TrainOptions::default()
     };
     let s = mode360::train::run_training(&opts)?;

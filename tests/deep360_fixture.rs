@@ -620,6 +620,8 @@ fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
         soiled_fraction: 0.5,
         deep360_fraction: 0.25,
         deep360_disk: mix,
+        objects_fraction: 0.0,
+        street: mode360::synth::StreetStyle::Regular,
     }
 }
 

@@ -17,6 +17,8 @@ fn cfg(seed: u64) -> DataConfig {
         soiled_fraction: 0.5,
         deep360_fraction: 0.25,
         deep360_disk: None,
+        objects_fraction: 0.0,
+        street: mode360::synth::StreetStyle::Regular,
     }
 }
 

@@ -18,6 +18,12 @@
 //! `Rng::new(&[s, k, DEEP360_DISK_TAG])`, so samples stay a pure function of `(s, k)` and the
 //! synthetic samples of a stream do not change when a dataset is added.
 //!
+//! Scenes: with probability [`DataConfig::objects_fraction`] a sample is a random-objects scene
+//! (textured primitives at random distances all around the rig, which no single panorama can
+//! range: pretraining for matching), otherwise a street in [`DataConfig::street`]'s style. The
+//! choice comes from its own stream `Rng::new(&[s, k, SCENE_TAG])`, so a stream's street
+//! samples do not depend on it.
+//!
 //! Training world seeds have the top bit clear, validation world seeds have it set, so the
 //! held-out set never shares a world with training.
 
@@ -28,7 +34,7 @@ use crate::deep360::{
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{Rig, RigError};
 use crate::synth::noise::{hash_words, Rng};
-use crate::synth::{SynthConfig, SynthError, SynthRenderer};
+use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer};
 use candle_core::{Device, Tensor};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
@@ -55,6 +61,7 @@ pub const STREET_FRAMES: usize = 400;
 const SAMPLE_TAG: u64 = 0x7A41_0001;
 const VALIDATION_TAG: u64 = 0x7A41_0002;
 const DEEP360_DISK_TAG: u64 = 0x7A41_0003;
+const SCENE_TAG: u64 = 0x7A41_0004;
 /// Set in validation world seeds, clear in training world seeds.
 const VALIDATION_SEED_BIT: u64 = 1 << 63;
 /// Maximum 8-bit channel value, for normalising to `[0, 1]`.
@@ -90,6 +97,10 @@ pub struct DataConfig {
     pub deep360_fraction: f64,
     /// Deep360 training frames from disk mixed into the stream (fine-tuning).
     pub deep360_disk: Option<Deep360Mix>,
+    /// Fraction of rendered training samples that are random-objects scenes.
+    pub objects_fraction: f64,
+    /// Layout variation of the training streets.
+    pub street: StreetStyle,
 }
 
 /// The paper's Deep360 dataset on disk as a source of training samples.
@@ -150,6 +161,7 @@ impl DataConfig {
         for (name, v) in [
             ("soiled_fraction", self.soiled_fraction),
             ("deep360_fraction", self.deep360_fraction),
+            ("objects_fraction", self.objects_fraction),
         ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(DataError::Config(format!(
@@ -181,6 +193,10 @@ pub struct SampleSpec {
     /// `Some`: the sample is this Deep360 training frame read from disk (rig Deep360,
     /// `soiled` picks `rgb_soiled/`); `world_seed` and `frame_index` are then unused.
     pub deep360_frame: Option<Deep360FrameId>,
+    /// What is rendered (ignored for Deep360 frames from disk).
+    pub scene: SceneKind,
+    /// Street layout variation (street scenes).
+    pub street: StreetStyle,
 }
 
 /// One rendered sample.
@@ -251,12 +267,19 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
     } else {
         RigChoice::Random(rng.next_u64())
     };
+    let scene = if Rng::new(&[cfg.seed, index, SCENE_TAG]).chance(cfg.objects_fraction) {
+        SceneKind::Objects
+    } else {
+        SceneKind::Street
+    };
     let spec = SampleSpec {
         world_seed,
         frame_index,
         soiled,
         rig,
         deep360_frame: None,
+        scene,
+        street: cfg.street,
     };
     match cfg
         .deep360_disk
@@ -285,6 +308,8 @@ pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
                 soiled: k % 2 == 1,
                 rig: RigChoice::Deep360,
                 deep360_frame: None,
+                scene: SceneKind::Street,
+                street: StreetStyle::Regular,
             }
         })
         .collect()
@@ -316,6 +341,8 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
         width: cfg.width,
         soiled: spec.soiled,
         max_depth_m: cfg.max_depth_m,
+        scene: spec.scene,
+        street: spec.street,
         ..SynthConfig::default()
     })?;
     let frame = renderer.render_frame(&rig, spec.frame_index);

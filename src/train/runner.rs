@@ -8,6 +8,7 @@ use super::loss::{LossConfig, LossError, PSMNET_STAGE_WEIGHTS};
 use super::optim::{AdamW, AdamWParams, LrSchedule};
 use crate::metrics::{depth_metrics, FrameAverage};
 use crate::model::{save_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
+use crate::synth::StreetStyle;
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
@@ -72,7 +73,7 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
 /// Options of `mode360 train`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainOptions {
-    /// Network preset (`paper`, `compact`, `tiny`).
+    /// Network preset (see [`SsmodeConfig::PRESETS`]).
     pub preset: String,
     /// Overrides the preset's input width (height = width / 2).
     pub width: Option<usize>,
@@ -103,6 +104,10 @@ pub struct TrainOptions {
     pub deep360_disk: Option<PathBuf>,
     /// Fraction of training samples read from `deep360_disk` (when set).
     pub deep360_disk_fraction: f64,
+    /// Fraction of rendered samples that are random-objects scenes (1 to pretrain matching).
+    pub objects_fraction: f64,
+    /// Layout variation of the training streets.
+    pub street: StreetStyle,
     /// Start a new run (not a resumed one) from these weights instead of the random
     /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
     pub init_weights: Option<PathBuf>,
@@ -112,7 +117,7 @@ pub struct TrainOptions {
 impl Default for TrainOptions {
     fn default() -> Self {
         Self {
-            preset: "compact".into(),
+            preset: "parallax".into(),
             width: None,
             steps: 10_000,
             out_dir: PathBuf::from("runs/train"),
@@ -130,6 +135,8 @@ impl Default for TrainOptions {
             deep360_fraction: 0.25,
             deep360_disk: None,
             deep360_disk_fraction: 1.0,
+            objects_fraction: 0.0,
+            street: StreetStyle::Regular,
             init_weights: None,
             show_progress: true,
         }
@@ -171,6 +178,12 @@ pub struct CheckpointState {
     /// The Deep360-on-disk part of the stream (absent in older checkpoints: none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deep360_disk: Option<Deep360DiskState>,
+    /// Random-objects share of the stream (older checkpoints: none).
+    #[serde(default)]
+    pub objects_fraction: f64,
+    /// Street style of the stream (older checkpoints: regular).
+    #[serde(default)]
+    pub street: StreetStyle,
 }
 
 /// What a resume must find again to read the same Deep360 frames for the same samples.
@@ -473,6 +486,20 @@ fn load_checkpoint(
             expected.batch_size.to_string(),
         ));
     }
+    if state.objects_fraction != expected.objects_fraction {
+        return Err(mismatch(
+            "objects_fraction",
+            state.objects_fraction.to_string(),
+            expected.objects_fraction.to_string(),
+        ));
+    }
+    if state.street != expected.street {
+        return Err(mismatch(
+            "street",
+            state.street.as_str().to_string(),
+            expected.street.as_str().to_string(),
+        ));
+    }
     if state.deep360_disk != expected.deep360_disk {
         return Err(mismatch(
             "deep360_disk",
@@ -625,6 +652,8 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         batch_size: opts.batch_size,
         train_secs: 0.0,
         deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
+        objects_fraction: opts.objects_fraction,
+        street: opts.street,
     };
     let mut resumed = false;
     if opts.resume {
@@ -656,6 +685,8 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         soiled_fraction: opts.soiled_fraction,
         deep360_fraction: opts.deep360_fraction,
         deep360_disk,
+        objects_fraction: opts.objects_fraction,
+        street: opts.street,
     };
     let loss_cfg = LossConfig {
         min_depth_m: cfg.min_depth_m,
