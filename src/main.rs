@@ -6,7 +6,7 @@ use mode360::estimator::{self, DepthEstimator};
 use mode360::eval::{self, EvalOptions};
 use mode360::geometry::Rig;
 use mode360::record::{self, RecordOptions};
-use mode360::synth::SynthConfig;
+use mode360::synth::{SceneKind, StreetStyle, SynthConfig};
 use std::path::PathBuf;
 
 /// Log filter when RUST_LOG is unset: RustDDS is quiet and ros2-client reports only problems
@@ -271,6 +271,14 @@ struct SynthArgs {
     /// Sky and far-field ground-truth range, metres.
     #[arg(long, default_value_t = 1000.0)]
     max_depth_m: f64,
+    /// Scene kind: a procedural street, or random textured objects all around the rig (new
+    /// per frame; defeats monocular depth guessing).
+    #[arg(long, value_enum, default_value_t = SceneKind::Street)]
+    scene: SceneKind,
+    /// Street layout: regular (same cross-section for every seed) or varied per seed (road,
+    /// lane and sidewalk widths, setbacks, heights, parked cars, trees, rig height and tilt).
+    #[arg(long, value_enum, default_value_t = StreetStyle::Regular)]
+    street: StreetStyle,
     /// Output bag.
     #[arg(long)]
     out: PathBuf,
@@ -334,6 +342,8 @@ fn synth(a: SynthArgs) -> Result<()> {
         width: a.width,
         soiled: a.soiled,
         max_depth_m: a.max_depth_m,
+        scene: a.scene,
+        street: a.street,
         ..SynthConfig::default()
     };
     let summary = record::record_synthetic_bag(&RecordOptions {

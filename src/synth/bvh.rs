@@ -1,8 +1,9 @@
-//! Analytic primitives (axis-aligned boxes, spheres, ellipsoids, axis-aligned cylinders) and a
-//! bounding volume hierarchy over them for closest-hit and any-hit ray queries.
+//! Analytic primitives (axis-aligned boxes, spheres, ellipsoids, axis-aligned cylinders, and
+//! boxes, ellipsoids and cylinders with any orientation) and a bounding volume hierarchy over
+//! them for closest-hit and any-hit ray queries.
 
 use super::material::Material;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 /// Hits closer than this along a ray are ignored (self-intersection guard), metres.
 pub const RAY_EPSILON_M: f64 = 1e-6;
@@ -103,6 +104,44 @@ pub enum Shape {
         radius_m: f64,
         half_length_m: f64,
     },
+    /// A box, ellipsoid or capped cylinder centred at `centre` in its own frame, rotated:
+    /// a point `p` is inside when `local_from_world * (p - centre)` is inside the canonical
+    /// shape with half extents `half_extents_m` (box: `|x_i| <= h_i`; ellipsoid: radii `h`;
+    /// cylinder: along local z, radius `h.x`, half length `h.z`). `local_from_world` is a
+    /// rotation matrix.
+    Oriented {
+        kind: OrientedKind,
+        centre: Vector3<f64>,
+        half_extents_m: Vector3<f64>,
+        local_from_world: Matrix3<f64>,
+    },
+}
+
+/// The canonical shape of a [`Shape::Oriented`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OrientedKind {
+    Box,
+    Ellipsoid,
+    Cylinder,
+}
+
+impl OrientedKind {
+    /// The canonical (axis-aligned, centred at the origin) shape with half extents `h`.
+    fn local_shape(self, h: &Vector3<f64>) -> Shape {
+        match self {
+            OrientedKind::Box => Shape::Box(Aabb { min: -h, max: *h }),
+            OrientedKind::Ellipsoid => Shape::Ellipsoid {
+                centre: Vector3::zeros(),
+                radii_m: *h,
+            },
+            OrientedKind::Cylinder => Shape::Cylinder {
+                centre: Vector3::zeros(),
+                axis: 2,
+                radius_m: h.x,
+                half_length_m: h.z,
+            },
+        }
+    }
 }
 
 /// A shape with its material and the origin of its object's texture coordinates (moving
@@ -160,6 +199,24 @@ impl Shape {
                 Aabb {
                     min: centre - h,
                     max: centre + h,
+                }
+            }
+            Shape::Oriented {
+                kind,
+                centre,
+                half_extents_m,
+                local_from_world,
+            } => {
+                // The rotated box bounds every canonical shape; the cylinder's local box has
+                // x and y half extents equal to its radius.
+                let mut h = half_extents_m;
+                if kind == OrientedKind::Cylinder {
+                    h.y = h.x;
+                }
+                let e = local_from_world.transpose().abs() * h;
+                Aabb {
+                    min: centre - e,
+                    max: centre + e,
                 }
             }
         }
@@ -269,6 +326,23 @@ impl Shape {
                     }
                 }
                 best?
+            }
+            Shape::Oriented {
+                kind,
+                centre,
+                half_extents_m,
+                local_from_world,
+            } => {
+                // Rotations keep lengths, so t is the same in the local frame.
+                let local = Ray::new(
+                    local_from_world * (ray.origin - centre),
+                    local_from_world * ray.dir,
+                );
+                let h = kind.local_shape(&half_extents_m).intersect(&local, t_max)?;
+                SurfaceHit {
+                    t: h.t,
+                    normal: local_from_world.transpose() * h.normal,
+                }
             }
         };
         (hit.t < t_max).then_some(hit)
@@ -580,6 +654,53 @@ mod tests {
             half_length_m: 1.0,
         };
         assert!((cap.intersect(&ray, 100.0).map_or(0.0, |h| h.t) - 9.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn oriented_shapes_match_their_axis_aligned_twins() {
+        use nalgebra::Rotation3;
+        let rot = Rotation3::from_euler_angles(0.3, -0.7, 1.1);
+        let c = Vector3::new(5.0, -2.0, 1.0);
+        let h = Vector3::new(1.0, 0.5, 2.0);
+        let mut rng = crate::synth::noise::Rng::new(&[9]);
+        for kind in [
+            OrientedKind::Box,
+            OrientedKind::Ellipsoid,
+            OrientedKind::Cylinder,
+        ] {
+            let oriented = Shape::Oriented {
+                kind,
+                centre: c,
+                half_extents_m: h,
+                local_from_world: *rot.inverse().matrix(),
+            };
+            let local = kind.local_shape(&h);
+            let bounds = oriented.aabb();
+            let mut hits = 0;
+            for _ in 0..400 {
+                let o = Vector3::new(rng.range(-5.0, 0.0), rng.range(-5.0, 5.0), 0.0);
+                let target = c + Vector3::new(
+                    rng.range(-2.0, 2.0),
+                    rng.range(-2.0, 2.0),
+                    rng.range(-2.0, 2.0),
+                );
+                let d = (target - o).normalize();
+                let world = oriented.intersect(&Ray::new(o, d), 1e9);
+                let lray = Ray::new(rot.inverse() * (o - c), rot.inverse() * d);
+                let expect = local.intersect(&lray, 1e9);
+                assert_eq!(world.is_some(), expect.is_some());
+                if let (Some(w), Some(e)) = (world, expect) {
+                    hits += 1;
+                    assert!((w.t - e.t).abs() < 1e-9);
+                    assert!((w.normal - rot * e.normal).norm() < 1e-12);
+                    let p = o + d * w.t;
+                    assert!((0..3).all(|a| {
+                        p[a] >= bounds.min[a] - 1e-9 && p[a] <= bounds.max[a] + 1e-9
+                    }));
+                }
+            }
+            assert!(hits > 50, "{kind:?}: {hits} hits");
+        }
     }
 
     #[test]

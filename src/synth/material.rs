@@ -34,11 +34,13 @@ const GROUND_FLOOR_M: f64 = 4.0;
 /// What a surface is made of, with its per-object parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Material {
-    /// Road surface with lane markings (the ground plane between the kerbs).
-    Asphalt,
+    /// Road surface with lane markings (the ground plane between the kerbs); lanes are
+    /// `[-lane_width_m, 0]` and `[0, lane_width_m]`, parking strips beyond.
+    Asphalt { lane_width_m: f32 },
     /// Ground plane of a cross street (local x = 0 on its centre line): asphalt with zebra
-    /// crossings over the main road and a dashed centre line.
-    CrossStreet,
+    /// crossings over the main road (kerbs at `|y| = road_half_width_m`) and a dashed centre
+    /// line.
+    CrossStreet { road_half_width_m: f32 },
     /// Ground beyond the sidewalks.
     Grass,
     /// Sidewalk: paving slabs on top, concrete kerb on the sides.
@@ -60,6 +62,8 @@ pub enum Material {
     Lamp,
     Clothes(Rgb),
     Skin(Rgb),
+    /// A high-contrast procedural pattern in object coordinates (random-objects scenes).
+    Pattern(super::pattern::Pattern),
 }
 
 /// Fraction of the footprint interval `[x - fp/2, x + fp/2]` covered by the stripe
@@ -127,8 +131,16 @@ pub fn albedo(
 ) -> Rgb {
     let fp = footprint_m as f32;
     match *material {
-        Material::Asphalt => asphalt(p_world, footprint_m, seed),
-        Material::CrossStreet => cross_street(p_world, p_obj, footprint_m, seed),
+        Material::Asphalt { lane_width_m } => {
+            asphalt(p_world, f64::from(lane_width_m), footprint_m, seed)
+        }
+        Material::CrossStreet { road_half_width_m } => cross_street(
+            p_world,
+            p_obj,
+            f64::from(road_half_width_m),
+            footprint_m,
+            seed,
+        ),
         Material::Grass => {
             let g = fbm2(p_world.x as f32, p_world.y as f32, seed ^ 0x61, 0.5, 6, fp);
             let d = fbm2(p_world.x as f32, p_world.y as f32, seed ^ 0x62, 0.11, 3, fp);
@@ -202,6 +214,7 @@ pub fn albedo(
             scale(c, 0.7 + 0.6 * v)
         }
         Material::Skin(c) => c,
+        Material::Pattern(pat) => pat.albedo(p_obj, footprint_m),
     }
 }
 
@@ -224,17 +237,23 @@ fn asphalt_base(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
 
 /// Cross street: plain asphalt, zebra crossings (bars along x, 0.5 m wide every 1 m) over
 /// the main road next to the cross street's edges, and a dashed centre line along y.
-fn cross_street(p: &Vector3<f64>, local: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+fn cross_street(
+    p: &Vector3<f64>,
+    local: &Vector3<f64>,
+    road_half_width_m: f64,
+    fp_m: f64,
+    seed: u32,
+) -> Rgb {
     let c = asphalt_base(p, fp_m, seed);
     let half = crate::synth::world::CROSS_STREET_HALF_WIDTH_M;
     let lx = local.x.abs();
-    let zebra = if p.y.abs() <= ROAD_HALF_WIDTH_M - 0.5 {
+    let zebra = if p.y.abs() <= road_half_width_m - 0.5 {
         stripe_coverage(lx, half - 3.0, half - 0.5, fp_m)
             * periodic_coverage(p.y, ZEBRA_PERIOD_M, 0.0, 0.5 * ZEBRA_PERIOD_M, fp_m)
     } else {
         0.0
     };
-    let centre = if p.y.abs() > ROAD_HALF_WIDTH_M + 1.0 {
+    let centre = if p.y.abs() > road_half_width_m + 1.0 {
         stripe_coverage(local.x, -0.5 * LINE_WIDTH_M, 0.5 * LINE_WIDTH_M, fp_m)
             * periodic_coverage(p.y, DASH_PERIOD_M, 0.0, DASH_LENGTH_M, fp_m)
     } else {
@@ -243,11 +262,11 @@ fn cross_street(p: &Vector3<f64>, local: &Vector3<f64>, fp_m: f64, seed: u32) ->
     mix(c, [0.85, 0.85, 0.84], (zebra + centre).min(1.0) as f32)
 }
 
-fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
+fn asphalt(p: &Vector3<f64>, lane_width_m: f64, fp_m: f64, seed: u32) -> Rgb {
     let (x, y) = (p.x as f32, p.y as f32);
     let mut c = asphalt_base(p, fp_m, seed);
     // Parking strips are slightly lighter and bluish.
-    if p.y.abs() > LANE_WIDTH_M {
+    if p.y.abs() > lane_width_m {
         c = scale(c, 1.12);
     }
     let half_line = 0.5 * LINE_WIDTH_M;
@@ -256,14 +275,14 @@ fn asphalt(p: &Vector3<f64>, fp_m: f64, seed: u32) -> Rgb {
         * periodic_coverage(p.x, DASH_PERIOD_M, 0.0, DASH_LENGTH_M, fp_m);
     let edge = stripe_coverage(
         p.y.abs(),
-        LANE_WIDTH_M - half_line,
-        LANE_WIDTH_M + half_line,
+        lane_width_m - half_line,
+        lane_width_m + half_line,
         fp_m,
     );
     // Parking bays: short transverse ticks every 6 m in the parking strips.
-    let bay = if p.y.abs() > LANE_WIDTH_M + half_line {
+    let bay = if p.y.abs() > lane_width_m + half_line {
         periodic_coverage(p.x, 6.0, 0.0, 0.12, fp_m)
-            * stripe_coverage(p.y.abs(), LANE_WIDTH_M, LANE_WIDTH_M + 2.0, fp_m)
+            * stripe_coverage(p.y.abs(), lane_width_m, lane_width_m + 2.0, fp_m)
     } else {
         0.0
     };

@@ -1,10 +1,14 @@
-//! Synthetic street scenes for a 360° camera rig: procedural road, buildings, cars, trees,
-//! street lights and pedestrians, ray cast into one ERP panorama per camera, with the exact
-//! ground-truth range of the rig's output frame and optional lens soiling.
+//! Synthetic scenes for a 360° camera rig, ray cast into one ERP panorama per camera, with the
+//! exact ground-truth range of the rig's output frame and optional lens soiling. Two kinds
+//! ([`SceneKind`]): procedural streets (road, buildings, cars, trees, street lights and
+//! pedestrians; regular or with a per-seed layout, [`StreetStyle`]) and random objects
+//! ([`objects`]: textured primitives at random distances in every direction, where a
+//! monocular depth guess fails).
 //!
 //! * World: REP 103, z up, the road runs along +x ([`world`] describes the layout). The rig
-//!   frame rides the ego lane: `world_from_rig(i) = (x0 + speed t_i, EGO_LANE_Y_M, 0)` with
-//!   `t_i = i * frame_period_s`.
+//!   frame rides the ego lane: `world_from_rig(i) = (x0 + speed t_i, ego_lane_y, 0)` with
+//!   `t_i = i * frame_period_s` (varied streets add a height offset, roll and pitch). In
+//!   random-objects scenes the rig frame is the world frame.
 //! * Pixel rays come from [`ErpGrid::dir_from_pixel`]; a camera ray in the world is
 //!   `world_from_rig * rig_from_cam * dir`.
 //! * Ground truth: for every output-frame pixel the Euclidean range to the first surface,
@@ -16,18 +20,22 @@
 pub mod bvh;
 pub mod material;
 pub mod noise;
+pub mod objects;
+pub mod pattern;
+mod scene;
 pub mod soiling;
 pub mod world;
 
 use crate::frame::{FloatImage, RgbImage, RigFrame};
 use crate::geometry::{ErpGrid, GeometryError, PixelCoord, Rig};
 use bvh::{Bvh, Ray};
-use material::{Material, Rgb};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use noise::Rng;
+use pattern::Background;
 use rayon::prelude::*;
+use scene::{FrameScene, Ground};
 use std::collections::BTreeMap;
-use world::{WorldParams, EGO_LANE_Y_M};
+use world::WorldParams;
 
 pub use soiling::{CameraSoiling, SoilingKind};
 
@@ -37,21 +45,6 @@ pub const VIEW_RANGE_M: f64 = 480.0;
 pub const START_STAMP_NS: u64 = 1_700_000_000_000_000_000;
 /// Fog (aerial perspective) distance scale, metres.
 pub const FOG_DISTANCE_M: f64 = 900.0;
-/// Sun irradiance and sky ambient (linear RGB, for albedo 1).
-const SUN_RADIANCE: Rgb = [1.55, 1.45, 1.3];
-const SKY_AMBIENT: Rgb = [0.42, 0.48, 0.6];
-/// Light bounced from the ground onto downward-facing surfaces.
-const GROUND_BOUNCE: Rgb = [0.12, 0.11, 0.1];
-/// Sky-ambient weight of a vertical surface (1 for an upward one, `2 base - 1` downward).
-const SKY_VIEW_BASE: f64 = 0.6;
-/// Ground-bounce weight of a vertical surface.
-const GROUND_VIEW_SIDE: f64 = 0.3;
-/// Light emitted by street-lamp heads (linear RGB added to the shaded colour).
-const LAMP_EMISSION: Rgb = [0.3, 0.28, 0.2];
-/// Offset of shadow-ray origins along the normal, metres.
-const SHADOW_BIAS_M: f64 = 1e-4;
-/// Footprints are divided by `max(|cos incidence|, MIN_COS_INCIDENCE)`.
-const MIN_COS_INCIDENCE: f64 = 0.12;
 /// Display gamma.
 const GAMMA: f32 = 2.2;
 /// Two isometries closer than this (metres and radians) are the same pose.
@@ -70,6 +63,51 @@ pub enum SynthError {
     },
 }
 
+/// What a synthetic frame shows.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum SceneKind {
+    /// A procedural street driven along by the rig ([`world`]).
+    #[default]
+    Street,
+    /// Random textured objects all around the rig, new per frame ([`objects`]).
+    Objects,
+}
+
+/// How much street layouts vary between world seeds.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum StreetStyle {
+    /// The same cross-section for every seed ([`world::StreetLayout::regular`]).
+    #[default]
+    Regular,
+    /// Widths, setbacks, heights, densities and rig pose drawn per seed
+    /// ([`world::StreetLayout::varied`]).
+    Varied,
+}
+
+impl SceneKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SceneKind::Street => "street",
+            SceneKind::Objects => "objects",
+        }
+    }
+}
+
+impl StreetStyle {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StreetStyle::Regular => "regular",
+            StreetStyle::Varied => "varied",
+        }
+    }
+}
+
 /// How to render a synthetic sequence.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SynthConfig {
@@ -85,6 +123,10 @@ pub struct SynthConfig {
     pub frame_period_s: f64,
     /// Ego speed along +x, metres per second.
     pub speed_mps: f64,
+    /// Street or random objects.
+    pub scene: SceneKind,
+    /// Street layout variation (street scenes only).
+    pub street: StreetStyle,
 }
 
 impl Default for SynthConfig {
@@ -96,6 +138,8 @@ impl Default for SynthConfig {
             max_depth_m: 1000.0,
             frame_period_s: 0.1,
             speed_mps: 8.0,
+            scene: SceneKind::Street,
+            street: StreetStyle::Regular,
         }
     }
 }
@@ -104,7 +148,10 @@ impl SynthConfig {
     /// The configuration as text key/value pairs (for bag metadata).
     pub fn to_info(&self) -> BTreeMap<String, String> {
         let mut m = BTreeMap::new();
-        m.insert("generator".into(), "mode360::synth street v1".into());
+        m.insert(
+            "generator".into(),
+            format!("mode360::synth {} v1", self.scene.as_str()),
+        );
         m.insert("seed".into(), self.seed.to_string());
         m.insert("width".into(), self.width.to_string());
         m.insert("height".into(), (self.width / 2).to_string());
@@ -112,6 +159,8 @@ impl SynthConfig {
         m.insert("max_depth_m".into(), self.max_depth_m.to_string());
         m.insert("frame_period_s".into(), self.frame_period_s.to_string());
         m.insert("speed_mps".into(), self.speed_mps.to_string());
+        m.insert("scene".into(), self.scene.as_str().into());
+        m.insert("street".into(), self.street.as_str().into());
         m
     }
 
@@ -169,7 +218,7 @@ pub struct CameraView {
     pub range_m: FloatImage,
 }
 
-/// Renders frames of a procedural street for any rig.
+/// Renders frames of a procedural street or of random objects for any rig.
 pub struct SynthRenderer {
     cfg: SynthConfig,
     grid: ErpGrid,
@@ -177,120 +226,6 @@ pub struct SynthRenderer {
     dirs: Vec<Vector3<f64>>,
     params: WorldParams,
     gamma_lut: Vec<u8>,
-}
-
-/// One traced ray's result.
-#[derive(Clone, Copy, Debug)]
-struct Sample {
-    colour: Rgb,
-    range_m: f64,
-}
-
-/// The first surface a ray meets: its distance and the primitive (`None`: the ground plane).
-#[derive(Clone, Copy, Debug)]
-struct FirstHit {
-    t: f64,
-    prim: Option<bvh::PrimHit>,
-}
-
-/// The per-frame scene: primitives in a BVH plus the analytic ground plane and sky.
-struct FrameScene<'a> {
-    bvh: Bvh,
-    params: &'a WorldParams,
-    pixel_angle_rad: f64,
-    max_depth_m: f64,
-}
-
-impl FrameScene<'_> {
-    /// The first surface along `ray` (BVH primitive or ground plane `z = 0`), if any.
-    fn first_hit(&self, ray: &Ray) -> Option<FirstHit> {
-        let t_ground = if ray.dir.z < 0.0 {
-            -ray.origin.z / ray.dir.z
-        } else {
-            f64::INFINITY
-        };
-        match self.bvh.closest(ray, t_ground) {
-            Some(h) => Some(FirstHit {
-                t: h.hit.t,
-                prim: Some(h),
-            }),
-            None if t_ground.is_finite() => Some(FirstHit {
-                t: t_ground,
-                prim: None,
-            }),
-            None => None,
-        }
-    }
-
-    fn range_only(&self, ray: &Ray) -> f64 {
-        self.first_hit(ray)
-            .map_or(self.max_depth_m, |h| h.t.min(self.max_depth_m))
-    }
-
-    fn trace(&self, ray: &Ray) -> Sample {
-        let seed = self.params.tex_seed;
-        let sun = self.params.sun_dir;
-        let Some(FirstHit { t, prim: prim_hit }) = self.first_hit(ray) else {
-            return Sample {
-                colour: material::sky(&ray.dir, &sun, self.pixel_angle_rad, seed),
-                range_m: self.max_depth_m,
-            };
-        };
-        let p = ray.at(t);
-        let (material, mut n, p_obj) = match prim_hit {
-            Some(h) => {
-                let prim = &self.bvh.prims[h.prim];
-                (prim.material, h.hit.normal, p - prim.object_origin)
-            }
-            None => {
-                let g = world::ground_material(self.params, &p);
-                (g.material, Vector3::z(), p - g.texture_origin)
-            }
-        };
-        let cos_in = n.dot(&ray.dir);
-        if cos_in > 0.0 {
-            n = -n;
-        }
-        let footprint_m = t * self.pixel_angle_rad / cos_in.abs().max(MIN_COS_INCIDENCE);
-        let p_tex = Vector3::new(p.x.rem_euclid(TEXTURE_WRAP_M), p.y, p.z);
-        let albedo = material::albedo(&material, &p_tex, &p_obj, &n, footprint_m, seed);
-        let lambert = n.dot(&sun);
-        let sunlit = if lambert > 0.0 {
-            let shadow = Ray::new(p + n * SHADOW_BIAS_M, sun);
-            if self.bvh.any(&shadow, f64::INFINITY) {
-                0.0
-            } else {
-                lambert
-            }
-        } else {
-            0.0
-        };
-        // Hemispherical ambient: the sky fills `(1 + n_z) / 2` of a surface's view (slightly
-        // flattened), the ground the rest.
-        let sky_w = SKY_VIEW_BASE + (1.0 - SKY_VIEW_BASE) * n.z;
-        let ground_w = (-n.z).max(0.0) + GROUND_VIEW_SIDE * (1.0 - n.z.abs());
-        let mut c = [0.0f32; 3];
-        for i in 0..3 {
-            c[i] = albedo[i]
-                * (SUN_RADIANCE[i] * sunlit as f32
-                    + SKY_AMBIENT[i] * sky_w as f32
-                    + GROUND_BOUNCE[i] * ground_w as f32);
-        }
-        if material == Material::Lamp {
-            for (ci, e) in c.iter_mut().zip(LAMP_EMISSION) {
-                *ci += e;
-            }
-        }
-        // Aerial perspective towards the horizon sky colour.
-        let fog = (1.0 - (-t / FOG_DISTANCE_M).exp()) as f32;
-        for (ci, h) in c.iter_mut().zip(material::HORIZON_SKY) {
-            *ci += (h - *ci) * fog;
-        }
-        Sample {
-            colour: c,
-            range_m: t.min(self.max_depth_m),
-        }
-    }
 }
 
 /// Entries of the gamma lookup table, indexed by `sqrt(c)` (finer steps in the shadows).
@@ -336,7 +271,7 @@ impl SynthRenderer {
                 }));
             }
         }
-        let params = WorldParams::new(cfg.seed);
+        let params = WorldParams::with_style(cfg.seed, cfg.street);
         Ok(Self {
             cfg,
             grid,
@@ -370,12 +305,26 @@ impl SynthRenderer {
         START_STAMP_NS.saturating_add(period_ns.saturating_mul(index as u64))
     }
 
-    /// Pose of the rig frame in the world at frame `index`.
+    /// The street's layout and sun (also built for objects scenes, which ignore it).
+    pub fn world_params(&self) -> &WorldParams {
+        &self.params
+    }
+
+    /// Pose of the rig frame in the world at frame `index` (the identity in objects scenes).
     pub fn world_from_rig(&self, index: usize) -> Isometry3<f64> {
+        if self.cfg.scene == SceneKind::Objects {
+            return Isometry3::identity();
+        }
+        let l = &self.params.layout;
         let x = self.cfg.speed_mps * self.frame_time_s(index);
+        let rotation = if l.rig_roll_rad == 0.0 && l.rig_pitch_rad == 0.0 {
+            UnitQuaternion::identity()
+        } else {
+            UnitQuaternion::from_euler_angles(l.rig_roll_rad, l.rig_pitch_rad, 0.0)
+        };
         Isometry3::from_parts(
-            Translation3::new(x, EGO_LANE_Y_M, 0.0),
-            UnitQuaternion::identity(),
+            Translation3::new(x, l.ego_lane_y_m, l.rig_height_offset_m),
+            rotation,
         )
     }
 
@@ -389,7 +338,13 @@ impl SynthRenderer {
     pub fn render_frame_with_report(&self, rig: &Rig, index: usize) -> (RigFrame, FrameReport) {
         let t_s = self.frame_time_s(index);
         let world_from_rig = self.world_from_rig(index);
-        let scene = self.frame_scene(index);
+        let mut centres: Vec<Vector3<f64>> = rig
+            .cameras
+            .iter()
+            .map(|c| (world_from_rig * c.rig_from_cam).translation.vector)
+            .collect();
+        centres.push((world_from_rig * rig.rig_from_output).translation.vector);
+        let scene = self.frame_scene(index, &centres);
         let output_cam = rig
             .cameras
             .iter()
@@ -447,26 +402,51 @@ impl SynthRenderer {
 
     /// One clean ERP view from an arbitrary camera pose at the time of frame `index`, with
     /// its own range image (same conventions as the ground truth). The scene is the one
-    /// around the rig's position at that frame.
+    /// around the rig's position at that frame (for objects scenes: the one rendered for any
+    /// rig whose cameras lie in [`objects::standard_rig_zone`], if this camera does too).
     pub fn render_camera(&self, index: usize, world_from_cam: &Isometry3<f64>) -> CameraView {
-        let scene = self.frame_scene(index);
+        let scene = self.frame_scene(index, &[world_from_cam.translation.vector]);
         let (image, range) = self.render_view(&scene, world_from_cam, true);
         let range_m = range
             .unwrap_or_else(|| FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN));
         CameraView { image, range_m }
     }
 
-    fn frame_scene(&self, index: usize) -> FrameScene<'_> {
-        FrameScene {
-            bvh: Bvh::build(world::scene_prims(
-                &self.params,
-                self.world_from_rig(index).translation.x,
-                VIEW_RANGE_M,
-                self.frame_time_s(index),
-            )),
-            params: &self.params,
-            pixel_angle_rad: std::f64::consts::PI / self.grid.height() as f64,
-            max_depth_m: self.cfg.max_depth_m,
+    /// The scene of frame `index`; `camera_centres_w` (world frame) shape the keep-out box
+    /// of objects scenes.
+    fn frame_scene(&self, index: usize, camera_centres_w: &[Vector3<f64>]) -> FrameScene<'_> {
+        let pixel_angle_rad = std::f64::consts::PI / self.grid.height() as f64;
+        match self.cfg.scene {
+            SceneKind::Street => FrameScene {
+                bvh: Bvh::build(world::scene_prims(
+                    &self.params,
+                    self.world_from_rig(index).translation.x,
+                    VIEW_RANGE_M,
+                    self.frame_time_s(index),
+                )),
+                ground: Ground::Street(&self.params),
+                background: Background::Sky,
+                sun_dir: self.params.sun_dir,
+                tex_seed: self.params.tex_seed,
+                pixel_angle_rad,
+                max_depth_m: self.cfg.max_depth_m,
+            },
+            SceneKind::Objects => {
+                let keep_out = objects::keep_out_box(camera_centres_w);
+                let o = objects::objects_scene(self.cfg.seed, index, &keep_out);
+                FrameScene {
+                    bvh: Bvh::build(o.prims),
+                    ground: match o.ground {
+                        Some((z_m, material)) => Ground::Plane { z_m, material },
+                        None => Ground::None,
+                    },
+                    background: o.background,
+                    sun_dir: o.sun_dir,
+                    tex_seed: self.params.tex_seed,
+                    pixel_angle_rad,
+                    max_depth_m: self.cfg.max_depth_m,
+                }
+            }
         }
     }
 

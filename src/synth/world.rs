@@ -2,13 +2,16 @@
 //! moving traffic and pedestrians as periodic streams evaluated at a time, so any stretch of
 //! an unbounded road can be produced lazily and identically for every frame.
 //!
-//! Layout across the road (y, REP 103 left positive): ego lane `[-4, 0]` (driving +x),
-//! oncoming lane `[0, 4]`, parking strips `4..7.5`, kerb and sidewalk `7.5..13.5` (0.15 m
+//! Regular layout across the road (y, REP 103 left positive): ego lane `[-4, 0]` (driving
+//! +x), oncoming lane `[0, 4]`, parking strips `4..7.5`, kerb and sidewalk `7.5..13.5` (0.15 m
 //! high), buildings from about 13 m outwards. Parked cars stand at `|y| = 6.4`, oncoming cars
 //! at `y = 2.4`, so nothing comes within about 3 m of a camera of a rig in the ego lane.
+//! Varied streets ([`StreetStyle::Varied`]) draw these widths, setbacks, building heights and
+//! the density of parked cars and trees per world seed ([`StreetLayout::varied`]).
 
 use super::bvh::{Aabb, Prim, Shape};
-use super::material::{Material, Rgb, ROAD_HALF_WIDTH_M};
+use super::material::{Material, Rgb, LANE_WIDTH_M, ROAD_HALF_WIDTH_M};
+use super::StreetStyle;
 use super::noise::{hash_words, unit_from_hash, Rng};
 use nalgebra::Vector3;
 
@@ -31,7 +34,8 @@ const ONCOMING_SPEED_MPS: f64 = 9.0;
 const ONCOMING_SLOT_M: f64 = 32.0;
 const TREE_Y_M: f64 = 8.7;
 const POLE_Y_M: f64 = 8.0;
-/// Pedestrian streams: lateral position (magnitude), speed along x (signed) and slot spacing.
+/// Regular pedestrian streams: lateral position (magnitude), speed along x (signed) and slot
+/// spacing.
 const PEDESTRIAN_STREAMS: [PedestrianStream; 2] = [
     PedestrianStream {
         y_m: 10.2,
@@ -45,7 +49,8 @@ const PEDESTRIAN_STREAMS: [PedestrianStream; 2] = [
     },
 ];
 
-struct PedestrianStream {
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PedestrianStream {
     y_m: f64,
     speed_mps: f64,
     slot_m: f64,
@@ -117,23 +122,139 @@ pub struct GroundSurface {
     pub texture_origin: Vector3<f64>,
 }
 
-/// The ground plane `z = 0` at `p`: cross street, road (`|y| <= ROAD_HALF_WIDTH_M`) or grass.
+/// The ground plane `z = 0` at `p`: cross street, road (`|y| <= road_half_width_m`) or grass.
 pub fn ground_material(params: &WorldParams, p: &Vector3<f64>) -> GroundSurface {
+    let l = &params.layout;
     if on_cross_street(params, p.x, 0.0) {
         let c = cross_street_centre_m(tile_of(p.x));
         return GroundSurface {
-            material: Material::CrossStreet,
+            material: Material::CrossStreet {
+                road_half_width_m: l.road_half_width_m as f32,
+            },
             texture_origin: Vector3::new(c, 0.0, 0.0),
         };
     }
-    let material = if p.y.abs() <= ROAD_HALF_WIDTH_M {
-        Material::Asphalt
+    let material = if p.y.abs() <= l.road_half_width_m {
+        Material::Asphalt {
+            lane_width_m: l.lane_width_m as f32,
+        }
     } else {
         Material::Grass
     };
     GroundSurface {
         material,
         texture_origin: Vector3::zeros(),
+    }
+}
+
+/// The street's cross-section and furniture density (distances from the road axis, metres).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StreetLayout {
+    /// Width of each of the two lanes.
+    pub lane_width_m: f64,
+    /// Kerb line: lanes plus parking strips.
+    pub road_half_width_m: f64,
+    /// Outer edge of the sidewalk.
+    pub sidewalk_outer_m: f64,
+    /// Building fronts (plus a random setback per building).
+    pub building_front_m: f64,
+    /// Front of the second row of buildings.
+    pub back_row_front_m: f64,
+    /// Multiplies every building height.
+    pub building_height_scale: f64,
+    /// Chance of a car in each parking bay.
+    pub parked_car_probability: f64,
+    /// Chance of a tree per tile and side.
+    pub tree_probability: f64,
+    pub parked_car_y_m: f64,
+    pub oncoming_car_y_m: f64,
+    pub tree_y_m: f64,
+    pub pole_y_m: f64,
+    /// Centre of the ego lane (the rig's y).
+    pub ego_lane_y_m: f64,
+    pub pedestrian_streams: [PedestrianStream; 2],
+    /// Rig frame height above the road, added to the cameras' YAML heights.
+    pub rig_height_offset_m: f64,
+    /// Rig roll and pitch (radians) in the world.
+    pub rig_roll_rad: f64,
+    pub rig_pitch_rad: f64,
+}
+
+impl StreetLayout {
+    /// The fixed layout of [`StreetStyle::Regular`] (the module documentation's numbers).
+    pub fn regular() -> Self {
+        Self {
+            lane_width_m: LANE_WIDTH_M,
+            road_half_width_m: ROAD_HALF_WIDTH_M,
+            sidewalk_outer_m: SIDEWALK_OUTER_M,
+            building_front_m: BUILDING_FRONT_M,
+            back_row_front_m: BACK_ROW_FRONT_M,
+            building_height_scale: 1.0,
+            parked_car_probability: 0.55,
+            tree_probability: 0.75,
+            parked_car_y_m: PARKED_CAR_Y_M,
+            oncoming_car_y_m: ONCOMING_CAR_Y_M,
+            tree_y_m: TREE_Y_M,
+            pole_y_m: POLE_Y_M,
+            ego_lane_y_m: EGO_LANE_Y_M,
+            pedestrian_streams: PEDESTRIAN_STREAMS,
+            rig_height_offset_m: 0.0,
+            rig_roll_rad: 0.0,
+            rig_pitch_rad: 0.0,
+        }
+    }
+
+    /// A layout drawn from `seed`: lanes 2.8 to 4.2 m, parking strips 1 to 3.5 m (cars only
+    /// in strips of 2.2 m or more), sidewalks 1.5 to 7 m, setbacks 0 to 8 m, heights x0.4 to
+    /// x2, rig 0.4 m lower to 0.6 m higher and tilted up to 3 degrees. Trees, cars and kerbs
+    /// keep clear of cameras within 0.75 m of the ego lane's centre.
+    pub fn varied(seed: u64) -> Self {
+        // Widths are rounded to f32 so materials (which hold f32) agree with the geometry.
+        let f = |x: f64| f64::from(x as f32);
+        let mut rng = Rng::new(&[seed, 0x1A40]);
+        let lane = f(rng.range(2.8, 4.2));
+        let parking = f(rng.range(1.0, 3.5));
+        let road_half = f(lane + parking);
+        let sidewalk = rng.range(1.5, 7.0);
+        let sidewalk_outer = road_half + sidewalk;
+        let building_front = sidewalk_outer - 0.5 + rng.range(0.0, 8.0);
+        let back_row = building_front + rng.range(19.0, 35.0);
+        let parked = if parking >= 2.2 {
+            rng.range(0.0, 0.9)
+        } else {
+            0.0
+        };
+        let streams = [
+            PedestrianStream {
+                y_m: road_half + 0.45 * sidewalk,
+                speed_mps: rng.range(0.9, 1.6),
+                slot_m: rng.range(7.0, 20.0),
+            },
+            PedestrianStream {
+                y_m: road_half + 0.75 * sidewalk,
+                speed_mps: -rng.range(0.9, 1.6),
+                slot_m: rng.range(7.0, 20.0),
+            },
+        ];
+        Self {
+            lane_width_m: lane,
+            road_half_width_m: road_half,
+            sidewalk_outer_m: sidewalk_outer,
+            building_front_m: building_front,
+            back_row_front_m: back_row,
+            building_height_scale: rng.range(0.4, 2.0),
+            parked_car_probability: parked,
+            tree_probability: rng.range(0.0, 1.0),
+            parked_car_y_m: road_half - 1.1,
+            oncoming_car_y_m: 0.6 * lane,
+            tree_y_m: road_half + 1.2,
+            pole_y_m: road_half + 0.5,
+            ego_lane_y_m: -0.5 * lane,
+            pedestrian_streams: streams,
+            rig_height_offset_m: rng.range(-0.4, 0.6),
+            rig_roll_rad: rng.range(-0.05, 0.05),
+            rig_pitch_rad: rng.range(-0.05, 0.05),
+        }
     }
 }
 
@@ -145,10 +266,18 @@ pub struct WorldParams {
     pub sun_dir: Vector3<f64>,
     /// Texture seed (32-bit).
     pub tex_seed: u32,
+    /// Cross-section and density of the street.
+    pub layout: StreetLayout,
 }
 
 impl WorldParams {
+    /// The regular street of `seed`.
     pub fn new(seed: u64) -> Self {
+        Self::with_style(seed, StreetStyle::Regular)
+    }
+
+    /// The street of `seed` in `style`.
+    pub fn with_style(seed: u64, style: StreetStyle) -> Self {
         let mut rng = Rng::new(&[seed, 0x5u64]);
         let azimuth = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
         let elevation = rng.range(0.45, 1.05);
@@ -160,6 +289,10 @@ impl WorldParams {
                 elevation.sin(),
             ),
             tex_seed: (hash_words(&[seed, 0x7]) >> 32) as u32,
+            layout: match style {
+                StreetStyle::Regular => StreetLayout::regular(),
+                StreetStyle::Varied => StreetLayout::varied(seed),
+            },
         }
     }
 }
@@ -279,15 +412,22 @@ fn pedestrian(out: &mut Vec<Prim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
 
 /// Up to `max_count` buildings filling `[x0, x1]` on side `s`, fronts `front_m` (plus a
 /// random setback) from the road axis.
+#[allow(clippy::too_many_arguments)]
 fn building_row(
     out: &mut Vec<Prim>,
     rng: &mut Rng,
+    layout: &StreetLayout,
     x0: f64,
     x1: f64,
     s: f64,
-    front_m: f64,
+    back_row: bool,
     max_count: usize,
 ) {
+    let front_m = if back_row {
+        layout.back_row_front_m
+    } else {
+        layout.building_front_m
+    };
     let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
     let count = 1 + rng.index(max_count);
     let mut x = x0;
@@ -310,12 +450,15 @@ fn building_row(
                 0.0
             };
         let depth = rng.range(10.0, 16.0);
-        let tall = if front_m > BUILDING_FRONT_M { 0.4 } else { 0.2 };
-        let height = if rng.chance(tall) {
+        let tall = if back_row { 0.4 } else { 0.2 };
+        let mut height = if rng.chance(tall) {
             rng.range(22.0, 45.0)
         } else {
             rng.range(7.0, 20.0)
         };
+        if layout.building_height_scale != 1.0 {
+            height *= layout.building_height_scale;
+        }
         let (ya, yb) = lo_hi(s * front, s * (front + depth));
         let bx0 = x + 0.5 * gap;
         let bx1 = (x + width - 0.5 * gap).max(bx0 + 1.0);
@@ -342,9 +485,10 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
     let x0 = tile as f64 * TILE_LENGTH_M;
     let x1 = x0 + TILE_LENGTH_M;
     let s = side;
+    let l = &params.layout;
     let lo_hi = |a: f64, b: f64| if a < b { (a, b) } else { (b, a) };
     // Sidewalk slab (kerb face towards the road).
-    let (ya, yb) = lo_hi(s * ROAD_HALF_WIDTH_M, s * SIDEWALK_OUTER_M);
+    let (ya, yb) = lo_hi(s * l.road_half_width_m, s * l.sidewalk_outer_m);
     if is_intersection(params, tile) {
         // Corners only: sidewalks up to the cross street and a street light on one corner.
         let c = cross_street_centre_m(tile);
@@ -362,11 +506,11 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
         // Corner buildings (front and back rows) on both sides of the cross street.
         let corner = CROSS_STREET_HALF_WIDTH_M + CORNER_SETBACK_M;
         for (a, b) in [(x0, c - corner), (c + corner, x1)] {
-            building_row(out, &mut rng, a, b, s, BUILDING_FRONT_M, 1);
-            building_row(out, &mut rng, a, b, s, BACK_ROW_FRONT_M, 1);
+            building_row(out, &mut rng, l, a, b, s, false, 1);
+            building_row(out, &mut rng, l, a, b, s, true, 1);
         }
         let px = c - CROSS_STREET_HALF_WIDTH_M - 1.0;
-        let py = s * POLE_Y_M;
+        let py = s * l.pole_y_m;
         push(
             out,
             Shape::Cylinder {
@@ -387,12 +531,12 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
         Vector3::zeros(),
     );
     // Buildings: one to three per tile with small gaps, and a taller row behind.
-    building_row(out, &mut rng, x0, x1, s, BUILDING_FRONT_M, 3);
-    building_row(out, &mut rng, x0, x1, s, BACK_ROW_FRONT_M, 2);
+    building_row(out, &mut rng, l, x0, x1, s, false, 3);
+    building_row(out, &mut rng, l, x0, x1, s, true, 2);
     // Tree.
-    if rng.chance(0.75) {
+    if rng.chance(l.tree_probability) {
         let tx = x0 + rng.range(3.0, 9.0);
-        let ty = s * (TREE_Y_M + rng.range(-0.2, 0.2));
+        let ty = s * (l.tree_y_m + rng.range(-0.2, 0.2));
         let trunk_h = rng.range(2.8, 3.8);
         let origin = Vector3::new(tx, ty, 0.0);
         push(
@@ -434,7 +578,7 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
     // Street light: pole, arm over the parking strip, lamp head.
     if rng.chance(0.8) {
         let px = x0 + rng.range(14.0, 20.0);
-        let py = s * POLE_Y_M;
+        let py = s * l.pole_y_m;
         let h = rng.range(6.5, 8.0);
         let origin = Vector3::new(px, py, 0.0);
         push(
@@ -448,7 +592,7 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
             Material::Metal,
             origin,
         );
-        let arm_end = s * (POLE_Y_M - 1.6);
+        let arm_end = s * (l.pole_y_m - 1.6);
         let (ya, yb) = lo_hi(py, arm_end);
         push(
             out,
@@ -467,8 +611,8 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
     // Parked cars in the bays.
     let mut cx = x0 + rng.range(1.0, 4.0);
     while cx < x1 - 3.0 {
-        if rng.chance(0.55) {
-            car(out, cx + 2.5, s * PARKED_CAR_Y_M, &mut rng);
+        if rng.chance(l.parked_car_probability) {
+            car(out, cx + 2.5, s * l.parked_car_y_m, &mut rng);
         }
         cx += rng.range(5.5, 7.0);
     }
@@ -492,12 +636,12 @@ pub fn scene_prims(params: &WorldParams, x_centre_m: f64, range_m: f64, t_s: f64
         let mut rng = Rng::new(&[params.seed, k as u64, 0x0C0C]);
         if rng.chance(0.6) {
             let x = k as f64 * ONCOMING_SLOT_M + rng.range(0.0, 0.5 * ONCOMING_SLOT_M) + shift;
-            car(&mut out, x, ONCOMING_CAR_Y_M, &mut rng);
+            car(&mut out, x, params.layout.oncoming_car_y_m, &mut rng);
         }
     }
     // Pedestrians on both sidewalks.
     for (si, side) in [1.0f64, -1.0].iter().enumerate() {
-        for (pi, st) in PEDESTRIAN_STREAMS.iter().enumerate() {
+        for (pi, st) in params.layout.pedestrian_streams.iter().enumerate() {
             let shift = st.speed_mps * t_s;
             let k0 = ((x_centre_m - range_m - shift) / st.slot_m).floor() as i64;
             let k1 = ((x_centre_m + range_m - shift) / st.slot_m).ceil() as i64;
