@@ -168,7 +168,7 @@ impl SsmodeConfig {
             feature_blocks: [1, 2, 1, 1],
             feature_out_channels: 8,
             spheres: 96,
-            hypotheses: 192,
+            hypotheses: 96,
             min_depth_m: crate::geometry::sweep::PAPER_MIN_DEPTH_M,
             max_depth_m: crate::geometry::sweep::PAPER_MAX_DEPTH_M,
             hourglass_channels: 8,
