@@ -410,3 +410,25 @@ impl EvalReport {
         s
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn view_modes_name_themselves_and_pick_the_reference() {
+        assert_eq!(serde_json::to_string(&ViewMode::True).unwrap(), "\"true\"");
+        let same: ViewMode = serde_json::from_str("\"same-image\"").unwrap();
+        assert_eq!(same, ViewMode::SameImage);
+        assert_eq!(same.label(), "same-image views");
+        let images: Vec<RgbImage> = (0..3u8)
+            .map(|k| RgbImage::from_pixel(4, 2, image::Rgb([k, k, k])))
+            .collect();
+        let fed = ViewMode::SameImage.apply(images.clone(), 1);
+        assert!(fed.iter().all(|i| i.get_pixel(0, 0).0 == [1, 1, 1]) && fed.len() == 3);
+        assert_eq!(ViewMode::True.apply(images.clone(), 1), images);
+        // Reports written before `views` existed read as true views.
+        let old: EvalReport = serde_json::from_str(r#"{"estimator":"x","rows":[]}"#).unwrap();
+        assert_eq!(old.views, ViewMode::True);
+    }
+}

@@ -179,13 +179,12 @@ fn same_image_flags_and_bag_rewrite_agree() {
 
     let o = eval(&["--geometry-share"], &json("share.json"));
     let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(stdout.contains("photometric (true views)"), "{stdout}");
-    assert!(stdout.contains("photometric (same-image views)"), "{stdout}");
+    assert!(
+        stdout.contains("photometric (same-image views)"),
+        "{stdout}"
+    );
     assert!(stdout.contains("geometry share"), "{stdout}");
     let share = read_json(&json("share.json"));
     assert_eq!(share["true_views"]["views"], "true");
@@ -218,11 +217,7 @@ fn same_image_flags_and_bag_rewrite_agree() {
         "--out",
         rewritten.to_str().unwrap(),
     ]);
-    assert!(
-        o.status.success(),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("camera 'cam1'"));
     let o = mode360(&[
         "eval",

@@ -86,7 +86,10 @@ fn same_image_views_collapse_the_photometric_sweep() -> TestResult {
         report.true_views.rows[0].depth.delta1_pct - report.same_image.rows[0].depth.delta1_pct
     );
     let table = report.to_table();
-    assert!(table.contains("estimator: photometric (true views)"), "{table}");
+    assert!(
+        table.contains("estimator: photometric (true views)"),
+        "{table}"
+    );
     assert!(table.contains("photometric (same-image views)"), "{table}");
     Ok(())
 }
@@ -125,10 +128,17 @@ fn same_image_bag_carries_the_reference_image_with_each_cameras_header() -> Test
                     reference.step
                 )
             );
-            assert!(new.data == reference.data, "{}: reference pixels", camera.topic);
+            assert!(
+                new.data == reference.data,
+                "{}: reference pixels",
+                camera.topic
+            );
         }
         if camera.name != reference.name {
-            assert!(own[0].data != reference_images[0].data, "views differ before");
+            assert!(
+                own[0].data != reference_images[0].data,
+                "views differ before"
+            );
         }
     }
     assert_eq!(
@@ -148,7 +158,9 @@ fn same_image_bag_carries_the_reference_image_with_each_cameras_header() -> Test
         RigBagReader::open(&input)?.rig().to_yaml()
     );
     assert!(after.metadata(RIG_METADATA).is_some());
-    let note = after.metadata(SAME_IMAGE_METADATA).ok_or("no same-image note")?;
+    let note = after
+        .metadata(SAME_IMAGE_METADATA)
+        .ok_or("no same-image note")?;
     assert_eq!(note["reference_camera"], reference.name);
 
     // The rewritten bag with true views is the original with same-image views.
@@ -162,9 +174,15 @@ fn same_image_bag_carries_the_reference_image_with_each_cameras_header() -> Test
     );
     assert!((a.delta1_pct - b.delta1_pct).abs() <= 1e-9);
     assert!((a.abs_rel - b.abs_rel).abs() <= 1e-9);
-    assert!(a.delta1_pct <= MAX_DELTA1_SAME_PCT, "δ1 {:.2}", a.delta1_pct);
+    assert!(
+        a.delta1_pct <= MAX_DELTA1_SAME_PCT,
+        "δ1 {:.2}",
+        a.delta1_pct
+    );
 
-    let err = write_same_image_bag(&output, &output).unwrap_err().to_string();
+    let err = write_same_image_bag(&output, &output)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("same.mcap") && err.contains("input"), "{err}");
     Ok(())
 }
@@ -196,7 +214,10 @@ impl DepthEstimator for Spy {
 fn same_image_views_use_the_reference_of_the_selected_cameras() -> TestResult {
     let dir = tempfile::tempdir()?;
     let bag = street_bag(dir.path(), "small.mcap", 64, 1)?;
-    let frame = RigBagReader::open(&bag)?.frames().next().ok_or("no frame")??;
+    let frame = RigBagReader::open(&bag)?
+        .frames()
+        .next()
+        .ok_or("no frame")??;
     // cam1, the rig's reference, is not selected: the subset's reference is its first camera.
     for (views, expected) in [
         (ViewMode::True, vec![1, 2, 3]),
