@@ -5,10 +5,18 @@
 //! GEER angular disparity (in GEER pixels, GEER width = ERP height as in Deep360) for the pair
 //! (reference camera, next selected camera). Metrics are per-frame means; bags are grouped by
 //! condition (clean or soiled, from the bag's `mode360.synth` metadata).
+//!
+//! [`ViewMode::SameImage`] feeds every camera the reference camera's image (the geometry
+//! check of design.md): with no parallax left, a multi-view estimator must collapse.
+//! [`geometry_share`] runs both passes and reports δ1(true views) − δ1(same image).
+
+mod geometry_share;
+
+pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
 use crate::bag::{BagError, RigBagReader};
 use crate::estimator::{DepthEstimator, EstimatorError};
-use crate::frame::FloatImage;
+use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig, RigError};
 use crate::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage, MetricsError};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -71,6 +79,38 @@ pub enum EvalError {
     NoFrames,
 }
 
+/// Which images the estimator gets for a frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ViewMode {
+    /// Every camera's own image (the normal evaluation).
+    #[default]
+    True,
+    /// Every selected camera gets the image of the reference camera of the (selected) rig at
+    /// the same stamp; the estimator still gets the true rig. No parallax is left, so a real
+    /// multi-view estimator must collapse (the geometry check).
+    SameImage,
+}
+
+impl ViewMode {
+    /// How the report names the views: `true views` or `same-image views`.
+    pub fn label(self) -> &'static str {
+        match self {
+            ViewMode::True => "true views",
+            ViewMode::SameImage => "same-image views",
+        }
+    }
+
+    /// The images the estimator sees: `images` (one per camera of the rig, rig order) as they
+    /// are, or the `reference`'s image for every camera.
+    pub fn apply(self, images: Vec<RgbImage>, reference: usize) -> Vec<RgbImage> {
+        match self {
+            ViewMode::True => images,
+            ViewMode::SameImage => vec![images[reference].clone(); images.len()],
+        }
+    }
+}
+
 /// What to evaluate.
 #[derive(Clone, Debug)]
 pub struct EvalOptions {
@@ -83,6 +123,21 @@ pub struct EvalOptions {
     /// Write a preview PNG (reference panorama, predicted range, ground truth) of the first
     /// [`PREVIEW_FRAMES`] frames of each bag here.
     pub png_dir: Option<PathBuf>,
+    /// True views, or the reference camera's image for every camera.
+    pub views: ViewMode,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            bags: Vec::new(),
+            cameras: None,
+            max_frames: None,
+            show_progress: false,
+            png_dir: None,
+            views: ViewMode::True,
+        }
+    }
 }
 
 /// How many frames per bag get a preview PNG.
@@ -104,6 +159,9 @@ pub struct EvalRow {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct EvalReport {
     pub estimator: String,
+    /// Which images the estimator got (reports written before this field read as true views).
+    #[serde(default)]
+    pub views: ViewMode,
     pub rows: Vec<EvalRow>,
 }
 
@@ -165,7 +223,12 @@ pub fn evaluate(
                 )
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
             );
-            pb.set_message(format!("{} {}", estimator.name(), bag_name));
+            pb.set_message(format!(
+                "{} ({}) {}",
+                estimator.name(),
+                opts.views.label(),
+                bag_name
+            ));
             pb
         } else {
             ProgressBar::hidden()
@@ -183,7 +246,10 @@ pub fn evaluate(
                     bag: bag_name.clone(),
                     stamp_ns: frame.stamp_ns,
                 })?;
-            let images: Vec<_> = selection.iter().map(|&i| frame.images[i].clone()).collect();
+            let images = opts.views.apply(
+                selection.iter().map(|&i| frame.images[i].clone()).collect(),
+                rig.reference,
+            );
             let output = ErpGrid::new(gt.width).map_err(|source| EvalError::Geometry {
                 bag: bag_name.clone(),
                 source,
@@ -224,7 +290,11 @@ pub fn evaluate(
                     .file_stem()
                     .map(|s| s.to_string_lossy().to_string())
                     .unwrap_or_default();
-                let png = dir.join(format!("{stem}_{}_{n:03}.png", estimator.name()));
+                let views = match opts.views {
+                    ViewMode::True => "",
+                    ViewMode::SameImage => "_same_image",
+                };
+                let png = dir.join(format!("{stem}_{}{views}_{n:03}.png", estimator.name()));
                 let min_depth_m = PREVIEW_MIN_DEPTH_M as f32;
                 let picture = crate::viz::stack_vertical(&[
                     images[rig.reference].clone(),
@@ -261,6 +331,7 @@ pub fn evaluate(
     }
     Ok(EvalReport {
         estimator: estimator.name().to_string(),
+        views: opts.views,
         rows,
     })
 }
@@ -307,8 +378,9 @@ impl EvalReport {
     /// The paper's table layout, one line per condition.
     pub fn to_table(&self) -> String {
         let mut s = format!(
-            "estimator: {}\n| condition | cameras | frames | MAE (m) | RMSE (m) | AbsRel | SqRel | SILog | δ1 % | δ2 % | δ3 % | disp MAE (px) | disp RMSE | Px1 % | Px3 % | Px5 % | D1 % | s/frame |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-            self.estimator
+            "estimator: {} ({})\n| condition | cameras | frames | MAE (m) | RMSE (m) | AbsRel | SqRel | SILog | δ1 % | δ2 % | δ3 % | disp MAE (px) | disp RMSE | Px1 % | Px3 % | Px5 % | D1 % | s/frame |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+            self.estimator,
+            self.views.label()
         );
         for r in &self.rows {
             let d = &r.depth;
@@ -336,5 +408,27 @@ impl EvalReport {
             ));
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn view_modes_name_themselves_and_pick_the_reference() {
+        assert_eq!(serde_json::to_string(&ViewMode::True).unwrap(), "\"true\"");
+        let same: ViewMode = serde_json::from_str("\"same-image\"").unwrap();
+        assert_eq!(same, ViewMode::SameImage);
+        assert_eq!(same.label(), "same-image views");
+        let images: Vec<RgbImage> = (0..3u8)
+            .map(|k| RgbImage::from_pixel(4, 2, image::Rgb([k, k, k])))
+            .collect();
+        let fed = ViewMode::SameImage.apply(images.clone(), 1);
+        assert!(fed.iter().all(|i| i.get_pixel(0, 0).0 == [1, 1, 1]) && fed.len() == 3);
+        assert_eq!(ViewMode::True.apply(images.clone(), 1), images);
+        // Reports written before `views` existed read as true views.
+        let old: EvalReport = serde_json::from_str(r#"{"estimator":"x","rows":[]}"#).unwrap();
+        assert_eq!(old.views, ViewMode::True);
     }
 }

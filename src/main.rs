@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use mode360::estimator::{self, DepthEstimator};
-use mode360::eval::{self, EvalOptions};
+use mode360::eval::{self, EvalOptions, ViewMode};
 use mode360::geometry::Rig;
 use mode360::record::{self, RecordOptions};
 use mode360::synth::{SceneKind, StreetStyle, SynthConfig};
@@ -57,6 +57,18 @@ enum Command {
     BenchModel(BenchModelArgs),
     /// Convert frames of the paper's Deep360 dataset on disk into a rig bag (for eval, replay).
     Deep360Bag(Deep360BagArgs),
+    /// Copy a rig bag with the reference camera's image on every camera topic (geometry check).
+    SameImageBag(SameImageBagArgs),
+}
+
+#[derive(Args)]
+struct SameImageBagArgs {
+    /// Input rig bag.
+    #[arg(long)]
+    bag: PathBuf,
+    /// Output bag: every camera topic carries the reference camera's image of the same stamp.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -313,6 +325,12 @@ struct EvalArgs {
     /// SSMODE weights file (default: models/ssmode_compact.safetensors).
     #[arg(long)]
     weights: Option<PathBuf>,
+    /// Feed every camera the reference camera's image (no parallax; the geometry check).
+    #[arg(long, conflicts_with = "geometry_share")]
+    same_image: bool,
+    /// Evaluate with true views and with --same-image views; print both and the δ1 difference.
+    #[arg(long)]
+    geometry_share: bool,
 }
 
 fn main() -> Result<()> {
@@ -338,6 +356,16 @@ fn main() -> Result<()> {
         Command::Demo(a) => demo(a),
         Command::BenchModel(a) => bench_model(a),
         Command::Deep360Bag(a) => deep360_bag(a),
+        Command::SameImageBag(a) => {
+            let s = mode360::bag::write_same_image_bag(&a.bag, &a.out)?;
+            println!(
+                "wrote {} frames to {}, every camera carrying camera '{}'",
+                s.frames,
+                a.out.display(),
+                s.reference_camera
+            );
+            Ok(())
+        }
     }
 }
 
@@ -384,19 +412,28 @@ fn run_eval(a: EvalArgs) -> Result<()> {
     };
     let mut est: Box<dyn DepthEstimator> =
         estimator::by_name_with_weights(&a.estimator, a.weights.as_deref())?;
-    let report = eval::evaluate(
-        &EvalOptions {
-            bags: a.bags,
-            cameras,
-            max_frames: a.max_frames,
-            show_progress: true,
-            png_dir: a.png_dir,
+    let opts = EvalOptions {
+        bags: a.bags,
+        cameras,
+        max_frames: a.max_frames,
+        show_progress: true,
+        png_dir: a.png_dir,
+        views: if a.same_image {
+            ViewMode::SameImage
+        } else {
+            ViewMode::True
         },
-        est.as_mut(),
-    )?;
-    print!("{}", report.to_table());
-    std::fs::write(&a.json, serde_json::to_string_pretty(&report)?)
-        .with_context(|| format!("writing {}", a.json.display()))?;
+    };
+    let json = if a.geometry_share {
+        let report = eval::geometry_share(&opts, est.as_mut())?;
+        print!("{}", report.to_table());
+        serde_json::to_string_pretty(&report)?
+    } else {
+        let report = eval::evaluate(&opts, est.as_mut())?;
+        print!("{}", report.to_table());
+        serde_json::to_string_pretty(&report)?
+    };
+    std::fs::write(&a.json, json).with_context(|| format!("writing {}", a.json.display()))?;
     println!("wrote {}", a.json.display());
     Ok(())
 }

@@ -151,7 +151,7 @@ use mode360::bag::RigBagReader;
 use mode360::deep360::{Deep360FrameVariant, DEEP360_MAX_DEPTH_M};
 use mode360::deep360_bag::{convert_deep360_to_bag, Deep360BagError, Deep360BagOptions};
 use mode360::estimator::{DepthEstimate, DepthEstimator, EstimatorError};
-use mode360::eval::{evaluate, EvalOptions, MAX_DEPTH_KEY, SOILED_KEY};
+use mode360::eval::{evaluate, EvalOptions, ViewMode, MAX_DEPTH_KEY, SOILED_KEY};
 use mode360::frame::{FloatImage, RgbImage};
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::metrics::{depth_metrics, FrameAverage};
@@ -379,6 +379,7 @@ fn evaluating_converted_bags() {
         max_frames: None,
         show_progress: false,
         png_dir: None,
+        views: ViewMode::True,
     };
 
     // The ground truth against itself is perfect, through metrics directly ...

@@ -8,6 +8,7 @@
 //! messages.
 
 pub mod rig_bag;
+pub mod same_image;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -24,6 +25,7 @@ pub use rig_bag::{
     rig_tf_static, RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, RIG_YAML_KEY,
     SYNTH_METADATA, TF_STATIC_TOPIC,
 };
+pub use same_image::{write_same_image_bag, SameImageSummary, SAME_IMAGE_METADATA};
 
 /// MCAP profile of ROS 2 bags.
 pub const PROFILE: &str = "ros2";
