@@ -32,7 +32,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render synthetic outdoor road scenes seen by a rig into a ROS 2 MCAP bag with ground truth.
+    /// Render synthetic scenes (streets or random objects) seen by a rig into a ROS 2 MCAP bag
+    /// with ground truth.
     Synth(SynthArgs),
     /// Score a depth estimator on rig bags with the paper's metrics.
     Eval(EvalArgs),

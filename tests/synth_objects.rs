@@ -72,7 +72,10 @@ fn objects_frames_are_a_function_of_seed_and_index() {
     for (seed, index) in [(6u64, 2usize), (5, 3)] {
         let c = objects(seed, 128, false).render_frame(&rig, index);
         let d = differing_bytes(&a.images, &c.images);
-        assert!(d * 2 > total, "({seed}, {index}): only {d} of {total} bytes differ");
+        assert!(
+            d * 2 > total,
+            "({seed}, {index}): only {d} of {total} bytes differ"
+        );
         let gt_a = a.ground_truth.as_ref().expect("gt");
         let gt_c = c.ground_truth.as_ref().expect("gt");
         let gt_diff = gt_a.data.iter().zip(&gt_c.data).filter(|(p, q)| p != q);
@@ -113,7 +116,10 @@ fn objects_ground_truth_spans_near_and_far_and_respects_the_keep_out() {
     assert!(frac(near) > 0.03, "too little near range");
     assert!(frac(far) > 0.05, "too little far range");
     assert!(frac(sky) < 0.5, "background covers {:.2}", frac(sky));
-    assert!(frames_with_near >= 18, "{frames_with_near} of 24 frames have range < 3 m");
+    assert!(
+        frames_with_near >= 18,
+        "{frames_with_near} of 24 frames have range < 3 m"
+    );
     assert!(
         min_range >= KEEP_OUT_M as f32,
         "a surface at {min_range} m from the reference camera"
@@ -124,7 +130,12 @@ fn objects_ground_truth_spans_near_and_far_and_respects_the_keep_out() {
         let frame = r.render_frame(&rig, index);
         for (c, cam) in rig.cameras.iter().enumerate() {
             let view = r.render_camera(index, &(r.world_from_rig(index) * cam.rig_from_cam));
-            let min = view.range_m.data.iter().copied().fold(f32::INFINITY, f32::min);
+            let min = view
+                .range_m
+                .data
+                .iter()
+                .copied()
+                .fold(f32::INFINITY, f32::min);
             assert!(min >= KEEP_OUT_M as f32, "camera {c}: {min} m");
             // The single view sees the same scene as the rig frame.
             assert_eq!(view.image.as_raw(), frame.images[c].as_raw());
@@ -173,7 +184,8 @@ fn objects_ground_truth_matches_a_brute_force_ray_cast() {
                     v: v as f64,
                 };
                 let d = world_from_out.rotation * grid.dir_from_pixel(p);
-                let expected = brute_force_range(seed, index, &rig, world_from_out.translation.vector, d);
+                let expected =
+                    brute_force_range(seed, index, &rig, world_from_out.translation.vector, d);
                 let got = f64::from(gt.get(u, v));
                 assert!(
                     (got - expected).abs() <= 1e-5 * expected.max(1.0),
@@ -223,11 +235,13 @@ fn objects_render_about_as_fast_as_streets() {
         start.elapsed().as_secs_f64() / frames as f64
     };
     let o = time(&objects(1, 256, false));
-    let s = time(&SynthRenderer::new(SynthConfig {
-        width: 256,
-        ..SynthConfig::default()
-    })
-    .expect("config"));
+    let s = time(
+        &SynthRenderer::new(SynthConfig {
+            width: 256,
+            ..SynthConfig::default()
+        })
+        .expect("config"),
+    );
     let v = time(&varied(1, 256));
     let threads = rayon::current_num_threads();
     println!(
@@ -247,7 +261,9 @@ fn objects_render_about_as_fast_as_streets() {
                     let px: Vec<u8> = gt
                         .data
                         .iter()
-                        .map(|d| (255.0 * (1.0 - (d.ln() / MAX_DEPTH_M.ln()).clamp(0.0, 1.0))) as u8)
+                        .map(|d| {
+                            (255.0 * (1.0 - (d.ln() / MAX_DEPTH_M.ln()).clamp(0.0, 1.0))) as u8
+                        })
                         .collect();
                     if let Some(img) = image::GrayImage::from_raw(512, 256, px) {
                         let _ = img.save(format!("/tmp/synth_{name}_f{index}_gt.png"));
@@ -326,5 +342,48 @@ fn varied_street_ground_truth_is_exact_below_the_rig_and_clear_of_the_cameras() 
     // Different seeds put the rig at different heights.
     let spread = below.iter().copied().fold(f32::NEG_INFINITY, f32::max)
         - below.iter().copied().fold(f32::INFINITY, f32::min);
-    assert!(spread > 0.1, "range below the rig varies by only {spread} m");
+    assert!(
+        spread > 0.1,
+        "range below the rig varies by only {spread} m"
+    );
+}
+
+/// FNV-1a over every image byte and every ground-truth float (little endian).
+fn frame_checksum(frame: &mode360::frame::RigFrame) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |b: u8| {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    };
+    for img in &frame.images {
+        img.as_raw().iter().for_each(|&b| eat(b));
+    }
+    if let Some(gt) = &frame.ground_truth {
+        gt.data
+            .iter()
+            .for_each(|d| d.to_le_bytes().into_iter().for_each(&mut eat));
+    }
+    h
+}
+
+#[test]
+fn regular_streets_render_exactly_as_before_scene_kinds() {
+    // Checksums of frames rendered by the commit before scene kinds and street styles existed
+    // (x86-64 Linux); the default configuration must keep reproducing them byte for byte.
+    let rig = deep360_rig();
+    for (seed, soiled, index, expected) in [
+        (1u64, false, 0usize, 0x2f2e_0bdd_4390_fd12u64),
+        (3, true, 7, 0xa205_3e58_cd88_c78e),
+        (11, false, 40, 0x1c6e_46cd_359f_4a58),
+    ] {
+        let r = SynthRenderer::new(SynthConfig {
+            seed,
+            width: 128,
+            soiled,
+            ..SynthConfig::default()
+        })
+        .expect("config");
+        let got = frame_checksum(&r.render_frame(&rig, index));
+        assert_eq!(got, expected, "seed {seed} frame {index}: {got:016x}");
+    }
 }

@@ -36,11 +36,15 @@ const GROUND_FLOOR_M: f64 = 4.0;
 pub enum Material {
     /// Road surface with lane markings (the ground plane between the kerbs); lanes are
     /// `[-lane_width_m, 0]` and `[0, lane_width_m]`, parking strips beyond.
-    Asphalt { lane_width_m: f32 },
+    Asphalt {
+        lane_width_m: f32,
+    },
     /// Ground plane of a cross street (local x = 0 on its centre line): asphalt with zebra
     /// crossings over the main road (kerbs at `|y| = road_half_width_m`) and a dashed centre
     /// line.
-    CrossStreet { road_half_width_m: f32 },
+    CrossStreet {
+        road_half_width_m: f32,
+    },
     /// Ground beyond the sidewalks.
     Grass,
     /// Sidewalk: paving slabs on top, concrete kerb on the sides.

@@ -22,7 +22,9 @@ pub mod material;
 pub mod noise;
 pub mod objects;
 pub mod pattern;
+mod props;
 mod scene;
+pub mod shape;
 pub mod soiling;
 pub mod world;
 
@@ -65,28 +67,44 @@ pub enum SynthError {
 
 /// What a synthetic frame shows.
 #[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
 )]
 #[serde(rename_all = "snake_case")]
 pub enum SceneKind {
-    /// A procedural street driven along by the rig ([`world`]).
+    /// A procedural street driven along by the rig (see the `world` module).
     #[default]
     Street,
-    /// Random textured objects all around the rig, new per frame ([`objects`]).
+    /// Random textured objects all around the rig, new every frame (see `objects`).
     Objects,
 }
 
 /// How much street layouts vary between world seeds.
 #[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
 )]
 #[serde(rename_all = "snake_case")]
 pub enum StreetStyle {
-    /// The same cross-section for every seed ([`world::StreetLayout::regular`]).
+    /// The same cross-section for every seed (`StreetLayout::regular`).
     #[default]
     Regular,
     /// Widths, setbacks, heights, densities and rig pose drawn per seed
-    /// ([`world::StreetLayout::varied`]).
+    /// (`StreetLayout::varied`).
     Varied,
 }
 

@@ -1,7 +1,7 @@
 //! Random-objects scenes (like OmniMVS's OmniThings): for frame `index` of world `seed`, 30 to
 //! 80 textured primitives (spheres, and boxes, ellipsoids and cylinders at random
 //! orientations) in every direction around the rig, at log-uniform distances from 0.5 m to
-//! 300 m and sized to span 8 to 80 degrees, over a random background at infinity and, in
+//! 300 m and sized to span 8 to 80 degrees (nearby ones at most about 30), over a random background at infinity and, in
 //! half the frames, a textured ground plane at a random height below the cameras. Nothing in
 //! such a frame is predictable from what one panorama looks like, so depth must come from
 //! parallax.
@@ -14,8 +14,8 @@
 
 use super::bvh::{Aabb, OrientedKind, Prim, Shape};
 use super::material::{Material, Rgb};
-use super::pattern::{random_colour, random_unit, Background, Pattern};
 use super::noise::Rng;
+use super::pattern::{random_colour, random_unit, Background, Pattern};
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// Every object surface and the ground plane stay at least this far from each camera centre.
@@ -29,6 +29,8 @@ pub const MAX_OBJECTS: usize = 80;
 /// Angular half size of an object seen from the rig, radians (log-uniform).
 const MIN_HALF_ANGLE_RAD: f64 = 0.07;
 const MAX_HALF_ANGLE_RAD: f64 = 0.7;
+/// Nearer than this the largest half angle shrinks like `(d / this)^0.25`, metres.
+const FULL_SIZE_DISTANCE_M: f64 = 20.0;
 /// Probability of a ground plane, and its gap below the keep-out box (log-uniform), metres.
 const GROUND_PROBABILITY: f64 = 0.5;
 const MIN_GROUND_GAP_M: f64 = 0.05;
@@ -148,7 +150,7 @@ fn random_shape(rng: &mut Rng, c: Vector3<f64>, s: f64) -> Shape {
 
 /// Frame `index` of world `seed` with keep-out box `keep_out` (see [`keep_out_box`]).
 pub fn objects_scene(seed: u64, index: usize, keep_out: &Aabb) -> ObjectsScene {
-    let mut rng = Rng::new(&[seed, index as u64, 0x0B1E_C75]);
+    let mut rng = Rng::new(&[seed, index as u64, 0x00B1_EC75]);
     let centre = keep_out.centre();
     let sun_azimuth = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
     let sun_elevation = rng.range(0.3, 1.4);
@@ -177,7 +179,9 @@ pub fn objects_scene(seed: u64, index: usize, keep_out: &Aabb) -> ObjectsScene {
                 dir.z = dir.z.abs();
             }
         }
-        let half_angle = log_uniform(&mut rng, MIN_HALF_ANGLE_RAD, MAX_HALF_ANGLE_RAD);
+        // Near objects are kept a little smaller so they do not hide everything behind them.
+        let max_half_angle = MAX_HALF_ANGLE_RAD * (dist / FULL_SIZE_DISTANCE_M).powf(0.25).min(1.0);
+        let half_angle = log_uniform(&mut rng, MIN_HALF_ANGLE_RAD, max_half_angle);
         let size = (dist * half_angle.tan()).max(0.03);
         let mut c = centre + dir * dist;
         let shape0 = random_shape(&mut rng, Vector3::zeros(), size);

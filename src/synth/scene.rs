@@ -44,7 +44,10 @@ pub(crate) enum Ground<'a> {
     /// The street's `z = 0` with its road, cross streets and grass.
     Street(&'a WorldParams),
     /// A plane `z = z_m` of one material (texture coordinates: world).
-    Plane { z_m: f64, material: Material },
+    Plane {
+        z_m: f64,
+        material: Material,
+    },
     None,
 }
 
@@ -161,4 +164,3 @@ impl FrameScene<'_> {
         }
     }
 }
-
