@@ -22,7 +22,10 @@ fn main() -> anyhow::Result<()> {
     let sampling = SweepSampling::new(&rig, &cfg)?;
     println!("sweep tables: {:.3} s", t.elapsed().as_secs_f64());
     let varmap = VarMap::new();
-    let net = Ssmode::new(&cfg, VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+    let net = Ssmode::new(
+        &cfg,
+        VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu),
+    )?;
     let images: Vec<Tensor> = (0..rig.cameras.len())
         .map(|_| Tensor::rand(0f32, 1f32, (1, cfg.height(), cfg.width, 3), &Device::Cpu))
         .collect::<Result<_, _>>()?;

@@ -281,10 +281,17 @@ fn table_sample_dense_table_gradient_matches_composite() {
 
 #[test]
 fn sweep_variance_matches_a_per_camera_reference_with_gradients() {
+    // 2 channels run the generic kernel, 4 and 8 the unrolled ones.
+    for c in [2, 4, 8] {
+        sweep_variance_matches_reference(c);
+    }
+}
+
+fn sweep_variance_matches_reference(c: usize) {
     // Three cameras, two batch items, 30 samples per camera table: the fused kernel against
     // the variance of the bilinear reference samples, and its gradient against differences.
     let grid = ErpGrid::new(8).unwrap(); // 4 x 8
-    let (h, w, c, b, m) = (grid.height(), grid.width(), 2, 2, 3);
+    let (h, w, b, m) = (grid.height(), grid.width(), 2, 3);
     let coords: Vec<Vec<PixelCoord>> = (0..m)
         .map(|cam| {
             pseudo_random(60, 20 + cam as u64)
@@ -334,13 +341,13 @@ fn sweep_variance_matches_a_per_camera_reference_with_gradients() {
     let out = sweep_variance(features.as_tensor(), &tables).unwrap();
     assert_eq!(out.dims(), &[b, n, c]);
     let err = max_abs_diff(&values(&out), &reference(&fv));
-    assert!(err < FWD_TOL, "forward error {err}");
+    assert!(err < FWD_TOL, "{c} channels: forward error {err}");
     let r = tensor(&rv, &[b, n, c]);
     let grads = (&out * &r).unwrap().sum_all().unwrap().backward().unwrap();
     let g = values(grads.get(features.as_tensor()).unwrap());
     let g_fd = fd_gradient(&fv, reference, &rv);
     let err = max_abs_diff(&g, &g_fd);
-    assert!(err < GRAD_TOL, "gradient error {err}");
+    assert!(err < GRAD_TOL, "{c} channels: gradient error {err}");
     assert!(g.iter().any(|v| v.abs() > 1e-2));
     // Mismatched tables are an error, not a panic.
     let short = SampleTable::from(vec![grid.bilinear_taps(PixelCoord { u: 1.0, v: 1.0 })]);

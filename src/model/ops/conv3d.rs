@@ -464,6 +464,9 @@ fn padded_input<'a>(x: &'a [f32], g: &Conv3dGeometry) -> std::borrow::Cow<'a, [f
 /// Forward kernel: one rayon task per output row `(b, od, oh)`, `kD·kH` GEMMs of
 /// `(Wo × kW·Ci) · (kW·Ci × Co)` each.
 pub(super) fn conv3d_forward_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    if g.stride == [1; 3] {
+        return conv3d_forward_planes_cpu(x, w, g);
+    }
     let xp = padded_input(x, g);
     let [dp, hp, wp] = g.padded_dims();
     let [do_, ho, wo] = g.out_dims;
@@ -491,6 +494,48 @@ pub(super) fn conv3d_forward_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Ve
                         [co, 1],
                     );
                 }
+            }
+        });
+    y
+}
+
+/// Forward kernel for unit strides: one rayon task per output plane `(b, od)`. With unit
+/// strides the input offset of output `(oh, ow)` and tap `(c, e)` is
+/// `((oh + c) Wp + ow + e) Ci`, linear in the flat index `j = oh Wp + ow`, so per `(a, c)` the
+/// whole plane is one GEMM `(M × kW·Ci) · (kW·Ci × Co)` with `M = (Ho − 1) Wp + Wo` rows of
+/// stride `Ci` (the `Wp − Wo` rows between two output rows are computed and dropped). Small
+/// channel counts then still give the GEMM long, efficient panels.
+fn conv3d_forward_planes_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    let xp = padded_input(x, g);
+    let [dp, hp, wp] = g.padded_dims();
+    let [do_, ho, wo] = g.out_dims;
+    let [kd, kh, kw] = g.kernel;
+    let (ci, co) = (g.c_in, g.c_out);
+    let m = (ho - 1) * wp + wo;
+    let mut y = vec![0f32; g.batch * do_ * ho * wo * co];
+    y.par_chunks_mut(ho * wo * co)
+        .enumerate()
+        .for_each(|(plane, y_plane)| {
+            let (od, b) = (plane % do_, plane / do_);
+            let mut scratch = vec![0f32; m * co];
+            for a in 0..kd {
+                for c in 0..kh {
+                    let x_off = ((b * dp + od + a) * hp + c) * wp * ci;
+                    let w_off = (a * kh + c) * kw * ci * co;
+                    // (M, Co) += (M, kW·Ci) · (kW·Ci, Co)
+                    gemm_accumulate(
+                        [m, co, kw * ci],
+                        &mut scratch,
+                        co,
+                        &xp[x_off..],
+                        [ci, 1],
+                        &w[w_off..],
+                        [co, 1],
+                    );
+                }
+            }
+            for (oh, y_row) in y_plane.chunks_mut(wo * co).enumerate() {
+                y_row.copy_from_slice(&scratch[oh * wp * co..(oh * wp + wo) * co]);
             }
         });
     y

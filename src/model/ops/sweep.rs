@@ -57,8 +57,91 @@ impl SweepShape {
     }
 
     /// Per sample of batch item `b`: the mean over cameras into `mean_b` `(N, C)`, and the
-    /// variance into `var_b` when given.
-    fn moments(&self, f: &[f32], b: usize, mean_b: &mut [f32], mut var_b: Option<&mut [f32]>) {
+    /// variance into `var_b` when given. Common channel counts run a kernel with the channel
+    /// loop unrolled at compile time.
+    fn moments(&self, f: &[f32], b: usize, mean_b: &mut [f32], var_b: Option<&mut [f32]>) {
+        match self.channels {
+            4 => self.moments_n::<4>(f, b, mean_b, var_b),
+            8 => self.moments_n::<8>(f, b, mean_b, var_b),
+            16 => self.moments_n::<16>(f, b, mean_b, var_b),
+            _ => self.moments_any(f, b, mean_b, var_b),
+        }
+    }
+
+    /// [`Self::moments`] for `C` channels known at compile time.
+    fn moments_n<const C: usize>(
+        &self,
+        f: &[f32],
+        b: usize,
+        mean_b: &mut [f32],
+        var_b: Option<&mut [f32]>,
+    ) {
+        let inv_m = 1.0 / self.cameras() as f32;
+        let planes: Vec<&[f32]> = (0..self.cameras())
+            .map(|cam| {
+                let base = (cam * self.batch + b) * self.pixels * C;
+                &f[base..base + self.pixels * C]
+            })
+            .collect();
+        let tables: Vec<(&[u32], &[f32])> = self
+            .tables
+            .iter()
+            .map(|t| (t.flat_indices(), t.flat_weights()))
+            .collect();
+        let sample = |n: usize, m: &mut [f32; C], sq: &mut [f32; C]| {
+            *m = [0.0; C];
+            *sq = [0.0; C];
+            for (plane, (index, weight)) in planes.iter().zip(&tables) {
+                let s = n * SampleTable::TAPS;
+                let (i, w) = (
+                    &index[s..s + SampleTable::TAPS],
+                    &weight[s..s + SampleTable::TAPS],
+                );
+                let px = |k: usize| -> &[f32; C] {
+                    let o = i[k] as usize * C;
+                    plane[o..o + C].try_into().unwrap_or(&[0.0; C])
+                };
+                let (p0, p1, p2, p3) = (px(0), px(1), px(2), px(3));
+                for j in 0..C {
+                    let v = w[0] * p0[j] + w[1] * p1[j] + w[2] * p2[j] + w[3] * p3[j];
+                    m[j] += v;
+                    sq[j] += v * v;
+                }
+            }
+            for j in 0..C {
+                m[j] *= inv_m;
+                sq[j] = sq[j] * inv_m - m[j] * m[j];
+            }
+        };
+        let task = SAMPLES_PER_TASK * C;
+        match var_b {
+            Some(var_b) => mean_b
+                .par_chunks_mut(task)
+                .zip(var_b.par_chunks_mut(task))
+                .enumerate()
+                .for_each(|(t, (mean_t, var_t))| {
+                    let (mut m, mut sq) = ([0f32; C], [0f32; C]);
+                    for (j, (mo, vo)) in mean_t.chunks_mut(C).zip(var_t.chunks_mut(C)).enumerate() {
+                        sample(t * SAMPLES_PER_TASK + j, &mut m, &mut sq);
+                        mo.copy_from_slice(&m);
+                        vo.copy_from_slice(&sq);
+                    }
+                }),
+            None => mean_b
+                .par_chunks_mut(task)
+                .enumerate()
+                .for_each(|(t, mean_t)| {
+                    let (mut m, mut sq) = ([0f32; C], [0f32; C]);
+                    for (j, mo) in mean_t.chunks_mut(C).enumerate() {
+                        sample(t * SAMPLES_PER_TASK + j, &mut m, &mut sq);
+                        mo.copy_from_slice(&m);
+                    }
+                }),
+        }
+    }
+
+    /// [`Self::moments`] for any channel count.
+    fn moments_any(&self, f: &[f32], b: usize, mean_b: &mut [f32], mut var_b: Option<&mut [f32]>) {
         let c = self.channels;
         let inv_m = 1.0 / self.cameras() as f32;
         let task = SAMPLES_PER_TASK * c;
