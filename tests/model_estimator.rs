@@ -27,6 +27,26 @@ fn missing_weights_name_the_path() {
 }
 
 #[test]
+fn weights_whose_config_does_not_match_their_tensors_name_the_file_and_the_mismatch() {
+    // Compact tensors under a parallax config: the fine branch's weights are missing.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("mismatch.safetensors");
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    Ssmode::new(&SsmodeConfig::tiny(), vb).unwrap();
+    save_weights(&varmap, &SsmodeConfig::tiny_parallax(), &path).unwrap();
+    let err = SsmodeEstimator::load(&path)
+        .err()
+        .expect("mismatch")
+        .to_string();
+    assert!(err.contains("mismatch.safetensors"), "{err}");
+    assert!(
+        err.contains("feature.fine") || err.contains("shape"),
+        "{err}"
+    );
+}
+
+#[test]
 fn estimator_resizes_in_and_out() {
     let cfg = SsmodeConfig::tiny();
     let varmap = VarMap::new();

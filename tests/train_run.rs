@@ -25,6 +25,8 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         deep360_disk: None,
         deep360_disk_fraction: 1.0,
         init_weights: None,
+        objects_fraction: 0.5,
+        street: mode360::synth::StreetStyle::Varied,
         show_progress: false,
     }
 }

@@ -98,7 +98,20 @@ impl SsmodeEstimator {
     fn refresh_sampling(&mut self, rig: &Rig) -> Result<(), EstimatorError> {
         let stale = self.cached.as_ref().is_none_or(|(r, _)| r != rig);
         if stale {
-            let sampling = SweepSampling::new(rig, self.model.config()).map_err(model_err)?;
+            let sampling = SweepSampling::new(rig, self.model.config()).map_err(|e| {
+                model_err(ModelError::Weights {
+                    path: self.weights_path.display().to_string(),
+                    problem: format!(
+                        "the '{}' network cannot serve the rig of cameras [{}]: {e}",
+                        self.model.config().name,
+                        rig.cameras
+                            .iter()
+                            .map(|c| c.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                })
+            })?;
             self.cached = Some((rig.clone(), sampling));
         }
         Ok(())

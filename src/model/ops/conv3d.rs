@@ -545,6 +545,9 @@ fn conv3d_forward_planes_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f3
 /// `(b, id, ih)`, gathering every `(od, oh, a, c)` with `od·sD + a = id`, `oh·sH + c = ih`; per
 /// kW tap one GEMM `(Wo × Co) · (Co × Ci)` accumulated into the row at stride `sW·Ci`.
 pub(super) fn conv3d_input_grad_cpu(dy: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    if is_exact_x2(g) {
+        return conv3d_input_grad_x2_cpu(dy, w, g);
+    }
     let [dp, hp, wp] = g.padded_dims();
     let [do_, ho, wo] = g.out_dims;
     let [kd, kh, kw] = g.kernel;
@@ -590,6 +593,87 @@ pub(super) fn conv3d_input_grad_cpu(dy: &[f32], w: &[f32], g: &Conv3dGeometry) -
     } else {
         crop_volume(&dxp, g.batch, g.in_dims, g.padding, ci)
     }
+}
+
+/// The x2 case of the hourglasses: kernel 3, stride 2, padding 1 on every axis and an input
+/// exactly twice the output (even sizes).
+fn is_exact_x2(g: &Conv3dGeometry) -> bool {
+    g.kernel == [3; 3]
+        && g.stride == [2; 3]
+        && g.padding == [1; 3]
+        && (0..SPATIAL_AXES_3D).all(|a| g.in_dims[a] == 2 * g.out_dims[a])
+}
+
+/// Per axis of the x2 case, the `(tap, source offset)` pairs that reach input parity `p`:
+/// `i + 1 = 2 o + t`, so `i = 2 m` takes `t = 1, o = m` and `i = 2 m + 1` takes `t = 0,
+/// o = m + 1` and `t = 2, o = m`.
+const X2_TAPS: [&[(usize, usize)]; 2] = [&[(1, 0)], &[(0, 1), (2, 0)]];
+
+/// [`conv3d_input_grad_cpu`] for [`is_exact_x2`] geometries, by parity classes: the inputs
+/// of one parity `(pd, ph, pw)` form a `(D/2, H/2, W/2)` grid that gathers `dy` at unit
+/// stride through one or two taps per axis, so each class is a sum of unit-stride GEMMs over
+/// whole planes of `dy` (padded by one zero at the end of each axis), flattened as in
+/// [`conv3d_forward_planes_cpu`]. One rayon task per `(b, input plane)`.
+fn conv3d_input_grad_x2_cpu(dy: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    let [do_, ho, wo] = g.out_dims;
+    let [d, h, wd] = g.in_dims;
+    let [_, kh, kw] = g.kernel;
+    let (ci, co) = (g.c_in, g.c_out);
+    // dy padded by one zero at the end of every axis: (B, Do + 1, Ho + 1, Wo + 1, Co)
+    let (dq, hq, wq) = (do_ + 1, ho + 1, wo + 1);
+    let mut dyp = vec![0f32; g.batch * dq * hq * wq * co];
+    dyp.par_chunks_mut(hq * wq * co)
+        .enumerate()
+        .for_each(|(plane, out)| {
+            let (b, z) = (plane / dq, plane % dq);
+            if z == do_ {
+                return;
+            }
+            for y in 0..ho {
+                let src = ((b * do_ + z) * ho + y) * wo * co;
+                out[y * wq * co..(y * wq + wo) * co].copy_from_slice(&dy[src..src + wo * co]);
+            }
+        });
+    let m = (ho - 1) * wq + wo;
+    let mut dx = vec![0f32; g.batch * d * h * wd * ci];
+    dx.par_chunks_mut(h * wd * ci)
+        .enumerate()
+        .for_each(|(plane, dx_plane)| {
+            let (i_d, b) = (plane % d, plane / d);
+            let (md, pd) = (i_d / 2, i_d % 2);
+            let mut scratch = vec![0f32; m * ci];
+            for ph in 0..2 {
+                for pw in 0..2 {
+                    scratch.fill(0.0);
+                    for &(ta, od) in X2_TAPS[pd] {
+                        for &(tc, oh) in X2_TAPS[ph] {
+                            for &(te, ow) in X2_TAPS[pw] {
+                                let dy_off = (((b * dq + md + od) * hq + oh) * wq + ow) * co;
+                                let w_off = ((ta * kh + tc) * kw + te) * ci * co;
+                                // (M, Ci) += (M, Co) · (Co, Ci)ᵀ-view of w[ta, tc, te]
+                                gemm_accumulate(
+                                    [m, ci, co],
+                                    &mut scratch,
+                                    ci,
+                                    &dyp[dy_off..],
+                                    [co, 1],
+                                    &w[w_off..],
+                                    [1, co],
+                                );
+                            }
+                        }
+                    }
+                    for mh in 0..ho {
+                        let row = &mut dx_plane[(2 * mh + ph) * wd * ci..][..wd * ci];
+                        for mw in 0..wo {
+                            let src = &scratch[(mh * wq + mw) * ci..][..ci];
+                            row[(2 * mw + pw) * ci..][..ci].copy_from_slice(src);
+                        }
+                    }
+                }
+            }
+        });
+    dx
 }
 
 /// Weight-gradient kernel: rayon fold over output rows with one `(kD, kH, kW, Ci, Co)`
