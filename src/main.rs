@@ -150,6 +150,9 @@ struct BenchNodeArgs {
     /// Estimator: photometric or ssmode.
     #[arg(long, default_value = "photometric")]
     estimator: String,
+    /// SSMODE weights file (default: the shipped weights).
+    #[arg(long)]
+    weights: Option<PathBuf>,
     /// Output width (and width of rendered input); default: the bag's, or 512 without --bag.
     #[arg(long)]
     width: Option<usize>,
@@ -531,6 +534,7 @@ fn bench_node(a: BenchNodeArgs) -> Result<()> {
     }
     let report = mode360::node::bench::run_bench(&mode360::node::bench::BenchOptions {
         estimator: a.estimator,
+        weights: a.weights,
         width: a.width,
         duration: std::time::Duration::from_secs_f64(a.duration_s),
         bag: a.bag,

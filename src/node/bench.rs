@@ -82,6 +82,8 @@ fn other(e: impl std::fmt::Display) -> BenchError {
 #[derive(Clone, Debug)]
 pub struct BenchOptions {
     pub estimator: String,
+    /// SSMODE weights (default: the shipped ones).
+    pub weights: Option<PathBuf>,
     /// Output width (and width of the rendered input); default: the bag's width, or
     /// [`DEFAULT_WIDTH`] without a bag.
     pub width: Option<usize>,
@@ -101,8 +103,9 @@ impl Default for BenchOptions {
     fn default() -> Self {
         Self {
             estimator: "photometric".into(),
-            width: None,
+            weights: None,
             duration: Duration::from_secs(60),
+            width: None,
             bag: None,
             rig_file: super::params::DEFAULT_RIG_FILE.into(),
             rate: 1.0,
@@ -369,9 +372,14 @@ struct PlayerState {
 /// Runs the bench (see the module docs).
 pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
     if opts.estimator == "ssmode" {
-        let path = crate::estimator::ssmode::DEFAULT_WEIGHTS_PATH;
-        if !Path::new(path).exists() {
-            return Err(BenchError::MissingWeights { path: path.into() });
+        let path = opts
+            .weights
+            .clone()
+            .unwrap_or_else(crate::estimator::ssmode::default_weights_path);
+        if !path.exists() {
+            return Err(BenchError::MissingWeights {
+                path: path.display().to_string(),
+            });
         }
     }
     // The bag: given, bundled, or rendered.
@@ -427,6 +435,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
         NodeParams {
             rig_file: rig_path.clone(),
             estimator: opts.estimator.clone(),
+            weights: opts.weights.clone(),
             output_width,
             camera_timeout_secs: 60.0,
             ..Default::default()
