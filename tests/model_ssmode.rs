@@ -518,7 +518,8 @@ fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
 
 #[test]
 fn configs_with_unsupported_cost_layouts_are_rejected_by_field() {
-    let cases: [(&str, fn(&mut SsmodeConfig)); 4] = [
+    type Spoil = fn(&mut SsmodeConfig);
+    let cases: [(&str, Spoil); 4] = [
         ("cost_downsample", |c| c.cost_downsample = 3),
         ("aggregation_stride", |c| c.aggregation_stride = 4),
         ("fine_channels", |c| c.fine_channels = 0),

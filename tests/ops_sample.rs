@@ -321,10 +321,12 @@ fn sweep_variance_matches_reference(c: usize) {
         let mut out = Vec::with_capacity(b * n * c);
         for bi in 0..b {
             for k in 0..n {
-                let samples: Vec<Vec<f64>> = (0..m)
-                    .map(|cam| {
+                let samples: Vec<Vec<f64>> = coords
+                    .iter()
+                    .enumerate()
+                    .map(|(cam, cs)| {
                         let img = &f[(cam * b + bi) * image..(cam * b + bi + 1) * image];
-                        erp_bilinear_ref(img, h, w, c, coords[cam][k])
+                        erp_bilinear_ref(img, h, w, c, cs[k])
                     })
                     .collect();
                 for ch in 0..c {

@@ -141,7 +141,7 @@ impl SweepShape {
     }
 
     /// [`Self::moments`] for any channel count.
-    fn moments_any(&self, f: &[f32], b: usize, mean_b: &mut [f32], mut var_b: Option<&mut [f32]>) {
+    fn moments_any(&self, f: &[f32], b: usize, mean_b: &mut [f32], var_b: Option<&mut [f32]>) {
         let c = self.channels;
         let inv_m = 1.0 / self.cameras() as f32;
         let task = SAMPLES_PER_TASK * c;
@@ -170,7 +170,7 @@ impl SweepShape {
                 }
             }
         };
-        match var_b.as_deref_mut() {
+        match var_b {
             Some(var_b) => mean_b
                 .par_chunks_mut(task)
                 .zip(var_b.par_chunks_mut(task))
