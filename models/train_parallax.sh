@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Trains the multi-view `parallax` SSMODE in two stages, resuming whichever stage is unfinished
+# (run it in the background at the start of every session; it picks up where the last one
+# stopped, and each stage checks its own options on resume):
+#   1. runs/parallax_objects_w128: random objects only, at width 128 (matching, coarse and cheap)
+#   2. runs/parallax_streets: width 256, varied streets (30 % soiled) with a quarter of objects,
+#      initialised from stage 1's final weights
+# Then copy runs/parallax_streets/ssmode_parallax.safetensors to models/ and evaluate it.
+#   models/train_parallax.sh [STAGE1_STEPS] [STAGE2_STEPS]
+set -euo pipefail
+bin="${MODE360_BIN:-target/release/mode360}"
+s1="${1:-3000}"
+s2="${2:-6000}"
+"$bin" train --preset parallax --width 128 --steps "$s1" --lr 2e-4 --objects-fraction 1 \
+  --val-every 250 --checkpoint-every 100 --out runs/parallax_objects_w128 --resume
+"$bin" train --preset parallax --steps "$s2" --lr 2e-4 --objects-fraction 0.25 --street varied \
+  --soiled-fraction 0.3 --val-every 250 --checkpoint-every 100 \
+  --init-weights runs/parallax_objects_w128/ssmode_parallax.safetensors \
+  --out runs/parallax_streets --resume
