@@ -14,6 +14,6 @@ s2="${2:-6000}"
 "$bin" train --preset parallax --width 128 --steps "$s1" --lr 2e-4 --objects-fraction 1 \
   --val-every 250 --checkpoint-every 100 --out runs/parallax_objects_w128 --resume
 "$bin" train --preset parallax --steps "$s2" --lr 2e-4 --objects-fraction 0.25 --street varied \
-  --soiled-fraction 0.3 --val-every 250 --checkpoint-every 100 \
+  --soiled-fraction 0.3 --max-grad-norm 50 --val-every 250 --checkpoint-every 100 \
   --init-weights runs/parallax_objects_w128/ssmode_parallax.safetensors \
   --out runs/parallax_streets --resume

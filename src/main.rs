@@ -268,6 +268,9 @@ struct TrainArgs {
     /// roof racks of 2 to 5 cameras).
     #[arg(long, default_value_t = 0.25)]
     deep360_rig_fraction: f64,
+    /// Clip the global gradient norm to this (off when absent).
+    #[arg(long)]
+    max_grad_norm: Option<f64>,
 }
 
 #[derive(Args)]
@@ -461,6 +464,7 @@ fn train(a: TrainArgs) -> Result<()> {
         street: a.street,
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
+        max_grad_norm: a.max_grad_norm,
         ..mode360::train::TrainOptions::default()
     };
     let s = mode360::train::run_training(&opts)?;

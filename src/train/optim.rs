@@ -5,6 +5,9 @@
 //! `candle_nn::AdamW` and Loshchilov & Hutter:
 //! `m = b1 m + (1 - b1) g`, `v = b2 v + (1 - b2) g^2`,
 //! `theta = theta (1 - lr wd) - lr (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps)`.
+//!
+//! With `max_grad_norm` set, the gradients are first scaled by
+//! `min(1, max_grad_norm / ||g||)`, `||g||` the L2 norm over all parameters together.
 
 use candle_core::{backprop::GradStore, DType, Device, Tensor, Var};
 use std::collections::HashMap;
@@ -27,6 +30,8 @@ pub struct AdamWParams {
     pub beta2: f64,
     pub eps: f64,
     pub weight_decay: f64,
+    /// Clip the global gradient norm to this (`None`: no clipping).
+    pub max_grad_norm: Option<f64>,
 }
 
 impl Default for AdamWParams {
@@ -36,6 +41,7 @@ impl Default for AdamWParams {
             beta2: DEFAULT_BETA2,
             eps: DEFAULT_EPS,
             weight_decay: 0.0,
+            max_grad_norm: None,
         }
     }
 }
@@ -74,9 +80,26 @@ impl AdamW {
         })
     }
 
+    /// The L2 norm of all gradients of the optimizer's variables together.
+    pub fn grad_norm(&self, grads: &GradStore) -> candle_core::Result<f64> {
+        let mut sum_sq = 0f64;
+        for s in &self.slots {
+            if let Some(g) = grads.get(s.var.as_tensor()) {
+                let sq: f32 = g.to_dtype(DType::F32)?.sqr()?.sum_all()?.to_scalar()?;
+                sum_sq += f64::from(sq);
+            }
+        }
+        Ok(sum_sq.sqrt())
+    }
+
     /// Applies one update with learning rate `lr`; variables without a gradient are skipped
-    /// (their moments stay).
-    pub fn step(&mut self, grads: &GradStore, lr: f64) -> candle_core::Result<()> {
+    /// (their moments stay). Returns the global gradient norm before clipping.
+    pub fn step(&mut self, grads: &GradStore, lr: f64) -> candle_core::Result<f64> {
+        let norm = self.grad_norm(grads)?;
+        let clip = match self.params.max_grad_norm {
+            Some(max) if norm > max && norm.is_finite() => max / norm,
+            _ => 1.0,
+        };
         self.step_t += 1;
         let p = &self.params;
         let t = self.step_t as i32;
@@ -88,7 +111,7 @@ impl AdamW {
             };
             // Detached: gradients carry autograd history (they are built from variables), and
             // moments computed from them would otherwise chain every step's graph (a leak).
-            let g = g.detach().to_dtype(DType::F32)?;
+            let g = (g.detach().to_dtype(DType::F32)? * clip)?;
             let m = ((&s.m * p.beta1)? + (&g * (1.0 - p.beta1))?)?;
             let v = ((&s.v * p.beta2)? + (g.sqr()? * (1.0 - p.beta2))?)?;
             let m_hat = (&m * scale_m)?;
@@ -99,7 +122,7 @@ impl AdamW {
             s.m = m.detach();
             s.v = v.detach();
         }
-        Ok(())
+        Ok(norm)
     }
 
     /// The moments as named tensors (`m.<var>` and `v.<var>`).

@@ -108,6 +108,8 @@ pub struct TrainOptions {
     pub objects_fraction: f64,
     /// Layout variation of the training streets.
     pub street: StreetStyle,
+    /// Clip the global gradient norm to this (`None`: no clipping).
+    pub max_grad_norm: Option<f64>,
     /// Start a new run (not a resumed one) from these weights instead of the random
     /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
     pub init_weights: Option<PathBuf>,
@@ -137,6 +139,7 @@ impl Default for TrainOptions {
             deep360_disk_fraction: 1.0,
             objects_fraction: 0.0,
             street: StreetStyle::Regular,
+            max_grad_norm: None,
             init_weights: None,
             show_progress: true,
         }
@@ -639,6 +642,7 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         named_vars(&varmap)?,
         AdamWParams {
             weight_decay: opts.weight_decay,
+            max_grad_norm: opts.max_grad_norm,
             ..AdamWParams::default()
         },
     )?;
@@ -766,9 +770,10 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
             });
             state.next_sample_index += 1;
         }
-        if let Some(g) = &grads {
-            opt.step(g, lr)?;
-        }
+        let grad_norm = match &grads {
+            Some(g) => opt.step(g, lr)?,
+            None => f64::NAN,
+        };
         state.step = step + 1;
         let step_secs = step_start.elapsed().as_secs_f64();
         state.train_secs += step_secs;
@@ -785,7 +790,7 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         )
         .map_err(io_err(&train_csv))?;
         bar.set_message(format!(
-            "loss {step_loss:.4} lr {lr:.2e} {step_secs:.2}s/step"
+            "loss {step_loss:.4} |g| {grad_norm:.3} lr {lr:.2e} {step_secs:.2}s/step"
         ));
         bar.set_position(state.step as u64);
         if opts.val_every > 0 && opts.val_samples > 0 && state.step.is_multiple_of(opts.val_every) {
