@@ -285,7 +285,12 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
             Tensor::from_vec(data, (1, h, w, c), &Device::Cpu).unwrap()
         })
         .collect();
-    let volume = cost_volume(&features, &sampling, CostKind::MeanVariance).expect("cost volume");
+    let volume = cost_volume(
+        &Tensor::cat(&features, 0).unwrap(),
+        &sampling,
+        CostKind::MeanVariance,
+    )
+    .expect("cost volume");
     assert_eq!(volume.dims(), &[1, cfg.spheres, h, w, 2 * c]);
     let vol: Vec<f32> = volume.flatten_all().unwrap().to_vec1().unwrap();
     let mut checked = 0;
@@ -551,7 +556,12 @@ fn variance_volume_is_zero_where_every_camera_sees_the_same_feature() {
         .collect();
     let f = Tensor::from_vec(data, (1, h, w, 3), &Device::Cpu).unwrap();
     let features = vec![f.clone(), f.clone(), f.clone(), f];
-    let volume = cost_volume(&features, &sampling, CostKind::Variance).expect("volume");
+    let volume = cost_volume(
+        &Tensor::cat(&features, 0).unwrap(),
+        &sampling,
+        CostKind::Variance,
+    )
+    .expect("volume");
     let (b, d, h, w, c) = volume.dims5().expect("rank 5");
     assert_eq!(
         (b, d, h, w, c),

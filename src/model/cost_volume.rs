@@ -18,28 +18,23 @@ use candle_core::{Result, Tensor};
 use super::config::{CostKind, SweepSampling};
 use crate::model::ops::{has_custom_kernels, sweep_variance, table_sample, OpsError};
 
-/// Builds the `(B, D, H, W, C')` cost volume from per-camera features `(B, H, W, C)`, with
+/// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
+/// `(M B, H, W, C)` (camera `c`'s batch at rows `c B .. (c + 1) B`), with
 /// `C' = kind.channels(C)`.
-pub fn cost_volume(
-    features: &[Tensor],
-    sampling: &SweepSampling,
-    kind: CostKind,
-) -> Result<Tensor> {
+pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) -> Result<Tensor> {
     const OP: &str = "cost_volume";
-    if features.len() != sampling.camera_count() || features.is_empty() {
+    let cameras = sampling.camera_count();
+    let (stacked, h, w, c) = features.dims4()?;
+    if cameras == 0 || stacked == 0 || !stacked.is_multiple_of(cameras) {
         return Err(OpsError::Shape {
             op: OP,
-            what: format!(
-                "{} feature maps for a sweep of {} cameras",
-                features.len(),
-                sampling.camera_count()
-            ),
+            what: format!("{stacked} stacked feature maps for a sweep of {cameras} cameras"),
         }
         .into());
     }
+    let b = stacked / cameras;
     let grid = sampling.geometry().output();
     let spheres = sampling.geometry().hypotheses().count();
-    let (b, h, w, c) = features[0].dims4()?;
     if (h, w) != (grid.height(), grid.width()) {
         return Err(OpsError::Shape {
             op: OP,
@@ -51,8 +46,8 @@ pub fn cost_volume(
         }
         .into());
     }
-    if kind == CostKind::Variance && has_custom_kernels(features[0].device()) {
-        let tables = (0..features.len())
+    if kind == CostKind::Variance && has_custom_kernels(features.device()) {
+        let tables = (0..cameras)
             .map(|cam| {
                 sampling.sweep_table(cam).cloned().ok_or(OpsError::Shape {
                     op: OP,
@@ -61,11 +56,12 @@ pub fn cost_volume(
             })
             .collect::<std::result::Result<Vec<_>, _>>()?;
         // (M B, H, W, C) -> (B, D H W, C) -> (B, D, H, W, C)
-        return sweep_variance(&Tensor::cat(features, 0)?, &tables)?.reshape((b, spheres, h, w, c));
+        return sweep_variance(features, &tables)?.reshape((b, spheres, h, w, c));
     }
     let mut sum: Option<Tensor> = None;
     let mut sum_sq: Option<Tensor> = None;
-    for (cam, f) in features.iter().enumerate() {
+    for cam in 0..cameras {
+        let f = &features.narrow(0, cam * b, b)?;
         let table = sampling.sweep_table(cam).ok_or(OpsError::Shape {
             op: OP,
             what: format!("no sweep table for camera {cam}"),
@@ -82,7 +78,7 @@ pub fn cost_volume(
             None => sq,
         });
     }
-    let n = features.len() as f64;
+    let n = cameras as f64;
     let (Some(sum), Some(sum_sq)) = (sum, sum_sq) else {
         return Err(OpsError::Shape {
             op: OP,

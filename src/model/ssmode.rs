@@ -214,20 +214,13 @@ impl Ssmode {
             }
         };
         self.check_images(images, sampling)?;
-        let cameras = images.len();
-        let batch = images[0].dim(0)?;
         // (N B, H, W, 3)
         let stacked = Tensor::cat(images, 0)?;
         // (N B, h, w, Cf)
         let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
         mark("feature");
-        // N x (B, h, w, Cf)
-        let per_camera = (0..cameras)
-            .map(|c| features.narrow(0, c * batch, batch))
-            .collect::<Result<Vec<_>>>()?;
         // (B, D, h, w, C')
-        let volume = cost_volume(&per_camera, sampling, self.cfg.cost)?;
-        drop(per_camera);
+        let volume = cost_volume(&features, sampling, self.cfg.cost)?;
         drop(features);
         mark("cost_volume");
         // K x (B, D/s, h/s, w/s, Ch)
