@@ -426,6 +426,52 @@ fn train_step_timing() {
 /// The fused inference regression gives the unfused (trainable) path's range, index and
 /// confidence, on flat and on peaky cost volumes of odd sizes.
 #[test]
+fn fused_inference_layers_equal_the_tracked_layers() {
+    // Plain weight tensors take the fused conv + bias + residual + ReLU kernels; the same
+    // weights as tracked variables take the differentiable ops. The final estimate must agree.
+    for cfg in [SsmodeConfig::tiny(), SsmodeConfig::tiny_parallax()] {
+        let (varmap, tracked) = model(&cfg);
+        let plain: std::collections::HashMap<String, Tensor> = varmap
+            .data()
+            .lock()
+            .expect("varmap")
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+            .collect();
+        let vb = VarBuilder::from_tensors(plain, DType::F32, &Device::Cpu);
+        let inference = Ssmode::new(&cfg, vb).expect("network");
+        let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
+        let images = noise_images(&cfg, 4, 5);
+        let a = tracked.forward(&images, &sampling, false).expect("tracked");
+        let b = inference
+            .forward(&images, &sampling, false)
+            .expect("inference");
+        let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let (ia, ib) = (
+            flat(&a.inverse_depth_stages[0]),
+            flat(&b.inverse_depth_stages[0]),
+        );
+        let spread =
+            ia.iter().fold(0f32, |m, v| m.max(*v)) - ia.iter().fold(1f32, |m, v| m.min(*v));
+        assert!(
+            spread > 1e-3,
+            "{}: a flat estimate compares nothing",
+            cfg.name
+        );
+        let diff = ia
+            .iter()
+            .zip(&ib)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max);
+        assert!(
+            diff < 1e-5,
+            "{}: inverse-depth index differs by {diff}",
+            cfg.name
+        );
+    }
+}
+
+#[test]
 fn fused_inference_regression_equals_the_training_path() {
     use mode360::model::regression::{confidence, regress, regress_inference};
     let cfg = SsmodeConfig::tiny();

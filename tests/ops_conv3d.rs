@@ -3,8 +3,9 @@
 
 use candle_core::{Device, Tensor, Var};
 use mode360::model::ops::{
-    conv3d, conv3d_composite, conv3d_weight_grad, conv3d_weight_grad_composite, conv_transpose3d,
-    conv_transpose3d_composite, Conv3dGeometry,
+    conv3d, conv3d_composite, conv3d_fused, conv3d_weight_grad, conv3d_weight_grad_composite,
+    conv_transpose3d, conv_transpose3d_composite, conv_transpose3d_x2_fused, is_inference,
+    Conv3dGeometry, Epilogue,
 };
 
 /// Forward tolerance (f32 sums of a few hundred products of values in [-1, 1]).
@@ -285,6 +286,194 @@ fn conv3d_mixed_stride_padding_kernel() {
         },
         21,
     );
+}
+
+// The narrow layers of the aggregation (Cout 8 or 16, and Cout 1 over 8 or 16 channels) take
+// the direct register-blocked kernel on AVX2 machines: rows wide enough for full blocks, a
+// remainder and both padded edges.
+
+#[test]
+fn conv3d_direct_cout8_unit_stride() {
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [1, 4, 5, 21, 8],
+            kernel: [3, 3, 3],
+            c_out: 8,
+            stride: [1, 1, 1],
+            padding: [1, 1, 1],
+        },
+        41,
+    );
+}
+
+#[test]
+fn conv3d_direct_cout16_stride2_and_cout8_from_3_channels() {
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [2, 5, 6, 23, 8],
+            kernel: [3, 3, 3],
+            c_out: 16,
+            stride: [2, 2, 2],
+            padding: [1, 1, 1],
+        },
+        43,
+    );
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [1, 1, 6, 19, 3],
+            kernel: [1, 3, 3],
+            c_out: 8,
+            stride: [1, 2, 2],
+            padding: [0, 0, 0],
+        },
+        45,
+    );
+}
+
+#[test]
+fn conv3d_direct_cout1_dot_products() {
+    for (ci, seed) in [(8, 47), (16, 49)] {
+        check_conv3d_case(
+            &ConvCase {
+                x_dims: [1, 3, 4, 13, ci],
+                kernel: [3, 3, 3],
+                c_out: 1,
+                stride: [1, 1, 1],
+                padding: [1, 1, 1],
+            },
+            seed,
+        );
+    }
+}
+
+#[test]
+fn conv3d_direct_kernel_with_many_tap_rows() {
+    // 4 x 3 = 12 (depth, height) tap pairs: more than the register kernel's table holds
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [1, 6, 5, 10, 2],
+            kernel: [4, 3, 2],
+            c_out: 8,
+            stride: [1, 1, 2],
+            padding: [2, 1, 1],
+        },
+        51,
+    );
+}
+
+/// `relu?(y + bias + residual)` on f64 values with `co` channels.
+fn epilogue_ref(y: &[f64], bias: &[f64], residual: &[f64], relu: bool) -> Vec<f64> {
+    y.iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let s = v + bias[i % bias.len()] + residual[i];
+            if relu {
+                s.max(0.0)
+            } else {
+                s
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn fused_conv_matches_the_composed_layers() {
+    // Cout 8 (direct kernel) and Cout 5 (GEMM kernel then the epilogue)
+    for (c_out, stride, seed) in [(8, [2, 2, 2], 61), (5, [1, 1, 1], 63)] {
+        let (x_dims, pad) = ([1, 4, 6, 18, 3], [1, 1, 1]);
+        let g = Conv3dGeometry::new(1, [4, 6, 18], [3; 3], stride, pad, 3, c_out).unwrap();
+        let [od, oh, ow] = g.out_dims;
+        let y_dims = [1, od, oh, ow, c_out];
+        let xv = pseudo_random(x_dims.iter().product(), seed);
+        let wv = pseudo_random(27 * 3 * c_out, seed + 1);
+        let bv = pseudo_random(c_out, seed + 2);
+        let rv = pseudo_random(y_dims.iter().product(), seed + 3);
+        let (x, w) = (tensor(&xv, &x_dims), tensor(&wv, &[3, 3, 3, 3, c_out]));
+        let (b, r) = (tensor(&bv, &[c_out]), tensor(&rv, &y_dims));
+        assert!(is_inference(&x, &w));
+        let y_ref = conv3d_ref(&xv, &wv, &g);
+        for relu in [false, true] {
+            let epilogue = Epilogue {
+                bias: Some(&b),
+                residual: Some(&r),
+                relu,
+            };
+            let y = conv3d_fused(&x, &w, stride, pad, epilogue).unwrap();
+            assert_eq!(y.dims(), &y_dims);
+            let expected = epilogue_ref(&y_ref, &bv, &rv, relu);
+            let err = max_abs_diff(&values(&y), &expected);
+            assert!(err < FWD_TOL, "Cout {c_out}, relu {relu}: error {err}");
+            if relu {
+                assert!(values(&y).iter().any(|&v| v == 0.0), "ReLU clipped nothing");
+            }
+        }
+        // bias only
+        let y = conv3d_fused(
+            &x,
+            &w,
+            stride,
+            pad,
+            Epilogue {
+                bias: Some(&b),
+                ..Default::default()
+            },
+        );
+        let zeros = vec![0.0; rv.len()];
+        let err = max_abs_diff(
+            &values(&y.unwrap()),
+            &epilogue_ref(&y_ref, &bv, &zeros, false),
+        );
+        assert!(err < FWD_TOL, "bias only: {err}");
+        // a residual of the wrong shape is an error naming both shapes
+        let bad = tensor(
+            &rv[..od * oh * (ow - 1) * c_out],
+            &[1, od, oh, ow - 1, c_out],
+        );
+        let e = conv3d_fused(
+            &x,
+            &w,
+            stride,
+            pad,
+            Epilogue {
+                residual: Some(&bad),
+                ..Default::default()
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("residual"), "{e}");
+    }
+    // tracked tensors are not inference
+    let x = Var::from_tensor(&tensor(&pseudo_random(24, 3), &[1, 2, 2, 2, 3])).unwrap();
+    let w = tensor(&pseudo_random(27 * 3 * 8, 4), &[3, 3, 3, 3, 8]);
+    assert!(!is_inference(x.as_tensor(), &w));
+}
+
+#[test]
+fn fused_x2_upsampling_matches_the_composed_layers() {
+    for (c_in, c_out, seed) in [(16, 8, 71), (4, 6, 73)] {
+        let x_dims = [1, 3, 4, 7, c_in];
+        let y_dims = [1, 6, 8, 14, c_out];
+        let xv = pseudo_random(x_dims.iter().product(), seed);
+        let wv = pseudo_random(27 * c_in * c_out, seed + 1);
+        let bv = pseudo_random(c_out, seed + 2);
+        let rv = pseudo_random(y_dims.iter().product(), seed + 3);
+        let (x, w) = (tensor(&xv, &x_dims), tensor(&wv, &[3, 3, 3, c_in, c_out]));
+        let (b, r) = (tensor(&bv, &[c_out]), tensor(&rv, &y_dims));
+        let up = conv_transpose3d(&x, &w, [2; 3], [1; 3], [1; 3]).unwrap();
+        assert_eq!(up.dims(), &y_dims);
+        for relu in [false, true] {
+            let epilogue = Epilogue {
+                bias: Some(&b),
+                residual: Some(&r),
+                relu,
+            };
+            let y = conv_transpose3d_x2_fused(&x, &w, epilogue).unwrap();
+            let expected = epilogue_ref(&values(&up), &bv, &rv, relu);
+            let err = max_abs_diff(&values(&y), &expected);
+            assert!(err < FWD_TOL, "{c_in} -> {c_out}, relu {relu}: error {err}");
+        }
+    }
 }
 
 struct TransposeCase {

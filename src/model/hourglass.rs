@@ -11,7 +11,9 @@ use candle_core::{Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
 use super::config::SsmodeConfig;
-use crate::model::ops::{conv3d, conv_transpose3d};
+use crate::model::ops::{
+    conv3d, conv3d_fused, conv_transpose3d, conv_transpose3d_x2_fused, is_inference, Epilogue,
+};
 
 /// Kernel side of every 3-D convolution.
 pub const KERNEL_3D: usize = 3;
@@ -54,6 +56,55 @@ impl Conv3d {
     /// `(B, D, H, W, Cin)` -> `(B, D/s, H/s, W/s, Cout)`.
     pub fn forward(&self, x: &Tensor, stride: [usize; 3]) -> Result<Tensor> {
         self.add_bias(conv3d(x, &self.weight, stride, PAD)?)
+    }
+
+    /// `relu?(forward(x, stride) + residual)`, by the fused kernel when nothing is tracked.
+    pub fn forward_then(
+        &self,
+        x: &Tensor,
+        stride: [usize; 3],
+        residual: Option<&Tensor>,
+        relu: bool,
+    ) -> Result<Tensor> {
+        if is_inference(x, &self.weight) {
+            let epilogue = self.epilogue(residual, relu);
+            return conv3d_fused(x, &self.weight, stride, PAD, epilogue);
+        }
+        Self::finish(self.forward(x, stride)?, residual, relu)
+    }
+
+    /// `relu?(forward_up(x) + residual)`, by the fused kernel when nothing is tracked.
+    pub fn forward_up_then(
+        &self,
+        x: &Tensor,
+        residual: Option<&Tensor>,
+        relu: bool,
+    ) -> Result<Tensor> {
+        if is_inference(x, &self.weight) {
+            let epilogue = self.epilogue(residual, relu);
+            return conv_transpose3d_x2_fused(x, &self.weight, epilogue);
+        }
+        Self::finish(self.forward_up(x)?, residual, relu)
+    }
+
+    fn epilogue<'a>(&'a self, residual: Option<&'a Tensor>, relu: bool) -> Epilogue<'a> {
+        Epilogue {
+            bias: self.bias.as_ref(),
+            residual,
+            relu,
+        }
+    }
+
+    fn finish(y: Tensor, residual: Option<&Tensor>, relu: bool) -> Result<Tensor> {
+        let y = match residual {
+            Some(r) => (y + r)?,
+            None => y,
+        };
+        if relu {
+            y.relu()
+        } else {
+            Ok(y)
+        }
     }
 
     fn add_bias(&self, y: Tensor) -> Result<Tensor> {
@@ -101,15 +152,15 @@ impl Hourglass {
     /// `(B, D, H, W, C)` -> `(B, D, H, W, C)`; D, H, W multiples of 4.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         // (B, D/2, H/2, W/2, 2C)
-        let out = self.conv1.forward(x, STRIDE2)?.relu()?;
-        let pre = self.conv2.forward(&out, UNIT)?.relu()?;
+        let out = self.conv1.forward_then(x, STRIDE2, None, true)?;
+        let pre = self.conv2.forward_then(&out, UNIT, None, true)?;
         // (B, D/4, H/4, W/4, 2C)
-        let out = self.conv3.forward(&pre, STRIDE2)?.relu()?;
-        let out = self.conv4.forward(&out, UNIT)?.relu()?;
+        let out = self.conv3.forward_then(&pre, STRIDE2, None, true)?;
+        let out = self.conv4.forward_then(&out, UNIT, None, true)?;
         // (B, D/2, H/2, W/2, 2C)
-        let post = (self.conv5.forward_up(&out)? + pre)?.relu()?;
+        let post = self.conv5.forward_up_then(&out, Some(&pre), true)?;
         // (B, D, H, W, C)
-        self.conv6.forward_up(&post)? + x
+        self.conv6.forward_up_then(&post, Some(x), false)
     }
 }
 
@@ -147,10 +198,10 @@ impl CostAggregation {
     /// stride.
     pub fn forward(&self, volume: &Tensor) -> Result<Vec<Tensor>> {
         // (B, D/s, H/s, W/s, Ch)
-        let x = self.dres0[0].forward(volume, self.entry_stride)?.relu()?;
-        let x = self.dres0[1].forward(&x, UNIT)?.relu()?;
-        let y = self.dres1[0].forward(&x, UNIT)?.relu()?;
-        let mut x = (self.dres1[1].forward(&y, UNIT)? + x)?;
+        let x = self.dres0[0].forward_then(volume, self.entry_stride, None, true)?;
+        let x = self.dres0[1].forward_then(&x, UNIT, None, true)?;
+        let y = self.dres1[0].forward_then(&x, UNIT, None, true)?;
+        let mut x = self.dres1[1].forward_then(&y, UNIT, Some(&x), false)?;
         let mut outs = Vec::with_capacity(self.hourglasses.len());
         for hg in &self.hourglasses {
             x = hg.forward(&x)?;

@@ -48,8 +48,8 @@ impl RegressionHead {
     /// `(B, D, H, W, Ch)` -> cost `(B, D, H, W)`.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         const UNIT: [usize; 3] = [1, 1, 1];
-        let y = self.conv0.forward(x, UNIT)?.relu()?;
-        self.conv1.forward(&y, UNIT)?.squeeze(4)
+        let y = self.conv0.forward_then(x, UNIT, None, true)?;
+        self.conv1.forward_then(&y, UNIT, None, false)?.squeeze(4)
     }
 }
 

@@ -14,6 +14,7 @@ use candle_core::{CpuStorage, CustomOp2, Layout, Result, Shape, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
 
+use super::conv3d_direct::{conv3d_forward_direct, RowEpilogue};
 use super::{composite, count_flops, dims_of, has_custom_kernels, OpsError, SPATIAL_AXES_3D};
 
 /// Rank of a channels-last volume `(B, D, H, W, C)` and of a 3-D kernel `(kD, kH, kW, Cin, Cout)`.
@@ -258,6 +259,36 @@ pub fn conv_transpose3d(
     conv3d_input_grad(x, &w_conv, stride, padding, out_dims)
 }
 
+/// The geometry of the convolution whose adjoint is the exact x2 upsampling of `x` by `w`
+/// (kernel 3, stride 2, padding 1, even target): input `2 D`, output `D`, `Cin` = `w`'s `Cout`.
+pub(super) fn x2_up_geometry(
+    x: &Tensor,
+    w: &Tensor,
+    op: &'static str,
+) -> std::result::Result<Conv3dGeometry, OpsError> {
+    let x_dims = dims_of(x, op, "x", VOLUME_RANK)?;
+    let w_dims = dims_of(w, op, "w", VOLUME_RANK)?;
+    if w_dims[..3] != [3, 3, 3] || x_dims[4] != w_dims[3] {
+        return Err(OpsError::Shape {
+            op,
+            what: format!(
+                "x {x_dims:?} and w {w_dims:?}: expected a 3x3x3 kernel over x's channels"
+            ),
+        });
+    }
+    let geom = Conv3dGeometry::new(
+        x_dims[0],
+        [2 * x_dims[1], 2 * x_dims[2], 2 * x_dims[3]],
+        [3; 3],
+        [2; 3],
+        [1; 3],
+        w_dims[4],
+        w_dims[3],
+    )?;
+    debug_assert!(is_exact_x2(&geom));
+    Ok(geom)
+}
+
 /// `(D − 1) s − 2 p + k + op` per axis, checked.
 fn transposed_out_dims(
     x_dims: &[usize],
@@ -296,7 +327,7 @@ fn transposed_out_dims(
     Ok(out)
 }
 
-fn conv_geometry_from(
+pub(super) fn conv_geometry_from(
     x: &Tensor,
     w: &Tensor,
     stride: [usize; 3],
@@ -464,6 +495,9 @@ fn padded_input<'a>(x: &'a [f32], g: &Conv3dGeometry) -> std::borrow::Cow<'a, [f
 /// Forward kernel: one rayon task per output row `(b, od, oh)`, `kD·kH` GEMMs of
 /// `(Wo × kW·Ci) · (kW·Ci × Co)` each.
 pub(super) fn conv3d_forward_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    if let Some(y) = conv3d_forward_direct(x, w, g, &RowEpilogue::NONE) {
+        return y;
+    }
     if g.stride == [1; 3] {
         return conv3d_forward_planes_cpu(x, w, g);
     }

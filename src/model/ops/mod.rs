@@ -12,6 +12,7 @@
 //! |----|-------|--------|
 //! | [`conv3d`] | x `(B, D, H, W, Cin)`, w `(kD, kH, kW, Cin, Cout)` | `(B, Do, Ho, Wo, Cout)` |
 //! | [`conv_transpose3d`] | x `(B, D, H, W, Cin)`, w `(kD, kH, kW, Cin, Cout)` | `(B, Do, Ho, Wo, Cout)` |
+//! | [`conv3d_fused`], [`conv_transpose3d_x2_fused`] | as above, plus bias, residual, ReLU (inference only) | as above |
 //! | [`table_sample`] | features `(B, H, W, C)`, [`SampleTable`] of N taps | `(B, N, C)` |
 //! | [`sweep_variance`] | features `(M B, H, W, C)`, M tables of N samples | `(B, N, C)` |
 //! | [`upsample_trilinear`] | cost volume `(B, D, H, W)` | `(B, Do, Ho, Wo)` |
@@ -19,6 +20,8 @@
 
 pub mod composite;
 mod conv3d;
+mod conv3d_direct;
+mod fused;
 mod linear_axis;
 mod sweep;
 mod table;
@@ -34,6 +37,7 @@ pub use composite::{
     upsample_trilinear_composite,
 };
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d, Conv3dGeometry};
+pub use fused::{conv3d_fused, conv_transpose3d_x2_fused, is_inference, Epilogue};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear, LinearAxisMap};
 pub use sweep::sweep_variance;
 pub use table::{table_sample, SampleTable};

@@ -1,0 +1,196 @@
+//! Inference-only convolutions with what follows them in the cost aggregation fused in:
+//!
+//! ```text
+//! y = relu?(conv3d(x, w) + bias + residual)            conv3d_fused
+//! y = relu?(conv_transpose3d_x2(x, w) + bias + residual)   conv_transpose3d_x2_fused
+//! ```
+//!
+//! At 48x64x128 cells and 8 channels every separate bias, ReLU or residual pass allocates and
+//! writes another 12.6 MB; fused, the epilogue runs on each output row while it is in cache.
+//! These ops carry no gradient: the layers call them only when nothing is tracked (see
+//! [`is_inference`]) and compose the differentiable ops otherwise, with the same result.
+
+use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor};
+
+use super::conv3d::{conv3d_forward_cpu, conv3d_input_grad_cpu, cpu_slice, x2_up_geometry};
+use super::conv3d_direct::{conv3d_forward_direct, RowEpilogue};
+use super::{count_flops, has_custom_kernels, Conv3dGeometry, OpsError};
+
+/// What follows the convolution: `relu?(conv + bias + residual)`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Epilogue<'a> {
+    /// `(Cout)`.
+    pub bias: Option<&'a Tensor>,
+    /// Shaped like the output.
+    pub residual: Option<&'a Tensor>,
+    pub relu: bool,
+}
+
+/// Whether `conv` over `x` and `w` can take the fused kernels: CPU tensors with no gradient to
+/// track.
+pub fn is_inference(x: &Tensor, w: &Tensor) -> bool {
+    has_custom_kernels(x.device()) && !x.track_op() && !w.track_op()
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Kind {
+    /// `conv3d(x, w)` with the op's geometry.
+    Forward,
+    /// The adjoint of the op's geometry (a transposed convolution), `w` already `(…, Cout, Cin)`
+    /// of that convolution.
+    Transposed,
+}
+
+struct FusedConvOp {
+    geom: Conv3dGeometry,
+    kind: Kind,
+    bias: Option<Vec<f32>>,
+    relu: bool,
+}
+
+impl FusedConvOp {
+    fn output_shape(&self) -> Shape {
+        let g = &self.geom;
+        match self.kind {
+            Kind::Forward => {
+                let [d, h, w] = g.out_dims;
+                Shape::from((g.batch, d, h, w, g.c_out))
+            }
+            Kind::Transposed => {
+                let [d, h, w] = g.in_dims;
+                Shape::from((g.batch, d, h, w, g.c_in))
+            }
+        }
+    }
+
+    fn compute(&self, x: &[f32], w: &[f32], residual: Option<&[f32]>) -> Result<CpuStorage> {
+        let epilogue = RowEpilogue {
+            bias: self.bias.as_deref(),
+            residual,
+            relu: self.relu,
+        };
+        let out_len = self.output_shape().elem_count();
+        if residual.is_some_and(|r| r.len() != out_len) {
+            return Err(OpsError::Shape {
+                op: "conv3d_fused",
+                what: format!(
+                    "residual of {} values for an output of {out_len}",
+                    residual.map_or(0, <[f32]>::len)
+                ),
+            }
+            .into());
+        }
+        let (mut y, co) = match self.kind {
+            Kind::Forward => {
+                if let Some(y) = conv3d_forward_direct(x, w, &self.geom, &epilogue) {
+                    return Ok(CpuStorage::F32(y));
+                }
+                (conv3d_forward_cpu(x, w, &self.geom), self.geom.c_out)
+            }
+            Kind::Transposed => (conv3d_input_grad_cpu(x, w, &self.geom), self.geom.c_in),
+        };
+        epilogue.apply(&mut y, 0, co);
+        Ok(CpuStorage::F32(y))
+    }
+}
+
+impl CustomOp2 for FusedConvOp {
+    fn name(&self) -> &'static str {
+        "conv3d_fused"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let name = CustomOp2::name(self);
+        let x = cpu_slice(s1, l1, name)?;
+        let w = cpu_slice(s2, l2, name)?;
+        Ok((self.compute(x, w, None)?, self.output_shape()))
+    }
+}
+
+impl CustomOp3 for FusedConvOp {
+    fn name(&self) -> &'static str {
+        "conv3d_fused"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let name = CustomOp2::name(self);
+        let x = cpu_slice(s1, l1, name)?;
+        let w = cpu_slice(s2, l2, name)?;
+        let r = cpu_slice(s3, l3, name)?;
+        Ok((self.compute(x, w, Some(r))?, self.output_shape()))
+    }
+}
+
+fn apply(
+    x: &Tensor,
+    w: &Tensor,
+    geom: Conv3dGeometry,
+    kind: Kind,
+    epilogue: Epilogue,
+) -> Result<Tensor> {
+    count_flops(geom.flops());
+    let bias = epilogue
+        .bias
+        .map(|b| b.flatten_all()?.to_vec1::<f32>())
+        .transpose()?;
+    let op = FusedConvOp {
+        geom,
+        kind,
+        bias,
+        relu: epilogue.relu,
+    };
+    let (x, w) = (x.contiguous()?, w.contiguous()?);
+    match epilogue.residual {
+        Some(r) => {
+            if r.dims() != op.output_shape().dims() {
+                return Err(OpsError::Shape {
+                    op: "conv3d_fused",
+                    what: format!(
+                        "residual {:?} for an output {:?}",
+                        r.dims(),
+                        op.output_shape().dims()
+                    ),
+                }
+                .into());
+            }
+            x.apply_op3(&w, &r.contiguous()?, op)
+        }
+        None => x.apply_op2(&w, op),
+    }
+}
+
+/// `relu?(conv3d(x, w, stride, padding) + bias + residual)`, CPU and inference only (no
+/// gradient; check [`is_inference`] first).
+pub fn conv3d_fused(
+    x: &Tensor,
+    w: &Tensor,
+    stride: [usize; 3],
+    padding: [usize; 3],
+    epilogue: Epilogue,
+) -> Result<Tensor> {
+    let geom = super::conv3d::conv_geometry_from(x, w, stride, padding, "conv3d_fused")?;
+    apply(x, w, geom, Kind::Forward, epilogue)
+}
+
+/// `relu?(conv_transpose3d(x, w, 2, 1, 1) + bias + residual)`: the hourglasses' exact x2
+/// upsampling (kernel 3), CPU and inference only.
+pub fn conv_transpose3d_x2_fused(x: &Tensor, w: &Tensor, epilogue: Epilogue) -> Result<Tensor> {
+    let geom = x2_up_geometry(x, w, "conv_transpose3d_x2_fused")?;
+    // (kD, kH, kW, Cin, Cout) -> (kD, kH, kW, Cout, Cin): the convolution whose adjoint this is
+    let w_conv = w.transpose(3, 4)?;
+    apply(x, &w_conv, geom, Kind::Transposed, epilogue)
+}
