@@ -112,21 +112,22 @@ fn erp_resampling_halves_exactly_and_wraps() {
     );
 }
 
-/// The shipped weights (`models/ssmode_compact.safetensors`) on held-out frames (a world seed
+/// The shipped compact weights (`models/ssmode_compact.safetensors`) on held-out frames (a world seed
 /// with the top bit set, which training never draws), clean and soiled, 4 cameras of the
 /// Deep360 rig at the compact preset's 256x128: accurate against the ground truth, and better
 /// than the photometric sweep on the same frames.
 #[test]
-fn shipped_weights_beat_the_photometric_sweep_on_held_out_frames() {
+fn compact_weights_beat_the_photometric_sweep_on_held_out_frames() {
     use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
-    use mode360::estimator::ssmode::default_weights_path;
+    use mode360::estimator::ssmode::COMPACT_WEIGHTS_PATH;
     use mode360::metrics::depth_metrics;
     /// A held-out world (top bit set) and two frames along its street.
     const WORLD_SEED: u64 = (1 << 63) + 7;
     const FRAMES: [usize; 2] = [30, 90];
     /// Lowest mean delta1 (%) accepted; models/README.md reports about 88 on 200 frames.
     const MIN_DELTA1_PCT: f64 = 80.0;
-    let mut ssmode = SsmodeEstimator::load(default_weights_path()).expect("shipped weights");
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(COMPACT_WEIGHTS_PATH);
+    let mut ssmode = SsmodeEstimator::load(path).expect("shipped compact weights");
     let cfg = ssmode.config().clone();
     assert_eq!((cfg.name.as_str(), cfg.width), ("compact", 256));
     assert_eq!(cfg.far_plane_probability, 0.8);

@@ -404,7 +404,7 @@ fn fused_conv_matches_the_composed_layers() {
             let err = max_abs_diff(&values(&y), &expected);
             assert!(err < FWD_TOL, "Cout {c_out}, relu {relu}: error {err}");
             if relu {
-                assert!(values(&y).iter().any(|&v| v == 0.0), "ReLU clipped nothing");
+                assert!(values(&y).contains(&0.0), "ReLU clipped nothing");
             }
         }
         // bias only

@@ -12,17 +12,34 @@ use crate::geometry::{ErpGrid, PixelCoord, Rig};
 use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
 
 /// Weights loaded by `by_name("ssmode")`, relative to the working directory or, failing that,
-/// to the source tree the binary was built from (see [`default_weights_path`]).
-pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
+/// to the source tree the binary was built from (see [`default_weights_path`]): the multi-view
+/// `parallax` preset.
+pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_parallax.safetensors";
+
+/// The earlier `compact` weights, still shipped for comparison: accurate on the procedural
+/// streets, but read from one panorama's look (geometry share about 3 points, models/README.md).
+pub const COMPACT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
 
 /// [`DEFAULT_WEIGHTS_PATH`] under the working directory when it exists there, else under the
 /// crate's source tree (so `mode360` finds the shipped weights when run from elsewhere).
 pub fn default_weights_path() -> PathBuf {
-    let local = PathBuf::from(DEFAULT_WEIGHTS_PATH);
+    shipped_path(DEFAULT_WEIGHTS_PATH)
+}
+
+/// Every shipped weights file, default first, resolved like [`default_weights_path`].
+pub fn shipped_weights_paths() -> Vec<PathBuf> {
+    [DEFAULT_WEIGHTS_PATH, COMPACT_WEIGHTS_PATH]
+        .into_iter()
+        .map(shipped_path)
+        .collect()
+}
+
+fn shipped_path(relative: &str) -> PathBuf {
+    let local = PathBuf::from(relative);
     if local.exists() {
         return local;
     }
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_WEIGHTS_PATH);
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join(relative);
     if shipped.exists() {
         shipped
     } else {
