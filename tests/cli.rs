@@ -73,7 +73,19 @@ fn synth_then_eval_prints_and_writes_the_table() {
         let d1 = row["depth"]["delta1_pct"].as_f64().unwrap();
         // A coarse 128x64 sweep is still far better than chance on the synthetic street.
         assert!(d1 > 50.0 && d1 <= 100.0, "delta1 {d1}");
-        assert!(row["depth"]["abs_rel"].as_f64().unwrap() >= 0.0);
+        // the JSON and the printed table report the same AbsRel (4 decimals in the table)
+        let abs_rel = row["depth"]["abs_rel"].as_f64().unwrap();
+        let condition = row["condition"].as_str().unwrap();
+        let printed: f64 = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("| {condition} |")))
+            .and_then(|l| l.split('|').nth(6))
+            .and_then(|c| c.trim().parse().ok())
+            .unwrap_or_else(|| panic!("no AbsRel for {condition} in {stdout}"));
+        assert!(
+            abs_rel > 0.0 && (abs_rel - printed).abs() <= 5e-5,
+            "AbsRel {abs_rel} (JSON) vs {printed} (table)"
+        );
     }
     let n_png = std::fs::read_dir(&pngs).unwrap().count();
     assert_eq!(n_png, 4, "two previews per bag");

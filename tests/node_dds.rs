@@ -145,6 +145,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         health.mean_latency_ms
     );
     assert!(!depths.is_empty(), "no depth received; health {health:?}");
+    let mut clouds_checked = 0;
     for (stamp, depth) in &depths {
         let gt = gt_by_stamp
             .get(stamp)
@@ -161,9 +162,21 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
                 .iter()
                 .filter(|&&r| is_point_range(r, MAX_DEPTH_M as f32))
                 .count();
+            assert!(valid > 0, "stamp {stamp}: no depth pixel is a point");
             assert_eq!(cloud.width as usize, valid);
             assert_eq!(cloud.header.frame_id, rig.output_frame_id);
+            clouds_checked += 1;
         }
+    }
+    // every processed group publishes both; at least one pair must have been compared
+    assert!(
+        clouds_checked > 0,
+        "no point cloud matched a depth stamp ({} clouds, {} depths)",
+        clouds.len(),
+        depths.len()
+    );
+    for stamp in clouds.keys() {
+        assert!(depths.contains_key(stamp), "cloud stamp {stamp} without depth");
     }
 
     eprintln!("[{:?}] phase1 checked", t_start.elapsed());
