@@ -6,6 +6,7 @@
 //! received depth against the bag's ground truth.
 
 use crate::bag::{BagWriter, RigBagReader};
+use crate::estimator::EstimatorSpec;
 use crate::frame::{FloatImage, RgbImage};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
@@ -49,7 +50,8 @@ pub enum DemoError {
 pub struct DemoOptions {
     pub bag: PathBuf,
     pub rig_file: PathBuf,
-    pub estimator: String,
+    /// The estimator and its weights.
+    pub estimator: EstimatorSpec,
     pub out_bag: PathBuf,
     pub png_dir: PathBuf,
     /// Playback speed factor; slow enough that inference keeps up.

@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use mode360::estimator::{self, DepthEstimator};
+use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use mode360::eval::{self, EvalOptions, ViewMode};
 use mode360::geometry::Rig;
 use mode360::record::{self, RecordOptions};
@@ -140,9 +140,12 @@ struct DemoArgs {
     /// Rig calibration YAML.
     #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
     rig: PathBuf,
-    /// Estimator: photometric or ssmode.
-    #[arg(long, default_value = "photometric")]
-    estimator: String,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    estimator: EstimatorKind,
+    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    #[arg(long)]
+    weights: Option<PathBuf>,
     /// Output bag: inputs plus what the node published.
     #[arg(long, default_value = "demo_out.mcap")]
     out: PathBuf,
@@ -156,9 +159,9 @@ struct DemoArgs {
 
 #[derive(Args)]
 struct BenchNodeArgs {
-    /// Estimator: photometric or ssmode.
-    #[arg(long, default_value = "photometric")]
-    estimator: String,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    estimator: EstimatorKind,
     /// SSMODE weights file (default: the shipped weights).
     #[arg(long)]
     weights: Option<PathBuf>,
@@ -192,9 +195,12 @@ struct ReplayArgs {
     /// Output bag: inputs plus depth, points, confidence, /tf_static, /diagnostics.
     #[arg(long)]
     out: PathBuf,
-    /// Estimator: photometric or ssmode.
-    #[arg(long, default_value = "photometric")]
-    estimator: String,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    estimator: EstimatorKind,
+    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    #[arg(long)]
+    weights: Option<PathBuf>,
     /// Output panorama width (default: the input width).
     #[arg(long)]
     output_width: Option<usize>,
@@ -323,9 +329,9 @@ struct EvalArgs {
     /// Bag(s) to evaluate (repeat for clean and soiled bags).
     #[arg(long = "bag", required = true)]
     bags: Vec<PathBuf>,
-    /// Estimator: photometric or ssmode.
-    #[arg(long, default_value = "photometric")]
-    estimator: String,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    estimator: EstimatorKind,
     /// Cameras to use, 1-based in rig order, e.g. 1,2,3 (default: all).
     #[arg(long, value_delimiter = ',')]
     cameras: Option<Vec<usize>>,
@@ -427,7 +433,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         }
     };
     let mut est: Box<dyn DepthEstimator> =
-        estimator::by_name_with_weights(&a.estimator, a.weights.as_deref())?;
+        EstimatorSpec::with_weights(a.estimator, a.weights).build()?;
     let opts = EvalOptions {
         bags: a.bags,
         cameras,
@@ -495,7 +501,7 @@ fn replay(a: ReplayArgs) -> Result<()> {
     let summary = mode360::replay::replay_bag(&mode360::replay::ReplayOptions {
         input: a.input,
         output: a.out.clone(),
-        estimator: a.estimator,
+        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
         output_width: a.output_width,
         max_depth_m: None,
         max_frames: a.max_frames,
@@ -546,8 +552,7 @@ fn bench_node(a: BenchNodeArgs) -> Result<()> {
         bail!("--duration-s must be a positive number of seconds");
     }
     let report = mode360::node::bench::run_bench(&mode360::node::bench::BenchOptions {
-        estimator: a.estimator,
-        weights: a.weights,
+        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
         width: a.width,
         duration: std::time::Duration::from_secs_f64(a.duration_s),
         bag: a.bag,
@@ -573,7 +578,7 @@ fn demo(a: DemoArgs) -> Result<()> {
     let s = mode360::demo::run_demo(&mode360::demo::DemoOptions {
         bag: a.bag,
         rig_file: a.rig,
-        estimator: a.estimator,
+        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
         out_bag: a.out.clone(),
         png_dir: a.png_dir.clone(),
         rate: a.rate,

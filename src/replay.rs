@@ -7,7 +7,7 @@
 //! frame's stamp.
 
 use crate::bag::{BagError, RigBagReader, RigBagWriter};
-use crate::estimator::{by_name, EstimatorError};
+use crate::estimator::{EstimatorError, EstimatorSpec};
 use crate::eval::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage, MetricsError};
 use crate::msgs::image::float_from_image_msg;
@@ -45,8 +45,8 @@ pub enum ReplayError {
 pub struct ReplayOptions {
     pub input: PathBuf,
     pub output: PathBuf,
-    /// Estimator name (see [`crate::estimator::ESTIMATOR_NAMES`]).
-    pub estimator: String,
+    /// The estimator and its weights.
+    pub estimator: EstimatorSpec,
     /// Output width; `None`: the input images' width.
     pub output_width: Option<usize>,
     /// `None`: the bag's `max_depth_m` metadata, else [`DEFAULT_MAX_DEPTH_M`].
@@ -144,7 +144,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary, ReplayError> {
                     output_width: width,
                     max_depth_m: max_depth_m as f32,
                 };
-                let p = Pipeline::new(rig.clone(), by_name(&opts.estimator)?, params)
+                let p = Pipeline::new(rig.clone(), opts.estimator.build()?, params)
                     .map_err(|source| ReplayError::Pipeline { stamp_ns, source })?;
                 pipeline.insert(p)
             }

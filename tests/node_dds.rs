@@ -176,7 +176,10 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         depths.len()
     );
     for stamp in clouds.keys() {
-        assert!(depths.contains_key(stamp), "cloud stamp {stamp} without depth");
+        assert!(
+            depths.contains_key(stamp),
+            "cloud stamp {stamp} without depth"
+        );
     }
 
     eprintln!("[{:?}] phase1 checked", t_start.elapsed());

@@ -1,6 +1,7 @@
 //! Offline replay: a small rendered bag through the node's pipeline into an output bag.
 
 use mode360::bag::{BagReader, RigBagReader, GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC};
+use mode360::estimator::{EstimatorKind, EstimatorSpec};
 use mode360::geometry::Rig;
 use mode360::msgs::image::float_from_image_msg;
 use mode360::msgs::{DiagnosticArray, Image, PointCloud2, TFMessage};
@@ -45,7 +46,7 @@ fn replay_writes_decodable_outputs_matching_inputs() -> TestResult {
     let summary = replay_bag(&ReplayOptions {
         input: input.clone(),
         output: output.clone(),
-        estimator: "photometric".into(),
+        estimator: EstimatorSpec::new(EstimatorKind::Photometric),
         output_width: None,
         max_depth_m: None,
         max_frames: None,
@@ -123,7 +124,7 @@ fn replay_writes_decodable_outputs_matching_inputs() -> TestResult {
     replay_bag(&ReplayOptions {
         input,
         output: output2.clone(),
-        estimator: "photometric".into(),
+        estimator: EstimatorSpec::new(EstimatorKind::Photometric),
         output_width: None,
         max_depth_m: None,
         max_frames: Some(1),

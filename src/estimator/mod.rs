@@ -1,6 +1,8 @@
 //! Depth estimators: N synchronized panoramas in, one ERP range image of the rig's output
 //! frame out.
 
+use std::path::PathBuf;
+
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, Rig};
 
@@ -67,8 +69,121 @@ pub trait DepthEstimator: Send {
     ) -> Result<DepthEstimate, EstimatorError>;
 }
 
+/// The depth estimators the node and the tools can run (`--estimator`, the node's `estimator`
+/// parameter).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    Hash,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorKind {
+    /// Learning-free photometric plane sweep over the rig's views.
+    #[default]
+    Photometric,
+    /// The SSMODE network with trained weights (default: the shipped ones).
+    Ssmode,
+}
+
+impl EstimatorKind {
+    /// Every kind, in the order help texts list them.
+    pub const ALL: [Self; 2] = [Self::Photometric, Self::Ssmode];
+
+    /// The name on the command line and in reports.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Photometric => photometric::PHOTOMETRIC_NAME,
+            Self::Ssmode => ssmode::SSMODE_NAME,
+        }
+    }
+
+    /// Whether this estimator loads a weights file.
+    pub fn has_weights(self) -> bool {
+        self == Self::Ssmode
+    }
+}
+
+impl std::fmt::Display for EstimatorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for EstimatorKind {
+    type Err = EstimatorError;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.as_str() == name)
+            .ok_or_else(|| EstimatorError::UnknownEstimator {
+                name: name.to_string(),
+                known: ESTIMATOR_NAMES.join(", "),
+            })
+    }
+}
+
+/// An estimator and, for SSMODE, its weights file (`None`: the shipped weights).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct EstimatorSpec {
+    pub kind: EstimatorKind,
+    pub weights: Option<PathBuf>,
+}
+
+impl EstimatorSpec {
+    /// `kind` with its default settings.
+    pub fn new(kind: EstimatorKind) -> Self {
+        Self {
+            kind,
+            weights: None,
+        }
+    }
+
+    /// `kind` with `weights` (an error at [`Self::build`] for an estimator without weights, so
+    /// that weights given to the wrong estimator are not silently ignored).
+    pub fn with_weights(kind: EstimatorKind, weights: Option<PathBuf>) -> Self {
+        Self { kind, weights }
+    }
+
+    /// The weights file SSMODE will load (the shipped one when none was given); `None` for
+    /// estimators without weights.
+    pub fn weights_path(&self) -> Option<PathBuf> {
+        self.kind.has_weights().then(|| {
+            self.weights
+                .clone()
+                .unwrap_or_else(ssmode::default_weights_path)
+        })
+    }
+
+    /// Builds the estimator.
+    pub fn build(&self) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+        match (self.kind, &self.weights) {
+            (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
+                photometric::PhotometricConfig::default(),
+            )?)),
+            (EstimatorKind::Photometric, Some(path)) => Err(EstimatorError::BadConfig {
+                field: "weights".to_string(),
+                problem: format!(
+                    "the photometric estimator has no weights (got {})",
+                    path.display()
+                ),
+            }),
+            (EstimatorKind::Ssmode, weights) => Ok(Box::new(ssmode::SsmodeEstimator::load(
+                weights.clone().unwrap_or_else(ssmode::default_weights_path),
+            )?)),
+        }
+    }
+}
+
 /// Estimator names accepted by [`by_name`].
-pub const ESTIMATOR_NAMES: &[&str] = &["photometric", "ssmode"];
+pub const ESTIMATOR_NAMES: &[&str] = &[photometric::PHOTOMETRIC_NAME, ssmode::SSMODE_NAME];
 
 /// The estimator called `name`, with its default settings (SSMODE: the shipped weights).
 pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
@@ -81,24 +196,41 @@ pub fn by_name_with_weights(
     name: &str,
     weights: Option<&std::path::Path>,
 ) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
-    match (name, weights) {
-        ("photometric", None) => Ok(Box::new(photometric::PhotometricSweep::new(
-            photometric::PhotometricConfig::default(),
-        )?)),
-        ("photometric", Some(path)) => Err(EstimatorError::BadConfig {
-            field: "weights".to_string(),
-            problem: format!(
-                "the photometric estimator has no weights (got {})",
-                path.display()
-            ),
-        }),
-        ("ssmode", Some(path)) => Ok(Box::new(ssmode::SsmodeEstimator::load(path)?)),
-        ("ssmode", None) => Ok(Box::new(ssmode::SsmodeEstimator::load(
-            ssmode::default_weights_path(),
-        )?)),
-        (other, _) => Err(EstimatorError::UnknownEstimator {
-            name: other.to_string(),
-            known: ESTIMATOR_NAMES.join(", "),
-        }),
+    EstimatorSpec::with_weights(name.parse()?, weights.map(PathBuf::from)).build()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kinds_round_trip_through_their_names() {
+        for kind in EstimatorKind::ALL {
+            assert_eq!(kind.to_string().parse::<EstimatorKind>().unwrap(), kind);
+            let yaml = serde_yaml::to_string(&kind).unwrap();
+            assert_eq!(yaml.trim(), kind.as_str());
+        }
+        let e = "sgbm".parse::<EstimatorKind>().unwrap_err().to_string();
+        assert!(
+            e.contains("sgbm") && e.contains("photometric, ssmode"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn weights_belong_to_ssmode_only() {
+        let spec = EstimatorSpec::with_weights(EstimatorKind::Photometric, Some("w.st".into()));
+        assert_eq!(spec.weights_path(), None);
+        let e = spec
+            .build()
+            .err()
+            .expect("photometric with weights")
+            .to_string();
+        assert!(e.contains("weights") && e.contains("w.st"), "{e}");
+        let ssmode = EstimatorSpec::new(EstimatorKind::Ssmode);
+        assert_eq!(ssmode.weights_path(), Some(ssmode::default_weights_path()));
+        let missing = EstimatorSpec::with_weights(EstimatorKind::Ssmode, Some("/no/w.st".into()));
+        let e = missing.build().err().expect("missing weights").to_string();
+        assert!(e.contains("/no/w.st"), "{e}");
     }
 }

@@ -11,6 +11,9 @@ use crate::frame::RgbImage;
 use crate::geometry::{ErpGrid, PixelCoord, Rig};
 use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
 
+/// The estimator's name on the command line and in reports.
+pub const SSMODE_NAME: &str = "ssmode";
+
 /// Weights loaded by `by_name("ssmode")`, relative to the working directory or, failing that,
 /// to the source tree the binary was built from (see [`default_weights_path`]): the multi-view
 /// `parallax` preset.
@@ -164,7 +167,7 @@ pub fn resample_erp(data: &[f32], channels: usize, src: ErpGrid, dst: ErpGrid) -
 
 impl DepthEstimator for SsmodeEstimator {
     fn name(&self) -> &str {
-        "ssmode"
+        SSMODE_NAME
     }
 
     fn estimate(

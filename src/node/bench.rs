@@ -20,6 +20,7 @@ use super::play::{play_bag_until, PlayError, PlayOptions, Published};
 use super::ros::{create_subscription, dds_context, runtime, ShutdownSignals, SpunNode};
 use super::{spawn_node, DdsOptions, NodeError, NodeHealth, NodeParams};
 use crate::bag::{BagError, RigBagReader};
+use crate::estimator::EstimatorSpec;
 use crate::msgs::{CompressedImage, Image, RosMessage};
 use crate::record::{record_synthetic_bag, RecordOptions};
 use crate::synth::SynthConfig;
@@ -53,10 +54,7 @@ const SECS_PER_MIN: f64 = 60.0;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
-    #[error(
-        "estimator 'ssmode' needs trained weights at {path}, which does not exist yet \
-         (SSMODE is still being trained; see models/README.md). Use --estimator photometric."
-    )]
+    #[error("estimator 'ssmode' needs trained weights at {path}, which does not exist")]
     MissingWeights { path: String },
     #[error(transparent)]
     Node(#[from] NodeError),
@@ -81,9 +79,8 @@ fn other(e: impl std::fmt::Display) -> BenchError {
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct BenchOptions {
-    pub estimator: String,
-    /// SSMODE weights (default: the shipped ones).
-    pub weights: Option<PathBuf>,
+    /// The estimator and its weights (default: the shipped ones).
+    pub estimator: EstimatorSpec,
     /// Output width (and width of the rendered input); default: the bag's width, or
     /// [`DEFAULT_WIDTH`] without a bag.
     pub width: Option<usize>,
@@ -102,8 +99,7 @@ pub struct BenchOptions {
 impl Default for BenchOptions {
     fn default() -> Self {
         Self {
-            estimator: "photometric".into(),
-            weights: None,
+            estimator: EstimatorSpec::default(),
             duration: Duration::from_secs(60),
             width: None,
             bag: None,
@@ -371,11 +367,7 @@ struct PlayerState {
 
 /// Runs the bench (see the module docs).
 pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
-    if opts.estimator == "ssmode" {
-        let path = opts
-            .weights
-            .clone()
-            .unwrap_or_else(crate::estimator::ssmode::default_weights_path);
+    if let Some(path) = opts.estimator.weights_path() {
         if !path.exists() {
             return Err(BenchError::MissingWeights {
                 path: path.display().to_string(),
@@ -435,7 +427,6 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
         NodeParams {
             rig_file: rig_path.clone(),
             estimator: opts.estimator.clone(),
-            weights: opts.weights.clone(),
             output_width,
             camera_timeout_secs: 60.0,
             ..Default::default()
@@ -595,7 +586,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
         }
     };
     Ok(BenchReport {
-        estimator: opts.estimator.clone(),
+        estimator: opts.estimator.kind.to_string(),
         bag: bag_path.display().to_string(),
         input_width,
         output_width,

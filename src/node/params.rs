@@ -10,6 +10,8 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+use crate::estimator::{EstimatorError, EstimatorSpec};
+
 /// Default node name.
 pub const DEFAULT_NODE_NAME: &str = "mode360";
 /// Default rig calibration.
@@ -60,9 +62,8 @@ pub struct NodeParams {
     /// Namespace, `/` or `/a/b`.
     pub namespace: String,
     pub rig_file: PathBuf,
-    pub estimator: String,
-    /// SSMODE weights file; `None` (parameter `weights` empty): the shipped weights.
-    pub weights: Option<PathBuf>,
+    /// Parameters `estimator` and `weights` (SSMODE weights file; empty: the shipped weights).
+    pub estimator: EstimatorSpec,
     pub output_width: usize,
     pub sync_tolerance_secs: f64,
     pub sync_queue_size: usize,
@@ -84,8 +85,7 @@ impl Default for NodeParams {
             node_name: DEFAULT_NODE_NAME.into(),
             namespace: "/".into(),
             rig_file: DEFAULT_RIG_FILE.into(),
-            estimator: "photometric".into(),
-            weights: None,
+            estimator: EstimatorSpec::default(),
             output_width: 512,
             sync_tolerance_secs: 0.01,
             sync_queue_size: 5,
@@ -255,8 +255,12 @@ impl NodeParams {
         };
         match name {
             "rig_file" => self.rig_file = value.into(),
-            "estimator" => self.estimator = value.into(),
-            "weights" => self.weights = (!value.is_empty()).then(|| PathBuf::from(value)),
+            "estimator" => {
+                self.estimator.kind = value
+                    .parse()
+                    .map_err(|e: EstimatorError| bad(&e.to_string()))?
+            }
+            "weights" => self.estimator.weights = (!value.is_empty()).then(|| PathBuf::from(value)),
             "output_width" => {
                 let w = positive_usize()?;
                 if w % 2 != 0 {
@@ -392,7 +396,7 @@ mod tests {
         ]))
         .unwrap();
         assert_eq!(
-            p.weights.as_deref(),
+            p.estimator.weights.as_deref(),
             Some(std::path::Path::new("runs/x/ssmode_compact.safetensors"))
         );
         assert_eq!(p.output_width, 256);
@@ -462,6 +466,15 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("/no/such.yaml"), "{e}");
+        let e = NodeParams::from_args(&args(&["--ros-args", "-p", "estimator:=sgbm"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("estimator") && e.contains("sgbm") && e.contains("photometric, ssmode"),
+            "{e}"
+        );
+        let p = NodeParams::from_args(&args(&["--ros-args", "-p", "estimator:=ssmode"])).unwrap();
+        assert_eq!(p.estimator.kind, crate::estimator::EstimatorKind::Ssmode);
         assert!(NodeParams::from_args(&args(&["--frobnicate"])).is_err());
         assert!(NodeParams::from_args(&args(&["--ros-args", "-p"])).is_err());
         assert!(NodeParams::from_args(&args(&["--ros-args", "-p", "x=1"])).is_err());

@@ -21,7 +21,7 @@ use super::{
     TF_STATIC_TOPIC,
 };
 use crate::bag::rig_tf_static;
-use crate::estimator::{by_name_with_weights, EstimatorError};
+use crate::estimator::EstimatorError;
 use crate::frame::RgbImage;
 use crate::geometry::{Rig, RigError};
 use crate::msgs::image::{rgb_from_compressed, rgb_from_image_msg};
@@ -491,7 +491,7 @@ pub fn run_node(args: Vec<String>) -> Result<NodeRun, NodeError> {
 /// `/tf_static` sent).
 pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, NodeError> {
     let rig = Rig::from_file(&params.rig_file)?;
-    let estimator = by_name_with_weights(&params.estimator, params.weights.as_deref())?;
+    let estimator = params.estimator.build()?;
     let pipeline = Pipeline::new(
         rig.clone(),
         estimator,
