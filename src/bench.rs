@@ -17,7 +17,9 @@ use serde::{Deserialize, Serialize};
 use crate::estimator::ssmode::SsmodeEstimator;
 use crate::estimator::{DepthEstimator, EstimatorError};
 use crate::geometry::{ErpGrid, Rig};
-use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, StageProfiler, SweepSampling};
+use crate::model::{
+    load_weights, ModelError, Preset, Ssmode, SsmodeConfig, StageProfiler, SweepSampling,
+};
 use crate::synth::{SynthConfig, SynthRenderer};
 use crate::train::data::image_tensor;
 
@@ -50,8 +52,8 @@ impl From<candle_core::Error> for BenchError {
 /// What one case measures.
 #[derive(Clone, Debug)]
 pub struct ModelBenchOptions {
-    /// Preset name (`compact`, `paper`, `tiny`); ignored for the config when `weights` is given.
-    pub preset: String,
+    /// Network preset; ignored for the config when `weights` is given.
+    pub preset: Preset,
     /// Network input width (height = width / 2); `None`: the preset's (or the weights') width.
     pub width: Option<usize>,
     /// Trained weights; `None`: random weights of the preset (same cost).
@@ -131,7 +133,7 @@ fn proc_status_kb(key: &str) -> Option<f64> {
 /// The network with untracked weights: from `weights` (config from its metadata) or random
 /// (the preset's initialisation), `width` overriding the config's input width.
 fn build_network(
-    preset: &str,
+    preset: Preset,
     width: Option<usize>,
     weights: Option<&Path>,
     device: &Device,
@@ -139,7 +141,7 @@ fn build_network(
     let (mut cfg, vb) = match weights {
         Some(path) => load_weights(path, device)?,
         None => {
-            let cfg = SsmodeConfig::preset(preset)?;
+            let cfg = preset.config();
             // Initialise through a VarMap, then rebuild over plain (untracked) copies so that
             // the timed passes build no autograd graph.
             let varmap = VarMap::new();
@@ -192,7 +194,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, Benc
     let rss_start_mb = resident_mb().unwrap_or(0.0);
     let device = Device::Cpu;
     let (model, parameters) =
-        build_network(&opts.preset, opts.width, opts.weights.as_deref(), &device)?;
+        build_network(opts.preset, opts.width, opts.weights.as_deref(), &device)?;
     let cfg = model.config().clone();
     let sampling = SweepSampling::new(&opts.rig, &cfg)?;
     let renderer = SynthRenderer::new(SynthConfig {
@@ -258,7 +260,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, Benc
     }
     let network_min_s = network.iter().copied().fold(f64::INFINITY, f64::min);
     Ok(ModelBenchCase {
-        preset: cfg_preset_name(&opts.preset, opts.weights.as_deref()),
+        preset: cfg_preset_name(opts.preset, opts.weights.as_deref()),
         width: cfg.width,
         height: cfg.height(),
         cameras: opts.rig.cameras.len(),
@@ -278,7 +280,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, Benc
     })
 }
 
-fn cfg_preset_name(preset: &str, weights: Option<&Path>) -> String {
+fn cfg_preset_name(preset: Preset, weights: Option<&Path>) -> String {
     match weights {
         Some(p) => format!(
             "{} ({})",

@@ -5,6 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use mode360::eval::{self, EvalOptions, ViewMode};
 use mode360::geometry::Rig;
+use mode360::model::Preset;
 use mode360::record::{self, RecordOptions};
 use mode360::synth::{SceneKind, StreetStyle, SynthConfig};
 use std::path::PathBuf;
@@ -107,9 +108,9 @@ struct Deep360BagArgs {
 
 #[derive(Args)]
 struct BenchModelArgs {
-    /// Presets to measure (comma separated): parallax (shipped), compact, paper, tiny.
-    #[arg(long, value_delimiter = ',', default_value = "parallax,compact")]
-    presets: Vec<String>,
+    /// Presets to measure (comma separated; parallax is the shipped one).
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Preset::Parallax, Preset::Compact])]
+    presets: Vec<Preset>,
     /// Input widths (comma separated, height = width / 2).
     #[arg(long, value_delimiter = ',', default_value = "256,512")]
     widths: Vec<usize>,
@@ -229,9 +230,9 @@ struct PlayArgs {
 
 #[derive(Args)]
 struct TrainArgs {
-    /// Network preset: parallax (the shipped default), compact, paper, tiny.
-    #[arg(long, default_value = "parallax")]
-    preset: String,
+    /// Network preset (parallax is the shipped one).
+    #[arg(long, value_enum, default_value_t = Preset::Parallax)]
+    preset: Preset,
     /// Override the preset's input width (height = width / 2).
     #[arg(long)]
     width: Option<usize>,
@@ -622,12 +623,12 @@ fn bench_model(a: BenchModelArgs) -> Result<()> {
         for &width in &a.widths {
             let weights = candidates
                 .iter()
-                .find(|(name, _)| name == preset)
+                .find(|(name, _)| name == preset.as_str())
                 .map(|(_, path)| path.clone());
             eprintln!("bench-model: {preset} at {width}x{} ...", width / 2);
             let case = if a.in_process || (a.presets.len() == 1 && a.widths.len() == 1) {
                 bench_model_case(&ModelBenchOptions {
-                    preset: preset.clone(),
+                    preset: *preset,
                     width: Some(width),
                     weights,
                     rig: rig.clone(),
@@ -635,7 +636,7 @@ fn bench_model(a: BenchModelArgs) -> Result<()> {
                     seed: 1,
                 })?
             } else {
-                bench_model_child(&a, preset, width, weights.as_deref())?
+                bench_model_child(&a, *preset, width, weights.as_deref())?
             };
             cases.push(case);
         }
@@ -650,7 +651,7 @@ fn bench_model(a: BenchModelArgs) -> Result<()> {
 /// One case in a child process, so that its peak memory is its own.
 fn bench_model_child(
     a: &BenchModelArgs,
-    preset: &str,
+    preset: Preset,
     width: usize,
     weights: Option<&std::path::Path>,
 ) -> Result<mode360::bench::ModelBenchCase> {
@@ -661,7 +662,7 @@ fn bench_model_child(
     let exe = std::env::current_exe().context("locating the mode360 binary")?;
     let mut cmd = std::process::Command::new(exe);
     cmd.arg("bench-model")
-        .args(["--presets", preset])
+        .args(["--presets", preset.as_str()])
         .args(["--widths", &width.to_string()])
         .args(["--runs", &a.runs.to_string()])
         .arg("--rig")

@@ -733,7 +733,7 @@ fn fine_tune_runs_on_the_fixture_and_resume_checks_the_dataset() {
     write_training_split(dir.path());
     let out = tempfile::tempdir().unwrap();
     let opts = TrainOptions {
-        preset: "tiny".into(),
+        preset: mode360::model::Preset::Tiny,
         steps: 2,
         out_dir: out.path().to_path_buf(),
         warmup_steps: 1,

@@ -348,7 +348,7 @@ fn bench_profile_flops_scale_with_pixels() {
     use mode360::bench::{bench_model_case, ModelBenchOptions};
     let case = |width: usize| {
         bench_model_case(&ModelBenchOptions {
-            preset: "tiny".into(),
+            preset: mode360::model::Preset::Tiny,
             width: Some(width),
             weights: None,
             rig: rig(),

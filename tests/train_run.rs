@@ -6,7 +6,7 @@ use std::path::Path;
 
 fn opts(out: &Path, steps: usize) -> TrainOptions {
     TrainOptions {
-        preset: "tiny".into(),
+        preset: mode360::model::Preset::Tiny,
         width: None,
         steps,
         out_dir: out.to_path_buf(),
@@ -156,7 +156,7 @@ fn init_weights_start_a_run_from_a_weights_file() {
 
     let c = tempfile::tempdir().unwrap();
     let mut wrong = opts(c.path(), 0);
-    wrong.preset = "compact".into();
+    wrong.preset = mode360::model::Preset::Compact;
     wrong.init_weights = Some(trained.weights_path);
     let err = run_training(&wrong).unwrap_err().to_string();
     assert!(

@@ -25,7 +25,9 @@ fn compact_seconds_per_step() {
         .unwrap_or_else(|| tmp.path().to_path_buf());
     let dir = &out_dir;
     let summary = run_training(&TrainOptions {
-        preset: preset.clone(),
+        preset: preset
+            .parse()
+            .expect("MODE360_TIMING_PRESET names a preset"),
         steps,
         out_dir: out_dir.clone(),
         val_every,

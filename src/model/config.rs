@@ -56,6 +56,78 @@ fn default_aggregation_stride() -> usize {
     1
 }
 
+/// The named network configurations (`train --preset`, `bench-model --presets`).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+#[value(rename_all = "snake_case")]
+pub enum Preset {
+    /// The shipped multi-view network ([`SsmodeConfig::parallax`]).
+    #[default]
+    Parallax,
+    /// The earlier small network with a mean + variance volume ([`SsmodeConfig::compact`]).
+    Compact,
+    /// The paper's sizes ([`SsmodeConfig::paper`]).
+    Paper,
+    /// For tests ([`SsmodeConfig::tiny`]).
+    Tiny,
+    /// For tests: `tiny` with the parallax volume ([`SsmodeConfig::tiny_parallax`]).
+    TinyParallax,
+}
+
+impl Preset {
+    /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
+    pub const ALL: [Self; 5] = [
+        Self::Parallax,
+        Self::Compact,
+        Self::Paper,
+        Self::Tiny,
+        Self::TinyParallax,
+    ];
+
+    /// The configuration's `name` and the preset's name on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Parallax => "parallax",
+            Self::Compact => "compact",
+            Self::Paper => "paper",
+            Self::Tiny => "tiny",
+            Self::TinyParallax => "tiny_parallax",
+        }
+    }
+
+    pub fn config(self) -> SsmodeConfig {
+        match self {
+            Self::Parallax => SsmodeConfig::parallax(),
+            Self::Compact => SsmodeConfig::compact(),
+            Self::Paper => SsmodeConfig::paper(),
+            Self::Tiny => SsmodeConfig::tiny(),
+            Self::TinyParallax => SsmodeConfig::tiny_parallax(),
+        }
+    }
+}
+
+impl std::fmt::Display for Preset {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for Preset {
+    type Err = ModelError;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|p| p.as_str() == name)
+            .ok_or_else(|| ModelError::UnknownPreset {
+                name: name.to_string(),
+                known: SsmodeConfig::PRESETS.to_string(),
+            })
+    }
+}
+
 /// Hyper-parameters of the SSMODE network.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SsmodeConfig {
@@ -221,19 +293,9 @@ impl SsmodeConfig {
     /// Names of the presets, for messages.
     pub const PRESETS: &'static str = "parallax, compact, paper, tiny, tiny_parallax";
 
-    /// The preset called `name` (see [`Self::PRESETS`]).
+    /// The preset called `name` (see [`Preset`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {
-        match name {
-            "parallax" => Ok(Self::parallax()),
-            "paper" => Ok(Self::paper()),
-            "compact" => Ok(Self::compact()),
-            "tiny" => Ok(Self::tiny()),
-            "tiny_parallax" => Ok(Self::tiny_parallax()),
-            other => Err(ModelError::UnknownPreset {
-                name: other.to_string(),
-                known: Self::PRESETS.to_string(),
-            }),
-        }
+        Ok(name.parse::<Preset>()?.config())
     }
 
     /// Input height, `width / 2`.

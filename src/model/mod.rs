@@ -17,7 +17,7 @@ pub mod sphere_conv;
 pub mod ssmode;
 pub mod weights;
 
-pub use config::{SsmodeConfig, SweepSampling};
+pub use config::{Preset, SsmodeConfig, SweepSampling};
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use weights::{load_weights, read_config, save_weights};
 

@@ -7,7 +7,7 @@ use super::log::{TrainRecord, ValRecord};
 use super::loss::{LossConfig, LossError, PSMNET_STAGE_WEIGHTS};
 use super::optim::{AdamW, AdamWParams, LrSchedule};
 use crate::metrics::{depth_metrics, FrameAverage};
-use crate::model::{save_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
+use crate::model::{save_weights, ModelError, Preset, Ssmode, SsmodeConfig, SweepSampling};
 use crate::synth::StreetStyle;
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
@@ -73,8 +73,8 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
 /// Options of `mode360 train`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainOptions {
-    /// Network preset (see [`SsmodeConfig::PRESETS`]).
-    pub preset: String,
+    /// Network preset.
+    pub preset: Preset,
     /// Overrides the preset's input width (height = width / 2).
     pub width: Option<usize>,
     /// Total optimizer steps (a resumed run continues up to this).
@@ -119,7 +119,7 @@ pub struct TrainOptions {
 impl Default for TrainOptions {
     fn default() -> Self {
         Self {
-            preset: "parallax".into(),
+            preset: Preset::Parallax,
             width: None,
             steps: 10_000,
             out_dir: PathBuf::from("runs/train"),
@@ -255,7 +255,7 @@ fn load_init_weights(
 }
 
 fn resolve_config(opts: &TrainOptions) -> Result<SsmodeConfig, TrainError> {
-    let mut cfg = SsmodeConfig::preset(&opts.preset)?;
+    let mut cfg = opts.preset.config();
     if let Some(w) = opts.width {
         cfg.width = w;
     }
@@ -650,7 +650,7 @@ pub fn run_training(opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
         version: STATE_VERSION,
         step: 0,
         next_sample_index: 0,
-        preset: opts.preset.clone(),
+        preset: opts.preset.to_string(),
         width: cfg.width,
         seed: opts.seed,
         batch_size: opts.batch_size,
