@@ -8,8 +8,9 @@ use candle_core::{Device, Tensor};
 
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::frame::RgbImage;
-use crate::geometry::{ErpGrid, PixelCoord, Rig};
-use crate::model::{load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
+pub use crate::geometry::resample_erp;
+use crate::geometry::{ErpGrid, Rig};
+use crate::model::{input_tensor, load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
 
 /// The estimator's name on the command line and in reports.
 pub const SSMODE_NAME: &str = "ssmode";
@@ -49,10 +50,6 @@ fn shipped_path(relative: &str) -> PathBuf {
         local
     }
 }
-/// 8-bit colour to [0, 1].
-const BYTE_SCALE: f32 = 1.0 / 255.0;
-/// Channels of an RGB pixel.
-const RGB: usize = 3;
 
 /// SSMODE inference on the CPU.
 pub struct SsmodeEstimator {
@@ -138,33 +135,6 @@ impl SsmodeEstimator {
     }
 }
 
-/// Bilinear ERP resampling of `channels`-interleaved row-major data from `src` to `dst`
-/// (pixel centres aligned: `u_src = (u + 0.5) W_src / W_dst - 0.5`, likewise `v`; longitude
-/// wraps, latitude clamps).
-pub fn resample_erp(data: &[f32], channels: usize, src: ErpGrid, dst: ErpGrid) -> Vec<f32> {
-    if src == dst {
-        return data.to_vec();
-    }
-    let scale = src.width() as f64 / dst.width() as f64;
-    let mut out = vec![0.0; dst.len() * channels];
-    for v in 0..dst.height() {
-        for u in 0..dst.width() {
-            let taps = src.bilinear_taps(PixelCoord {
-                u: (u as f64 + 0.5) * scale - 0.5,
-                v: (v as f64 + 0.5) * scale - 0.5,
-            });
-            let o = (v * dst.width() + u) * channels;
-            for (&i, &w) in taps.index.iter().zip(taps.weight.iter()) {
-                let s = i as usize * channels;
-                for c in 0..channels {
-                    out[o + c] += w * data[s + c];
-                }
-            }
-        }
-    }
-    out
-}
-
 impl DepthEstimator for SsmodeEstimator {
     fn name(&self) -> &str {
         SSMODE_NAME
@@ -186,24 +156,14 @@ impl DepthEstimator for SsmodeEstimator {
         let net_grid = ErpGrid::new(cfg.width)?;
         let mut tensors = Vec::with_capacity(images.len());
         for (cam, img) in images.iter().enumerate() {
-            let (w, h) = img.dimensions();
-            let bad = || EstimatorError::BadImageSize {
-                camera: rig.cameras[cam].name.clone(),
-                width: w,
-                height: h,
-            };
-            if w != 2 * h {
-                return Err(bad());
-            }
-            let grid = ErpGrid::new(w as usize).map_err(|_| bad())?;
-            let rgb: Vec<f32> = img
-                .as_raw()
-                .iter()
-                .map(|&b| b as f32 * BYTE_SCALE)
-                .collect();
-            let resized = resample_erp(&rgb, RGB, grid, net_grid);
-            let t = Tensor::from_vec(resized, (1, cfg.height(), cfg.width, RGB), &self.device)
-                .map_err(model_err)?;
+            let t = input_tensor(img, cfg.width, &self.device).map_err(|e| match e {
+                ModelError::BadImage { width, height } => EstimatorError::BadImageSize {
+                    camera: rig.cameras[cam].name.clone(),
+                    width,
+                    height,
+                },
+                other => model_err(other),
+            })?;
             tensors.push(t);
         }
         self.refresh_sampling(rig)?;

@@ -132,6 +132,33 @@ impl ErpGrid {
     }
 }
 
+/// Bilinear ERP resampling of `channels`-interleaved row-major data from `src` to `dst`
+/// (pixel centres aligned: `u_src = (u + 0.5) W_src / W_dst - 0.5`, likewise `v`; longitude
+/// wraps, latitude clamps).
+pub fn resample_erp(data: &[f32], channels: usize, src: ErpGrid, dst: ErpGrid) -> Vec<f32> {
+    if src == dst {
+        return data.to_vec();
+    }
+    let scale = src.width() as f64 / dst.width() as f64;
+    let mut out = vec![0.0; dst.len() * channels];
+    for v in 0..dst.height() {
+        for u in 0..dst.width() {
+            let taps = src.bilinear_taps(PixelCoord {
+                u: (u as f64 + 0.5) * scale - 0.5,
+                v: (v as f64 + 0.5) * scale - 0.5,
+            });
+            let o = (v * dst.width() + u) * channels;
+            for (&i, &w) in taps.index.iter().zip(taps.weight.iter()) {
+                let s = i as usize * channels;
+                for c in 0..channels {
+                    out[o + c] += w * data[s + c];
+                }
+            }
+        }
+    }
+    out
+}
+
 /// `(cos lat cos lon, cos lat sin lon, sin lat)`.
 pub fn dir_from_lonlat(ll: LonLat) -> Vector3<f64> {
     let (sl, cl) = ll.lat_rad.sin_cos();

@@ -12,7 +12,7 @@ pub mod geer;
 pub mod rig;
 pub mod sweep;
 
-pub use erp::{BilinearTaps, ErpGrid, LonLat, PixelCoord};
+pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
 pub use geer::{GeerAngles, GeerPair};
 pub use rig::{Projection, Rig, RigCamera, RigError};
 pub use sweep::{DepthRange, InverseDepthHypotheses, SweepGeometry, SweepTable};

@@ -11,6 +11,7 @@ pub mod config;
 pub mod cost_volume;
 pub mod feature;
 pub mod hourglass;
+pub mod input;
 pub mod ops;
 pub mod regression;
 pub mod sphere_conv;
@@ -18,6 +19,7 @@ pub mod ssmode;
 pub mod weights;
 
 pub use config::{Preset, SsmodeConfig, SweepSampling};
+pub use input::input_tensor;
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use weights::{load_weights, read_config, save_weights};
 
@@ -28,6 +30,10 @@ pub enum ModelError {
     UnknownPreset { name: String, known: String },
     #[error("SSMODE config field '{field}': {problem}")]
     BadConfig { field: String, problem: String },
+    #[error(
+        "image is {width}x{height}; ERP images must be twice as wide as tall and of even width"
+    )]
+    BadImage { width: u32, height: u32 },
     #[error("SSMODE needs at least {min} cameras, the rig has {got}")]
     TooFewCameras { got: usize, min: usize },
     #[error("{0}")]

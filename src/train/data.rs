@@ -33,6 +33,7 @@ use crate::deep360::{
 };
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{Rig, RigError};
+use crate::model::{input_tensor, ModelError};
 use crate::synth::noise::{hash_words, Rng};
 use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer};
 use candle_core::{Device, Tensor};
@@ -64,8 +65,6 @@ const DEEP360_DISK_TAG: u64 = 0x7A41_0003;
 const SCENE_TAG: u64 = 0x7A41_0004;
 /// Set in validation world seeds, clear in training world seeds.
 const VALIDATION_SEED_BIT: u64 = 1 << 63;
-/// Maximum 8-bit channel value, for normalising to `[0, 1]`.
-const CHANNEL_MAX: f32 = 255.0;
 
 /// Errors producing training data.
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +75,8 @@ pub enum DataError {
     Rig(#[from] RigError),
     #[error("training data: tensor: {0}")]
     Tensor(#[from] candle_core::Error),
+    #[error("training data: network input: {0}")]
+    Input(#[from] ModelError),
     #[error("training data: {0}")]
     Config(String),
     #[error("training data: {0}")]
@@ -315,15 +316,10 @@ pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
         .collect()
 }
 
-/// `(1, H, W, 3)` f32 tensor in `[0, 1]` from an 8-bit image.
-pub fn image_tensor(img: &RgbImage) -> Result<Tensor, candle_core::Error> {
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let data: Vec<f32> = img
-        .as_raw()
-        .iter()
-        .map(|&b| f32::from(b) / CHANNEL_MAX)
-        .collect();
-    Tensor::from_vec(data, (1, h, w, 3), &Device::Cpu)
+/// `(1, H, W, 3)` f32 tensor in `[0, 1]` from an 8-bit image at its own width (see
+/// [`input_tensor`], which every path into the network shares).
+pub fn image_tensor(img: &RgbImage) -> Result<Tensor, ModelError> {
+    input_tensor(img, img.width() as usize, &Device::Cpu)
 }
 
 /// Renders the sample `spec` at `cfg.width` (or reads it from disk, see
