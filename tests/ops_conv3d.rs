@@ -293,72 +293,30 @@ fn conv3d_mixed_stride_padding_kernel() {
 // remainder and both padded edges.
 
 #[test]
-fn conv3d_direct_cout8_unit_stride() {
-    check_conv3d_case(
-        &ConvCase {
-            x_dims: [1, 4, 5, 21, 8],
-            kernel: [3, 3, 3],
-            c_out: 8,
-            stride: [1, 1, 1],
-            padding: [1, 1, 1],
-        },
-        41,
-    );
-}
-
-#[test]
-fn conv3d_direct_cout16_stride2_and_cout8_from_3_channels() {
-    check_conv3d_case(
-        &ConvCase {
-            x_dims: [2, 5, 6, 23, 8],
-            kernel: [3, 3, 3],
-            c_out: 16,
-            stride: [2, 2, 2],
-            padding: [1, 1, 1],
-        },
-        43,
-    );
-    check_conv3d_case(
-        &ConvCase {
-            x_dims: [1, 1, 6, 19, 3],
-            kernel: [1, 3, 3],
-            c_out: 8,
-            stride: [1, 2, 2],
-            padding: [0, 0, 0],
-        },
-        45,
-    );
-}
-
-#[test]
-fn conv3d_direct_cout1_dot_products() {
-    for (ci, seed) in [(8, 47), (16, 49)] {
-        check_conv3d_case(
-            &ConvCase {
-                x_dims: [1, 3, 4, 13, ci],
-                kernel: [3, 3, 3],
-                c_out: 1,
-                stride: [1, 1, 1],
-                padding: [1, 1, 1],
-            },
-            seed,
-        );
+fn conv3d_direct_kernels_match_the_reference() {
+    let case = |x_dims, kernel, c_out, stride, padding| ConvCase {
+        x_dims,
+        kernel,
+        c_out,
+        stride,
+        padding,
+    };
+    let cases = [
+        // Cout 8, unit stride (full blocks, a remainder and both padded edges)
+        case([1, 4, 5, 21, 8], [3, 3, 3], 8, [1, 1, 1], [1, 1, 1]),
+        // Cout 16, stride 2
+        case([2, 5, 6, 23, 8], [3, 3, 3], 16, [2, 2, 2], [1, 1, 1]),
+        // Cout 8 from 3 channels, planar kernel, no padding
+        case([1, 1, 6, 19, 3], [1, 3, 3], 8, [1, 2, 2], [0, 0, 0]),
+        // Cout 1: dot products over 8 and 16 channels
+        case([1, 3, 4, 13, 8], [3, 3, 3], 1, [1, 1, 1], [1, 1, 1]),
+        case([1, 3, 4, 13, 16], [3, 3, 3], 1, [1, 1, 1], [1, 1, 1]),
+        // 4 x 3 = 12 (depth, height) tap pairs: more than the register kernel's table holds
+        case([1, 6, 5, 10, 2], [4, 3, 2], 8, [1, 1, 2], [2, 1, 1]),
+    ];
+    for (k, c) in cases.iter().enumerate() {
+        check_conv3d_case(c, 41 + 2 * k as u64);
     }
-}
-
-#[test]
-fn conv3d_direct_kernel_with_many_tap_rows() {
-    // 4 x 3 = 12 (depth, height) tap pairs: more than the register kernel's table holds
-    check_conv3d_case(
-        &ConvCase {
-            x_dims: [1, 6, 5, 10, 2],
-            kernel: [4, 3, 2],
-            c_out: 8,
-            stride: [1, 1, 2],
-            padding: [2, 1, 1],
-        },
-        51,
-    );
 }
 
 /// `relu?(y + bias + residual)` on f64 values with `co` channels.
