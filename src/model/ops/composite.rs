@@ -4,10 +4,9 @@
 
 use candle_core::{IndexOp, Result, Tensor};
 
-use super::conv3d::Conv3dGeometry;
-use super::linear_axis::LinearAxisMap;
-use super::table::SampleTable;
-use super::{dims_of, OpsError, SPATIAL_AXES_3D};
+use super::types::{
+    dims_of, Conv3dGeometry, LinearAxisMap, OpsError, SampleTable, SPATIAL_AXES_3D,
+};
 
 /// First spatial axis of a channels-last volume `(B, D, H, W, C)`.
 const FIRST_SPATIAL_AXIS: usize = 1;

@@ -9,124 +9,16 @@
 //! `sW·Ci`, rows overlapping) and `W_{a,c}` the contiguous `(kW·Ci × Co)` slice of the weights:
 //! an implicit GEMM with no im2col copy.
 
-use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CustomOp2, Layout, Result, Shape, Tensor};
 use gemm::Parallelism;
 use rayon::prelude::*;
 
+use super::composite;
 use super::conv3d_direct::{conv3d_forward_direct, RowEpilogue};
-use super::{composite, count_flops, dims_of, has_custom_kernels, OpsError, SPATIAL_AXES_3D};
-
-/// Rank of a channels-last volume `(B, D, H, W, C)` and of a 3-D kernel `(kD, kH, kW, Cin, Cout)`.
-const VOLUME_RANK: usize = 5;
-
-/// Sizes of one 3-D convolution `x (B, D, H, W, Cin) * w (kD, kH, kW, Cin, Cout) -> (B, Do, Ho, Wo, Cout)`,
-/// with `Do = ⌊(D + 2 pD − kD) / sD⌋ + 1` (likewise for H and W).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Conv3dGeometry {
-    pub batch: usize,
-    /// `[D, H, W]` of the convolution's input.
-    pub in_dims: [usize; 3],
-    /// `[Do, Ho, Wo]` of the convolution's output.
-    pub out_dims: [usize; 3],
-    /// `[kD, kH, kW]`.
-    pub kernel: [usize; 3],
-    pub stride: [usize; 3],
-    /// Zeros added on both sides of each spatial axis of the input.
-    pub padding: [usize; 3],
-    pub c_in: usize,
-    pub c_out: usize,
-}
-
-impl Conv3dGeometry {
-    /// Validates the sizes and computes the output dims.
-    pub fn new(
-        batch: usize,
-        in_dims: [usize; 3],
-        kernel: [usize; 3],
-        stride: [usize; 3],
-        padding: [usize; 3],
-        c_in: usize,
-        c_out: usize,
-    ) -> std::result::Result<Self, OpsError> {
-        const OP: &str = "conv3d";
-        let mut out_dims = [0; SPATIAL_AXES_3D];
-        for axis in 0..SPATIAL_AXES_3D {
-            if stride[axis] == 0 || kernel[axis] == 0 || in_dims[axis] == 0 {
-                return Err(OpsError::Shape {
-                    op: OP,
-                    what: format!(
-                        "axis {axis}: stride {}, kernel {} and input size {} must all be positive",
-                        stride[axis], kernel[axis], in_dims[axis]
-                    ),
-                });
-            }
-            let padded = in_dims[axis] + 2 * padding[axis];
-            if padded < kernel[axis] {
-                return Err(OpsError::Shape {
-                    op: OP,
-                    what: format!(
-                        "axis {axis}: padded input {padded} is smaller than the kernel {}",
-                        kernel[axis]
-                    ),
-                });
-            }
-            out_dims[axis] = (padded - kernel[axis]) / stride[axis] + 1;
-        }
-        if batch == 0 || c_in == 0 || c_out == 0 {
-            return Err(OpsError::Shape {
-                op: OP,
-                what: format!("batch {batch}, Cin {c_in} and Cout {c_out} must all be positive"),
-            });
-        }
-        Ok(Self {
-            batch,
-            in_dims,
-            out_dims,
-            kernel,
-            stride,
-            padding,
-            c_in,
-            c_out,
-        })
-    }
-
-    /// `[D + 2 pD, H + 2 pH, W + 2 pW]`.
-    pub fn padded_dims(&self) -> [usize; 3] {
-        std::array::from_fn(|axis| self.in_dims[axis] + 2 * self.padding[axis])
-    }
-
-    /// The output padding a transposed convolution needs to give back `in_dims` from `out_dims`:
-    /// `(D + 2 pD − kD) mod sD` per axis.
-    pub fn output_padding(&self) -> [usize; 3] {
-        let padded = self.padded_dims();
-        std::array::from_fn(|axis| (padded[axis] - self.kernel[axis]) % self.stride[axis])
-    }
-
-    /// Multiply-adds of the forward pass times two: `2 B Do Ho Wo kD kH kW Cin Cout`.
-    pub fn flops(&self) -> f64 {
-        2.0 * (self.batch
-            * self.out_dims.iter().product::<usize>()
-            * self.kernel.iter().product::<usize>()
-            * self.c_in
-            * self.c_out) as f64
-    }
-
-    fn input_shape(&self) -> Shape {
-        let [d, h, w] = self.in_dims;
-        Shape::from((self.batch, d, h, w, self.c_in))
-    }
-
-    fn output_shape(&self) -> Shape {
-        let [d, h, w] = self.out_dims;
-        Shape::from((self.batch, d, h, w, self.c_out))
-    }
-
-    fn weight_shape(&self) -> Shape {
-        let [kd, kh, kw] = self.kernel;
-        Shape::from((kd, kh, kw, self.c_in, self.c_out))
-    }
-}
+use super::types::{
+    conv_geometry_from, count_flops, cpu_slice, dims_of, has_custom_kernels, Conv3dGeometry,
+    OpsError, SPATIAL_AXES_3D, VOLUME_RANK,
+};
 
 /// 3-D convolution, channels-last: x `(B, D, H, W, Cin)`, w `(kD, kH, kW, Cin, Cout)` ->
 /// `(B, Do, Ho, Wo, Cout)`, `Do = ⌊(D + 2 pD − kD) / sD⌋ + 1`. No bias (add it with
@@ -325,59 +217,6 @@ fn transposed_out_dims(
         out[axis] = full - 2 * p;
     }
     Ok(out)
-}
-
-pub(super) fn conv_geometry_from(
-    x: &Tensor,
-    w: &Tensor,
-    stride: [usize; 3],
-    padding: [usize; 3],
-    op: &'static str,
-) -> std::result::Result<Conv3dGeometry, OpsError> {
-    let x_dims = dims_of(x, op, "x", VOLUME_RANK)?;
-    let w_dims = dims_of(w, op, "w", VOLUME_RANK)?;
-    if x_dims[4] != w_dims[3] {
-        return Err(OpsError::Shape {
-            op,
-            what: format!(
-                "x {x_dims:?} has {} channels, w {w_dims:?} expects {}",
-                x_dims[4], w_dims[3]
-            ),
-        });
-    }
-    Conv3dGeometry::new(
-        x_dims[0],
-        [x_dims[1], x_dims[2], x_dims[3]],
-        [w_dims[0], w_dims[1], w_dims[2]],
-        stride,
-        padding,
-        w_dims[3],
-        w_dims[4],
-    )
-}
-
-/// The contiguous f32 data of a custom op argument.
-pub(super) fn cpu_slice<'a>(
-    storage: &'a CpuStorage,
-    layout: &Layout,
-    op: &'static str,
-) -> Result<&'a [f32]> {
-    let CpuStorage::F32(data) = storage else {
-        return Err(OpsError::DType {
-            op,
-            arg: "input",
-            dtype: format!("{:?}", storage.dtype()),
-        }
-        .into());
-    };
-    let Some((start, end)) = layout.contiguous_offsets() else {
-        return Err(OpsError::Shape {
-            op,
-            what: "argument is not contiguous".to_string(),
-        }
-        .into());
-    };
-    Ok(&data[start..end])
 }
 
 /// `dst (m × n) += lhs (m × k) · rhs (k × n)` over strided views; `dst` has unit column stride.

@@ -17,7 +17,7 @@
 
 use rayon::prelude::*;
 
-use super::conv3d::Conv3dGeometry;
+use super::types::Conv3dGeometry;
 
 /// Output cells per register block when `Co` fills one 8-lane vector.
 const BLOCK_CO8: usize = 8;

@@ -12,9 +12,11 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor};
 
-use super::conv3d::{conv3d_forward_cpu, conv3d_input_grad_cpu, cpu_slice, x2_up_geometry};
+use super::conv3d::{conv3d_forward_cpu, conv3d_input_grad_cpu, x2_up_geometry};
 use super::conv3d_direct::{conv3d_forward_direct, RowEpilogue};
-use super::{count_flops, has_custom_kernels, Conv3dGeometry, OpsError};
+use super::types::{
+    conv_geometry_from, count_flops, cpu_slice, has_custom_kernels, Conv3dGeometry, OpsError,
+};
 
 /// What follows the convolution: `relu?(conv + bias + residual)`.
 #[derive(Clone, Copy, Debug, Default)]
@@ -182,7 +184,7 @@ pub fn conv3d_fused(
     padding: [usize; 3],
     epilogue: Epilogue,
 ) -> Result<Tensor> {
-    let geom = super::conv3d::conv_geometry_from(x, w, stride, padding, "conv3d_fused")?;
+    let geom = conv_geometry_from(x, w, stride, padding, "conv3d_fused")?;
     apply(x, w, geom, Kind::Forward, epilogue)
 }
 

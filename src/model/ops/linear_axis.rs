@@ -11,128 +11,13 @@ use std::sync::Arc;
 use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::conv3d::cpu_slice;
-use super::{composite, dims_of, has_custom_kernels, OpsError};
+use super::composite;
+use super::types::{cpu_slice, dims_of, has_custom_kernels, LinearAxisMap, OpsError};
 
 /// Rank of a cost volume `(B, D, H, W)`.
 const COST_VOLUME_RANK: usize = 4;
 /// Fewest output elements per rayon task.
 const MIN_ELEMENTS_PER_TASK: usize = 4096;
-
-/// A sparse `(n_out × n_in)` matrix stored as rows of `(source index, weight)`.
-#[derive(Debug)]
-struct AxisRows {
-    /// `n_out + 1` offsets into `src` and `weight`.
-    start: Vec<usize>,
-    src: Vec<u32>,
-    weight: Vec<f32>,
-}
-
-impl AxisRows {
-    fn out_len(&self) -> usize {
-        self.start.len() - 1
-    }
-
-    /// The transposed matrix, `(n_in × n_out)`.
-    fn transpose(&self, in_len: usize) -> Self {
-        let mut start = vec![0usize; in_len + 1];
-        for &i in &self.src {
-            start[i as usize + 1] += 1;
-        }
-        for i in 0..in_len {
-            start[i + 1] += start[i];
-        }
-        let mut fill = start.clone();
-        let mut src = vec![0u32; self.src.len()];
-        let mut weight = vec![0f32; self.src.len()];
-        for j in 0..self.out_len() {
-            for e in self.start[j]..self.start[j + 1] {
-                let slot = &mut fill[self.src[e] as usize];
-                src[*slot] = j as u32;
-                weight[*slot] = self.weight[e];
-                *slot += 1;
-            }
-        }
-        Self { start, src, weight }
-    }
-}
-
-/// The linear interpolation weights mapping an axis of `n_in` samples to `n_out`
-/// (`align_corners = false`), and their transpose for the backward pass.
-#[derive(Debug)]
-pub struct LinearAxisMap {
-    in_len: usize,
-    lower: Vec<u32>,
-    upper: Vec<u32>,
-    upper_weight: Vec<f32>,
-    forward: AxisRows,
-    backward: AxisRows,
-}
-
-impl LinearAxisMap {
-    /// The map from `in_len` samples to `out_len`; both must be positive.
-    pub fn new(in_len: usize, out_len: usize) -> std::result::Result<Self, OpsError> {
-        if in_len == 0 || out_len == 0 || in_len > u32::MAX as usize {
-            return Err(OpsError::Shape {
-                op: "resample_linear_axis",
-                what: format!("cannot resample an axis of {in_len} samples to {out_len}"),
-            });
-        }
-        let scale = in_len as f64 / out_len as f64;
-        let mut lower = Vec::with_capacity(out_len);
-        let mut upper = Vec::with_capacity(out_len);
-        let mut upper_weight = Vec::with_capacity(out_len);
-        for j in 0..out_len {
-            let src = ((j as f64 + 0.5) * scale - 0.5).max(0.0);
-            let i0 = (src.floor() as usize).min(in_len - 1);
-            let i1 = (i0 + 1).min(in_len - 1);
-            lower.push(i0 as u32);
-            upper.push(i1 as u32);
-            upper_weight.push((src - i0 as f64) as f32);
-        }
-        let forward = AxisRows {
-            start: (0..=out_len).map(|j| 2 * j).collect(),
-            src: lower
-                .iter()
-                .zip(&upper)
-                .flat_map(|(&a, &b)| [a, b])
-                .collect(),
-            weight: upper_weight.iter().flat_map(|&l| [1.0 - l, l]).collect(),
-        };
-        let backward = forward.transpose(in_len);
-        Ok(Self {
-            in_len,
-            lower,
-            upper,
-            upper_weight,
-            forward,
-            backward,
-        })
-    }
-
-    pub fn in_len(&self) -> usize {
-        self.in_len
-    }
-
-    pub fn out_len(&self) -> usize {
-        self.lower.len()
-    }
-
-    /// `i0` per output index.
-    pub fn lower_indices(&self) -> &[u32] {
-        &self.lower
-    }
-
-    /// `i1` per output index.
-    pub fn upper_indices(&self) -> &[u32] {
-        &self.upper
-    }
-
-    /// `λ` (the weight of `i1`) per output index.
-    pub fn upper_weights(&self) -> &[f32] {
-        &self.upper_weight
-    }
-}
 
 /// Linearly resamples axis `dim` of `x` to `out_len` samples (`align_corners = false`), with
 /// gradient. Every other axis is unchanged.

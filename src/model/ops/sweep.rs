@@ -12,9 +12,9 @@
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::conv3d::cpu_slice;
+use super::composite;
 use super::table::adjoint_into;
-use super::{composite, dims_of, has_custom_kernels, OpsError, SampleTable};
+use super::types::{cpu_slice, dims_of, has_custom_kernels, OpsError, SampleTable};
 
 /// Rank of the stacked features `(M B, H, W, C)`.
 const FEATURE_RANK: usize = 4;

@@ -8,15 +8,13 @@
 //! feature image), a scatter-add streaming through the samples with one accumulator per thread
 //! is faster and is used instead. The table itself gets no gradient.
 
-use std::borrow::Cow;
-use std::sync::{Arc, OnceLock};
-
 use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::conv3d::cpu_slice;
-use super::{composite, dims_of, has_custom_kernels, OpsError};
-use crate::geometry::BilinearTaps;
+use super::composite;
+use super::types::{
+    cpu_slice, dims_of, has_custom_kernels, OpsError, SampleTable, TransposedTable,
+};
 
 /// Rank of the features `(B, H, W, C)`.
 const FEATURE_RANK: usize = 4;
@@ -24,136 +22,6 @@ const FEATURE_RANK: usize = 4;
 const SAMPLES_PER_TASK: usize = 256;
 /// Pixels per rayon task in the transposed gather.
 const PIXELS_PER_TASK: usize = 256;
-
-/// For every source pixel `p`, the samples that read it: `entries[start[p]..start[p + 1]]`.
-#[derive(Clone, Debug)]
-struct TransposedTable {
-    pixels: usize,
-    /// `pixels + 1` offsets into `sample` and `weight`.
-    start: Vec<usize>,
-    sample: Vec<u32>,
-    weight: Vec<f32>,
-}
-
-#[derive(Debug)]
-struct TableData {
-    /// `4 N` pixel indices into `H·W`, row-major per sample.
-    index: Vec<u32>,
-    /// `4 N` bilinear weights.
-    weight: Vec<f32>,
-    /// Largest index + 1 (0 for an empty table): the fewest pixels the features must have.
-    min_pixels: usize,
-    /// Built on first backward, for the pixel count seen then.
-    transposed: OnceLock<TransposedTable>,
-}
-
-/// A precomputed bilinear sampling table: 4 pixel indices and 4 weights per output sample.
-/// Cheap to clone (shared).
-#[derive(Clone, Debug)]
-pub struct SampleTable {
-    data: Arc<TableData>,
-}
-
-impl From<Vec<BilinearTaps>> for SampleTable {
-    fn from(taps: Vec<BilinearTaps>) -> Self {
-        Self::new(&taps)
-    }
-}
-
-impl SampleTable {
-    /// Taps per output sample.
-    pub const TAPS: usize = 4;
-
-    /// A table with one output sample per element of `taps`, in order.
-    pub fn new(taps: &[BilinearTaps]) -> Self {
-        let index: Vec<u32> = taps.iter().flat_map(|t| t.index).collect();
-        let weight: Vec<f32> = taps.iter().flat_map(|t| t.weight).collect();
-        let min_pixels = index.iter().max().map_or(0, |&m| m as usize + 1);
-        Self {
-            data: Arc::new(TableData {
-                index,
-                weight,
-                min_pixels,
-                transposed: OnceLock::new(),
-            }),
-        }
-    }
-
-    /// Number of output samples N.
-    pub fn len(&self) -> usize {
-        self.data.index.len() / Self::TAPS
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.data.index.is_empty()
-    }
-
-    /// All indices, `4 N`, sample-major.
-    pub fn flat_indices(&self) -> &[u32] {
-        &self.data.index
-    }
-
-    /// All weights, `4 N`, sample-major.
-    pub fn flat_weights(&self) -> &[f32] {
-        &self.data.weight
-    }
-
-    /// Errors unless every index is below `pixels`.
-    pub(super) fn check_pixels(&self, pixels: usize, op: &'static str) -> Result<()> {
-        if self.data.min_pixels > pixels {
-            return Err(OpsError::TableIndex {
-                op,
-                index: (self.data.min_pixels - 1) as u32,
-                pixels,
-            }
-            .into());
-        }
-        Ok(())
-    }
-
-    /// The transposed table for features of `pixels` pixels; cached for the first size seen.
-    fn transposed(&self, pixels: usize) -> Cow<'_, TransposedTable> {
-        let cached = self
-            .data
-            .transposed
-            .get_or_init(|| build_transposed(&self.data.index, &self.data.weight, pixels));
-        if cached.pixels == pixels {
-            Cow::Borrowed(cached)
-        } else {
-            Cow::Owned(build_transposed(
-                &self.data.index,
-                &self.data.weight,
-                pixels,
-            ))
-        }
-    }
-}
-
-/// Counting sort of the `(sample, weight)` pairs by pixel.
-fn build_transposed(index: &[u32], weight: &[f32], pixels: usize) -> TransposedTable {
-    let mut start = vec![0usize; pixels + 1];
-    for &p in index {
-        start[p as usize + 1] += 1;
-    }
-    for p in 0..pixels {
-        start[p + 1] += start[p];
-    }
-    let mut fill = start.clone();
-    let mut sample = vec![0u32; index.len()];
-    let mut w = vec![0f32; index.len()];
-    for (k, (&p, &wk)) in index.iter().zip(weight).enumerate() {
-        let slot = &mut fill[p as usize];
-        sample[*slot] = (k / SampleTable::TAPS) as u32;
-        w[*slot] = wk;
-        *slot += 1;
-    }
-    TransposedTable {
-        pixels,
-        start,
-        sample,
-        weight: w,
-    }
-}
 
 /// Bilinear gather: features `(B, H, W, C)` -> `(B, N, C)`,
 /// `out[b, n, c] = Σ_k weight[n][k] · features[b, index[n][k], c]`, indices into `H·W`.
