@@ -1,7 +1,6 @@
 //! A bounding volume hierarchy over analytic primitives ([`super::shape`]) for closest-hit
 //! and any-hit ray queries.
 
-use super::material::Material;
 pub use super::shape::{Aabb, OrientedKind, Ray, Shape, SurfaceHit, RAY_EPSILON_M};
 use nalgebra::Vector3;
 
@@ -10,12 +9,13 @@ const MAX_LEAF_PRIMS: usize = 4;
 /// Traversal stack depth (the tree depth is about log2(n / leaf size)).
 const STACK_DEPTH: usize = 64;
 
-/// A shape with its material and the origin of its object's texture coordinates (moving
-/// objects carry their texture with them).
+/// A shape with its surface description `M` (the renderer's material; the BVH only reads the
+/// shape) and the origin of its object's texture coordinates (moving objects carry their
+/// texture with them).
 #[derive(Clone, Copy, Debug)]
-pub struct Prim {
+pub struct Prim<M> {
     pub shape: Shape,
-    pub material: Material,
+    pub material: M,
     pub object_origin: Vector3<f64>,
 }
 
@@ -32,11 +32,11 @@ fn half_area(b: &Aabb) -> f64 {
 
 /// Partitions `items` along `axis` where the binned surface area heuristic
 /// `A(L) n(L) + A(R) n(R)` is least; returns the split index (median if degenerate).
-fn sah_split(items: &mut [(Aabb, Prim)], centroids: &Aabb, axis: usize) -> usize {
+fn sah_split<M>(items: &mut [(Aabb, Prim<M>)], centroids: &Aabb, axis: usize) -> usize {
     let lo = centroids.min[axis];
     let extent = centroids.max[axis] - lo;
     let n = items.len();
-    let median = |items: &mut [(Aabb, Prim)]| {
+    let median = |items: &mut [(Aabb, Prim<M>)]| {
         let mid = n / 2;
         items.select_nth_unstable_by(mid, |a, b| {
             a.0.centre()[axis].total_cmp(&b.0.centre()[axis])
@@ -115,14 +115,15 @@ pub struct PrimHit {
 
 /// Bounding volume hierarchy with median splits on the longest axis of the centroid bounds.
 #[derive(Clone, Debug)]
-pub struct Bvh {
-    pub prims: Vec<Prim>,
+pub struct Bvh<M> {
+    pub prims: Vec<Prim<M>>,
     nodes: Vec<Node>,
 }
 
-impl Bvh {
-    pub fn build(prims: Vec<Prim>) -> Self {
-        let mut items: Vec<(Aabb, Prim)> = prims.into_iter().map(|p| (p.shape.aabb(), p)).collect();
+impl<M> Bvh<M> {
+    pub fn build(prims: Vec<Prim<M>>) -> Self {
+        let mut items: Vec<(Aabb, Prim<M>)> =
+            prims.into_iter().map(|p| (p.shape.aabb(), p)).collect();
         let mut nodes = vec![Node {
             bounds: Aabb::empty(),
             first: 0,
@@ -138,7 +139,7 @@ impl Bvh {
     }
 
     fn build_node(
-        items: &mut [(Aabb, Prim)],
+        items: &mut [(Aabb, Prim<M>)],
         offset: usize,
         node: usize,
         depth: usize,
@@ -280,12 +281,11 @@ impl Bvh {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::material::Material;
 
-    fn prim(shape: Shape) -> Prim {
+    fn prim(shape: Shape) -> Prim<()> {
         Prim {
             shape,
-            material: Material::Concrete,
+            material: (),
             object_origin: Vector3::zeros(),
         }
     }
@@ -293,7 +293,7 @@ mod tests {
     #[test]
     fn bvh_matches_brute_force() {
         let mut rng = crate::synth::noise::Rng::new(&[42]);
-        let prims: Vec<Prim> = (0..300)
+        let prims: Vec<Prim<()>> = (0..300)
             .map(|_| {
                 let c = Vector3::new(
                     rng.range(-50.0, 50.0),

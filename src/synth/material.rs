@@ -6,16 +6,16 @@
 //! markings, windows, paving joints) are box-filtered over the footprint
 //! ([`periodic_coverage`]), so distant detail averages instead of aliasing.
 
+use super::bvh::Prim;
 use super::noise::{fbm2, fbm3, lattice_unit, octave_weight, value2};
 use nalgebra::Vector3;
+
+/// A primitive of the rendered scenes: a shape with its material.
+pub type SurfacePrim = Prim<Material>;
 
 /// Linear RGB.
 pub type Rgb = [f32; 3];
 
-/// Half width of the road between the kerbs, metres (two lanes and two parking strips).
-pub const ROAD_HALF_WIDTH_M: f64 = 7.5;
-/// Lane width, metres; lanes are `[-LANE, 0]` (ego, driving +x) and `[0, LANE]`.
-pub const LANE_WIDTH_M: f64 = 4.0;
 /// Width of painted lines, metres.
 const LINE_WIDTH_M: f64 = 0.15;
 /// Centre-line dash length and period, metres.

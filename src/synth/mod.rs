@@ -26,6 +26,7 @@ mod props;
 mod scene;
 pub mod shape;
 pub mod soiling;
+pub mod street;
 pub mod world;
 
 use crate::frame::{FloatImage, RgbImage, RigFrame};
@@ -39,14 +40,14 @@ use scene::{FrameScene, Ground};
 use std::collections::BTreeMap;
 use world::WorldParams;
 
+pub use scene::{FOG_DISTANCE_M, TEXTURE_WRAP_M};
 pub use soiling::{CameraSoiling, SoilingKind};
+pub use street::StreetStyle;
 
 /// Scene content is generated this far ahead of and behind the rig along x, metres.
 pub const VIEW_RANGE_M: f64 = 480.0;
 /// First frame's stamp: 2023-11-14T22:13:20Z, in nanoseconds since the epoch.
 pub const START_STAMP_NS: u64 = 1_700_000_000_000_000_000;
-/// Fog (aerial perspective) distance scale, metres.
-pub const FOG_DISTANCE_M: f64 = 900.0;
 /// Display gamma.
 const GAMMA: f32 = 2.2;
 /// Two isometries closer than this (metres and radians) are the same pose.
@@ -86,42 +87,11 @@ pub enum SceneKind {
     Objects,
 }
 
-/// How much street layouts vary between world seeds.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-)]
-#[serde(rename_all = "snake_case")]
-pub enum StreetStyle {
-    /// The same cross-section for every seed (`StreetLayout::regular`).
-    #[default]
-    Regular,
-    /// Widths, setbacks, heights, densities and rig pose drawn per seed
-    /// (`StreetLayout::varied`).
-    Varied,
-}
-
 impl SceneKind {
     pub fn as_str(self) -> &'static str {
         match self {
             SceneKind::Street => "street",
             SceneKind::Objects => "objects",
-        }
-    }
-}
-
-impl StreetStyle {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            StreetStyle::Regular => "regular",
-            StreetStyle::Varied => "varied",
         }
     }
 }
@@ -265,10 +235,6 @@ fn to_srgb8(lut: &[u8], c: f32) -> u8 {
     let i = (c.clamp(0.0, 1.0).sqrt() * (GAMMA_LUT_SIZE - 1) as f32 + 0.5) as usize;
     lut[i.min(GAMMA_LUT_SIZE - 1)]
 }
-
-/// World texture coordinates wrap along x with this period, metres, so that f32 texture
-/// arithmetic keeps millimetre precision however far the rig drives (one seam per period).
-pub const TEXTURE_WRAP_M: f64 = 2048.0;
 
 fn same_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     (a.translation.vector - b.translation.vector).norm() < SAME_POSE_TOLERANCE

@@ -13,7 +13,7 @@
 //! code's random rigs, so for those rigs the scene depends on `(seed, index)` only.
 
 use super::bvh::{Aabb, OrientedKind, Prim, Shape};
-use super::material::{Material, Rgb};
+use super::material::{Material, Rgb, SurfacePrim};
 use super::noise::Rng;
 use super::pattern::{random_colour, random_unit, Background, Pattern};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -64,7 +64,7 @@ pub fn keep_out_box(points: &[Vector3<f64>]) -> Aabb {
 /// A random-objects frame: primitives, optional ground plane, background and sun.
 #[derive(Clone, Debug)]
 pub struct ObjectsScene {
-    pub prims: Vec<Prim>,
+    pub prims: Vec<SurfacePrim>,
     /// Height and material of the ground plane, if any.
     pub ground: Option<(f64, Material)>,
     pub background: Background,

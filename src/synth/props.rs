@@ -1,9 +1,9 @@
 //! Street furniture built from primitives: cars and pedestrians, and small helpers.
 
 use super::bvh::{Aabb, Prim, Shape};
-use super::material::{Material, Rgb};
+use super::material::{Material, Rgb, SurfacePrim};
 use super::noise::Rng;
-use super::world::KERB_HEIGHT_M;
+use super::street::KERB_HEIGHT_M;
 use nalgebra::Vector3;
 
 const CAR_COLOURS: [Rgb; 8] = [
@@ -33,7 +33,12 @@ pub(crate) fn aabox(min: [f64; 3], max: [f64; 3]) -> Shape {
     })
 }
 
-pub(crate) fn push(out: &mut Vec<Prim>, shape: Shape, material: Material, origin: Vector3<f64>) {
+pub(crate) fn push(
+    out: &mut Vec<SurfacePrim>,
+    shape: Shape,
+    material: Material,
+    origin: Vector3<f64>,
+) {
     out.push(Prim {
         shape,
         material,
@@ -42,7 +47,7 @@ pub(crate) fn push(out: &mut Vec<Prim>, shape: Shape, material: Material, origin
 }
 
 /// A car of length `len` centred at `(x, y)` facing along x.
-pub(crate) fn car(out: &mut Vec<Prim>, x: f64, y: f64, rng: &mut Rng) {
+pub(crate) fn car(out: &mut Vec<SurfacePrim>, x: f64, y: f64, rng: &mut Rng) {
     let len = rng.range(3.9, 4.8);
     let half_w = rng.range(0.82, 0.92);
     let colour = CAR_COLOURS[rng.index(CAR_COLOURS.len())];
@@ -97,7 +102,7 @@ pub(crate) fn car(out: &mut Vec<Prim>, x: f64, y: f64, rng: &mut Rng) {
 }
 
 /// A pedestrian standing at `(x, y)` on the sidewalk, walking along x with gait phase `phase`.
-pub(crate) fn pedestrian(out: &mut Vec<Prim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
+pub(crate) fn pedestrian(out: &mut Vec<SurfacePrim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
     let z0 = KERB_HEIGHT_M;
     let height = rng.range(1.6, 1.9);
     let clothes = CLOTHES_COLOURS[rng.index(CLOTHES_COLOURS.len())];

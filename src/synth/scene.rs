@@ -6,8 +6,14 @@ use super::bvh::{self, Bvh, Ray};
 use super::material::{self, Material, Rgb};
 use super::pattern::Background;
 use super::world::{self, WorldParams};
-use super::{FOG_DISTANCE_M, TEXTURE_WRAP_M};
 use nalgebra::Vector3;
+
+/// Fog (aerial perspective) distance scale, metres.
+pub const FOG_DISTANCE_M: f64 = 900.0;
+
+/// World texture coordinates wrap along x with this period, metres, so that f32 texture
+/// arithmetic keeps millimetre precision however far the rig drives (one seam per period).
+pub const TEXTURE_WRAP_M: f64 = 2048.0;
 
 /// Sun irradiance and sky ambient (linear RGB, for albedo 1).
 const SUN_RADIANCE: Rgb = [1.55, 1.45, 1.3];
@@ -53,7 +59,7 @@ pub(crate) enum Ground<'a> {
 
 /// The per-frame scene: primitives in a BVH plus the analytic ground plane and background.
 pub(crate) struct FrameScene<'a> {
-    pub bvh: Bvh,
+    pub bvh: Bvh<Material>,
     pub ground: Ground<'a>,
     pub background: Background,
     /// Unit vector towards the sun.

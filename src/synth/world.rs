@@ -9,19 +9,18 @@
 //! Varied streets ([`StreetStyle::Varied`]) draw these widths, setbacks, building heights and
 //! the density of parked cars and trees per world seed ([`StreetLayout::varied`]).
 
-use super::bvh::{Prim, Shape};
-use super::material::{Material, Rgb, LANE_WIDTH_M, ROAD_HALF_WIDTH_M};
+use super::bvh::Shape;
+use super::material::{Material, Rgb, SurfacePrim};
 use super::noise::{hash_words, unit_from_hash, Rng};
 use super::props::{aabox, car, pedestrian, push};
-use super::StreetStyle;
+use super::street::{StreetStyle, KERB_HEIGHT_M, LANE_WIDTH_M, ROAD_HALF_WIDTH_M};
 use nalgebra::Vector3;
 
 /// Length of a tile of static content along x, metres.
 pub const TILE_LENGTH_M: f64 = 24.0;
 /// y of the ego lane centre, metres.
 pub const EGO_LANE_Y_M: f64 = -2.0;
-/// Sidewalk top height and outer edge, metres.
-pub const KERB_HEIGHT_M: f64 = 0.15;
+/// Sidewalk outer edge, metres.
 const SIDEWALK_OUTER_M: f64 = 13.5;
 /// Building fronts start this far from the road axis (plus a random setback).
 const BUILDING_FRONT_M: f64 = 13.0;
@@ -281,7 +280,7 @@ impl WorldParams {
 /// random setback) from the road axis.
 #[allow(clippy::too_many_arguments)]
 fn building_row(
-    out: &mut Vec<Prim>,
+    out: &mut Vec<SurfacePrim>,
     rng: &mut Rng,
     layout: &StreetLayout,
     x0: f64,
@@ -347,7 +346,7 @@ fn building_row(
 }
 
 /// Static content of tile `tile` on side `side` (+1 left, -1 right).
-fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64) {
+fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, side: f64) {
     let mut rng = Rng::new(&[params.seed, tile as u64, side.to_bits(), 0x77]);
     let x0 = tile as f64 * TILE_LENGTH_M;
     let x1 = x0 + TILE_LENGTH_M;
@@ -486,7 +485,12 @@ fn tile_content(out: &mut Vec<Prim>, params: &WorldParams, tile: i64, side: f64)
 }
 
 /// Every primitive within `range_m` of `x_centre_m` along the road at time `t_s`.
-pub fn scene_prims(params: &WorldParams, x_centre_m: f64, range_m: f64, t_s: f64) -> Vec<Prim> {
+pub fn scene_prims(
+    params: &WorldParams,
+    x_centre_m: f64,
+    range_m: f64,
+    t_s: f64,
+) -> Vec<SurfacePrim> {
     let mut out = Vec::new();
     let first = ((x_centre_m - range_m) / TILE_LENGTH_M).floor() as i64;
     let last = ((x_centre_m + range_m) / TILE_LENGTH_M).ceil() as i64;
