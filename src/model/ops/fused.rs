@@ -12,8 +12,9 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor};
 
-use super::conv3d::{conv3d_forward_cpu, conv3d_input_grad_cpu, x2_up_geometry};
+use super::conv3d::x2_up_geometry;
 use super::conv3d_direct::{conv3d_forward_direct, RowEpilogue};
+use super::conv3d_gemm::{conv3d_forward_cpu, conv3d_input_grad_cpu};
 use super::types::{
     conv_geometry_from, count_flops, cpu_slice, has_custom_kernels, Conv3dGeometry, OpsError,
 };

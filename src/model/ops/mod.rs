@@ -21,6 +21,7 @@
 pub mod composite;
 mod conv3d;
 mod conv3d_direct;
+mod conv3d_gemm;
 mod fused;
 mod linear_axis;
 mod sweep;
