@@ -390,41 +390,6 @@ fn bench_profile_flops_scale_with_pixels() {
     assert!(small.peak_rss_mb >= small.rss_start_mb || !small.peak_reset);
 }
 
-/// One training step (forward, backward, AdamW) of the compact preset at 256x128, 4 cameras;
-/// run with `cargo test --test model_ssmode -- --ignored --nocapture train_step_timing`.
-#[test]
-#[ignore]
-fn train_step_timing() {
-    const STEPS: usize = 3;
-    let cfg = SsmodeConfig::compact();
-    let (varmap, net) = model(&cfg);
-    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
-    let images = noise_images(&cfg, 4, 9);
-    let mut opt = AdamW::new(varmap.all_vars(), ParamsAdamW::default()).unwrap();
-    let mut times = Vec::with_capacity(STEPS);
-    for _ in 0..STEPS {
-        let t = std::time::Instant::now();
-        let out = net.forward(&images, &sampling, true).unwrap();
-        let mut loss = Tensor::new(0f32, &Device::Cpu).unwrap();
-        for s in &out.inverse_depth_stages {
-            loss = (loss + (s - 0.4).unwrap().abs().unwrap().mean_all().unwrap()).unwrap();
-        }
-        opt.backward_step(&loss).unwrap();
-        times.push(t.elapsed().as_secs_f64());
-    }
-    let hwm = std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM"))
-                .map(str::to_string)
-        })
-        .unwrap_or_default();
-    println!("compact train step at 256x128: {times:?} s, {hwm}");
-}
-
-/// The fused inference regression gives the unfused (trainable) path's range, index and
-/// confidence, on flat and on peaky cost volumes of odd sizes.
 #[test]
 fn fused_inference_layers_equal_the_tracked_layers() {
     // Plain weight tensors take the fused conv + bias + residual + ReLU kernels; the same

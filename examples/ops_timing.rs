@@ -1,6 +1,6 @@
-//! Throughput measurements of the custom ops in the test profile (opt-level 3), ignored by
-//! default: `cargo test --test ops_timing -- --ignored --nocapture`.
-//! Each reports GFLOP/s and checks the custom kernel is at least as fast as the composite.
+//! Throughput of the custom ops against their composites (GFLOP/s, forward and backward):
+//! `cargo run --release --example ops_timing`. Each panics if the custom kernel is slower than
+//! the composite. (criterion figures: `cargo bench --bench ops`.)
 
 use std::time::Instant;
 
@@ -30,8 +30,6 @@ fn randn(dims: &[usize]) -> Tensor {
     Tensor::randn(0f32, 1f32, dims, &Device::Cpu).unwrap()
 }
 
-#[test]
-#[ignore]
 fn conv3d_throughput() {
     let (d, h, w, c) = (24, 64, 128, 32);
     let unit = [1, 1, 1];
@@ -103,8 +101,6 @@ fn conv3d_throughput() {
     );
 }
 
-#[test]
-#[ignore]
 fn table_sample_throughput() {
     let grid = ErpGrid::new(256).unwrap();
     let (h, w, c) = (grid.height(), grid.width(), 32);
@@ -165,4 +161,9 @@ fn table_sample_throughput() {
         comp_bwd * 1e3
     );
     assert!(fwd < comp, "custom {fwd} s slower than composite {comp} s");
+}
+
+fn main() {
+    conv3d_throughput();
+    table_sample_throughput();
 }
