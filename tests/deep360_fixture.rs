@@ -1,5 +1,7 @@
 //! Deep360 reader: a fixture written in the dataset's layout (Cassini PNGs + npz) from a
-//! synthetic frame reads back as the original ERP frame within interpolation tolerance.
+//! synthetic frame reads back as the original ERP frame within interpolation tolerance; and
+//! ground truth written by numpy from the format's description alone (not by this crate's
+//! writer) reads as the known scene along every ERP ray.
 
 use mode360::deep360::{
     deep360_rig, erp_to_cassini_range, erp_to_cassini_rgb, write_npz, Deep360Dataset, Deep360Error,
@@ -770,4 +772,112 @@ fn fine_tune_runs_on_the_fixture_and_resume_checks_the_dataset() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("deep360_disk"), "{e}");
+}
+
+/// Python (numpy) writes Deep360 ground truth from the format's description alone: the range
+/// from camera 1 to the walls of a box room around it, off centre so that a mirrored or
+/// rotated convention would not match (dataset frame `D`: x left, y up, z forward; walls at
+/// x -2 and 4 m, y -1.5 and 3 m, z -3 and 7 m) as a Cassini image (row i, column j look along
+/// `(sin phi, cos phi sin theta, cos phi cos theta)`, `theta = pi - (i + 0.5) 2 pi / H`,
+/// `phi = pi/2 - (j + 0.5) pi / W`), saved by `numpy.savez` and `numpy.savez_compressed` with
+/// numpy's own `.npy` writer. The crate reads the archives and resamples them to ERP; every
+/// ERP pixel must hold the room's range along its own REP 103 direction (x forward = z_D,
+/// y left = x_D, z up = y_D), computed here independently of the Cassini formulas.
+#[test]
+fn numpy_written_cassini_range_reads_as_the_room_along_every_erp_ray() {
+    use mode360::deep360::{cassini_to_erp_range, read_npz_array};
+    use mode360::frame::FloatImage;
+    use mode360::geometry::{ErpGrid, PixelCoord};
+    const PYTHON_ENV: &str = "MODE360_PYTHON";
+    /// The room's walls along x_D, y_D, z_D (below and above camera 1), metres.
+    const LOW_M: [f64; 3] = [-2.0, -1.5, -3.0];
+    const HIGH_M: [f64; 3] = [4.0, 3.0, 7.0];
+    const CASSINI_W: usize = 128;
+    const CASSINI_H: usize = 256;
+    let Some(python) = std::env::var(PYTHON_ENV).ok().filter(|p| !p.is_empty()) else {
+        let hint =
+            format!("skipped: set {PYTHON_ENV} to a Python with numpy (tests/interop/setup.sh)");
+        assert!(std::env::var_os("CI").is_none(), "CI is set: {hint}");
+        println!("{hint}");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let script = format!(
+        r#"
+import sys, numpy as np
+W, H = {CASSINI_W}, {CASSINI_H}
+low = np.array([{}, {}, {}])[:, None, None]
+high = np.array([{}, {}, {}])[:, None, None]
+i = np.arange(H)[:, None] + 0.5
+j = np.arange(W)[None, :] + 0.5
+theta = np.pi - i * 2 * np.pi / H
+phi = np.pi / 2 - j * np.pi / W
+d = np.stack(np.broadcast_arrays(np.sin(phi), np.cos(phi) * np.sin(theta), np.cos(phi) * np.cos(theta)))
+with np.errstate(divide="ignore", invalid="ignore"):
+    t = np.where(d > 0, high / d, np.where(d < 0, low / d, np.inf))
+r = np.min(t, axis=0)
+np.savez(sys.argv[1], r.astype(np.float32))
+np.savez_compressed(sys.argv[2], r.astype(np.float32))
+"#,
+        LOW_M[0], LOW_M[1], LOW_M[2], HIGH_M[0], HIGH_M[1], HIGH_M[2]
+    );
+    let (plain, compressed) = (
+        dir.path().join("plain.npz"),
+        dir.path().join("compressed.npz"),
+    );
+    let out = std::process::Command::new(&python)
+        .args(["-c", &script])
+        .arg(&plain)
+        .arg(&compressed)
+        .output()
+        .expect("running python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let grid = ErpGrid::new(128).unwrap();
+    for path in [&plain, &compressed] {
+        let arr = read_npz_array(path, DEPTH_NPZ_KEY).unwrap();
+        assert_eq!(arr.shape, vec![CASSINI_H, CASSINI_W], "{}", path.display());
+        let cassini = FloatImage {
+            width: CASSINI_W,
+            height: CASSINI_H,
+            data: arr.data,
+        };
+        let erp = cassini_to_erp_range(&cassini, grid);
+        let (mut worst, mut compared) = (0f64, 0usize);
+        for v in 0..grid.height() {
+            for u in 0..grid.width() {
+                let rep = grid.dir_from_pixel(PixelCoord {
+                    u: u as f64,
+                    v: v as f64,
+                });
+                // REP 103 -> dataset axes: x_D = y_rep (left), y_D = z_rep (up), z_D = x_rep
+                let d = [rep.y, rep.z, rep.x];
+                let expected = (0..3)
+                    .map(|k| match d[k] {
+                        x if x > 0.0 => HIGH_M[k] / x,
+                        x if x < 0.0 => LOW_M[k] / x,
+                        _ => f64::INFINITY,
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                let got = f64::from(erp.data[v * grid.width() + u]);
+                // nearest-neighbour resampling: compare in relative terms away from the room's
+                // edges, where a neighbouring Cassini pixel may see the other wall
+                let rel = (got - expected).abs() / expected;
+                worst = worst.max(rel.min(1.0));
+                if rel < 0.05 {
+                    compared += 1;
+                }
+            }
+        }
+        let share = compared as f64 / grid.len() as f64;
+        assert!(
+            share > 0.97,
+            "{}: only {:.1} % of ERP pixels within 5 % of the room's range (worst {worst:.3})",
+            path.display(),
+            100.0 * share
+        );
+    }
 }
