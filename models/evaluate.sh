@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Scores the shipped SSMODE weights and the photometric sweep on the held-out set rendered by
+# Scores the shipped SSMODE weights (parallax; pass WEIGHTS for others) and the photometric sweep on the held-out set rendered by
 # models/make_eval_bags.sh: Deep360 rig with 4, 3 and 2 cameras, and the unseen trapezoid rig
 # with 4 cameras; clean and soiled rows each. Every run is the geometry check too (design.md):
 # `eval --geometry-share` scores true views, then the reference camera's image on every camera,
@@ -10,7 +10,7 @@
 set -euo pipefail
 bags="${1:-/tmp/mode360_eval}"
 out="${2:-/tmp/mode360_eval_out}"
-weights="${3:-models/ssmode_compact.safetensors}"
+weights="${3:-models/ssmode_parallax.safetensors}"
 bin="${MODE360_BIN:-target/release/mode360}"
 estimators="${ESTIMATORS:-ssmode photometric}"
 share=(--geometry-share); [[ ${GEOMETRY_SHARE:-1} == 0 ]] && share=()
