@@ -56,15 +56,22 @@ impl SweepShape {
         }
     }
 
-    /// Per sample of batch item `b`: the mean over cameras into `mean_b` `(N, C)`, and the
-    /// variance into `var_b` when given. Common channel counts run a kernel with the channel
-    /// loop unrolled at compile time.
-    fn moments(&self, f: &[f32], b: usize, mean_b: &mut [f32], var_b: Option<&mut [f32]>) {
+    /// Per sample of batch item `b`: the mean over cameras into `mean_b` `(N, C)` and the
+    /// variance into `var_b`, each when given (the forward pass keeps only the variance, the
+    /// gradient only the mean). Common channel counts run a kernel with the channel loop
+    /// unrolled at compile time.
+    fn moments(&self, f: &[f32], b: usize, mean_b: Option<&mut [f32]>, var_b: Option<&mut [f32]>) {
         match self.channels {
             4 => self.moments_n::<4>(f, b, mean_b, var_b),
             8 => self.moments_n::<8>(f, b, mean_b, var_b),
             16 => self.moments_n::<16>(f, b, mean_b, var_b),
-            _ => self.moments_any(f, b, mean_b, var_b),
+            _ => match mean_b {
+                Some(mean_b) => self.moments_any(f, b, mean_b, var_b),
+                None => {
+                    let mut mean = vec![0f32; self.samples() * self.channels];
+                    self.moments_any(f, b, &mut mean, var_b)
+                }
+            },
         }
     }
 
@@ -73,7 +80,7 @@ impl SweepShape {
         &self,
         f: &[f32],
         b: usize,
-        mean_b: &mut [f32],
+        mean_b: Option<&mut [f32]>,
         var_b: Option<&mut [f32]>,
     ) {
         let inv_m = 1.0 / self.cameras() as f32;
@@ -113,30 +120,39 @@ impl SweepShape {
                 sq[j] = sq[j] * inv_m - m[j] * m[j];
             }
         };
+        // samples t·SAMPLES_PER_TASK.. of one task into its chunks of the outputs
+        let run = |t: usize, mut mean_t: Option<&mut [f32]>, mut var_t: Option<&mut [f32]>| {
+            let len = mean_t
+                .as_deref()
+                .or(var_t.as_deref())
+                .map_or(0, <[f32]>::len);
+            let (mut m, mut sq) = ([0f32; C], [0f32; C]);
+            for j in 0..len / C {
+                sample(t * SAMPLES_PER_TASK + j, &mut m, &mut sq);
+                if let Some(mo) = mean_t.as_deref_mut() {
+                    mo[j * C..(j + 1) * C].copy_from_slice(&m);
+                }
+                if let Some(vo) = var_t.as_deref_mut() {
+                    vo[j * C..(j + 1) * C].copy_from_slice(&sq);
+                }
+            }
+        };
         let task = SAMPLES_PER_TASK * C;
-        match var_b {
-            Some(var_b) => mean_b
+        match (mean_b, var_b) {
+            (Some(mean_b), Some(var_b)) => mean_b
                 .par_chunks_mut(task)
                 .zip(var_b.par_chunks_mut(task))
                 .enumerate()
-                .for_each(|(t, (mean_t, var_t))| {
-                    let (mut m, mut sq) = ([0f32; C], [0f32; C]);
-                    for (j, (mo, vo)) in mean_t.chunks_mut(C).zip(var_t.chunks_mut(C)).enumerate() {
-                        sample(t * SAMPLES_PER_TASK + j, &mut m, &mut sq);
-                        mo.copy_from_slice(&m);
-                        vo.copy_from_slice(&sq);
-                    }
-                }),
-            None => mean_b
+                .for_each(|(t, (m, v))| run(t, Some(m), Some(v))),
+            (Some(mean_b), None) => mean_b
                 .par_chunks_mut(task)
                 .enumerate()
-                .for_each(|(t, mean_t)| {
-                    let (mut m, mut sq) = ([0f32; C], [0f32; C]);
-                    for (j, mo) in mean_t.chunks_mut(C).enumerate() {
-                        sample(t * SAMPLES_PER_TASK + j, &mut m, &mut sq);
-                        mo.copy_from_slice(&m);
-                    }
-                }),
+                .for_each(|(t, m)| run(t, Some(m), None)),
+            (None, Some(var_b)) => var_b
+                .par_chunks_mut(task)
+                .enumerate()
+                .for_each(|(t, v)| run(t, None, Some(v))),
+            (None, None) => {}
         }
     }
 
@@ -268,9 +284,8 @@ impl CustomOp1 for SweepVarianceOp {
         let sh = &self.0;
         let (n, c) = (sh.samples(), sh.channels);
         let mut var = vec![0f32; sh.batch * n * c];
-        let mut mean = vec![0f32; n * c];
         for (b, var_b) in var.chunks_mut(n * c).enumerate() {
-            sh.moments(f, b, &mut mean, Some(var_b));
+            sh.moments(f, b, None, Some(var_b));
         }
         Ok((CpuStorage::F32(var), Shape::from((sh.batch, n, c))))
     }
@@ -307,7 +322,7 @@ impl CustomOp2 for SweepVarianceGradOp {
         let mut mean = vec![0f32; n * c];
         let mut g_cam = vec![0f32; n * c];
         for b in 0..sh.batch {
-            sh.moments(f, b, &mut mean, None);
+            sh.moments(f, b, Some(&mut mean), None);
             let g_b = &g[b * n * c..(b + 1) * n * c];
             for cam in 0..m {
                 g_cam
