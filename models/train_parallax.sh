@@ -13,7 +13,7 @@ set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 s1="${1:-3000}"
 s2="${2:-1800}"
-s3="${3:-300}"
+s3="${3:-1000}"
 "$bin" train --preset parallax --width 128 --steps "$s1" --lr 2e-4 --objects-fraction 1 \
   --val-every 250 --checkpoint-every 100 --out runs/parallax_objects_w128 --resume
 streets=(--objects-fraction 0.25 --street varied --soiled-fraction 0.3 --max-grad-norm 50
