@@ -10,11 +10,11 @@
 //! `max_depth_m` (read by `eval`) and where the frames came from.
 
 use crate::bag::{BagError, RigBagWriter};
+use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use crate::deep360::{
     clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId, Deep360Split,
     DEEP360_MAX_DEPTH_M, EPISODES, EPISODE_FRAME_SLOTS,
 };
-use crate::eval::{MAX_DEPTH_KEY, SOILED_KEY};
 use crate::geometry::{ErpGrid, GeometryError};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::collections::BTreeMap;

@@ -85,9 +85,9 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
     let rig = reader.rig().clone();
     let max_depth_m = reader
         .info()
-        .get(crate::eval::MAX_DEPTH_KEY)
+        .get(crate::bag::MAX_DEPTH_KEY)
         .and_then(|v| v.parse::<f64>().ok())
-        .unwrap_or(crate::eval::DEFAULT_MAX_DEPTH_M);
+        .unwrap_or(crate::bag::DEFAULT_MAX_DEPTH_M);
     let frames: Vec<_> = reader.frames().collect::<Result<_, _>>()?;
     let width = frames
         .first()

@@ -14,7 +14,7 @@ mod geometry_share;
 
 pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
-use crate::bag::{BagError, RigBagReader};
+use crate::bag::{BagError, RigBagReader, DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY, SOILED_KEY};
 use crate::estimator::{DepthEstimator, EstimatorError};
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig, RigError};
@@ -26,14 +26,8 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// The bag metadata key that marks soiled frames.
-pub const SOILED_KEY: &str = "soiled";
-/// The bag metadata key holding the scene's maximum depth (sky), metres.
-pub const MAX_DEPTH_KEY: &str = "max_depth_m";
 /// Nearest range of the preview colour map, metres.
 pub const PREVIEW_MIN_DEPTH_M: f64 = 1.0;
-/// Maximum depth used when a bag does not say.
-pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {

@@ -1,7 +1,7 @@
 //! `mode360 synth`: render synthetic rig frames into a ROS 2 MCAP bag.
 
 use crate::bag::{BagError, RigBagWriter};
-use crate::eval::{MAX_DEPTH_KEY, SOILED_KEY};
+use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use crate::geometry::Rig;
 use crate::synth::{SynthConfig, SynthError, SynthRenderer};
 use indicatif::{ProgressBar, ProgressStyle};

@@ -7,8 +7,8 @@
 //! frame's stamp.
 
 use crate::bag::{BagError, RigBagReader, RigBagWriter};
+use crate::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use crate::estimator::{EstimatorError, EstimatorSpec};
-use crate::eval::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage, MetricsError};
 use crate::msgs::image::float_from_image_msg;
 use crate::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};

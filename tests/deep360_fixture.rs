@@ -150,10 +150,11 @@ fn missing_and_corrupt_files_are_named() {
 // ---- Conversion to a rig bag, evaluation, fine-tuning ----------------------------------
 
 use mode360::bag::RigBagReader;
+use mode360::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use mode360::deep360::{Deep360FrameVariant, DEEP360_MAX_DEPTH_M};
 use mode360::deep360_bag::{convert_deep360_to_bag, Deep360BagError, Deep360BagOptions};
 use mode360::estimator::{DepthEstimate, DepthEstimator, EstimatorError};
-use mode360::eval::{evaluate, EvalOptions, ViewMode, MAX_DEPTH_KEY, SOILED_KEY};
+use mode360::eval::{evaluate, EvalOptions, ViewMode};
 use mode360::frame::{FloatImage, RgbImage};
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::metrics::{depth_metrics, FrameAverage};

@@ -22,8 +22,8 @@ use crate::geometry::rig::RigError;
 use crate::msgs::{decode_cdr, encode_cdr, ImageMsgError, MsgError, RosMessage};
 
 pub use rig_bag::{
-    rig_tf_static, RigBagReader, RigBagWriter, GROUND_TRUTH_TOPIC, RIG_METADATA, RIG_YAML_KEY,
-    SYNTH_METADATA, TF_STATIC_TOPIC,
+    rig_tf_static, RigBagReader, RigBagWriter, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC,
+    MAX_DEPTH_KEY, RIG_METADATA, RIG_YAML_KEY, SOILED_KEY, SYNTH_METADATA, TF_STATIC_TOPIC,
 };
 pub use same_image::{write_same_image_bag, SameImageSummary, SAME_IMAGE_METADATA};
 

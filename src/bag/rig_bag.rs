@@ -26,6 +26,12 @@ pub const RIG_METADATA: &str = "mode360.rig";
 pub const RIG_YAML_KEY: &str = "yaml";
 /// Metadata record describing how synthetic data was generated.
 pub const SYNTH_METADATA: &str = "mode360.synth";
+/// Key in [`SYNTH_METADATA`] (and Deep360 bags' metadata) that marks soiled frames (`true`).
+pub const SOILED_KEY: &str = "soiled";
+/// Key in [`SYNTH_METADATA`] holding the scene's maximum depth (the sky's range), metres.
+pub const MAX_DEPTH_KEY: &str = "max_depth_m";
+/// Maximum depth assumed when a bag does not record [`MAX_DEPTH_KEY`], metres.
+pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
 /// Topic of the ground-truth range image.
 pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/depth";
 /// Topic of static transforms.
