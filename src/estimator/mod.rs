@@ -125,7 +125,7 @@ impl std::str::FromStr for EstimatorKind {
             .find(|k| k.as_str() == name)
             .ok_or_else(|| EstimatorError::UnknownEstimator {
                 name: name.to_string(),
-                known: ESTIMATOR_NAMES.join(", "),
+                known: Self::ALL.map(Self::as_str).join(", "),
             })
     }
 }
@@ -181,9 +181,6 @@ impl EstimatorSpec {
         }
     }
 }
-
-/// Estimator names accepted by [`by_name`].
-pub const ESTIMATOR_NAMES: &[&str] = &[photometric::PHOTOMETRIC_NAME, ssmode::SSMODE_NAME];
 
 /// The estimator called `name`, with its default settings (SSMODE: the shipped weights).
 pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {

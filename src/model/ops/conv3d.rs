@@ -3,6 +3,7 @@
 //! ([`super::conv3d_gemm`], [`super::conv3d_direct`]) and the composite, and the gradients.
 
 use super::composite;
+use super::conv3d_direct::RowEpilogue;
 use super::conv3d_gemm::{
     conv3d_forward_cpu, conv3d_input_grad_cpu, conv3d_weight_grad_cpu, is_exact_x2,
 };
@@ -230,7 +231,7 @@ impl CustomOp2 for Conv3dForwardOp {
     ) -> Result<(CpuStorage, Shape)> {
         let x = cpu_slice(s1, l1, self.name())?;
         let w = cpu_slice(s2, l2, self.name())?;
-        let y = conv3d_forward_cpu(x, w, &self.geom);
+        let y = conv3d_forward_cpu(x, w, &self.geom, &RowEpilogue::NONE);
         Ok((CpuStorage::F32(y), self.geom.output_shape()))
     }
 

@@ -128,15 +128,30 @@ fn padded_input<'a>(x: &'a [f32], g: &Conv3dGeometry) -> std::borrow::Cow<'a, [f
     }
 }
 
-/// Forward kernel: one rayon task per output row `(b, od, oh)`, `kD·kH` GEMMs of
-/// `(Wo × kW·Ci) · (kW·Ci × Co)` each.
-pub(super) fn conv3d_forward_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
-    if let Some(y) = conv3d_forward_direct(x, w, g, &RowEpilogue::NONE) {
+/// Forward kernel, followed by `epilogue`: the direct kernel where it serves the geometry
+/// (epilogue fused per row), else the GEMM kernels (by planes for unit strides, by rows
+/// otherwise) and the epilogue over the output.
+pub(super) fn conv3d_forward_cpu(
+    x: &[f32],
+    w: &[f32],
+    g: &Conv3dGeometry,
+    epilogue: &RowEpilogue,
+) -> Vec<f32> {
+    if let Some(y) = conv3d_forward_direct(x, w, g, epilogue) {
         return y;
     }
-    if g.stride == [1; 3] {
-        return conv3d_forward_planes_cpu(x, w, g);
-    }
+    let mut y = if g.stride == [1; 3] {
+        conv3d_forward_planes_cpu(x, w, g)
+    } else {
+        conv3d_forward_rows_cpu(x, w, g)
+    };
+    epilogue.apply(&mut y, 0, g.c_out);
+    y
+}
+
+/// [`conv3d_forward_cpu`] for any stride by rows: one rayon task per output row
+/// `(b, od, oh)`, `kD·kH` GEMMs of `(Wo × kW·Ci) · (kW·Ci × Co)` each.
+fn conv3d_forward_rows_cpu(x: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
     let xp = padded_input(x, g);
     let [dp, hp, wp] = g.padded_dims();
     let [do_, ho, wo] = g.out_dims;
