@@ -1,24 +1,23 @@
 //! mode360: multi-camera 360° depth perception.
 //!
-//! Data flow: rig YAML ([`geometry::rig`]) and synthetic scenes ([`synth`]) are recorded into
-//! ROS 2 MCAP bags ([`bag`], [`msgs`]); an estimator ([`estimator`]) turns a frame's N
-//! panoramas into an ERP range image, scored against ground truth by [`metrics`] in [`eval`].
+//! The domain library: rig calibration and projections ([`geometry`]), frames ([`frame`]),
+//! ROS 2 messages ([`msgs`]) and MCAP rig bags ([`bag`], [`deep360`] for the paper's
+//! dataset), synthetic scenes ([`synth`]), depth estimators ([`estimator`]: the photometric
+//! sweep and SSMODE, whose network is [`model`] and whose training is [`train`]), metrics
+//! ([`metrics`]), camera synchronization ([`sync`]), the ROS 2 node ([`node`]), pictures
+//! ([`viz`]) and process memory ([`memory`]). The `mode360` commands sit on top in [`cli`].
 
 pub mod bag;
-pub mod bench;
+pub mod cli;
 pub mod deep360;
-pub mod deep360_bag;
-pub mod demo;
 pub mod estimator;
-pub mod eval;
 pub mod frame;
 pub mod geometry;
+pub mod memory;
 pub mod metrics;
 pub mod model;
 pub mod msgs;
 pub mod node;
-pub mod record;
-pub mod replay;
 pub mod sync;
 pub mod synth;
 pub mod train;

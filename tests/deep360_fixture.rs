@@ -152,9 +152,9 @@ fn missing_and_corrupt_files_are_named() {
 use mode360::bag::RigBagReader;
 use mode360::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use mode360::deep360::{Deep360FrameVariant, DEEP360_MAX_DEPTH_M};
-use mode360::deep360_bag::{convert_deep360_to_bag, Deep360BagError, Deep360BagOptions};
+use mode360::cli::deep360_bag::{convert_deep360_to_bag, Deep360BagOptions};
 use mode360::estimator::{DepthEstimate, DepthEstimator, EstimatorError};
-use mode360::eval::{evaluate, EvalOptions, ViewMode};
+use mode360::cli::eval::{evaluate, EvalOptions, ViewMode};
 use mode360::frame::{FloatImage, RgbImage};
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::metrics::{depth_metrics, FrameAverage};
@@ -195,7 +195,7 @@ fn write_split(root: &Path, split: &str, frames: &[(u32, u32, usize)]) -> Vec<Wr
         .collect()
 }
 
-fn convert(root: &Path, soiled: bool, out: &Path) -> Result<usize, Deep360BagError> {
+fn convert(root: &Path, soiled: bool, out: &Path) -> anyhow::Result<usize> {
     convert_deep360_to_bag(&Deep360BagOptions {
         root: root.to_path_buf(),
         split: Deep360Split::Testing,

@@ -345,7 +345,7 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
 /// times the convolution work in every stage that has any).
 #[test]
 fn bench_profile_flops_scale_with_pixels() {
-    use mode360::bench::{bench_model_case, ModelBenchOptions};
+    use mode360::cli::bench_model::{bench_model_case, ModelBenchOptions};
     let case = |width: usize| {
         bench_model_case(&ModelBenchOptions {
             preset: mode360::model::Preset::Tiny,
@@ -387,7 +387,7 @@ fn bench_profile_flops_scale_with_pixels() {
     }
     let stage_sum: f64 = small.stages.iter().map(|s| s.median_s).sum();
     assert!(small.network_median_s > 0.0 && stage_sum <= small.network_median_s * 1.01);
-    assert!(small.peak_rss_mb >= small.rss_start_mb || !small.peak_reset);
+    assert!(small.peak_rss_mib >= small.rss_start_mib || !small.peak_reset);
 }
 
 #[test]

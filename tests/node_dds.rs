@@ -11,8 +11,9 @@ use mode360::node::pipeline::is_point_range;
 use mode360::node::ros::{
     create_publisher, create_subscription, dds_context, sensor_qos, SpunNode,
 };
-use mode360::node::{play_bag, spawn_node, DdsOptions, NodeParams, PlayOptions};
-use mode360::record::{record_synthetic_bag, RecordOptions};
+use mode360::cli::play::{play_bag, PlayOptions};
+use mode360::node::{spawn_node, DdsOptions, NodeParams};
+use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;

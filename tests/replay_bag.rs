@@ -7,8 +7,8 @@ use mode360::msgs::image::float_from_image_msg;
 use mode360::msgs::{DiagnosticArray, Image, PointCloud2, TFMessage};
 use mode360::node::diagnostics::diagnostic_value;
 use mode360::node::pipeline::{decode_points, is_point_range};
-use mode360::record::{record_synthetic_bag, RecordOptions};
-use mode360::replay::{replay_bag, ReplayOptions};
+use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
+use mode360::cli::replay::{replay_bag, ReplayOptions};
 use mode360::synth::SynthConfig;
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;

@@ -1,11 +1,9 @@
 //! The ROS 2 node: synchronized camera streams in, depth, points and confidence out.
 //!
-//! [`pipeline`] is the DDS-free core shared with offline replay ([`crate::replay`]),
+//! [`pipeline`] is the DDS-free core shared with offline replay ([`crate::cli::replay`]),
 //! [`params`] parses `--ros-args` and params files, [`diagnostics`] builds `/diagnostics`,
-//! [`clock`] is the node's system or simulated clock, [`play`] feeds a bag onto DDS and
-//! [`bench`] measures the live node.
+//! [`clock`] is the node's system or simulated clock.
 
-pub mod bench;
 pub mod clock;
 pub mod diagnostics;
 pub mod params;
@@ -41,7 +39,7 @@ pub fn resolve_topic(namespace: &str, name: &str) -> String {
 
 pub mod ros;
 pub use ros::{
-    run_node, spawn_node, stop_flag_on_signals, DdsOptions, NodeError, NodeHandle, NodeRun,
+    create_publisher, create_subscription, dds_context, latched_qos, output_qos, run_node, runtime,
+    sensor_qos, spawn_node, stop_flag_on_signals, DdsOptions, NodeError, NodeHandle, NodeRun,
+    ShutdownSignals, SpunNode,
 };
-pub mod play;
-pub use play::{play_bag, play_bag_until, PlayError, PlayOptions, PlaySummary};

@@ -52,7 +52,7 @@ pub struct ValRecord {
 /// Peak resident set size of this process (`VmHWM` in `/proc/self/status`), MiB; 0 where
 /// the file is unavailable.
 pub fn peak_rss_mb() -> f64 {
-    crate::bench::peak_resident_mb().unwrap_or(0.0)
+    crate::memory::peak_resident_mib().unwrap_or(0.0)
 }
 
 fn append_line(path: &Path, header: &str, line: &str) -> std::io::Result<()> {

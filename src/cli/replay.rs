@@ -6,15 +6,17 @@
 //! (relative node topics resolved in the root namespace) and `/diagnostics`, all at the
 //! frame's stamp.
 
-use crate::bag::{BagError, RigBagReader, RigBagWriter};
+use crate::bag::{RigBagReader, RigBagWriter};
 use crate::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
-use crate::estimator::{EstimatorError, EstimatorSpec};
-use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage, MetricsError};
+use crate::estimator::{EstimatorKind, EstimatorSpec};
+use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::float_from_image_msg;
 use crate::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
-use crate::node::pipeline::{Pipeline, PipelineError, PipelineParams};
+use crate::node::pipeline::{Pipeline, PipelineParams};
 use crate::node::{resolve_topic, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC, POINTS_TOPIC};
 use crate::sync::SyncStats;
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -22,23 +24,6 @@ use std::time::Duration;
 pub const REPLAY_NAMESPACE: &str = "/";
 /// Hardware id written in replayed diagnostics.
 pub const REPLAY_HARDWARE_ID: &str = "mode360-replay";
-
-#[derive(Debug, thiserror::Error)]
-pub enum ReplayError {
-    #[error(transparent)]
-    Bag(#[from] BagError),
-    #[error(transparent)]
-    Estimator(#[from] EstimatorError),
-    #[error("frame at {stamp_ns} ns: {source}")]
-    Pipeline {
-        stamp_ns: u64,
-        source: PipelineError,
-    },
-    #[error("bag '{file}': {problem}")]
-    Input { file: String, problem: String },
-    #[error("frame at {stamp_ns} ns: metrics: {source}")]
-    Metrics { stamp_ns: u64, source: MetricsError },
-}
 
 /// What to replay.
 #[derive(Clone, Debug)]
@@ -80,20 +65,21 @@ impl ReplaySummary {
 }
 
 /// Replays `opts.input` into `opts.output`.
-pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary, ReplayError> {
-    let reader = RigBagReader::open(&opts.input)?;
+pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
+    let reader = RigBagReader::open(&opts.input)
+        .with_context(|| format!("opening {}", opts.input.display()))?;
     let file = opts.input.display().to_string();
     let rig = reader.rig().clone();
     let info = reader.info();
     let max_depth_m = match (opts.max_depth_m, info.get(MAX_DEPTH_KEY)) {
         (Some(m), _) => m,
-        (None, Some(text)) => text.parse::<f64>().map_err(|e| ReplayError::Input {
-            file: file.clone(),
-            problem: format!("metadata '{MAX_DEPTH_KEY}' = '{text}': {e}"),
-        })?,
+        (None, Some(text)) => text
+            .parse::<f64>()
+            .map_err(|e| anyhow!("bag '{file}': metadata '{MAX_DEPTH_KEY}' = '{text}': {e}"))?,
         (None, None) => DEFAULT_MAX_DEPTH_M,
     };
-    let mut writer = RigBagWriter::create(&opts.output, &rig, &info)?;
+    let mut writer = RigBagWriter::create(&opts.output, &rig, &info)
+        .with_context(|| format!("creating {}", opts.output.display()))?;
     let mut pipeline: Option<Pipeline> = None;
     let mut summary = ReplaySummary {
         frames: 0,
@@ -124,7 +110,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary, ReplayError> {
         if opts.max_frames.is_some_and(|n| summary.frames >= n) {
             break;
         }
-        let frame = frame?;
+        let frame = frame.with_context(|| format!("bag '{file}'"))?;
         writer.write_frame(&frame)?;
         let stamp_ns = frame.stamp_ns;
         let pipe = match &mut pipeline {
@@ -133,25 +119,20 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary, ReplayError> {
                 let width = match (opts.output_width, frame.images.first()) {
                     (Some(w), _) => w,
                     (None, Some(img)) => img.width() as usize,
-                    (None, None) => {
-                        return Err(ReplayError::Input {
-                            file,
-                            problem: "frame without images".into(),
-                        })
-                    }
+                    (None, None) => bail!("bag '{file}': frame at {stamp_ns} ns without images"),
                 };
                 let params = PipelineParams {
                     output_width: width,
                     max_depth_m: max_depth_m as f32,
                 };
                 let p = Pipeline::new(rig.clone(), opts.estimator.build()?, params)
-                    .map_err(|source| ReplayError::Pipeline { stamp_ns, source })?;
+                    .with_context(|| format!("frame at {stamp_ns} ns"))?;
                 pipeline.insert(p)
             }
         };
         let out = pipe
             .process(frame.images.iter().cloned().map(Some).collect(), stamp_ns)
-            .map_err(|source| ReplayError::Pipeline { stamp_ns, source })?;
+            .with_context(|| format!("frame at {stamp_ns} ns"))?;
         let bag = writer.bag_mut();
         bag.write(&depth_topic, stamp_ns, &out.depth)?;
         bag.write(&points_topic, stamp_ns, &out.points)?;
@@ -177,13 +158,11 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary, ReplayError> {
             &diagnostic_array(stamp_ns, REPLAY_HARDWARE_ID, &health),
         )?;
         if let Some(gt) = &frame.ground_truth {
-            let pred = float_from_image_msg(&out.depth).map_err(|e| ReplayError::Input {
-                file: file.clone(),
-                problem: format!("own depth output unreadable: {e}"),
-            })?;
+            let pred = float_from_image_msg(&out.depth)
+                .with_context(|| format!("frame at {stamp_ns} ns: own depth output unreadable"))?;
             if pred.width == gt.width && pred.height == gt.height {
                 let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
-                    .map_err(|source| ReplayError::Metrics { stamp_ns, source })?;
+                    .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
                 average.push(m, None);
             }
         }
@@ -193,4 +172,50 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary, ReplayError> {
         summary.metrics = Some(average.depth());
     }
     Ok(summary)
+}
+
+#[derive(Args)]
+pub struct ReplayArgs {
+    /// Input rig bag.
+    pub input: PathBuf,
+    /// Output bag: inputs plus depth, points, confidence, /tf_static, /diagnostics.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    pub estimator: EstimatorKind,
+    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Output panorama width (default: the input width).
+    #[arg(long)]
+    pub output_width: Option<usize>,
+    /// Process at most this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+}
+
+/// `mode360 replay`: replays the bag and prints the latency and the accuracy against ground truth.
+pub fn run(a: ReplayArgs) -> Result<()> {
+    let summary = replay_bag(&ReplayOptions {
+        input: a.input,
+        output: a.out.clone(),
+        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
+        output_width: a.output_width,
+        max_depth_m: None,
+        max_frames: a.max_frames,
+    })?;
+    println!(
+        "replayed {} frames into {} (mean latency {:.0} ms)",
+        summary.frames,
+        a.out.display(),
+        summary.mean_latency_ms()
+    );
+    if let Some(m) = summary.metrics {
+        println!(
+            "against ground truth: delta1 {:.2} %, AbsRel {:.4}, MAE {:.3} m",
+            m.delta1_pct, m.abs_rel, m.mae_m
+        );
+    }
+    Ok(())
 }

@@ -9,54 +9,22 @@
 //! read back from them). The `mode360.synth` metadata record carries `soiled` and
 //! `max_depth_m` (read by `eval`) and where the frames came from.
 
-use crate::bag::{BagError, RigBagWriter};
+use super::progress::frames_bar;
+use crate::bag::RigBagWriter;
 use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use crate::deep360::{
-    clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId, Deep360Split,
+    clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360FrameId, Deep360Split,
     DEEP360_MAX_DEPTH_M, EPISODES, EPISODE_FRAME_SLOTS,
 };
-use crate::geometry::{ErpGrid, GeometryError};
-use indicatif::{ProgressBar, ProgressStyle};
+use crate::geometry::ErpGrid;
+use anyhow::{bail, Context, Result};
+use clap::Args;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
 /// Metadata `source` value of converted bags.
 pub const DEEP360_SOURCE: &str = "deep360";
-
-/// Errors of a conversion; each names the root, split, frame or file at fault.
-#[derive(Debug, thiserror::Error)]
-pub enum Deep360BagError {
-    #[error(transparent)]
-    Dataset(#[from] Deep360Error),
-    #[error("Deep360 {id} ({split}): {source}")]
-    Frame {
-        id: Deep360FrameId,
-        split: &'static str,
-        #[source]
-        source: Box<Deep360Error>,
-    },
-    #[error("Deep360 {id} ({split}): missing file {path}")]
-    MissingFile {
-        id: Deep360FrameId,
-        split: &'static str,
-        path: String,
-    },
-    #[error("Deep360 {id}: frame number must be below {EPISODE_FRAME_SLOTS} for unique stamps")]
-    FrameNumber { id: Deep360FrameId },
-    #[error("no Deep360 frames under {root} for split '{split}'{episode} (looked for ep*_500frames/{split}/depth/*_depth.npz)")]
-    NoFrames {
-        root: String,
-        split: &'static str,
-        episode: String,
-    },
-    #[error("episode must be 1 to {EPISODES}, got {0}")]
-    Episode(u32),
-    #[error("output --width: {0}")]
-    Width(#[from] GeometryError),
-    #[error(transparent)]
-    Bag(#[from] BagError),
-}
 
 /// What to convert.
 #[derive(Clone, Debug)]
@@ -89,13 +57,11 @@ pub struct Deep360BagSummary {
 /// Converts the selected frames into a rig bag at `opts.out` (see the module docs). All
 /// frames' files are checked before anything is written; a bag left half-written by a
 /// failure during conversion is removed.
-pub fn convert_deep360_to_bag(
-    opts: &Deep360BagOptions,
-) -> Result<Deep360BagSummary, Deep360BagError> {
+pub fn convert_deep360_to_bag(opts: &Deep360BagOptions) -> Result<Deep360BagSummary> {
     if let Some(e) = opts.episode.filter(|e| !(1..=EPISODES).contains(e)) {
-        return Err(Deep360BagError::Episode(e));
+        bail!("episode must be 1 to {EPISODES}, got {e}");
     }
-    let grid = ErpGrid::new(opts.width)?;
+    let grid = ErpGrid::new(opts.width).context("output --width")?;
     let split = opts.split.dir_name();
     let ds = Deep360Dataset::open(&opts.root)?;
     let mut ids: Vec<Deep360FrameId> = ds
@@ -105,24 +71,21 @@ pub fn convert_deep360_to_bag(
         .collect();
     ids.truncate(opts.max_frames.unwrap_or(usize::MAX));
     let (Some(&first), Some(&last)) = (ids.first(), ids.last()) else {
-        return Err(Deep360BagError::NoFrames {
-            root: opts.root.display().to_string(),
-            split,
-            episode: opts
-                .episode
-                .map_or_else(String::new, |e| format!(" in episode {e}")),
-        });
+        bail!(
+            "no Deep360 frames under {} for split '{split}'{} (looked for ep*_500frames/{split}/depth/*_depth.npz)",
+            opts.root.display(),
+            opts.episode
+                .map_or_else(String::new, |e| format!(" in episode {e}"))
+        );
     };
     for &id in &ids {
         if u64::from(id.frame) >= EPISODE_FRAME_SLOTS {
-            return Err(Deep360BagError::FrameNumber { id });
+            bail!(
+                "Deep360 {id}: frame number must be below {EPISODE_FRAME_SLOTS} for unique stamps"
+            );
         }
         if let Some(path) = ds.missing_file(id, opts.split, opts.soiled) {
-            return Err(Deep360BagError::MissingFile {
-                id,
-                split,
-                path: path.display().to_string(),
-            });
+            bail!("Deep360 {id} ({split}): missing file {}", path.display());
         }
     }
     let t0 = Instant::now();
@@ -146,7 +109,7 @@ fn write_bag(
     ds: &Deep360Dataset,
     ids: &[Deep360FrameId],
     grid: ErpGrid,
-) -> Result<(), Deep360BagError> {
+) -> Result<()> {
     let split = opts.split.dir_name();
     let info = BTreeMap::from([
         ("source".to_string(), DEEP360_SOURCE.to_string()),
@@ -161,28 +124,13 @@ fn write_bag(
         (SOILED_KEY.into(), opts.soiled.to_string()),
         (MAX_DEPTH_KEY.into(), DEEP360_MAX_DEPTH_M.to_string()),
     ]);
-    let rig = deep360_rig().map_err(Deep360Error::from)?;
+    let rig = deep360_rig()?;
     let mut writer = RigBagWriter::create(&opts.out, &rig, &info)?;
-    let progress = if opts.show_progress {
-        let pb = ProgressBar::new(ids.len() as u64);
-        pb.set_style(
-            ProgressStyle::with_template(
-                "converting Deep360 [{elapsed_precise}] {bar:30} {pos}/{len} frames ({per_sec}, ETA {eta})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        pb
-    } else {
-        ProgressBar::hidden()
-    };
+    let progress = frames_bar("converting Deep360", ids.len(), opts.show_progress);
     for &id in ids {
         let mut frame = ds
             .load_frame(id, opts.split, opts.soiled, grid.width())
-            .map_err(|source| Deep360BagError::Frame {
-                id,
-                split,
-                source: Box::new(source),
-            })?;
+            .with_context(|| format!("Deep360 {id} ({split})"))?;
         if let Some(gt) = frame.ground_truth.as_mut() {
             clamp_range_to_max(gt, DEEP360_MAX_DEPTH_M);
         }
@@ -191,5 +139,54 @@ fn write_bag(
     }
     writer.finish()?;
     progress.finish_and_clear();
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct Deep360BagArgs {
+    /// Dataset root: the directory holding ep1_500frames ... ep6_500frames.
+    pub root: PathBuf,
+    /// Split: train, val or test.
+    #[arg(long)]
+    pub split: Deep360Split,
+    /// Use the soiled images (rgb_soiled/) instead of the clean ones (rgb/).
+    #[arg(long)]
+    pub soiled: bool,
+    /// Panorama width in pixels (height = width / 2).
+    #[arg(long, default_value_t = 512)]
+    pub width: usize,
+    /// Convert at most this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Only this episode (1 to 6).
+    #[arg(long)]
+    pub episode: Option<u32>,
+    /// Output bag.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// `mode360 deep360-bag`: converts the frames and prints what was written.
+pub fn run(a: Deep360BagArgs) -> Result<()> {
+    let s = convert_deep360_to_bag(&Deep360BagOptions {
+        root: a.root,
+        split: a.split,
+        soiled: a.soiled,
+        width: a.width,
+        max_frames: a.max_frames,
+        episode: a.episode,
+        out: a.out.clone(),
+        show_progress: true,
+    })
+    .with_context(|| format!("converting Deep360 into {}", a.out.display()))?;
+    println!(
+        "wrote {} Deep360 frames ({} .. {}) to {} ({:.1} MB) in {:.1} s",
+        s.frames,
+        s.first,
+        s.last,
+        a.out.display(),
+        s.bytes as f64 / 1e6,
+        s.seconds
+    );
     Ok(())
 }

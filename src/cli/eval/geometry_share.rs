@@ -4,8 +4,9 @@
 //! how much of the estimator's accuracy comes from parallax rather than from what one
 //! panorama shows.
 
-use super::{evaluate, EvalError, EvalOptions, EvalReport, ViewMode};
+use super::{evaluate, EvalOptions, EvalReport, ViewMode};
 use crate::estimator::DepthEstimator;
+use anyhow::Result;
 use serde::{Deserialize, Serialize};
 
 /// One condition (clean, soiled) of the geometry check.
@@ -35,7 +36,7 @@ pub struct GeometryShareReport {
 pub fn geometry_share(
     opts: &EvalOptions,
     estimator: &mut dyn DepthEstimator,
-) -> Result<GeometryShareReport, EvalError> {
+) -> Result<GeometryShareReport> {
     let pass = |views| EvalOptions {
         views,
         ..opts.clone()

@@ -12,16 +12,17 @@
 //! same offset, so time keeps increasing by one frame period across the seam and a node's
 //! synchronizer never sees a stamp go backwards. `/tf_static` is sent once, unchanged.
 
-use super::ros::{
-    create_publisher, dds_context, latched_qos, output_qos, runtime, sensor_qos, DdsOptions,
-    NodeError, SpunNode,
-};
-use super::{CLOCK_TOPIC, TF_STATIC_TOPIC};
-use crate::bag::{BagError, BagMessage, BagReader};
+use crate::bag::{BagMessage, BagReader};
 use crate::msgs::{
     Clock, CompressedImage, DiagnosticArray, Header, Image, PointCloud2, RosMessage, TFMessage,
     Time,
 };
+use crate::node::{
+    create_publisher, dds_context, latched_qos, output_qos, runtime, sensor_qos, DdsOptions,
+    SpunNode, CLOCK_TOPIC, TF_STATIC_TOPIC,
+};
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
 use futures::future::BoxFuture;
 use futures::FutureExt;
 use ros2_client::Publisher;
@@ -36,16 +37,6 @@ const STOP_POLL: Duration = Duration::from_millis(50);
 const MAX_OFFSET_SECS: f64 = 24.0 * 3600.0;
 /// Loop gap when the bag has no measurable frame period (one message per topic).
 pub const DEFAULT_LOOP_GAP_NS: u64 = 100_000_000;
-
-#[derive(Debug, thiserror::Error)]
-pub enum PlayError {
-    #[error(transparent)]
-    Bag(#[from] BagError),
-    #[error(transparent)]
-    Node(#[from] NodeError),
-    #[error("rate must be a positive number, got {rate}")]
-    BadRate { rate: f64 },
-}
 
 /// What to play.
 #[derive(Clone, Debug)]
@@ -208,7 +199,7 @@ enum AnyPublisher {
     Clock(Publisher<Clock>),
 }
 
-fn send<T>(p: &Publisher<T>, msg: &BagMessage<'_>, offset_ns: u64) -> Result<Option<u64>, PlayError>
+fn send<T>(p: &Publisher<T>, msg: &BagMessage<'_>, offset_ns: u64) -> Result<Option<u64>>
 where
     T: RosMessage + Restamp + std::fmt::Debug,
 {
@@ -217,18 +208,14 @@ where
         m.restamp(offset_ns);
     }
     let stamp = m.stamp_ns();
-    p.publish(m).map_err(|e| {
-        PlayError::Node(NodeError::Dds {
-            what: format!("publishing on '{}'", msg.topic),
-            problem: format!("{e:?}"),
-        })
-    })?;
+    p.publish(m)
+        .map_err(|e| anyhow!("DDS: publishing on '{}': {e:?}", msg.topic))?;
     Ok(stamp)
 }
 
 impl AnyPublisher {
     /// Publishes `msg` with its stamps shifted by `offset_ns`; returns the stamp sent.
-    fn publish(&self, msg: &BagMessage<'_>, offset_ns: u64) -> Result<Option<u64>, PlayError> {
+    fn publish(&self, msg: &BagMessage<'_>, offset_ns: u64) -> Result<Option<u64>> {
         match self {
             Self::Image(p) => send(p, msg, offset_ns),
             Self::Compressed(p) => send(p, msg, offset_ns),
@@ -256,7 +243,7 @@ fn publisher_for(
     node: &mut ros2_client::Node,
     topic: &str,
     type_name: &str,
-) -> Result<Option<AnyPublisher>, NodeError> {
+) -> Result<Option<AnyPublisher>> {
     let latched = topic == TF_STATIC_TOPIC;
     Ok(Some(match type_name {
         t if t == Image::TYPE_NAME => {
@@ -284,7 +271,7 @@ fn publisher_for(
 }
 
 /// Plays `opts.input` on DDS.
-pub fn play_bag(opts: &PlayOptions) -> Result<PlaySummary, PlayError> {
+pub fn play_bag(opts: &PlayOptions) -> Result<PlaySummary> {
     play_bag_until(opts, &AtomicBool::new(false), |_| {})
 }
 
@@ -308,11 +295,12 @@ pub fn play_bag_until(
     opts: &PlayOptions,
     stop: &AtomicBool,
     mut on_published: impl FnMut(&Published<'_>),
-) -> Result<PlaySummary, PlayError> {
+) -> Result<PlaySummary> {
     if !(opts.rate.is_finite() && opts.rate > 0.0) {
-        return Err(PlayError::BadRate { rate: opts.rate });
+        bail!("rate must be a positive number, got {}", opts.rate);
     }
-    let bag = BagReader::open(&opts.input)?;
+    let bag = BagReader::open(&opts.input)
+        .with_context(|| format!("opening {}", opts.input.display()))?;
     let context = dds_context(&opts.dds)?;
     let mut spun = SpunNode::new(
         &context,
@@ -435,6 +423,51 @@ pub fn play_bag_until(
     spun.stop()?;
     drop(context);
     Ok(summary)
+}
+
+#[derive(Args)]
+pub struct PlayArgs {
+    /// Bag to publish.
+    pub input: PathBuf,
+    /// Playback speed factor (1 = recorded timing).
+    #[arg(long, default_value_t = 1.0)]
+    pub rate: f64,
+    /// Play the bag this many times (stamps keep increasing from one repetition to the next).
+    #[arg(long, default_value_t = 1)]
+    pub loops: usize,
+    /// Play the bag over and over until Ctrl-C (like `ros2 bag play --loop`).
+    #[arg(long = "loop", conflicts_with = "loops")]
+    pub forever: bool,
+    /// Do not publish /clock.
+    #[arg(long)]
+    pub no_clock: bool,
+}
+
+/// `mode360 play`: publishes a bag (looping as asked) and prints what went out.
+pub fn run(a: PlayArgs) -> Result<()> {
+    let stop = crate::node::stop_flag_on_signals()?;
+    let summary = play_bag_until(
+        &PlayOptions {
+            input: a.input,
+            rate: a.rate,
+            loops: if a.forever { usize::MAX } else { a.loops },
+            publish_clock: !a.no_clock,
+            dds: DdsOptions::from_env()?,
+            wait_for_subscribers: None,
+            wait_topics: Vec::new(),
+        },
+        &stop,
+        |_| {},
+    )?;
+    let total: u64 = summary.published.values().sum();
+    println!(
+        "played {total} messages in {:.1} s ({} repetitions); per topic: {:?}",
+        summary.seconds, summary.loops_played, summary.published
+    );
+    if !summary.skipped_topics.is_empty() {
+        println!("skipped (unsupported types): {:?}", summary.skipped_topics);
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -14,40 +14,18 @@ use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
-use crate::estimator::ssmode::SsmodeEstimator;
-use crate::estimator::{DepthEstimator, EstimatorError};
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
+
+use crate::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
+use crate::estimator::DepthEstimator;
 use crate::geometry::{ErpGrid, Rig};
+use crate::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
 use crate::model::{
-    load_weights, ModelError, Preset, Ssmode, SsmodeConfig, StageProfiler, SweepSampling,
+    load_weights, read_config, Preset, Ssmode, SsmodeConfig, StageProfiler, SweepSampling,
 };
 use crate::synth::{SynthConfig, SynthRenderer};
 use crate::train::data::image_tensor;
-
-/// Bytes per mebibyte.
-const BYTES_PER_MB: f64 = 1024.0 * 1024.0;
-/// Value written to `/proc/self/clear_refs` to reset the peak resident set size.
-const CLEAR_REFS_RESET_PEAK: &str = "5";
-
-/// Errors of the benchmark.
-#[derive(Debug, thiserror::Error)]
-pub enum BenchError {
-    #[error("{0}")]
-    Model(#[from] ModelError),
-    #[error("{0}")]
-    Estimator(#[from] EstimatorError),
-    #[error("rendering the benchmark frame: {0}")]
-    Synth(#[from] crate::synth::SynthError),
-    #[error("{0}")]
-    Geometry(#[from] crate::geometry::GeometryError),
-    #[error("bench option '{field}': {problem}")]
-    BadOption { field: String, problem: String },
-}
-
-impl From<candle_core::Error> for BenchError {
-    fn from(e: candle_core::Error) -> Self {
-        BenchError::Model(ModelError::Candle(e))
-    }
-}
 
 /// What one case measures.
 #[derive(Clone, Debug)]
@@ -96,38 +74,11 @@ pub struct ModelBenchCase {
     /// Median of the estimator per frame: resize in, network, resize out (panoramas at `width`).
     pub end_to_end_median_s: f64,
     /// Resident memory before the model was built.
-    pub rss_start_mb: f64,
+    pub rss_start_mib: f64,
     /// Peak resident memory of the case (model, tables, passes).
-    pub peak_rss_mb: f64,
+    pub peak_rss_mib: f64,
     /// Whether the peak could be reset at the start (else it includes earlier work).
     pub peak_reset: bool,
-}
-
-/// Current resident set size (`VmRSS`) in MB, when `/proc` has it.
-pub fn resident_mb() -> Option<f64> {
-    proc_status_kb("VmRSS:").map(|kb| kb * 1024.0 / BYTES_PER_MB)
-}
-
-/// Peak resident set size (`VmHWM`) in MB, when `/proc` has it.
-pub fn peak_resident_mb() -> Option<f64> {
-    proc_status_kb("VmHWM:").map(|kb| kb * 1024.0 / BYTES_PER_MB)
-}
-
-/// Resets the peak resident set size (Linux 4.0+); false where that is not possible.
-pub fn reset_peak_resident() -> bool {
-    std::fs::write("/proc/self/clear_refs", CLEAR_REFS_RESET_PEAK).is_ok()
-}
-
-/// The value in kB of the field `key` (e.g. `"VmRSS:"`) in the text of `/proc/<pid>/status`.
-pub fn status_field_kb(status: &str, key: &str) -> Option<f64> {
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix(key))
-        .and_then(|rest| rest.trim().trim_end_matches("kB").trim().parse().ok())
-}
-
-fn proc_status_kb(key: &str) -> Option<f64> {
-    status_field_kb(&std::fs::read_to_string("/proc/self/status").ok()?, key)
 }
 
 /// The network with untracked weights: from `weights` (config from its metadata) or random
@@ -137,7 +88,7 @@ fn build_network(
     width: Option<usize>,
     weights: Option<&Path>,
     device: &Device,
-) -> Result<(Ssmode, usize), BenchError> {
+) -> Result<(Ssmode, usize)> {
     let (mut cfg, vb) = match weights {
         Some(path) => load_weights(path, device)?,
         None => {
@@ -147,10 +98,10 @@ fn build_network(
             let varmap = VarMap::new();
             Ssmode::new(&cfg, VarBuilder::from_varmap(&varmap, DType::F32, device))?;
             let plain: HashMap<String, Tensor> = {
-                let data = varmap.data().lock().map_err(|_| BenchError::BadOption {
-                    field: "weights".into(),
-                    problem: "variable map lock poisoned".into(),
-                })?;
+                let data = varmap
+                    .data()
+                    .lock()
+                    .map_err(|_| anyhow!("the variable map's lock is poisoned"))?;
                 data.iter()
                     .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
                     .collect()
@@ -167,7 +118,7 @@ fn build_network(
 }
 
 /// Parameters of the network `cfg` describes (counted on a fresh VarMap).
-fn count_parameters(cfg: &SsmodeConfig, device: &Device) -> Result<usize, BenchError> {
+fn count_parameters(cfg: &SsmodeConfig, device: &Device) -> Result<usize> {
     let varmap = VarMap::new();
     Ssmode::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, device))?;
     Ok(varmap.all_vars().iter().map(|v| v.elem_count()).sum())
@@ -183,15 +134,12 @@ fn median(values: &mut [f64]) -> f64 {
 }
 
 /// Runs one case. See the module docs.
-pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, BenchError> {
+pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
     if opts.runs == 0 {
-        return Err(BenchError::BadOption {
-            field: "runs".into(),
-            problem: "must be at least 1".into(),
-        });
+        bail!("--runs must be at least 1");
     }
     let peak_reset = reset_peak_resident();
-    let rss_start_mb = resident_mb().unwrap_or(0.0);
+    let rss_start_mib = resident_mib().unwrap_or(0.0);
     let device = Device::Cpu;
     let (model, parameters) =
         build_network(opts.preset, opts.width, opts.weights.as_deref(), &device)?;
@@ -201,7 +149,8 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, Benc
         seed: opts.seed,
         width: cfg.width,
         ..Default::default()
-    })?;
+    })
+    .context("rendering the benchmark frame")?;
     let frame = renderer.render_frame(&opts.rig, 0);
     let images = frame
         .images
@@ -274,8 +223,8 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase, Benc
         network_median_s: median(&mut network),
         network_min_s,
         end_to_end_median_s: median(&mut end_to_end),
-        rss_start_mb,
-        peak_rss_mb: peak_resident_mb().unwrap_or(0.0),
+        rss_start_mib,
+        peak_rss_mib: peak_resident_mib().unwrap_or(0.0),
         peak_reset,
     })
 }
@@ -329,7 +278,7 @@ pub fn format_table(cases: &[ModelBenchCase]) -> String {
         ));
     }
     out.push_str(
-        "\n| preset | input | params | spheres / hypotheses | network s (median, min) | end-to-end s | peak RSS MB |\n|---|---|---|---|---|---|---|\n",
+        "\n| preset | input | params | spheres / hypotheses | network s (median, min) | end-to-end s | peak RSS MiB |\n|---|---|---|---|---|---|---|\n",
     );
     for c in cases {
         out.push_str(&format!(
@@ -343,9 +292,119 @@ pub fn format_table(cases: &[ModelBenchCase]) -> String {
             c.network_median_s,
             c.network_min_s,
             c.end_to_end_median_s,
-            c.peak_rss_mb,
+            c.peak_rss_mib,
             if c.peak_reset { "" } else { " (not reset)" }
         ));
     }
     out
+}
+
+#[derive(Args)]
+pub struct BenchModelArgs {
+    /// Presets to measure (comma separated; parallax is the shipped one).
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Preset::Parallax, Preset::Compact])]
+    pub presets: Vec<Preset>,
+    /// Input widths (comma separated, height = width / 2).
+    #[arg(long, value_delimiter = ',', default_value = "256,512")]
+    pub widths: Vec<usize>,
+    /// Trained weights, used for the preset they were trained as (default: the shipped weights
+    /// of each preset when present; random weights cost the same).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Rig calibration YAML (its camera count is the number of views).
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    pub rig: PathBuf,
+    /// Timed passes per case (after one warm-up pass).
+    #[arg(long, default_value_t = 3)]
+    pub runs: usize,
+    /// Write all cases as JSON here.
+    #[arg(long, default_value = "bench_model.json")]
+    pub json: PathBuf,
+    /// Run the cases in this process instead of one child process per case (peak memory then
+    /// includes earlier cases where the kernel cannot reset it).
+    #[arg(long)]
+    pub in_process: bool,
+}
+
+pub fn run(a: BenchModelArgs) -> Result<()> {
+    let rig = Rig::from_file(&a.rig)?;
+    // candidate weights, first match per preset: the given file, then the shipped ones
+    let mut candidates = Vec::new();
+    if let Some(w) = &a.weights {
+        let cfg =
+            read_config(w).with_context(|| format!("reading the config of {}", w.display()))?;
+        candidates.push((cfg.name, w.clone()));
+    }
+    for shipped in shipped_weights_paths() {
+        if let Ok(cfg) = read_config(&shipped) {
+            candidates.push((cfg.name, shipped));
+        }
+    }
+    let mut cases: Vec<ModelBenchCase> = Vec::new();
+    for preset in &a.presets {
+        for &width in &a.widths {
+            let weights = candidates
+                .iter()
+                .find(|(name, _)| name == preset.as_str())
+                .map(|(_, path)| path.clone());
+            eprintln!("bench-model: {preset} at {width}x{} ...", width / 2);
+            let case = if a.in_process || (a.presets.len() == 1 && a.widths.len() == 1) {
+                bench_model_case(&ModelBenchOptions {
+                    preset: *preset,
+                    width: Some(width),
+                    weights,
+                    rig: rig.clone(),
+                    runs: a.runs,
+                    seed: 1,
+                })?
+            } else {
+                bench_model_child(&a, *preset, width, weights.as_deref())?
+            };
+            cases.push(case);
+        }
+    }
+    print!("{}", format_table(&cases));
+    std::fs::write(&a.json, serde_json::to_string_pretty(&cases)?)
+        .with_context(|| format!("writing {}", a.json.display()))?;
+    println!("wrote {}", a.json.display());
+    Ok(())
+}
+
+/// One case in a child process, so that its peak memory is its own.
+fn bench_model_child(
+    a: &BenchModelArgs,
+    preset: Preset,
+    width: usize,
+    weights: Option<&std::path::Path>,
+) -> Result<ModelBenchCase> {
+    let json = std::env::temp_dir().join(format!(
+        "mode360-bench-{}-{preset}-{width}.json",
+        std::process::id()
+    ));
+    let exe = std::env::current_exe().context("locating the mode360 binary")?;
+    let mut cmd = std::process::Command::new(exe);
+    cmd.arg("bench-model")
+        .args(["--presets", preset.as_str()])
+        .args(["--widths", &width.to_string()])
+        .args(["--runs", &a.runs.to_string()])
+        .arg("--rig")
+        .arg(&a.rig)
+        .arg("--json")
+        .arg(&json)
+        .stdout(std::process::Stdio::null());
+    if let Some(w) = weights {
+        cmd.arg("--weights").arg(w);
+    }
+    let status = cmd.status().context("starting the bench child process")?;
+    if !status.success() {
+        bail!("bench-model case {preset} at width {width} failed ({status})");
+    }
+    let text =
+        std::fs::read_to_string(&json).with_context(|| format!("reading {}", json.display()))?;
+    // Best effort: a leftover file in the temp dir is harmless.
+    let _ = std::fs::remove_file(&json);
+    let mut cases: Vec<ModelBenchCase> = serde_json::from_str(&text)?;
+    cases
+        .pop()
+        .with_context(|| format!("{} holds no case", json.display()))
 }

@@ -5,16 +5,20 @@
 //! (colour-mapped depth under the panorama; a top-down view of the point cloud) and scores the
 //! received depth against the bag's ground truth.
 
+use super::play::{play_bag, PlayOptions};
 use crate::bag::{BagWriter, RigBagReader};
-use crate::estimator::EstimatorSpec;
+use crate::estimator::{EstimatorKind, EstimatorSpec};
 use crate::frame::{FloatImage, RgbImage};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use crate::msgs::{Header, Image, PointCloud2};
 use crate::node::pipeline::decode_points;
-use crate::node::ros::{create_subscription, dds_context, runtime, SpunNode};
-use crate::node::{play_bag, spawn_node, DdsOptions, NodeParams, PlayOptions};
+use crate::node::{
+    create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeParams, SpunNode,
+};
 use crate::viz::{colorize_range, stack_vertical};
+use anyhow::{anyhow, Context, Result};
+use clap::Args;
 use image::Rgb;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
@@ -32,18 +36,6 @@ const TOP_VIEW_PX: u32 = 512;
 const TOP_VIEW_M_PER_PX: f32 = 0.1;
 /// Nearest range of the preview colour map, metres.
 const PREVIEW_MIN_DEPTH_M: f32 = 1.0;
-
-#[derive(Debug, thiserror::Error)]
-pub enum DemoError {
-    #[error(transparent)]
-    Bag(#[from] crate::bag::BagError),
-    #[error(transparent)]
-    Node(#[from] crate::node::NodeError),
-    #[error(transparent)]
-    Play(Box<crate::node::PlayError>),
-    #[error("{0}")]
-    Other(String),
-}
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -69,19 +61,15 @@ pub struct DemoSummary {
     pub metrics: Option<DepthMetrics>,
 }
 
-impl From<crate::node::PlayError> for DemoError {
-    fn from(e: crate::node::PlayError) -> Self {
-        Self::Play(Box::new(e))
-    }
-}
-
-fn other(e: impl std::fmt::Display) -> DemoError {
-    DemoError::Other(e.to_string())
+/// A DDS read error of the listener, as an error of the demo.
+fn dds_read(e: impl std::fmt::Display) -> anyhow::Error {
+    anyhow!("reading the node's outputs from DDS: {e}")
 }
 
 /// Runs the demo (see the module docs).
-pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
-    let reader = RigBagReader::open(&opts.bag)?;
+pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
+    let reader =
+        RigBagReader::open(&opts.bag).with_context(|| format!("opening {}", opts.bag.display()))?;
     let rig = reader.rig().clone();
     let max_depth_m = reader
         .info()
@@ -137,13 +125,13 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
     let mut confs: BTreeMap<u64, Image> = BTreeMap::new();
     let t0 = Instant::now();
     loop {
-        while let Some((m, _)) = depth_sub.take().map_err(other)? {
+        while let Some((m, _)) = depth_sub.take().map_err(dds_read)? {
             depths.insert(m.header.stamp.to_nanos(), m);
         }
-        while let Some((m, _)) = points_sub.take().map_err(other)? {
+        while let Some((m, _)) = points_sub.take().map_err(dds_read)? {
             clouds.insert(m.header.stamp.to_nanos(), m);
         }
-        while let Some((m, _)) = conf_sub.take().map_err(other)? {
+        while let Some((m, _)) = conf_sub.take().map_err(dds_read)? {
             confs.insert(m.header.stamp.to_nanos(), m);
         }
         let h = node.health();
@@ -185,17 +173,20 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
     out.finish()?;
 
     // Metrics and previews.
-    std::fs::create_dir_all(&opts.png_dir).map_err(other)?;
+    std::fs::create_dir_all(&opts.png_dir)
+        .with_context(|| format!("creating {}", opts.png_dir.display()))?;
     let mut average = FrameAverage::default();
     let mut total_points = 0usize;
     for (n, f) in frames.iter().enumerate() {
         let Some(depth) = depths.get(&f.stamp_ns) else {
             continue;
         };
-        let pred = float_from_image_msg(depth).map_err(other)?;
+        let pred = float_from_image_msg(depth)
+            .with_context(|| format!("the depth image at {} ns", f.stamp_ns))?;
         if let Some(gt) = &f.ground_truth {
             average.push(
-                depth_metrics(&pred.data, &gt.data, max_depth_m).map_err(other)?,
+                depth_metrics(&pred.data, &gt.data, max_depth_m)
+                    .with_context(|| format!("metrics of the frame at {} ns", f.stamp_ns))?,
                 None,
             );
         }
@@ -206,14 +197,16 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary, DemoError> {
         if let Some(gt) = &f.ground_truth {
             rows.push(colorize_range(gt, PREVIEW_MIN_DEPTH_M, max_depth_m as f32));
         }
+        let png = opts.png_dir.join(format!("demo_depth_{n:03}.png"));
         stack_vertical(&rows)
-            .save(opts.png_dir.join(format!("demo_depth_{n:03}.png")))
-            .map_err(other)?;
+            .save(&png)
+            .with_context(|| format!("writing {}", png.display()))?;
         if let Some(points) = clouds.get(&f.stamp_ns).and_then(decode_points) {
             total_points += points.len();
+            let png = opts.png_dir.join(format!("demo_points_top_{n:03}.png"));
             top_view(&points)
-                .save(opts.png_dir.join(format!("demo_points_top_{n:03}.png")))
-                .map_err(other)?;
+                .save(&png)
+                .with_context(|| format!("writing {}", png.display()))?;
         }
     }
     Ok(DemoSummary {
@@ -249,4 +242,60 @@ fn top_view(points: &[crate::node::pipeline::DecodedPoint]) -> RgbImage {
         }
     }
     img
+}
+
+#[derive(Args)]
+pub struct DemoArgs {
+    /// Bag to play into the node.
+    #[arg(long, default_value = "bags/demo_deep360.mcap")]
+    pub bag: PathBuf,
+    /// Rig calibration YAML.
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    pub rig: PathBuf,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    pub estimator: EstimatorKind,
+    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Output bag: inputs plus what the node published.
+    #[arg(long, default_value = "demo_out.mcap")]
+    pub out: PathBuf,
+    /// Folder for the preview PNGs.
+    #[arg(long, default_value = "demo_out")]
+    pub png_dir: PathBuf,
+    /// Playback speed factor: slow enough that every frame is processed.
+    #[arg(long, default_value_t = 0.03)]
+    pub rate: f64,
+}
+
+/// `mode360 demo`: runs the demo and prints what came back and how good it was.
+pub fn run(a: DemoArgs) -> Result<()> {
+    let mut dds = DdsOptions::from_env()?;
+    dds.loopback_only = true;
+    let s = run_demo(&DemoOptions {
+        bag: a.bag,
+        rig_file: a.rig,
+        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
+        out_bag: a.out.clone(),
+        png_dir: a.png_dir.clone(),
+        rate: a.rate,
+        dds,
+    })?;
+    println!(
+        "played {} frames; received {} depth images and {} point clouds ({:.0} points each)",
+        s.frames_played, s.depth_received, s.points_received, s.mean_points
+    );
+    if let Some(m) = s.metrics {
+        println!(
+            "depth vs ground truth: MAE {:.3} m, RMSE {:.3} m, AbsRel {:.4}, SqRel {:.3}, SILog {:.3}, delta1 {:.2} %, delta2 {:.2} %, delta3 {:.2} %",
+            m.mae_m, m.rmse_m, m.abs_rel, m.sq_rel_m, m.silog, m.delta1_pct, m.delta2_pct, m.delta3_pct
+        );
+    }
+    println!(
+        "wrote {} and previews in {}",
+        a.out.display(),
+        a.png_dir.display()
+    );
+    Ok(())
 }

@@ -11,23 +11,32 @@
 //! * groups the node synchronized, processed and dropped (mailbox), and groups published but
 //!   never synchronized (lost on best-effort DDS or unmatched);
 //! * resident memory of the process (node, player and listener; VmRSS from
-//!   `/proc/self/status`) every second: start, max, end, and the least-squares slope in MB/min
+//!   `/proc/self/status`) every second: start, max, end, and the least-squares slope in MiB/min
 //!   over the steady state, the second half of the time after the first depth arrived
 //!   (allocator arenas and DDS buffers fill up during the first half; growth after that
 //!   means a leak).
 
-use super::play::{play_bag_until, PlayError, PlayOptions, Published};
-use super::ros::{create_subscription, dds_context, runtime, ShutdownSignals, SpunNode};
-use super::{spawn_node, DdsOptions, NodeError, NodeHealth, NodeParams};
-use crate::bag::{BagError, RigBagReader};
-use crate::estimator::EstimatorSpec;
+use super::play::{play_bag_until, PlayOptions, Published};
+use super::synth::{record_synthetic_bag, RecordOptions};
+use crate::bag::RigBagReader;
+use crate::estimator::{EstimatorKind, EstimatorSpec};
+use crate::memory::resident_mib;
 use crate::msgs::{CompressedImage, Image, RosMessage};
-use crate::record::{record_synthetic_bag, RecordOptions};
+use crate::node::params::DEFAULT_RIG_FILE;
+use crate::node::{
+    create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHealth, NodeParams,
+    ShutdownSignals, SpunNode,
+};
 use crate::synth::SynthConfig;
+use anyhow::{anyhow, bail, Context, Result};
+
+mod report;
+use clap::Args;
 use futures::StreamExt;
+use report::load_average_1m;
+pub use report::{percentile, slope_mib_per_min, BenchReport, LatencyStats, RssStats};
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
-use serde::Serialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -49,32 +58,6 @@ const SETTLE_TIMEOUT: Duration = Duration::from_secs(2);
 const SETTLE_POLL: Duration = Duration::from_millis(20);
 /// Memory sampling period.
 const RSS_PERIOD: Duration = Duration::from_secs(1);
-/// Seconds per minute, for the RSS slope.
-const SECS_PER_MIN: f64 = 60.0;
-
-#[derive(Debug, thiserror::Error)]
-pub enum BenchError {
-    #[error("estimator 'ssmode' needs trained weights at {path}, which does not exist")]
-    MissingWeights { path: String },
-    #[error(transparent)]
-    Node(#[from] NodeError),
-    #[error(transparent)]
-    Bag(#[from] BagError),
-    #[error(transparent)]
-    Play(Box<PlayError>),
-    #[error("bench: {0}")]
-    Other(String),
-}
-
-impl From<PlayError> for BenchError {
-    fn from(e: PlayError) -> Self {
-        Self::Play(Box::new(e))
-    }
-}
-
-fn other(e: impl std::fmt::Display) -> BenchError {
-    BenchError::Other(e.to_string())
-}
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -103,233 +86,13 @@ impl Default for BenchOptions {
             duration: Duration::from_secs(60),
             width: None,
             bag: None,
-            rig_file: super::params::DEFAULT_RIG_FILE.into(),
+            rig_file: DEFAULT_RIG_FILE.into(),
             rate: 1.0,
             dds: DdsOptions {
                 domain_id: DEFAULT_BENCH_DOMAIN,
                 loopback_only: true,
             },
         }
-    }
-}
-
-/// Latency distribution, milliseconds.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct LatencyStats {
-    pub count: usize,
-    pub min_ms: f64,
-    pub median_ms: f64,
-    pub p95_ms: f64,
-    pub max_ms: f64,
-}
-
-impl LatencyStats {
-    /// Of `samples_ms` (any order); `None` when empty.
-    pub fn from_samples(samples_ms: &[f64]) -> Option<Self> {
-        let mut v: Vec<f64> = samples_ms
-            .iter()
-            .copied()
-            .filter(|x| x.is_finite())
-            .collect();
-        if v.is_empty() {
-            return None;
-        }
-        v.sort_by(f64::total_cmp);
-        Some(Self {
-            count: v.len(),
-            min_ms: v[0],
-            median_ms: percentile(&v, 50.0),
-            p95_ms: percentile(&v, 95.0),
-            max_ms: v[v.len() - 1],
-        })
-    }
-}
-
-/// Percentile `p` (0..=100) of sorted, non-empty `v`, interpolating linearly between ranks
-/// (numpy's default).
-pub fn percentile(v: &[f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let pos = (p.clamp(0.0, 100.0) / 100.0) * (v.len() - 1) as f64;
-    let lo = pos.floor() as usize;
-    let hi = pos.ceil() as usize;
-    v[lo] + (v[hi] - v[lo]) * (pos - lo as f64)
-}
-
-/// Least-squares slope of `(seconds, megabytes)` samples, in MB per minute (`None` for fewer
-/// than two distinct times).
-pub fn slope_mb_per_min(samples: &[(f64, f64)]) -> Option<f64> {
-    let n = samples.len() as f64;
-    if samples.len() < 2 {
-        return None;
-    }
-    let mt = samples.iter().map(|s| s.0).sum::<f64>() / n;
-    let mm = samples.iter().map(|s| s.1).sum::<f64>() / n;
-    let stt: f64 = samples.iter().map(|s| (s.0 - mt).powi(2)).sum();
-    if stt <= 0.0 {
-        return None;
-    }
-    let stm: f64 = samples.iter().map(|s| (s.0 - mt) * (s.1 - mm)).sum();
-    Some(stm / stt * SECS_PER_MIN)
-}
-
-/// Resident memory of this process in MB (VmRSS of `/proc/self/status`), if readable.
-pub fn rss_mb() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/self/status").ok()?;
-    parse_vm_rss_mb(&text)
-}
-
-/// VmRSS in MB (10^6 bytes) from the text of `/proc/<pid>/status`.
-pub fn parse_vm_rss_mb(status: &str) -> Option<f64> {
-    crate::bench::status_field_kb(status, "VmRSS:").map(|kb| kb * 1024.0 / 1e6)
-}
-
-/// 1-minute load average, if readable.
-fn load_average_1m() -> Option<f64> {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
-
-/// Resident memory over the run, MB.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct RssStats {
-    pub start_mb: f64,
-    pub max_mb: f64,
-    pub end_mb: f64,
-    /// Over the steady state: the second half of the time after the first depth.
-    pub slope_mb_per_min: Option<f64>,
-    /// Start of the steady state, seconds since the start.
-    pub steady_from_s: Option<f64>,
-    /// Band of the steady-state samples (RSS rises and falls with each inference).
-    pub steady_min_mb: Option<f64>,
-    pub steady_max_mb: Option<f64>,
-    /// `(seconds since the start, MB)`, one a second.
-    pub samples: Vec<(f64, f64)>,
-}
-
-/// Everything measured.
-#[derive(Clone, Debug, Serialize)]
-pub struct BenchReport {
-    pub estimator: String,
-    pub bag: String,
-    pub input_width: usize,
-    pub output_width: usize,
-    pub cameras: usize,
-    pub play_rate: f64,
-    /// Playing window, seconds.
-    pub window_s: f64,
-    /// Complete groups (all cameras) published.
-    pub groups_published: u64,
-    pub input_rate_hz: f64,
-    pub depth_received: u64,
-    pub output_rate_hz: f64,
-    /// Groups the node synchronized / ran through the pipeline / dropped in its mailbox.
-    pub groups_synced: u64,
-    pub groups_processed: u64,
-    pub groups_dropped: u64,
-    /// Published but never synchronized (lost on best-effort DDS, or unmatched).
-    pub groups_lost: u64,
-    pub pipeline_errors: u64,
-    /// The node's own pipeline time (estimator + messages), mean, milliseconds.
-    pub mean_inference_ms: Option<f64>,
-    pub latency: Option<LatencyStats>,
-    pub rss: Option<RssStats>,
-    pub cpus: usize,
-    pub load_average_1m_start: Option<f64>,
-    pub load_average_1m_end: Option<f64>,
-}
-
-impl BenchReport {
-    /// A Markdown table.
-    pub fn to_table(&self) -> String {
-        let opt = |v: Option<f64>, prec: usize| {
-            v.map_or_else(|| "n/a".to_string(), |x| format!("{x:.prec$}"))
-        };
-        let mut rows: Vec<(String, String)> = vec![
-            ("estimator".into(), self.estimator.clone()),
-            ("bag".into(), self.bag.clone()),
-            (
-                "input / output width".into(),
-                format!("{} / {} px", self.input_width, self.output_width),
-            ),
-            ("cameras".into(), self.cameras.to_string()),
-            ("play rate".into(), format!("{}", self.play_rate)),
-            ("window".into(), format!("{:.1} s", self.window_s)),
-            (
-                "input".into(),
-                format!(
-                    "{} groups, {:.2} groups/s",
-                    self.groups_published, self.input_rate_hz
-                ),
-            ),
-            (
-                "output".into(),
-                format!(
-                    "{} depth, {:.3} depth/s",
-                    self.depth_received, self.output_rate_hz
-                ),
-            ),
-            (
-                "node groups".into(),
-                format!(
-                    "synced {}, processed {}, dropped (mailbox) {}, lost before sync {}, errors {}",
-                    self.groups_synced,
-                    self.groups_processed,
-                    self.groups_dropped,
-                    self.groups_lost,
-                    self.pipeline_errors
-                ),
-            ),
-            (
-                "inference (node, mean)".into(),
-                format!("{} ms", opt(self.mean_inference_ms, 0)),
-            ),
-        ];
-        match &self.latency {
-            Some(l) => rows.push((
-                "latency min / median / p95 / max".into(),
-                format!(
-                    "{:.0} / {:.0} / {:.0} / {:.0} ms (n = {})",
-                    l.min_ms, l.median_ms, l.p95_ms, l.max_ms, l.count
-                ),
-            )),
-            None => rows.push(("latency".into(), "no depth received".into())),
-        }
-        if let Some(r) = &self.rss {
-            rows.push((
-                "RSS start / max / end".into(),
-                format!("{:.0} / {:.0} / {:.0} MB", r.start_mb, r.max_mb, r.end_mb),
-            ));
-            rows.push((
-                "RSS slope (steady state)".into(),
-                format!(
-                    "{} MB/min (from {} s on, band {} to {} MB)",
-                    opt(r.slope_mb_per_min, 2),
-                    opt(r.steady_from_s, 0),
-                    opt(r.steady_min_mb, 0),
-                    opt(r.steady_max_mb, 0)
-                ),
-            ));
-        }
-        rows.push((
-            "machine".into(),
-            format!(
-                "{} CPUs, load average {} -> {}",
-                self.cpus,
-                opt(self.load_average_1m_start, 2),
-                opt(self.load_average_1m_end, 2)
-            ),
-        ));
-        let mut out = String::from("| measure | value |\n|---|---|\n");
-        for (k, v) in rows {
-            out.push_str(&format!("| {k} | {v} |\n"));
-        }
-        out
     }
 }
 
@@ -347,11 +110,11 @@ fn temp_path(name: &str) -> PathBuf {
 }
 
 /// Width of the first camera image of a rig bag.
-fn bag_width(reader: &RigBagReader) -> Result<usize, BenchError> {
+fn bag_width(reader: &RigBagReader) -> Result<usize> {
     let frame = reader
         .frames()
         .next()
-        .ok_or_else(|| other("the bag has no complete frame"))??;
+        .ok_or_else(|| anyhow!("the bag has no complete frame"))??;
     Ok(frame.images[0].width() as usize)
 }
 
@@ -366,12 +129,13 @@ struct PlayerState {
 }
 
 /// Runs the bench (see the module docs).
-pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
+pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
     if let Some(path) = opts.estimator.weights_path() {
         if !path.exists() {
-            return Err(BenchError::MissingWeights {
-                path: path.display().to_string(),
-            });
+            bail!(
+                "estimator 'ssmode' needs trained weights at {}, which does not exist",
+                path.display()
+            );
         }
     }
     // The bag: given, bundled, or rendered.
@@ -389,7 +153,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
                 temps.push(TempFile(out.clone()));
                 tracing::info!("rendering {RENDERED_FRAMES} frames at {width} px");
                 record_synthetic_bag(&RecordOptions {
-                    rig: crate::geometry::Rig::from_file(&opts.rig_file).map_err(other)?,
+                    rig: crate::geometry::Rig::from_file(&opts.rig_file)?,
                     config: SynthConfig {
                         width,
                         seed: 1,
@@ -400,7 +164,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
                     out: out.clone(),
                     show_progress: false,
                 })
-                .map_err(other)?;
+                .context("rendering the bench input")?;
                 out
             }
         }
@@ -411,7 +175,8 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
     let output_width = opts.width.unwrap_or(input_width);
     drop(reader);
     let rig_path = temp_path("rig.yaml");
-    std::fs::write(&rig_path, rig.to_yaml()).map_err(other)?;
+    std::fs::write(&rig_path, rig.to_yaml())
+        .with_context(|| format!("writing {}", rig_path.display()))?;
     temps.push(TempFile(rig_path.clone()));
     let camera_topics: Vec<String> = rig.cameras.iter().map(|c| c.topic.clone()).collect();
     let n_cams = camera_topics.len();
@@ -448,8 +213,8 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
         .await;
     });
     let mut rss_samples: Vec<(f64, f64)> = Vec::new();
-    if let Some(mb) = rss_mb() {
-        rss_samples.push((bench_start.elapsed().as_secs_f64(), mb));
+    if let Some(mib) = resident_mib() {
+        rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
     }
 
     // Player.
@@ -489,7 +254,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
                     }
                 })
             })
-            .map_err(other)?
+            .context("starting the player thread")?
     };
 
     // Listen until the duration is over (counted from the first publish) or a signal.
@@ -527,8 +292,8 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
                     }
                 }
                 _ = rss_tick.tick() => {
-                    if let Some(mb) = rss_mb() {
-                        rss_samples.push((bench_start.elapsed().as_secs_f64(), mb));
+                    if let Some(mib) = resident_mib() {
+                        rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
                     }
                 }
             }
@@ -540,15 +305,15 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
     stop.store(true, Ordering::SeqCst);
     let play_result = player
         .join()
-        .map_err(|_| other("the player thread panicked"))?;
+        .map_err(|_| anyhow!("the player thread panicked"))?;
     // Groups still in flight when the player stopped are not lost: let the node take them.
     let groups_published = lock_published(&published).complete;
     let t0 = Instant::now();
     while node.health().sync.groups < groups_published && t0.elapsed() < SETTLE_TIMEOUT {
         std::thread::sleep(SETTLE_POLL);
     }
-    if let Some(mb) = rss_mb() {
-        rss_samples.push((bench_start.elapsed().as_secs_f64(), mb));
+    if let Some(mib) = resident_mib() {
+        rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
     }
     let load_end = load_average_1m();
     drop(depth_sub);
@@ -568,13 +333,13 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport, BenchError> {
             .filter(|(t, _)| steady_from_s.is_some_and(|f| *t >= f))
             .collect();
         RssStats {
-            start_mb: rss_samples[0].1,
-            max_mb: rss_samples.iter().map(|s| s.1).fold(f64::MIN, f64::max),
-            end_mb: rss_samples[rss_samples.len() - 1].1,
-            slope_mb_per_min: slope_mb_per_min(&steady),
+            start_mib: rss_samples[0].1,
+            max_mib: rss_samples.iter().map(|s| s.1).fold(f64::MIN, f64::max),
+            end_mib: rss_samples[rss_samples.len() - 1].1,
+            slope_mib_per_min: slope_mib_per_min(&steady),
             steady_from_s,
-            steady_min_mb: steady.iter().map(|s| s.1).reduce(f64::min),
-            steady_max_mb: steady.iter().map(|s| s.1).reduce(f64::max),
+            steady_min_mib: steady.iter().map(|s| s.1).reduce(f64::min),
+            steady_max_mib: steady.iter().map(|s| s.1).reduce(f64::max),
             samples: rss_samples.clone(),
         }
     });
@@ -615,53 +380,59 @@ fn lock_published(p: &Mutex<PlayerState>) -> std::sync::MutexGuard<'_, PlayerSta
     p.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+#[derive(Args)]
+pub struct BenchNodeArgs {
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    pub estimator: EstimatorKind,
+    /// SSMODE weights file (default: the shipped weights).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Output width (and width of rendered input); default: the bag's, or 512 without --bag.
+    #[arg(long)]
+    pub width: Option<usize>,
+    /// How long to play, seconds.
+    #[arg(long, default_value_t = 60.0)]
+    pub duration_s: f64,
+    /// Rig bag to play in a loop (default: the bundled bag, or frames rendered at --width).
+    #[arg(long)]
+    pub bag: Option<PathBuf>,
+    /// Rig calibration of rendered frames.
+    #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
+    pub rig: PathBuf,
+    /// Playback speed factor (1 = the bag's frame rate).
+    #[arg(long, default_value_t = 1.0)]
+    pub rate: f64,
+    /// Private DDS domain (loopback only).
+    #[arg(long, default_value_t = DEFAULT_BENCH_DOMAIN)]
+    pub domain_id: u16,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
 
-    #[test]
-    fn latency_stats_interpolate_percentiles() {
-        let samples: Vec<f64> = (1..=100).rev().map(f64::from).collect();
-        let s = LatencyStats::from_samples(&samples).unwrap();
-        assert_eq!(s.count, 100);
-        assert_eq!(s.min_ms, 1.0);
-        assert_eq!(s.max_ms, 100.0);
-        assert!((s.median_ms - 50.5).abs() < 1e-12, "{s:?}");
-        assert!((s.p95_ms - 95.05).abs() < 1e-9, "{s:?}");
-        let one = LatencyStats::from_samples(&[42.0]).unwrap();
-        assert_eq!(
-            (one.min_ms, one.median_ms, one.p95_ms, one.max_ms),
-            (42.0, 42.0, 42.0, 42.0)
-        );
-        assert_eq!(LatencyStats::from_samples(&[]), None);
-        assert_eq!(LatencyStats::from_samples(&[f64::NAN]), None);
+/// `mode360 bench-node`: runs the bench and prints (and optionally saves) its report.
+pub fn run(a: BenchNodeArgs) -> Result<()> {
+    if !(a.duration_s.is_finite() && a.duration_s > 0.0) {
+        bail!("--duration-s must be a positive number of seconds");
     }
-
-    #[test]
-    fn rss_slope_is_least_squares_mb_per_minute() {
-        // 100 MB + 2 MB/min, sampled every second for a minute.
-        let flat_growth: Vec<(f64, f64)> = (0..=60)
-            .map(|s| (s as f64, 100.0 + 2.0 * s as f64 / 60.0))
-            .collect();
-        let slope = slope_mb_per_min(&flat_growth).unwrap();
-        assert!((slope - 2.0).abs() < 1e-9, "{slope}");
-        // +-1 MB of alternating noise on a flat line for a minute: sum (t - mean) x = -30
-        // and sum (t - mean)^2 = 60 (60^2 - 1) / 12 = 17995, i.e. only -0.1 MB/min.
-        let flat: Vec<(f64, f64)> = (0..60)
-            .map(|s| (s as f64, 300.0 + if s % 2 == 0 { 1.0 } else { -1.0 }))
-            .collect();
-        let noisy = slope_mb_per_min(&flat).unwrap();
-        assert!((noisy - (-30.0 / 17995.0 * 60.0)).abs() < 1e-9, "{noisy}");
-        assert_eq!(slope_mb_per_min(&[(1.0, 5.0)]), None);
-        assert_eq!(slope_mb_per_min(&[(1.0, 5.0), (1.0, 6.0)]), None);
+    let report = run_bench(&BenchOptions {
+        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
+        width: a.width,
+        duration: std::time::Duration::from_secs_f64(a.duration_s),
+        bag: a.bag,
+        rig_file: a.rig,
+        rate: a.rate,
+        dds: DdsOptions {
+            domain_id: a.domain_id,
+            loopback_only: true,
+        },
+    })?;
+    print!("{}", report.to_table());
+    if let Some(path) = a.json {
+        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
     }
-
-    #[test]
-    fn vm_rss_is_parsed_in_megabytes() {
-        let status = "Name:\tmode360\nVmPeak:\t  900000 kB\nVmRSS:\t  512000 kB\nThreads:\t9\n";
-        assert_eq!(parse_vm_rss_mb(status), Some(512_000.0 * 1024.0 / 1e6));
-        assert_eq!(parse_vm_rss_mb("Name: x\n"), None);
-        let own = rss_mb().unwrap();
-        assert!(own > 1.0 && own < 100_000.0, "{own}");
-    }
+    Ok(())
 }

@@ -14,12 +14,14 @@ mod geometry_share;
 
 pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
-use crate::bag::{BagError, RigBagReader, DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY, SOILED_KEY};
-use crate::estimator::{DepthEstimator, EstimatorError};
+use super::progress::frames_bar;
+use crate::bag::{RigBagReader, DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY, SOILED_KEY};
+use crate::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use crate::frame::{FloatImage, RgbImage};
-use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig, RigError};
-use crate::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage, MetricsError};
-use indicatif::{ProgressBar, ProgressStyle};
+use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
+use crate::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -28,50 +30,6 @@ use std::time::Instant;
 
 /// Nearest range of the preview colour map, metres.
 pub const PREVIEW_MIN_DEPTH_M: f64 = 1.0;
-
-#[derive(Debug, thiserror::Error)]
-pub enum EvalError {
-    #[error(transparent)]
-    Bag(#[from] BagError),
-    #[error("{bag}: {source}")]
-    Rig {
-        bag: String,
-        #[source]
-        source: RigError,
-    },
-    #[error("{bag}: frame at stamp {stamp_ns} ns: {source}")]
-    Estimator {
-        bag: String,
-        stamp_ns: u64,
-        #[source]
-        source: EstimatorError,
-    },
-    #[error("{bag}: frame at stamp {stamp_ns} ns has no ground truth on /ground_truth/depth")]
-    NoGroundTruth { bag: String, stamp_ns: u64 },
-    #[error("{bag}: frame at stamp {stamp_ns} ns: {source}")]
-    Metrics {
-        bag: String,
-        stamp_ns: u64,
-        #[source]
-        source: MetricsError,
-    },
-    #[error("{bag}: {source}")]
-    Geometry {
-        bag: String,
-        #[source]
-        source: GeometryError,
-    },
-    #[error("{bag}: metadata '{key}' = '{value}' is not a number")]
-    BadMetadata {
-        bag: String,
-        key: String,
-        value: String,
-    },
-    #[error("writing preview {path}: {message}")]
-    Preview { path: String, message: String },
-    #[error("no frames evaluated")]
-    NoFrames,
-}
 
 /// Which images the estimator gets for a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -167,14 +125,11 @@ struct Group {
 }
 
 /// Runs `estimator` over every frame of the bags and scores it.
-pub fn evaluate(
-    opts: &EvalOptions,
-    estimator: &mut dyn DepthEstimator,
-) -> Result<EvalReport, EvalError> {
+pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Result<EvalReport> {
     let mut groups: BTreeMap<String, Group> = BTreeMap::new();
     for path in &opts.bags {
         let bag_name = path.display().to_string();
-        let reader = RigBagReader::open(path)?;
+        let reader = RigBagReader::open(path).with_context(|| format!("opening {bag_name}"))?;
         let info = reader.info().clone();
         let condition = if info.get(SOILED_KEY).map(String::as_str) == Some("true") {
             "soiled"
@@ -183,10 +138,8 @@ pub fn evaluate(
         };
         let max_depth_m = match info.get(MAX_DEPTH_KEY) {
             None => DEFAULT_MAX_DEPTH_M,
-            Some(v) => v.parse().map_err(|_| EvalError::BadMetadata {
-                bag: bag_name.clone(),
-                key: MAX_DEPTH_KEY.into(),
-                value: v.clone(),
+            Some(v) => v.parse().map_err(|_| {
+                anyhow!("{bag_name}: metadata '{MAX_DEPTH_KEY}' = '{v}' is not a number")
             })?,
         };
         let full_rig = reader.rig().clone();
@@ -196,10 +149,7 @@ pub fn evaluate(
             .unwrap_or_else(|| (0..full_rig.cameras.len()).collect());
         let rig = full_rig
             .subset(&selection)
-            .map_err(|source| EvalError::Rig {
-                bag: bag_name.clone(),
-                source,
-            })?;
+            .with_context(|| bag_name.clone())?;
         let group = groups
             .entry(condition.to_string())
             .or_insert_with(|| Group {
@@ -209,68 +159,36 @@ pub fn evaluate(
                 seconds: 0.0,
             });
         group.bags.push(bag_name.clone());
-        let progress = if opts.show_progress {
-            let pb = ProgressBar::new(opts.max_frames.map(|m| m as u64).unwrap_or(0));
-            pb.set_style(
-                ProgressStyle::with_template(
-                    "{msg} [{elapsed_precise}] {bar:30} {pos} frames, ETA {eta}",
-                )
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-            );
-            pb.set_message(format!(
-                "{} ({}) {}",
-                estimator.name(),
-                opts.views.label(),
-                bag_name
-            ));
-            pb
-        } else {
-            ProgressBar::hidden()
-        };
+        let progress = frames_bar(
+            &format!("{} ({}) {}", estimator.name(), opts.views.label(), bag_name),
+            opts.max_frames.unwrap_or(0),
+            opts.show_progress,
+        );
         let mut pair_cache: Option<(usize, GeerPair)> = None;
         for (n, frame) in reader.frames().enumerate() {
             if opts.max_frames.is_some_and(|m| n >= m) {
                 break;
             }
-            let frame = frame?;
+            let frame = frame.with_context(|| format!("{bag_name}: frame {n}"))?;
+            let at = || format!("{bag_name}: frame at stamp {} ns", frame.stamp_ns);
             let gt = frame
                 .ground_truth
                 .as_ref()
-                .ok_or(EvalError::NoGroundTruth {
-                    bag: bag_name.clone(),
-                    stamp_ns: frame.stamp_ns,
-                })?;
+                .ok_or_else(|| anyhow!("{} has no ground truth on /ground_truth/depth", at()))?;
             let images = opts.views.apply(
                 selection.iter().map(|&i| frame.images[i].clone()).collect(),
                 rig.reference,
             );
-            let output = ErpGrid::new(gt.width).map_err(|source| EvalError::Geometry {
-                bag: bag_name.clone(),
-                source,
-            })?;
+            let output = ErpGrid::new(gt.width).with_context(at)?;
             let t0 = Instant::now();
-            let est = estimator
-                .estimate(&rig, &images, output)
-                .map_err(|source| EvalError::Estimator {
-                    bag: bag_name.clone(),
-                    stamp_ns: frame.stamp_ns,
-                    source,
-                })?;
+            let est = estimator.estimate(&rig, &images, output).with_context(at)?;
             group.seconds += t0.elapsed().as_secs_f64();
-            let frame_err = |source| EvalError::Metrics {
-                bag: bag_name.clone(),
-                stamp_ns: frame.stamp_ns,
-                source,
-            };
             let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m)
-                .map_err(frame_err)?;
+                .with_context(at)?;
             let pair = match &pair_cache {
                 Some((w, p)) if *w == gt.width => p.clone(),
                 _ => {
-                    let p = reference_pair(&rig, output).map_err(|source| EvalError::Geometry {
-                        bag: bag_name.clone(),
-                        source,
-                    })?;
+                    let p = reference_pair(&rig, output).with_context(|| bag_name.clone())?;
                     pair_cache = Some((gt.width, p.clone()));
                     p
                 }
@@ -296,12 +214,10 @@ pub fn evaluate(
                     crate::viz::colorize_range(gt, min_depth_m, max_depth_m as f32),
                 ]);
                 std::fs::create_dir_all(dir)
-                    .map_err(|e| e.to_string())
-                    .and_then(|_| picture.save(&png).map_err(|e| e.to_string()))
-                    .map_err(|message| EvalError::Preview {
-                        path: png.display().to_string(),
-                        message,
-                    })?;
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                picture
+                    .save(&png)
+                    .with_context(|| format!("writing preview {}", png.display()))?;
             }
             progress.inc(1);
         }
@@ -321,7 +237,7 @@ pub fn evaluate(
         })
         .collect();
     if rows.is_empty() {
-        return Err(EvalError::NoFrames);
+        bail!("no frames evaluated");
     }
     Ok(EvalReport {
         estimator: estimator.name().to_string(),
@@ -403,6 +319,76 @@ impl EvalReport {
         }
         s
     }
+}
+
+#[derive(Args)]
+pub struct EvalArgs {
+    /// Bag(s) to evaluate (repeat for clean and soiled bags).
+    #[arg(long = "bag", required = true)]
+    pub bags: Vec<PathBuf>,
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    pub estimator: EstimatorKind,
+    /// Cameras to use, 1-based in rig order, e.g. 1,2,3 (default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Option<Vec<usize>>,
+    /// Evaluate at most this many frames per bag.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Write the table as JSON here.
+    #[arg(long, default_value = "eval.json")]
+    pub json: PathBuf,
+    /// Write preview PNGs (panorama, predicted and true range) of the first frames here.
+    #[arg(long)]
+    pub png_dir: Option<PathBuf>,
+    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Feed every camera the reference camera's image (no parallax; the geometry check).
+    #[arg(long, conflicts_with = "geometry_share")]
+    pub same_image: bool,
+    /// Evaluate with true views and with --same-image views; print both and the δ1 difference.
+    #[arg(long)]
+    pub geometry_share: bool,
+}
+
+/// `mode360 eval`: builds the estimator, scores it (or its geometry share) and writes the JSON.
+pub fn run(a: EvalArgs) -> Result<()> {
+    let cameras = match a.cameras {
+        None => None,
+        Some(list) => {
+            if list.contains(&0) {
+                bail!("--cameras is 1-based: camera 0 does not exist");
+            }
+            Some(list.iter().map(|c| c - 1).collect())
+        }
+    };
+    let mut est: Box<dyn DepthEstimator> =
+        EstimatorSpec::with_weights(a.estimator, a.weights).build()?;
+    let opts = EvalOptions {
+        bags: a.bags,
+        cameras,
+        max_frames: a.max_frames,
+        show_progress: true,
+        png_dir: a.png_dir,
+        views: if a.same_image {
+            ViewMode::SameImage
+        } else {
+            ViewMode::True
+        },
+    };
+    let json = if a.geometry_share {
+        let report = geometry_share(&opts, est.as_mut())?;
+        print!("{}", report.to_table());
+        serde_json::to_string_pretty(&report)?
+    } else {
+        let report = evaluate(&opts, est.as_mut())?;
+        print!("{}", report.to_table());
+        serde_json::to_string_pretty(&report)?
+    };
+    std::fs::write(&a.json, json).with_context(|| format!("writing {}", a.json.display()))?;
+    println!("wrote {}", a.json.display());
+    Ok(())
 }
 
 #[cfg(test)]

@@ -1,0 +1,36 @@
+//! The command layer: one file (or folder) per `mode360` subcommand, over the domain library.
+//!
+//! Each command module holds its clap `...Args`, a `run(args)` that the binary dispatches to,
+//! and the command's own work as a library function with an options struct (so tests and
+//! other commands call it without a process). Commands report errors with `anyhow` and
+//! context (which bag, which frame, which file); the domain modules below them keep their
+//! `thiserror` enums.
+//!
+//! | module | command | what it does |
+//! |---|---|---|
+//! | [`synth`] | `synth` | renders synthetic frames into a rig bag ([`synth::record_synthetic_bag`]) |
+//! | [`eval`] | `eval` | scores an estimator on rig bags, with the geometry share |
+//! | [`train`] | `train` | trains SSMODE ([`crate::train`]) |
+//! | [`node`] | `node` | runs the ROS 2 node ([`crate::node`]) |
+//! | [`replay`] | `replay` | the node's pipeline over a bag, without DDS, into a bag |
+//! | [`play`] | `play` | publishes a bag on DDS with its recorded timing |
+//! | [`bench_node`] | `bench-node` | the live node under a looped bag: latency, rates, memory |
+//! | [`demo`] | `demo` | node + play + listener end to end, previews and metrics |
+//! | [`bench_model`] | `bench-model` | SSMODE forward passes: time per stage, GFLOP/s, peak memory |
+//! | [`deep360_bag`] | `deep360-bag` | the paper's Deep360 frames on disk into a rig bag |
+//! | [`same_image_bag`] | `same-image-bag` | a bag with the reference image on every camera |
+//!
+//! [`progress`] holds the progress bars the long commands share.
+
+pub mod bench_model;
+pub mod bench_node;
+pub mod deep360_bag;
+pub mod demo;
+pub mod eval;
+pub mod node;
+pub mod play;
+pub mod progress;
+pub mod replay;
+pub mod same_image_bag;
+pub mod synth;
+pub mod train;

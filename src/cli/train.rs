@@ -1,0 +1,107 @@
+//! `mode360 train`: the training command over [`crate::train`].
+
+use crate::model::Preset;
+use crate::synth::StreetStyle;
+use crate::train::{run_training, TrainOptions};
+use anyhow::Result;
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Network preset (parallax is the shipped one).
+    #[arg(long, value_enum, default_value_t = Preset::Parallax)]
+    pub preset: Preset,
+    /// Override the preset's input width (height = width / 2).
+    #[arg(long)]
+    pub width: Option<usize>,
+    /// Total optimizer steps (a resumed run continues up to this).
+    #[arg(long, default_value_t = 10_000)]
+    pub steps: usize,
+    /// Run folder: checkpoint/, train.csv, val.csv, curves.png, final weights.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue from <out>/checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    /// Samples per step (gradient accumulation).
+    #[arg(long, default_value_t = 1)]
+    pub batch_size: usize,
+    /// Peak learning rate (linear warmup, then cosine decay).
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Validate on the held-out set every this many steps.
+    #[arg(long, default_value_t = 250)]
+    pub val_every: usize,
+    /// Checkpoint every this many steps (also every 5 minutes).
+    #[arg(long, default_value_t = 250)]
+    pub checkpoint_every: usize,
+    /// Data seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Mix training frames of the paper's Deep360 dataset at this root into the samples.
+    #[arg(long)]
+    pub deep360: Option<PathBuf>,
+    /// Fraction of samples taken from --deep360 (the rest are rendered).
+    #[arg(long, default_value_t = 1.0, requires = "deep360")]
+    pub deep360_fraction: f64,
+    /// Fine-tune: start a new run from these weights (e.g. models/ssmode_compact.safetensors)
+    /// instead of a random initialisation. Ignored when --resume finds a checkpoint.
+    #[arg(long)]
+    pub init_weights: Option<PathBuf>,
+    /// Fraction of rendered samples that are random-objects scenes (1: pretraining for
+    /// matching; the rest are streets).
+    #[arg(long, default_value_t = 0.0)]
+    pub objects_fraction: f64,
+    /// Layout variation of the training streets.
+    #[arg(long, value_enum, default_value_t = StreetStyle::Regular)]
+    pub street: StreetStyle,
+    /// Fraction of samples with lens soiling.
+    #[arg(long, default_value_t = 0.3)]
+    pub soiled_fraction: f64,
+    /// Fraction of rendered street and object samples on the Deep360 rig (the rest on random
+    /// roof racks of 2 to 5 cameras).
+    #[arg(long, default_value_t = 0.25)]
+    pub deep360_rig_fraction: f64,
+    /// Clip the global gradient norm to this (off when absent).
+    #[arg(long)]
+    pub max_grad_norm: Option<f64>,
+}
+
+/// `mode360 train`: trains (or resumes) and prints where the weights went.
+pub fn run(a: TrainArgs) -> Result<()> {
+    let opts = TrainOptions {
+        preset: a.preset,
+        width: a.width,
+        steps: a.steps,
+        out_dir: a.out,
+        resume: a.resume,
+        batch_size: a.batch_size,
+        lr: a.lr,
+        val_every: a.val_every,
+        checkpoint_every_steps: a.checkpoint_every,
+        seed: a.seed,
+        deep360_disk: a.deep360,
+        deep360_disk_fraction: a.deep360_fraction,
+        init_weights: a.init_weights,
+        objects_fraction: a.objects_fraction,
+        street: a.street,
+        soiled_fraction: a.soiled_fraction,
+        deep360_fraction: a.deep360_rig_fraction,
+        max_grad_norm: a.max_grad_norm,
+        ..TrainOptions::default()
+    };
+    let s = run_training(&opts)?;
+    println!(
+        "trained steps {}..{} ({:.2} s/step, peak RSS {:.0} MiB); weights: {}",
+        s.start_step,
+        s.final_step,
+        s.mean_secs_per_step,
+        s.peak_rss_mb,
+        s.weights_path.display()
+    );
+    if let Some(v) = s.last_validation {
+        println!("last validation: {v:?}");
+    }
+    Ok(())
+}
