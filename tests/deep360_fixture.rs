@@ -470,7 +470,7 @@ fn conversion_errors_name_the_frame_and_file() {
     assert_eq!(f, vec![300_700_000_000]);
     std::fs::remove_file(&out).unwrap();
 
-    let err = |o: &Deep360BagOptions| convert_deep360_to_bag(o).unwrap_err().to_string();
+    let err = |o: &Deep360BagOptions| format!("{:#}", convert_deep360_to_bag(o).unwrap_err());
     let e = err(&Deep360BagOptions {
         split: Deep360Split::Validation,
         ..opts.clone()

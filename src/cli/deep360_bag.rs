@@ -17,6 +17,7 @@ use crate::deep360::{
     DEEP360_MAX_DEPTH_M, EPISODES, EPISODE_FRAME_SLOTS,
 };
 use crate::geometry::ErpGrid;
+use crate::memory::BYTES_PER_MIB;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use std::collections::BTreeMap;
@@ -50,7 +51,7 @@ pub struct Deep360BagSummary {
     pub frames: usize,
     pub first: Deep360FrameId,
     pub last: Deep360FrameId,
-    pub seconds: f64,
+    pub elapsed_s: f64,
     pub bytes: u64,
 }
 
@@ -99,7 +100,7 @@ pub fn convert_deep360_to_bag(opts: &Deep360BagOptions) -> Result<Deep360BagSumm
         frames: ids.len(),
         first,
         last,
-        seconds: t0.elapsed().as_secs_f64(),
+        elapsed_s: t0.elapsed().as_secs_f64(),
         bytes: std::fs::metadata(&opts.out).map(|m| m.len()).unwrap_or(0),
     })
 }
@@ -180,13 +181,13 @@ pub fn run(a: Deep360BagArgs) -> Result<()> {
     })
     .with_context(|| format!("converting Deep360 into {}", a.out.display()))?;
     println!(
-        "wrote {} Deep360 frames ({} .. {}) to {} ({:.1} MB) in {:.1} s",
+        "wrote {} Deep360 frames ({} .. {}) to {} ({:.1} MiB) in {:.1} s",
         s.frames,
         s.first,
         s.last,
         a.out.display(),
-        s.bytes as f64 / 1e6,
-        s.seconds
+        s.bytes as f64 / BYTES_PER_MIB,
+        s.elapsed_s
     );
     Ok(())
 }

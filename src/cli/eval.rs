@@ -104,7 +104,8 @@ pub struct EvalRow {
     pub frames: usize,
     pub depth: DepthMetrics,
     pub disparity: Option<DisparityMetrics>,
-    pub seconds_per_frame: f64,
+    #[serde(alias = "seconds_per_frame")]
+    pub s_per_frame: f64,
 }
 
 /// The whole report, printed as a table and written as JSON.
@@ -121,7 +122,7 @@ struct Group {
     bags: Vec<String>,
     cameras: Vec<String>,
     average: FrameAverage,
-    seconds: f64,
+    elapsed_s: f64,
 }
 
 /// Runs `estimator` over every frame of the bags and scores it.
@@ -156,7 +157,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                 bags: Vec::new(),
                 cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
                 average: FrameAverage::default(),
-                seconds: 0.0,
+                elapsed_s: 0.0,
             });
         group.bags.push(bag_name.clone());
         let progress = frames_bar(
@@ -182,7 +183,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             let output = ErpGrid::new(gt.width).with_context(at)?;
             let t0 = Instant::now();
             let est = estimator.estimate(&rig, &images, output).with_context(at)?;
-            group.seconds += t0.elapsed().as_secs_f64();
+            group.elapsed_s += t0.elapsed().as_secs_f64();
             let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m)
                 .with_context(at)?;
             let pair = match &pair_cache {
@@ -231,7 +232,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             frames: g.average.frames(),
             depth: g.average.depth(),
             disparity: g.average.disparity(),
-            seconds_per_frame: g.seconds / g.average.frames() as f64,
+            s_per_frame: g.elapsed_s / g.average.frames() as f64,
             bags: g.bags,
             cameras: g.cameras,
         })
@@ -314,7 +315,7 @@ impl EvalReport {
                 p.px3_pct,
                 p.px5_pct,
                 p.d1_pct,
-                r.seconds_per_frame
+                r.s_per_frame
             ));
         }
         s

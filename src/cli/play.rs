@@ -34,7 +34,7 @@ use std::time::{Duration, Instant};
 /// Longest single sleep while pacing, so that a stop request is seen quickly.
 const STOP_POLL: Duration = Duration::from_millis(50);
 /// Largest wait before one message, seconds (guards against bags with absurd time gaps).
-const MAX_OFFSET_SECS: f64 = 24.0 * 3600.0;
+const MAX_OFFSET_S: f64 = 24.0 * 3600.0;
 /// Loop gap when the bag has no measurable frame period (one message per topic).
 pub const DEFAULT_LOOP_GAP_NS: u64 = 100_000_000;
 
@@ -61,7 +61,7 @@ pub struct PlaySummary {
     pub published: BTreeMap<String, u64>,
     /// Topics skipped because their type is not supported.
     pub skipped_topics: Vec<String>,
-    pub seconds: f64,
+    pub elapsed_s: f64,
     /// Repetitions started (the last one may have been cut short by a stop request).
     pub loops_played: usize,
     /// Timing of one repetition (`None` for a bag with nothing to play).
@@ -375,7 +375,7 @@ pub fn play_bag_until(
     if let Some(timing) = timing {
         let secs = |ns: u64| ns as f64 / 1e9 / opts.rate;
         let stride = Duration::from_secs_f64(
-            secs(timing.duration_ns).min(MAX_OFFSET_SECS) + secs(timing.period_ns),
+            secs(timing.duration_ns).min(MAX_OFFSET_S) + secs(timing.period_ns),
         );
         let mut last_clock_ns: Option<u64> = None;
         'repetitions: for k in 0..opts.loops.max(1) {
@@ -391,7 +391,7 @@ pub fn play_bag_until(
                     continue;
                 }
                 let within = secs(msg.log_time_ns.saturating_sub(timing.first_ns));
-                let at = loop_start + Duration::from_secs_f64(within.min(MAX_OFFSET_SECS));
+                let at = loop_start + Duration::from_secs_f64(within.min(MAX_OFFSET_S));
                 if !pace(t0, at, stop) {
                     break 'repetitions;
                 }
@@ -417,7 +417,7 @@ pub fn play_bag_until(
             }
         }
     }
-    summary.seconds = t0.elapsed().as_secs_f64();
+    summary.elapsed_s = t0.elapsed().as_secs_f64();
     drop(clock);
     drop(publishers);
     spun.stop()?;
@@ -462,7 +462,7 @@ pub fn run(a: PlayArgs) -> Result<()> {
     let total: u64 = summary.published.values().sum();
     println!(
         "played {total} messages in {:.1} s ({} repetitions); per topic: {:?}",
-        summary.seconds, summary.loops_played, summary.published
+        summary.elapsed_s, summary.loops_played, summary.published
     );
     if !summary.skipped_topics.is_empty() {
         println!("skipped (unsupported types): {:?}", summary.skipped_topics);

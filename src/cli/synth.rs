@@ -4,6 +4,7 @@ use super::progress::frames_bar;
 use crate::bag::RigBagWriter;
 use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use crate::geometry::Rig;
+use crate::memory::BYTES_PER_MIB;
 use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthRenderer};
 use anyhow::{Context, Result};
 use clap::Args;
@@ -26,7 +27,7 @@ pub struct RecordOptions {
 #[derive(Clone, Debug)]
 pub struct RecordSummary {
     pub frames: usize,
-    pub seconds: f64,
+    pub elapsed_s: f64,
     pub bytes: u64,
 }
 
@@ -51,7 +52,7 @@ pub fn record_synthetic_bag(opts: &RecordOptions) -> Result<RecordSummary> {
     let bytes = std::fs::metadata(&opts.out).map(|m| m.len()).unwrap_or(0);
     Ok(RecordSummary {
         frames: opts.frames,
-        seconds: t0.elapsed().as_secs_f64(),
+        elapsed_s: t0.elapsed().as_secs_f64(),
         bytes,
     })
 }
@@ -114,12 +115,12 @@ pub fn run(a: SynthArgs) -> Result<()> {
     })
     .with_context(|| format!("writing {}", a.out.display()))?;
     println!(
-        "wrote {} frames to {} ({:.1} MB) in {:.1} s ({:.2} frames/s)",
+        "wrote {} frames to {} ({:.1} MiB) in {:.1} s ({:.2} frames/s)",
         summary.frames,
         a.out.display(),
-        summary.bytes as f64 / 1e6,
-        summary.seconds,
-        summary.frames as f64 / summary.seconds.max(1e-9)
+        summary.bytes as f64 / BYTES_PER_MIB,
+        summary.elapsed_s,
+        summary.frames as f64 / summary.elapsed_s.max(1e-9)
     );
     Ok(())
 }

@@ -4,7 +4,7 @@
 use serde::Serialize;
 
 /// Seconds per minute, for the RSS slope.
-const SECS_PER_MIN: f64 = 60.0;
+const SECONDS_PER_MINUTE: f64 = 60.0;
 
 /// Latency distribution, milliseconds.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -64,7 +64,7 @@ pub fn slope_mib_per_min(samples: &[(f64, f64)]) -> Option<f64> {
         return None;
     }
     let stm: f64 = samples.iter().map(|s| (s.0 - mt) * (s.1 - mm)).sum();
-    Some(stm / stt * SECS_PER_MIN)
+    Some(stm / stt * SECONDS_PER_MINUTE)
 }
 
 /// 1-minute load average, if readable.
