@@ -245,3 +245,144 @@ fn same_image_flags_and_bag_rewrite_agree() {
     assert_eq!(rewritten["views"], "true");
     assert!((delta1(&rewritten) - s).abs() <= 1e-9);
 }
+
+/// One README option table: the command it documents and its rows (option cell, default cell).
+struct OptionTable {
+    command: String,
+    rows: Vec<(Vec<String>, String)>,
+}
+
+/// The README's option tables, each announced by `<!-- options: COMMAND -->`.
+fn readme_option_tables() -> Vec<OptionTable> {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md"))
+        .expect("README.md");
+    let mut tables = Vec::new();
+    let mut lines = readme.lines();
+    while let Some(line) = lines.next() {
+        let Some(command) = line
+            .strip_prefix("<!-- options: ")
+            .and_then(|r| r.strip_suffix(" -->"))
+        else {
+            continue;
+        };
+        let mut rows = Vec::new();
+        for row in lines.by_ref().skip(2) {
+            if !row.starts_with('|') {
+                break;
+            }
+            let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+            let flags = cells[1]
+                .split(',')
+                .map(|f| f.trim().trim_matches('`').to_string())
+                .collect();
+            rows.push((flags, cells[2].trim_matches('`').to_string()));
+        }
+        tables.push(OptionTable {
+            command: command.to_string(),
+            rows,
+        });
+    }
+    tables
+}
+
+/// `--flag` -> its `[default: X]` (None without one), from `mode360 COMMAND --help`.
+fn help_options(command: &str) -> std::collections::BTreeMap<String, Option<String>> {
+    let o = mode360(&[command, "--help"]);
+    assert!(o.status.success(), "{command} --help");
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    let mut options = std::collections::BTreeMap::new();
+    // clap puts each option on its own line, its default at the end of its help text
+    let mut current: Option<String> = None;
+    for line in text.lines() {
+        let t = line.trim_start();
+        if let Some(flag) = t
+            .split([' ', ','])
+            .find(|w| w.starts_with("--"))
+            .filter(|_| t.starts_with('-'))
+        {
+            current = Some(flag.to_string());
+            options.insert(flag.to_string(), None);
+        }
+        if let (Some(flag), Some(start)) = (&current, t.find("[default: ")) {
+            let rest = &t[start + "[default: ".len()..];
+            let value = rest.split(']').next().unwrap_or_default().to_string();
+            options.insert(flag.clone(), Some(value));
+        }
+    }
+    options.remove("--help");
+    options.remove("--version");
+    options
+}
+
+/// Whether a README default cell states clap's default: the same text, the same number, or
+/// the same list (clap shows `default_values_t` space separated, the flag takes commas).
+fn same_default(readme: &str, clap: &str) -> bool {
+    let number = |s: &str| s.replace('_', "").parse::<f64>().ok();
+    let list = |s: &str| -> Vec<String> {
+        s.split([',', ' '])
+            .filter(|w| !w.is_empty())
+            .map(str::to_string)
+            .collect()
+    };
+    readme == clap
+        || matches!((number(readme), number(clap)), (Some(a), Some(b)) if a == b)
+        || list(readme) == list(clap)
+}
+
+/// Every documented command's option table lists exactly the options of its `--help`, with
+/// the same defaults where clap has one, and every subcommand but `node` (whose parameters
+/// have their own table) has a table.
+#[test]
+fn readme_option_tables_match_help() {
+    let tables = readme_option_tables();
+    let mut problems = Vec::new();
+    for t in &tables {
+        assert!(!t.rows.is_empty(), "{}: empty README table", t.command);
+        let help = help_options(&t.command);
+        let mut documented = std::collections::BTreeSet::new();
+        for (flags, default) in &t.rows {
+            for flag in flags {
+                documented.insert(flag.clone());
+                match help.get(flag) {
+                    None => problems.push(format!(
+                        "{}: README documents {flag}, --help has no such option",
+                        t.command
+                    )),
+                    Some(Some(d)) if flags.len() == 1 && !same_default(default, d) => problems
+                        .push(format!(
+                            "{}: {flag} default is '{d}' in --help, '{default}' in the README",
+                            t.command
+                        )),
+                    Some(_) => {}
+                }
+            }
+        }
+        for flag in help.keys().filter(|f| !documented.contains(*f)) {
+            problems.push(format!(
+                "{}: {flag} is missing from the README table",
+                t.command
+            ));
+        }
+    }
+    let o = mode360(&["--help"]);
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    let commands: Vec<&str> = text
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|c| !matches!(*c, "help" | "node"))
+        .collect();
+    assert!(commands.len() >= 10, "{text}");
+    for c in commands {
+        if !tables.iter().any(|t| t.command == c) {
+            problems.push(format!("{c}: no README option table"));
+        }
+    }
+    assert!(
+        problems.is_empty(),
+        "README vs --help:\n{}",
+        problems.join("\n")
+    );
+}

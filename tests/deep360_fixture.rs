@@ -151,10 +151,10 @@ fn missing_and_corrupt_files_are_named() {
 
 use mode360::bag::RigBagReader;
 use mode360::bag::{MAX_DEPTH_KEY, SOILED_KEY};
-use mode360::deep360::{Deep360FrameVariant, DEEP360_MAX_DEPTH_M};
 use mode360::cli::deep360_bag::{convert_deep360_to_bag, Deep360BagOptions};
-use mode360::estimator::{DepthEstimate, DepthEstimator, EstimatorError};
 use mode360::cli::eval::{evaluate, EvalOptions, ViewMode};
+use mode360::deep360::{Deep360FrameVariant, DEEP360_MAX_DEPTH_M};
+use mode360::estimator::{DepthEstimate, DepthEstimator, EstimatorError};
 use mode360::frame::{FloatImage, RgbImage};
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::metrics::{depth_metrics, FrameAverage};
@@ -878,6 +878,109 @@ np.savez_compressed(sys.argv[2], r.astype(np.float32))
             share > 0.97,
             "{}: only {:.1} % of ERP pixels within 5 % of the room's range (worst {worst:.3})",
             path.display(),
+            100.0 * share
+        );
+    }
+}
+
+/// Python writes a Deep360 frame from the format's description alone: each camera's RGBA PNG
+/// (written with zlib and the PNG chunk layout, not an image library) is a Cassini image whose
+/// pixel colour encodes the direction that pixel looks along in the dataset frame `D`
+/// (`colour = round(127.5 (1 + d_D))` per axis, with row i, column j looking along
+/// `(sin phi, cos phi sin theta, cos phi cos theta)`, `theta = pi - (i + 0.5) 2 pi / H`,
+/// `phi = pi/2 - (j + 0.5) pi / W`); the depth archive is numpy's. Read through the crate's
+/// dataset loader, every ERP pixel must show the colour of its own REP 103 direction
+/// (x forward = z_D, y left = x_D, z up = y_D), computed here independently.
+#[test]
+fn python_written_cassini_images_look_along_their_erp_directions() {
+    use mode360::geometry::{ErpGrid, PixelCoord};
+    const PYTHON_ENV: &str = "MODE360_PYTHON";
+    /// Largest angle between an ERP pixel's direction and the one its colour encodes.
+    const MAX_ANGLE_DEG: f64 = 2.0;
+    const ERP_W: usize = 256;
+    let Some(python) = std::env::var(PYTHON_ENV).ok().filter(|p| !p.is_empty()) else {
+        let hint =
+            format!("skipped: set {PYTHON_ENV} to a Python with numpy (tests/interop/setup.sh)");
+        assert!(std::env::var_os("CI").is_none(), "CI is set: {hint}");
+        println!("{hint}");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let split = dir.path().join("ep1_500frames").join("testing");
+    for sub in ["rgb", "depth"] {
+        std::fs::create_dir_all(split.join(sub)).unwrap();
+    }
+    let script = format!(
+        r#"
+import sys, struct, zlib, numpy as np
+W, H = {CASSINI_WIDTH}, {CASSINI_HEIGHT}
+i = np.arange(H)[:, None] + 0.5
+j = np.arange(W)[None, :] + 0.5
+theta = np.pi - i * 2 * np.pi / H
+phi = np.pi / 2 - j * np.pi / W
+d = np.stack(np.broadcast_arrays(np.sin(phi), np.cos(phi) * np.sin(theta), np.cos(phi) * np.cos(theta)), axis=-1)
+rgb = np.round(127.5 * (1.0 + d)).astype(np.uint8)
+rgba = np.concatenate([rgb, np.full((H, W, 1), 255, np.uint8)], axis=-1)
+# PNG: signature, IHDR (8-bit RGBA), IDAT (filter byte 0 per row, zlib), IEND
+def chunk(kind, data):
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+raw = b"".join(b"\x00" + rgba[r].tobytes() for r in range(H))
+png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 6, 0, 0, 0)) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+split = sys.argv[1]
+for name in ["12_rgb1", "12_rgb2", "34_rgb3", "34_rgb4"]:
+    open(f"{{split}}/rgb/000000_{{name}}.png", "wb").write(png)
+np.savez(f"{{split}}/depth/000000_depth.npz", np.full((H, W), 10.0, np.float32))
+"#
+    );
+    let out = std::process::Command::new(&python)
+        .args(["-c", &script])
+        .arg(&split)
+        .output()
+        .expect("running python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let ds = Deep360Dataset::open(dir.path()).unwrap();
+    let ids = ds.frame_ids(Deep360Split::Testing).unwrap();
+    assert_eq!(ids.len(), 1);
+    let frame = ds
+        .load_frame(ids[0], Deep360Split::Testing, false, ERP_W)
+        .unwrap();
+    assert_eq!(frame.images.len(), 4);
+    let grid = ErpGrid::new(ERP_W).unwrap();
+    let max_cos = MAX_ANGLE_DEG.to_radians().cos();
+    for (cam, img) in frame.images.iter().enumerate() {
+        assert_eq!(
+            (img.width() as usize, img.height() as usize),
+            (ERP_W, ERP_W / 2)
+        );
+        let (mut within, mut worst_deg) = (0usize, 0f64);
+        for v in 0..grid.height() {
+            for u in 0..grid.width() {
+                let rep = grid.dir_from_pixel(PixelCoord {
+                    u: u as f64,
+                    v: v as f64,
+                });
+                let p = img.get_pixel(u as u32, v as u32).0;
+                let decode = |c: u8| f64::from(c) / 127.5 - 1.0;
+                let (xd, yd, zd) = (decode(p[0]), decode(p[1]), decode(p[2]));
+                // dataset axes -> REP 103: x = z_D, y = x_D, z = y_D
+                let seen = nalgebra::Vector3::new(zd, xd, yd);
+                let cos = seen.dot(&rep) / seen.norm().max(1e-12);
+                worst_deg = worst_deg.max(cos.clamp(-1.0, 1.0).acos().to_degrees());
+                if cos >= max_cos {
+                    within += 1;
+                }
+            }
+        }
+        let share = within as f64 / grid.len() as f64;
+        // Bilinear blending across the wrap seam and at the poles blurs a few pixels' colours.
+        assert!(
+            share > 0.98,
+            "camera {}: only {:.2} % of ERP pixels look within {MAX_ANGLE_DEG} deg of their colour's direction (worst {worst_deg:.1} deg)",
+            cam + 1,
             100.0 * share
         );
     }

@@ -6,12 +6,12 @@ use mode360::bag::{
     write_same_image_bag, BagReader, RigBagReader, GROUND_TRUTH_TOPIC, RIG_METADATA,
     SAME_IMAGE_METADATA, SYNTH_METADATA, TF_STATIC_TOPIC,
 };
-use mode360::estimator::{self, DepthEstimate, DepthEstimator, EstimatorError};
 use mode360::cli::eval::{evaluate, geometry_share, EvalOptions, ViewMode};
+use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
+use mode360::estimator::{self, DepthEstimate, DepthEstimator, EstimatorError};
 use mode360::frame::RgbImage;
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::msgs::{Image, TFMessage};
-use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 use std::path::{Path, PathBuf};
 

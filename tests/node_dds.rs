@@ -3,6 +3,8 @@
 //! images are sent and the node must report them and keep publishing for good input.
 
 use mode360::bag::RigBagReader;
+use mode360::cli::play::{play_bag, PlayOptions};
+use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
@@ -11,9 +13,7 @@ use mode360::node::pipeline::is_point_range;
 use mode360::node::ros::{
     create_publisher, create_subscription, dds_context, sensor_qos, SpunNode,
 };
-use mode360::cli::play::{play_bag, PlayOptions};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
-use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;

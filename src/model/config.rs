@@ -62,17 +62,21 @@ fn default_aggregation_stride() -> usize {
 )]
 #[serde(rename_all = "snake_case")]
 #[value(rename_all = "snake_case")]
+///
+/// Each variant's text is its `--help` line; the configs are [`SsmodeConfig::parallax`],
+/// [`SsmodeConfig::compact`], [`SsmodeConfig::paper`], [`SsmodeConfig::tiny`] and
+/// [`SsmodeConfig::tiny_parallax`].
 pub enum Preset {
-    /// The shipped multi-view network ([`SsmodeConfig::parallax`]).
+    /// The shipped multi-view network: variance-only cost volume, 256x128.
     #[default]
     Parallax,
-    /// The earlier small network with a mean + variance volume ([`SsmodeConfig::compact`]).
+    /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
-    /// The paper's sizes ([`SsmodeConfig::paper`]).
+    /// The paper's sizes.
     Paper,
-    /// For tests ([`SsmodeConfig::tiny`]).
+    /// For tests: a few channels and spheres.
     Tiny,
-    /// For tests: `tiny` with the parallax volume ([`SsmodeConfig::tiny_parallax`]).
+    /// For tests: `tiny` with the parallax (variance-only) volume.
     TinyParallax,
 }
 
