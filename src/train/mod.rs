@@ -9,23 +9,36 @@
 //!   gradient accumulation over `B` single-sample forward/backward passes, each loss scaled by
 //!   `1 / B`; memory stays that of one sample.
 //! * Loss ([`loss`]): `sum_s w_s SmoothL1` on the inverse-depth index, masked to valid pixels.
-//! * Checkpoint: `out_dir/checkpoint/` holds `model.safetensors` (the model's `save_weights`,
-//!   config in the header), `optimizer.safetensors` (AdamW moments) and `state.json` (step,
-//!   next sample index = the data RNG position, options that must match on resume). It is
-//!   written into `checkpoint.tmp/` and renamed into place, so a crash never leaves a torn
-//!   checkpoint; written every `checkpoint_every_steps` steps, when `checkpoint_every_secs`
-//!   have passed since the last one, and at the end.
+//! * Checkpoint (`checkpoint.rs`): `out_dir/checkpoint/` holds `model.safetensors` (the
+//!   model's `save_weights`, config in the header), `optimizer.safetensors` (AdamW moments)
+//!   and `state.json` (step, next sample index = the data RNG position, options that must
+//!   match on resume). It is written into `checkpoint.tmp/` and renamed into place, so a crash
+//!   never leaves a torn checkpoint; written every `checkpoint_every_steps` steps, when
+//!   `checkpoint_every_secs` have passed since the last one, and at the end.
 //! * Logs: `train.csv` every step, `val.csv` and `curves.png` every `val_every` steps (see
 //!   [`log`]), peak RSS from `/proc/self/status` in both CSVs. Final weights are copied to
 //!   `out_dir/ssmode_<preset>.safetensors`.
+//!
+//! The run itself is a [`Trainer`] (`trainer.rs`): [`Trainer::new`] sets it up (fresh, from
+//! `init_weights`, or resumed), [`Trainer::step`], [`Trainer::validate`] and
+//! [`Trainer::checkpoint`] are its parts, [`Trainer::run`] the loop; [`run_training`] is
+//! `Trainer::new(opts)?.run()`. Beside it: `options.rs` (options, summary, errors), `init.rs`
+//! (seeded initialisation, fine-tuning start weights) and `forward.rs` (one sample through the
+//! network, the validation pass).
 
 pub mod data;
 pub mod log;
 pub mod loss;
 pub mod optim;
-mod runner;
 
-pub use runner::{
-    run_training, CheckpointState, Deep360DiskState, TrainError, TrainOptions, TrainSummary,
-    CHECKPOINT_DIR, CURVES_PNG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TRAIN_CSV, VAL_CSV,
+mod checkpoint;
+mod forward;
+mod init;
+mod options;
+mod trainer;
+
+pub use checkpoint::{
+    CheckpointState, Deep360DiskState, CHECKPOINT_DIR, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE,
 };
+pub use options::{StepReport, TrainError, TrainOptions, TrainSummary};
+pub use trainer::{run_training, Trainer, CURVES_PNG, TRAIN_CSV, VAL_CSV};
