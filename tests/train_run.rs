@@ -18,7 +18,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         val_every: 2,
         val_samples: 2,
         checkpoint_every_steps: 1,
-        checkpoint_every_secs: 1e9,
+        checkpoint_every_s: 1e9,
         seed: 5,
         soiled_fraction: 0.5,
         deep360_fraction: 0.3,

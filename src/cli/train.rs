@@ -96,8 +96,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "trained steps {}..{} ({:.2} s/step, peak RSS {:.0} MiB); weights: {}",
         s.start_step,
         s.final_step,
-        s.mean_secs_per_step,
-        s.peak_rss_mb,
+        s.mean_s_per_step,
+        s.peak_rss_mib,
         s.weights_path.display()
     );
     if let Some(v) = s.last_validation {

@@ -40,7 +40,8 @@ pub struct CheckpointState {
     pub seed: u64,
     pub batch_size: usize,
     /// Training wall time so far, seconds.
-    pub train_secs: f64,
+    #[serde(alias = "train_secs")]
+    pub train_s: f64,
     /// The Deep360-on-disk part of the stream (absent in older checkpoints: none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deep360_disk: Option<Deep360DiskState>,

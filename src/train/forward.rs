@@ -96,7 +96,7 @@ pub(super) fn validation_pass(
         step,
         loss: loss_sum / samples.len().max(1) as f64,
         metrics: avg.depth(),
-        peak_rss_mb: super::log::peak_rss_mb(),
+        peak_rss_mib: super::log::peak_rss_mib(),
     })
 }
 

@@ -1,8 +1,10 @@
 //! Training logs: CSV files, the loss/delta1 plot, and peak memory.
 //!
-//! `train.csv`: `step,loss,lr,secs,peak_rss_mb`; `val.csv`: `step,loss,mae_m,rmse_m,abs_rel,
-//! sq_rel_m,silog,delta1_pct,delta2_pct,delta3_pct,peak_rss_mb`. Rows are appended; a resumed run
-//! first drops rows past its checkpoint step, so the files never hold a step twice.
+//! `train.csv`: `step,loss,lr,step_s,peak_rss_mib`; `val.csv`: `step,loss,mae_m,rmse_m,abs_rel,
+//! sq_rel_m,silog,delta1_pct,delta2_pct,delta3_pct,peak_rss_mib`. Rows are appended; a resumed
+//! run first drops rows past its checkpoint step, so the files never hold a step twice, and
+//! writes the current header (runs before the units were unified named the same columns
+//! `secs` and `peak_rss_mb`).
 
 use crate::metrics::DepthMetrics;
 use image::{Rgb, RgbImage};
@@ -10,10 +12,10 @@ use std::io::Write;
 use std::path::Path;
 
 /// CSV header of `train.csv`.
-pub const TRAIN_CSV_HEADER: &str = "step,loss,lr,secs,peak_rss_mb";
+pub const TRAIN_CSV_HEADER: &str = "step,loss,lr,step_s,peak_rss_mib";
 /// CSV header of `val.csv`.
 pub const VAL_CSV_HEADER: &str =
-    "step,loss,mae_m,rmse_m,abs_rel,sq_rel_m,silog,delta1_pct,delta2_pct,delta3_pct,peak_rss_mb";
+    "step,loss,mae_m,rmse_m,abs_rel,sq_rel_m,silog,delta1_pct,delta2_pct,delta3_pct,peak_rss_mib";
 /// Plot size in pixels.
 pub const PLOT_WIDTH_PX: u32 = 800;
 pub const PLOT_HEIGHT_PX: u32 = 600;
@@ -36,8 +38,8 @@ pub struct TrainRecord {
     pub step: usize,
     pub loss: f64,
     pub lr: f64,
-    pub secs: f64,
-    pub peak_rss_mb: f64,
+    pub step_s: f64,
+    pub peak_rss_mib: f64,
 }
 
 /// One row of `val.csv`.
@@ -46,12 +48,12 @@ pub struct ValRecord {
     pub step: usize,
     pub loss: f64,
     pub metrics: DepthMetrics,
-    pub peak_rss_mb: f64,
+    pub peak_rss_mib: f64,
 }
 
 /// Peak resident set size of this process (`VmHWM` in `/proc/self/status`), MiB; 0 where
 /// the file is unavailable.
-pub fn peak_rss_mb() -> f64 {
+pub fn peak_rss_mib() -> f64 {
     crate::memory::peak_resident_mib().unwrap_or(0.0)
 }
 
@@ -74,7 +76,7 @@ pub fn append_train(path: &Path, r: &TrainRecord) -> std::io::Result<()> {
         TRAIN_CSV_HEADER,
         &format!(
             "{},{:.6},{:.6e},{:.3},{:.1}",
-            r.step, r.loss, r.lr, r.secs, r.peak_rss_mb
+            r.step, r.loss, r.lr, r.step_s, r.peak_rss_mib
         ),
     )
 }
@@ -97,13 +99,14 @@ pub fn append_val(path: &Path, r: &ValRecord) -> std::io::Result<()> {
             m.delta1_pct,
             m.delta2_pct,
             m.delta3_pct,
-            r.peak_rss_mb
+            r.peak_rss_mib
         ),
     )
 }
 
-/// Drops data rows whose first field (the step) exceeds `max_step` (for resume).
-pub fn truncate_after_step(path: &Path, max_step: usize) -> std::io::Result<()> {
+/// Drops data rows whose first field (the step) exceeds `max_step` and makes `header` the
+/// first line (for resume).
+pub fn truncate_after_step(path: &Path, header: &str, max_step: usize) -> std::io::Result<()> {
     if !path.exists() {
         return Ok(());
     }
@@ -118,7 +121,7 @@ pub fn truncate_after_step(path: &Path, max_step: usize) -> std::io::Result<()> 
                     .and_then(|s| s.parse::<usize>().ok())
                     .is_some_and(|s| s <= max_step)
         })
-        .map(|(_, l)| l)
+        .map(|(i, l)| if i == 0 { header } else { l })
         .collect();
     let mut out = kept.join("\n");
     out.push('\n');

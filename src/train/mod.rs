@@ -14,7 +14,7 @@
 //!   and `state.json` (step, next sample index = the data RNG position, options that must
 //!   match on resume). It is written into `checkpoint.tmp/` and renamed into place, so a crash
 //!   never leaves a torn checkpoint; written every `checkpoint_every_steps` steps, when
-//!   `checkpoint_every_secs` have passed since the last one, and at the end.
+//!   `checkpoint_every_s` have passed since the last one, and at the end.
 //! * Logs: `train.csv` every step, `val.csv` and `curves.png` every `val_every` steps (see
 //!   [`log`]), peak RSS from `/proc/self/status` in both CSVs. Final weights are copied to
 //!   `out_dir/ssmode_<preset>.safetensors`.

@@ -69,7 +69,7 @@ pub struct TrainOptions {
     /// Checkpoint every this many steps (0: only by time and at the end).
     pub checkpoint_every_steps: usize,
     /// Checkpoint when this many seconds passed since the last one.
-    pub checkpoint_every_secs: f64,
+    pub checkpoint_every_s: f64,
     /// Data stream seed.
     pub seed: u64,
     pub soiled_fraction: f64,
@@ -105,7 +105,7 @@ impl Default for TrainOptions {
             val_every: 250,
             val_samples: 8,
             checkpoint_every_steps: 250,
-            checkpoint_every_secs: 300.0,
+            checkpoint_every_s: 300.0,
             seed: 1,
             soiled_fraction: 0.3,
             deep360_fraction: 0.25,
@@ -130,9 +130,9 @@ pub struct TrainSummary {
     /// Loss of the last step run (NaN if none ran).
     pub last_loss: f64,
     /// Mean wall time per step of this invocation, seconds.
-    pub mean_secs_per_step: f64,
+    pub mean_s_per_step: f64,
     /// Peak resident memory, MiB.
-    pub peak_rss_mb: f64,
+    pub peak_rss_mib: f64,
     pub last_validation: Option<ValRecord>,
     /// Final weights (`out_dir/ssmode_<preset>.safetensors`).
     pub weights_path: PathBuf,
@@ -150,7 +150,7 @@ pub struct StepReport {
     /// Global gradient norm before clipping (NaN if the batch had no gradients).
     pub grad_norm: f64,
     /// Wall time of the step, seconds.
-    pub secs: f64,
+    pub step_s: f64,
 }
 
 /// The network configuration of `opts` (the preset, with `width` if set), after checking

@@ -95,7 +95,7 @@ impl Trainer {
             width: cfg.width,
             seed: opts.seed,
             batch_size: opts.batch_size,
-            train_secs: 0.0,
+            train_s: 0.0,
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
             objects_fraction: opts.objects_fraction,
             street: opts.street,
@@ -114,8 +114,10 @@ impl Trainer {
         let val_csv = opts.out_dir.join(VAL_CSV);
         let curves = opts.out_dir.join(CURVES_PNG);
         if opts.resume {
-            super::log::truncate_after_step(&train_csv, state.step).map_err(io_err(&train_csv))?;
-            super::log::truncate_after_step(&val_csv, state.step).map_err(io_err(&val_csv))?;
+            super::log::truncate_after_step(&train_csv, super::log::TRAIN_CSV_HEADER, state.step)
+                .map_err(io_err(&train_csv))?;
+            super::log::truncate_after_step(&val_csv, super::log::VAL_CSV_HEADER, state.step)
+                .map_err(io_err(&val_csv))?;
         } else {
             for p in [&train_csv, &val_csv] {
                 if p.exists() {
@@ -258,8 +260,8 @@ impl Trainer {
             None => f64::NAN,
         };
         self.state.step = step + 1;
-        let step_secs = step_start.elapsed().as_secs_f64();
-        self.state.train_secs += step_secs;
+        let step_s = step_start.elapsed().as_secs_f64();
+        self.state.train_s += step_s;
         self.last_loss = step_loss;
         super::log::append_train(
             &self.train_csv,
@@ -267,13 +269,13 @@ impl Trainer {
                 step: self.state.step,
                 loss: step_loss,
                 lr,
-                secs: step_secs,
-                peak_rss_mb: super::log::peak_rss_mb(),
+                step_s,
+                peak_rss_mib: super::log::peak_rss_mib(),
             },
         )
         .map_err(io_err(&self.train_csv))?;
         self.bar.set_message(format!(
-            "loss {step_loss:.4} |g| {grad_norm:.3} lr {lr:.2e} {step_secs:.2}s/step"
+            "loss {step_loss:.4} |g| {grad_norm:.3} lr {lr:.2e} {step_s:.2} s/step"
         ));
         self.bar.set_position(self.state.step as u64);
         Ok(StepReport {
@@ -281,7 +283,7 @@ impl Trainer {
             loss: step_loss,
             lr,
             grad_norm,
-            secs: step_secs,
+            step_s,
         })
     }
 
@@ -343,15 +345,14 @@ impl Trainer {
     }
 
     /// Whether to checkpoint after the step just completed: every `checkpoint_every_steps`
-    /// steps, when `checkpoint_every_secs` have passed since the last one, and at the end.
+    /// steps, when `checkpoint_every_s` have passed since the last one, and at the end.
     fn checkpoint_due(&self) -> bool {
         let by_steps = self.opts.checkpoint_every_steps > 0
             && self
                 .state
                 .step
                 .is_multiple_of(self.opts.checkpoint_every_steps);
-        let by_time =
-            self.last_checkpoint.elapsed().as_secs_f64() >= self.opts.checkpoint_every_secs;
+        let by_time = self.last_checkpoint.elapsed().as_secs_f64() >= self.opts.checkpoint_every_s;
         by_steps || by_time || self.state.step == self.opts.steps
     }
 
@@ -390,12 +391,12 @@ impl Trainer {
             start_step: self.start_step,
             final_step: self.state.step,
             last_loss: self.last_loss,
-            mean_secs_per_step: if steps_run > 0 {
+            mean_s_per_step: if steps_run > 0 {
                 self.run_start.elapsed().as_secs_f64() / steps_run as f64
             } else {
                 0.0
             },
-            peak_rss_mb: super::log::peak_rss_mb(),
+            peak_rss_mib: super::log::peak_rss_mib(),
             last_validation: self.last_validation,
             weights_path,
         })
