@@ -12,7 +12,7 @@ use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use crate::msgs::{Header, Image, PointCloud2};
 use crate::node::pipeline::decode_points;
-use crate::node::ros::{create_subscription, dds_context, runtime, SpunNode};
+use crate::node::{create_subscription, dds_context, runtime, SpunNode};
 use crate::node::{play_bag, spawn_node, DdsOptions, NodeParams, PlayOptions};
 use crate::viz::{colorize_range, stack_vertical};
 use image::Rgb;

@@ -17,7 +17,7 @@
 //!   means a leak).
 
 use super::play::{play_bag_until, PlayError, PlayOptions, Published};
-use super::ros::{create_subscription, dds_context, runtime, ShutdownSignals, SpunNode};
+use super::{create_subscription, dds_context, runtime, ShutdownSignals, SpunNode};
 use super::{spawn_node, DdsOptions, NodeError, NodeHealth, NodeParams};
 use crate::bag::{BagError, RigBagReader};
 use crate::estimator::EstimatorSpec;

@@ -12,7 +12,7 @@
 //! same offset, so time keeps increasing by one frame period across the seam and a node's
 //! synchronizer never sees a stamp go backwards. `/tf_static` is sent once, unchanged.
 
-use super::ros::{
+use super::{
     create_publisher, dds_context, latched_qos, output_qos, runtime, sensor_qos, DdsOptions,
     NodeError, SpunNode,
 };
