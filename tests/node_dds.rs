@@ -10,9 +10,7 @@ use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360::msgs::{Header, Image, PointCloud2};
 use mode360::node::pipeline::is_point_range;
-use mode360::node::ros::{
-    create_publisher, create_subscription, dds_context, sensor_qos, SpunNode,
-};
+use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;

@@ -4,9 +4,7 @@
 use mode360::geometry::Rig;
 use mode360::msgs::image::image_msg_from_rgb;
 use mode360::msgs::{Header, Image};
-use mode360::node::ros::{
-    create_publisher, create_subscription, dds_context, sensor_qos, SpunNode,
-};
+use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use ros2_client::qos::History;

@@ -10,7 +10,7 @@ use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::geometry::Rig;
 use mode360::msgs::{DiagnosticArray, Image};
 use mode360::node::diagnostics::diagnostic_value;
-use mode360::node::ros::{create_subscription, dds_context, DdsOptions, SpunNode};
+use mode360::node::{create_subscription, dds_context, DdsOptions, SpunNode};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;

@@ -3,6 +3,25 @@
 //! [`pipeline`] is the DDS-free core shared with offline replay ([`crate::cli::replay`]),
 //! [`params`] parses `--ros-args` and params files, [`diagnostics`] builds `/diagnostics`,
 //! [`clock`] is the node's system or simulated clock.
+//!
+//! The live node over ros2-client (RustDDS, no ROS install needed), one concern per file:
+//! - [`dds`] (`dds.rs`): DDS plumbing, the node's small public API: [`DdsOptions`],
+//!   [`dds_context`], the QoS profiles, [`create_publisher`], [`create_subscription`],
+//!   [`SpunNode`] (a node plus its spinner thread) and the tokio [`runtime`];
+//! - `shutdown.rs`: [`ShutdownSignals`] (SIGINT, SIGTERM) and [`stop_flag_on_signals`];
+//! - `receive.rs`: the DDS thread's receive loop: camera subscriptions, decoding and
+//!   validation, the synchronizer, camera timeouts, `/clock` and `/diagnostics`;
+//! - `worker.rs`: the 1-slot mailbox (a newer group replaces an unprocessed one, counted as
+//!   dropped) and the inference worker that runs the [`Pipeline`] and publishes `depth`,
+//!   `points` and `confidence`;
+//! - `run.rs`: the lifecycle: [`spawn_node`], [`NodeHandle`], [`run_node`] and [`NodeRun`];
+//! - `error.rs`: [`NodeError`].
+//!
+//! Threads: the DDS thread (receive loop), the inference worker and the ros2-client spinner
+//! (discovery), each on its own; [`NodeHandle::shutdown`] stops them all and waits for them.
+//! Module dependencies go one way: `run` → `receive` → `worker`, and all of them → `dds`,
+//! `error`. The commands that drive the node over DDS (`play`, `demo`, `bench-node`) live in
+//! [`crate::cli`] and use only this public API.
 
 pub mod clock;
 pub mod diagnostics;
@@ -26,6 +45,8 @@ pub const TF_STATIC_TOPIC: &str = "/tf_static";
 pub const DIAGNOSTICS_TOPIC: &str = "/diagnostics";
 /// Absolute topic of the simulated clock.
 pub const CLOCK_TOPIC: &str = "/clock";
+/// Environment variable holding the DDS domain ([`DdsOptions::from_env`]).
+pub const ROS_DOMAIN_ID_ENV: &str = "ROS_DOMAIN_ID";
 
 /// `name` resolved in `namespace` (`/` or `/a/b`): absolute names stay, relative ones are
 /// prefixed.
@@ -37,9 +58,16 @@ pub fn resolve_topic(namespace: &str, name: &str) -> String {
     }
 }
 
-pub mod ros;
-pub use ros::{
-    create_publisher, create_subscription, dds_context, latched_qos, output_qos, run_node, runtime,
-    sensor_qos, spawn_node, stop_flag_on_signals, DdsOptions, NodeError, NodeHandle, NodeRun,
-    ShutdownSignals, SpunNode,
+pub mod dds;
+mod error;
+mod receive;
+mod run;
+mod shutdown;
+mod worker;
+pub use dds::{
+    create_publisher, create_subscription, dds_context, latched_qos, output_qos, runtime,
+    sensor_qos, DdsOptions, SpunNode,
 };
+pub use error::NodeError;
+pub use run::{run_node, spawn_node, NodeHandle, NodeRun};
+pub use shutdown::{stop_flag_on_signals, ShutdownSignals};

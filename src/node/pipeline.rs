@@ -1,6 +1,6 @@
 //! The node's processing core, free of DDS: one synchronized group of decoded panoramas in,
-//! the published messages (`depth`, `points`, `confidence`) out. The live node
-//! ([`super::ros`]) and offline replay ([`crate::cli::replay`]) both run this.
+//! the published messages (`depth`, `points`, `confidence`) out. The live node's inference
+//! worker (`super::worker`) and offline replay ([`crate::cli::replay`]) both run this.
 //!
 //! Point cloud: for every output pixel `(u, v)` with a finite range `rho < max_depth_m`,
 //! `p_out = rho * dir(u, v)` (ERP direction of the design notes) in the output frame. Its colour

@@ -1,0 +1,374 @@
+//! The receive loop on the DDS thread. [`dds_setup`] creates the node, its publishers and
+//! subscriptions and sends `/tf_static`; [`dds_main`] then runs a current-thread tokio runtime
+//! whose loop (`tokio::select!`) receives every camera topic (sensor-data QoS: best effort,
+//! keep last), validates and decodes each image ([`decode_camera`]) and feeds
+//! [`ApproxTimeSync`]; with `use_sim_time` it also follows `/clock` ([`NodeClock`]); a
+//! `tokio::time` ticker ([`TICK`]) times cameras out and publishes `/diagnostics` once a
+//! second; a watch channel stops it. Complete groups go to the inference worker's mailbox
+//! ([`super::worker`]), which this loop starts and, at shutdown, stops and waits for.
+
+use super::clock::{secs_between, NodeClock};
+use super::dds::{
+    clock_qos, create_publisher, create_subscription, dds_context, latched_qos, output_qos,
+    runtime, sensor_qos, DdsOptions, SpunNode,
+};
+use super::diagnostics::diagnostic_array;
+use super::error::dds_err;
+use super::params::{ImageTransport, NodeParams};
+use super::pipeline::Pipeline;
+use super::worker::{lock, post_groups, worker_main, OutputPublishers, Shared};
+use super::{
+    resolve_topic, NodeError, CLOCK_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
+    POINTS_TOPIC, TF_STATIC_TOPIC,
+};
+use crate::bag::rig_tf_static;
+use crate::frame::RgbImage;
+use crate::geometry::Rig;
+use crate::msgs::image::{rgb_from_compressed, rgb_from_image_msg};
+use crate::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
+use crate::sync::{ApproxTimeSync, SyncConfig};
+use futures::StreamExt;
+use ros2_client::{Context, Publisher};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+
+/// Housekeeping period of the DDS thread (timeouts, shutdown, diagnostics schedule).
+pub const TICK: Duration = Duration::from_millis(50);
+/// Period of `/diagnostics`.
+pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
+/// Fewest cameras the node keeps running with.
+pub const MIN_ACTIVE_CAMERAS: usize = 2;
+/// Suffix of image_transport's compressed topic.
+pub const COMPRESSED_SUFFIX: &str = "compressed";
+
+/// The topic camera `name` is received on (after remapping and transport suffix).
+pub(super) fn camera_topic(params: &NodeParams, name: &str, topic: &str) -> String {
+    let base = params.remap(topic);
+    match params.image_transport(name) {
+        ImageTransport::Raw => base,
+        ImageTransport::Compressed => format!("{base}/{COMPRESSED_SUFFIX}"),
+    }
+}
+
+/// A received camera message.
+enum CameraMsg {
+    Raw(Image),
+    Compressed(CompressedImage),
+}
+
+/// Per-camera receive bookkeeping on the DDS thread.
+struct CameraState {
+    /// Node-clock time of the newest good message.
+    last_receipt_ns: Option<u64>,
+    received_in_period: u64,
+}
+
+/// Validates and decodes one camera message: ERP size, encoding, step and data length.
+fn decode_camera(msg: &CameraMsg) -> Result<(u64, RgbImage), String> {
+    let (stamp_ns, image) = match msg {
+        CameraMsg::Raw(m) => (
+            m.header.stamp.to_nanos(),
+            rgb_from_image_msg(m).map_err(|e| e.to_string())?,
+        ),
+        CameraMsg::Compressed(m) => (
+            m.header.stamp.to_nanos(),
+            rgb_from_compressed(m).map_err(|e| e.to_string())?,
+        ),
+    };
+    if image.width() != 2 * image.height() || image.width() == 0 {
+        return Err(format!(
+            "{}x{} is not an equirectangular image (width must be 2 x height)",
+            image.width(),
+            image.height()
+        ));
+    }
+    Ok((stamp_ns, image))
+}
+
+/// Everything the DDS thread sets up before it reports ready.
+struct DdsSetup {
+    context: Context,
+    spun: SpunNode,
+    publishers: OutputPublishers,
+    tf_static: Publisher<TFMessage>,
+    diagnostics: Publisher<DiagnosticArray>,
+    raw_subs: Vec<(usize, ros2_client::Subscription<Image>)>,
+    compressed_subs: Vec<(usize, ros2_client::Subscription<CompressedImage>)>,
+    clock_sub: Option<ros2_client::Subscription<Clock>>,
+}
+
+fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetup, NodeError> {
+    let context = dds_context(dds)?;
+    let mut spun = SpunNode::new(&context, &params.namespace, &params.node_name)?;
+    let ns = params.namespace.clone();
+    let topic = |name: &str| match params.remaps.get(name) {
+        // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
+        Some(to) => resolve_topic(&ns, to),
+        None => params.remap(&resolve_topic(&ns, name)),
+    };
+    let node = &mut spun.node;
+    let publishers = OutputPublishers {
+        depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
+        points: create_publisher(node, &topic(POINTS_TOPIC), output_qos())?,
+        confidence: create_publisher(node, &topic(CONFIDENCE_TOPIC), output_qos())?,
+    };
+    let tf_static: Publisher<TFMessage> = create_publisher(node, TF_STATIC_TOPIC, latched_qos())?;
+    let diagnostics: Publisher<DiagnosticArray> =
+        create_publisher(node, DIAGNOSTICS_TOPIC, output_qos())?;
+    let mut raw_subs = Vec::new();
+    let mut compressed_subs = Vec::new();
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        let t = camera_topic(params, &cam.name, &cam.topic);
+        match params.image_transport(&cam.name) {
+            ImageTransport::Raw => {
+                raw_subs.push((i, create_subscription::<Image>(node, &t, sensor_qos())?))
+            }
+            ImageTransport::Compressed => compressed_subs.push((
+                i,
+                create_subscription::<CompressedImage>(node, &t, sensor_qos())?,
+            )),
+        }
+    }
+    let clock_sub = if params.use_sim_time {
+        Some(create_subscription::<Clock>(
+            node,
+            CLOCK_TOPIC,
+            clock_qos(),
+        )?)
+    } else {
+        None
+    };
+    tf_static
+        .publish(rig_tf_static(rig))
+        .map_err(|e| format!("{e:?}"))
+        .map_err(dds_err("publishing /tf_static"))?;
+    Ok(DdsSetup {
+        context,
+        spun,
+        publishers,
+        tf_static,
+        diagnostics,
+        raw_subs,
+        compressed_subs,
+        clock_sub,
+    })
+}
+
+/// Receive-side state of the DDS loop: synchronizer, clock, per-camera bookkeeping.
+struct Receiver {
+    sync: ApproxTimeSync<RgbImage>,
+    clock: NodeClock,
+    cams: Vec<CameraState>,
+    /// Node-clock time of the first tick or image (the baseline of cameras never heard).
+    started_ns: Option<u64>,
+    timeout_ns: u64,
+    shared: Arc<Shared>,
+    hardware_id: String,
+    last_diag: Instant,
+}
+
+impl Receiver {
+    fn on_camera(&mut self, i: usize, result: Result<CameraMsg, String>) {
+        let now_ns = self.clock.now_ns();
+        if let Some(now) = now_ns {
+            self.started_ns.get_or_insert(now);
+        }
+        let sync = &mut self.sync;
+        let outcome = result
+            .and_then(|msg| decode_camera(&msg))
+            .and_then(|(stamp_ns, img)| sync.push(i, stamp_ns, img).map_err(|e| e.to_string()));
+        let mut groups = Vec::new();
+        {
+            let mut h = lock(&self.shared.health);
+            match outcome {
+                Ok(g) => {
+                    groups = g;
+                    if now_ns.is_some() {
+                        self.cams[i].last_receipt_ns = now_ns;
+                    }
+                    self.cams[i].received_in_period += 1;
+                    h.cameras[i].received += 1;
+                    if !self.sync.is_active(i) {
+                        h.cameras[i].active = true;
+                        groups.extend(self.sync.set_active(i, true));
+                    }
+                }
+                Err(reason) => {
+                    h.cameras[i].bad_messages += 1;
+                    h.cameras[i].last_bad_reason = Some(reason);
+                }
+            }
+            h.sync = self.sync.stats();
+        }
+        post_groups(&self.shared, groups);
+    }
+
+    fn on_tick(&mut self, diagnostics: &Publisher<DiagnosticArray>) {
+        let now_ns = self.clock.now_ns();
+        if let Some(now) = now_ns {
+            let started = *self.started_ns.get_or_insert(now);
+            // Cameras silent for longer than the timeout are no longer waited for, as long
+            // as at least MIN_ACTIVE_CAMERAS stay active.
+            let mut groups = Vec::new();
+            for i in 0..self.cams.len() {
+                let silent_since = self.cams[i].last_receipt_ns.unwrap_or(started);
+                let active_count = (0..self.cams.len())
+                    .filter(|&k| self.sync.is_active(k))
+                    .count();
+                if self.sync.is_active(i)
+                    && now.saturating_sub(silent_since) > self.timeout_ns
+                    && active_count > MIN_ACTIVE_CAMERAS
+                {
+                    groups.extend(self.sync.set_active(i, false));
+                    lock(&self.shared.health).cameras[i].active = false;
+                }
+            }
+            post_groups(&self.shared, groups);
+        }
+        let period = self.last_diag.elapsed();
+        if period >= DIAGNOSTICS_PERIOD {
+            let report = {
+                let mut h = lock(&self.shared.health);
+                for (i, c) in self.cams.iter_mut().enumerate() {
+                    h.cameras[i].rate_hz = c.received_in_period as f64 / period.as_secs_f64();
+                    h.cameras[i].age_secs = match (c.last_receipt_ns, now_ns) {
+                        (Some(t), Some(now)) => Some(secs_between(t, now)),
+                        _ => None,
+                    };
+                    c.received_in_period = 0;
+                }
+                h.sync = self.sync.stats();
+                // Stamp 0 with simulated time before the first /clock, as in ROS 2.
+                diagnostic_array(now_ns.unwrap_or(0), &self.hardware_id, &h)
+            };
+            if let Err(e) = diagnostics.publish(report) {
+                tracing::warn!("publishing /diagnostics: {e:?}");
+            }
+            self.last_diag = Instant::now();
+        }
+    }
+}
+
+pub(super) fn dds_main(
+    params: NodeParams,
+    dds: DdsOptions,
+    rig: Rig,
+    pipeline: Pipeline,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+    ready: std::sync::mpsc::Sender<Result<(), NodeError>>,
+) -> Result<(), NodeError> {
+    let setup = runtime().and_then(|rt| Ok((rt, dds_setup(&params, &dds, &rig)?)));
+    let (rt, setup) = match setup {
+        Ok(s) => s,
+        Err(e) => {
+            let text = e.to_string();
+            let _ = ready.send(Err(e));
+            return Err(NodeError::Dds {
+                what: "setup".into(),
+                problem: text,
+            });
+        }
+    };
+    let DdsSetup {
+        context,
+        spun,
+        publishers,
+        tf_static,
+        diagnostics,
+        raw_subs,
+        compressed_subs,
+        clock_sub,
+    } = setup;
+    let worker = {
+        let shared = shared.clone();
+        std::thread::Builder::new()
+            .name("mode360-inference".into())
+            .spawn(move || worker_main(pipeline, publishers, shared))
+            .map_err(|e| e.to_string())
+            .map_err(dds_err("starting the inference thread"))?
+    };
+    let _ = ready.send(Ok(()));
+
+    let n = rig.cameras.len();
+    let mut rx = Receiver {
+        sync: ApproxTimeSync::new(
+            n,
+            SyncConfig {
+                tolerance_ns: (params.sync_tolerance_secs * 1e9).round() as u64,
+                queue_size: params.sync_queue_size,
+            },
+        ),
+        clock: NodeClock::new(params.use_sim_time),
+        cams: (0..n)
+            .map(|_| CameraState {
+                last_receipt_ns: None,
+                received_in_period: 0,
+            })
+            .collect(),
+        started_ns: None,
+        timeout_ns: (params.camera_timeout_secs * 1e9).round() as u64,
+        shared: shared.clone(),
+        hardware_id: params.fully_qualified_name(),
+        last_diag: Instant::now(),
+    };
+
+    rt.block_on(async {
+        let raw = futures::stream::select_all(raw_subs.iter().map(|(i, s)| {
+            let i = *i;
+            s.async_stream()
+                .map(move |r| (i, r.map(|(m, _)| CameraMsg::Raw(m))))
+                .boxed()
+        }));
+        let compressed = futures::stream::select_all(compressed_subs.iter().map(|(i, s)| {
+            let i = *i;
+            s.async_stream()
+                .map(move |r| (i, r.map(|(m, _)| CameraMsg::Compressed(m))))
+                .boxed()
+        }));
+        let mut incoming = futures::stream::select(raw, compressed);
+        let mut clock_msgs = match &clock_sub {
+            Some(s) => s.async_stream().boxed(),
+            None => futures::stream::pending().boxed(),
+        };
+        let mut ticker = tokio::time::interval(TICK);
+        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                // A stop request, or the handle dropped.
+                _ = stop.changed() => break,
+                Some((i, result)) = incoming.next() => {
+                    rx.on_camera(i, result.map_err(|e| format!("cannot deserialize: {e:?}")));
+                }
+                Some(result) = clock_msgs.next() => match result {
+                    Ok((clock, _)) => rx.clock.on_clock(clock.clock.to_nanos()),
+                    Err(e) => tracing::warn!("/clock: cannot deserialize: {e:?}"),
+                },
+                _ = ticker.tick() => rx.on_tick(&diagnostics),
+            }
+        }
+    });
+
+    {
+        let mut mb = lock(&shared.mailbox);
+        mb.shutdown = true;
+        // A group still waiting for inference is not processed any more: dropped.
+        if mb.slot.take().is_some() {
+            lock(&shared.health).groups_dropped += 1;
+        }
+    }
+    shared.wake.notify_all();
+    let worker_result = worker.join();
+    drop(clock_sub);
+    drop(raw_subs);
+    drop(compressed_subs);
+    drop(tf_static);
+    drop(diagnostics);
+    spun.stop()?;
+    drop(context);
+    drop(rt);
+    worker_result.map_err(|_| NodeError::ThreadPanic {
+        thread: "inference".into(),
+    })
+}

@@ -1,0 +1,121 @@
+//! The inference worker and its mailbox. The receive loop posts complete camera groups to a
+//! 1-slot mailbox ([`post_groups`]): a newer group replaces an unprocessed older one (counted
+//! as dropped), so no queue grows without bound and inference never blocks DDS. The worker
+//! thread ([`worker_main`]) takes the newest group, runs the [`Pipeline`] and publishes
+//! `depth`, `points` and `confidence`.
+
+use super::diagnostics::NodeHealth;
+use super::pipeline::Pipeline;
+use crate::frame::RgbImage;
+use crate::msgs::{Image, PointCloud2};
+use crate::sync::SyncGroup;
+use ros2_client::Publisher;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+
+/// The 1-slot "latest group" mailbox between the DDS thread and the inference worker.
+#[derive(Default)]
+pub(super) struct Mailbox {
+    pub(super) slot: Option<SyncGroup<RgbImage>>,
+    pub(super) shutdown: bool,
+}
+
+/// What the DDS thread, the inference worker and the node handle share.
+pub(super) struct Shared {
+    pub(super) mailbox: Mutex<Mailbox>,
+    pub(super) wake: Condvar,
+    pub(super) health: Mutex<NodeHealth>,
+}
+
+/// Locks `m`, also after a thread panicked while holding it.
+pub(super) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Posts complete groups to the mailbox; each one replacing an unprocessed group counts as
+/// dropped.
+pub(super) fn post_groups(shared: &Shared, groups: Vec<SyncGroup<RgbImage>>) {
+    if groups.is_empty() {
+        return;
+    }
+    let mut replaced = 0u64;
+    {
+        let mut mb = lock(&shared.mailbox);
+        for g in groups {
+            if mb.slot.replace(g).is_some() {
+                replaced += 1;
+            }
+        }
+    }
+    shared.wake.notify_one();
+    if replaced > 0 {
+        lock(&shared.health).groups_dropped += replaced;
+    }
+}
+
+/// The publishers of the worker's outputs.
+pub(super) struct OutputPublishers {
+    pub(super) depth: Publisher<Image>,
+    pub(super) points: Publisher<PointCloud2>,
+    pub(super) confidence: Publisher<Image>,
+}
+
+/// The inference thread: takes the newest group until shutdown, runs the pipeline, publishes
+/// and updates the health counters.
+pub(super) fn worker_main(
+    mut pipeline: Pipeline,
+    publishers: OutputPublishers,
+    shared: Arc<Shared>,
+) {
+    let mut total_ms = 0.0;
+    loop {
+        let group = {
+            let mut mb = lock(&shared.mailbox);
+            loop {
+                if mb.shutdown {
+                    return;
+                }
+                if let Some(g) = mb.slot.take() {
+                    break g;
+                }
+                mb = shared
+                    .wake
+                    .wait(mb)
+                    .unwrap_or_else(|poisoned| poisoned.into_inner());
+            }
+        };
+        let images = group
+            .messages
+            .into_iter()
+            .map(|m| m.map(|(_, img)| img))
+            .collect();
+        match pipeline.process(images, group.stamp_ns) {
+            Ok(out) => {
+                let mut errors = Vec::new();
+                if let Err(e) = publishers.depth.publish(out.depth) {
+                    errors.push(format!("publishing depth: {e:?}"));
+                }
+                if let Err(e) = publishers.points.publish(out.points) {
+                    errors.push(format!("publishing points: {e:?}"));
+                }
+                if let Err(e) = publishers.confidence.publish(out.confidence) {
+                    errors.push(format!("publishing confidence: {e:?}"));
+                }
+                let ms = out.latency.as_secs_f64() * 1e3;
+                let mut h = lock(&shared.health);
+                h.groups_processed += 1;
+                total_ms += ms;
+                h.last_latency_ms = Some(ms);
+                h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);
+                if let Some(e) = errors.pop() {
+                    h.pipeline_errors += 1;
+                    h.last_pipeline_error = Some(e);
+                }
+            }
+            Err(e) => {
+                let mut h = lock(&shared.health);
+                h.pipeline_errors += 1;
+                h.last_pipeline_error = Some(e.to_string());
+            }
+        }
+    }
+}
