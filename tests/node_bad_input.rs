@@ -5,7 +5,7 @@
 //!    smaller than a row, and a size (64x32) that disagrees with the data (128x64 worth);
 //! 2. a whole group older than the last processed one (stamps out of order);
 //! 3. one camera sending a well-formed image of another resolution than the others;
-//! 4. one camera silent: after `camera_timeout_secs` the node publishes without it.
+//! 4. one camera silent: after `camera_timeout_s` the node publishes without it.
 //!
 //! Every bad message must be dropped (no depth carries its stamp), counted for its camera with
 //! a reason naming what is wrong, and the node must publish depth for the next good group.
@@ -34,7 +34,7 @@ const DOMAIN_ID: u16 = 46;
 const WIDTH: usize = 128;
 /// Long enough that the pauses between cases (a diagnostics period or two) never time a
 /// camera out; short enough for case 4 to stay quick.
-const CAMERA_TIMEOUT_SECS: f64 = 3.0;
+const CAMERA_TIMEOUT_S: f64 = 3.0;
 const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a good group may take to come back as depth.
 const DEPTH_TIMEOUT: Duration = Duration::from_secs(15);
@@ -178,7 +178,7 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
         NodeParams {
             rig_file: RIG_PATH.into(),
             output_width: WIDTH,
-            camera_timeout_secs: CAMERA_TIMEOUT_SECS,
+            camera_timeout_s: CAMERA_TIMEOUT_S,
             ..Default::default()
         },
         dds.clone(),
@@ -387,7 +387,7 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
     };
     let waited = t0.elapsed().as_secs_f64();
     assert!(
-        waited >= CAMERA_TIMEOUT_SECS * 0.9,
+        waited >= CAMERA_TIMEOUT_S * 0.9,
         "depth without the silent camera after only {waited:.2} s"
     );
     let silent = camera_status(&names[SILENT_CAMERA]);

@@ -225,7 +225,7 @@ fn node_params() -> NodeParams {
         rig_file: RIG_PATH.into(),
         output_width: WIDTH,
         max_depth_m: MAX_DEPTH_M,
-        camera_timeout_secs: 30.0,
+        camera_timeout_s: 30.0,
         ..Default::default()
     }
 }

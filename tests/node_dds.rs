@@ -78,7 +78,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         rig_file: RIG_PATH.into(),
         output_width: WIDTH,
         max_depth_m: MAX_DEPTH_M,
-        camera_timeout_secs: 30.0,
+        camera_timeout_s: 30.0,
         ..Default::default()
     };
     let node = spawn_node(params, dds.clone())?;

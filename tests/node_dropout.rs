@@ -20,7 +20,7 @@ const RIG_PATH: &str = concat!(
 /// Unique domain of this test file.
 const DOMAIN_ID: u16 = 42;
 const WIDTH: usize = 64;
-const CAMERA_TIMEOUT_SECS: f64 = 0.5;
+const CAMERA_TIMEOUT_S: f64 = 0.5;
 const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
 const SEND_PERIOD: Duration = Duration::from_millis(200);
@@ -45,7 +45,7 @@ fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
         NodeParams {
             rig_file: RIG_PATH.into(),
             output_width: WIDTH,
-            camera_timeout_secs: CAMERA_TIMEOUT_SECS,
+            camera_timeout_s: CAMERA_TIMEOUT_S,
             ..Default::default()
         },
         dds.clone(),

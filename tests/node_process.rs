@@ -86,7 +86,7 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
         &params_path,
         format!(
             "mode360:\n  ros__parameters:\n    rig_file: {rig_path}\n    output_width: {WIDTH}\n\
-             \x20   use_sim_time: true\n    camera_timeout_secs: 30.0\n"
+             \x20   use_sim_time: true\n    camera_timeout_s: 30.0\n"
         ),
     )?;
 
@@ -226,8 +226,8 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
         .ok_or("no diagnostics after the bag ended")?;
     assert_eq!(late.header.stamp.to_nanos(), last_sim_ns);
     for cam in &rig.cameras {
-        let age: f64 = diagnostic_value(late, &format!("mode360: camera {}", cam.name), "age_secs")
-            .ok_or("no age_secs")?
+        let age: f64 = diagnostic_value(late, &format!("mode360: camera {}", cam.name), "age_s")
+            .ok_or("no age_s")?
             .parse()?;
         assert!(age <= MAX_SIM_AGE_SECS, "{}: age {age} s", cam.name);
     }

@@ -86,7 +86,7 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
         estimator: opts.estimator.clone(),
         output_width: width,
         max_depth_m,
-        camera_timeout_secs: 60.0,
+        camera_timeout_s: 60.0,
         ..Default::default()
     };
     let node = spawn_node(params, opts.dds.clone())?;

@@ -68,7 +68,7 @@ impl NodeClock {
 }
 
 /// Seconds from `earlier_ns` to `now_ns`, 0 when `now_ns` is earlier (a clock that jumped back).
-pub fn secs_between(earlier_ns: u64, now_ns: u64) -> f64 {
+pub fn seconds_between(earlier_ns: u64, now_ns: u64) -> f64 {
     now_ns.saturating_sub(earlier_ns) as f64 / 1e9
 }
 
@@ -120,8 +120,8 @@ mod tests {
 
     #[test]
     fn ages_saturate_at_zero() {
-        assert_eq!(secs_between(1_000_000_000, 3_500_000_000), 2.5);
-        assert_eq!(secs_between(3_500_000_000, 1_000_000_000), 0.0);
-        assert_eq!(secs_between(T0, T0), 0.0);
+        assert_eq!(seconds_between(1_000_000_000, 3_500_000_000), 2.5);
+        assert_eq!(seconds_between(3_500_000_000, 1_000_000_000), 0.0);
+        assert_eq!(seconds_between(T0, T0), 0.0);
     }
 }

@@ -18,7 +18,7 @@ pub struct CameraHealth {
     /// Good messages a second over the last reporting period.
     pub rate_hz: f64,
     /// Seconds since the newest good message (`None` before the first).
-    pub age_secs: Option<f64>,
+    pub age_s: Option<f64>,
     /// False while the camera is timed out and not waited for.
     pub active: bool,
     /// Messages dropped as malformed (encoding, size, truncation, out-of-order stamps).
@@ -79,8 +79,8 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
                 kv("received", cam.received),
                 kv("rate_hz", format!("{:.2}", cam.rate_hz)),
                 kv(
-                    "age_secs",
-                    cam.age_secs
+                    "age_s",
+                    cam.age_s
                         .map_or_else(|| "n/a".into(), |a| format!("{a:.3}")),
                 ),
                 kv("active", cam.active),

@@ -5,7 +5,7 @@
 //! `-r __ns:=/x`, `-r __node:=name`, and `--` (or a later `--ros-args`) closing a section.
 //! Params files use the ROS 2 layout: `node_name: {ros__parameters: {...}}` where the key may
 //! be the node name, `/node_name`, `/ns/node_name` or the wildcard `/**`. Nested maps become
-//! dotted names (`sync: {tolerance_secs: 0.01}` is `sync.tolerance_secs`). Later sources win.
+//! dotted names (`sync: {tolerance_s: 0.01}` is `sync.tolerance_s`). Later sources win.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -65,10 +65,10 @@ pub struct NodeParams {
     /// Parameters `estimator` and `weights` (SSMODE weights file; empty: the shipped weights).
     pub estimator: EstimatorSpec,
     pub output_width: usize,
-    pub sync_tolerance_secs: f64,
+    pub sync_tolerance_s: f64,
     pub sync_queue_size: usize,
     /// A camera silent for longer is no longer waited for.
-    pub camera_timeout_secs: f64,
+    pub camera_timeout_s: f64,
     pub max_depth_m: f64,
     pub use_sim_time: bool,
     /// Transport for cameras not named in `image_transport_per_camera`.
@@ -87,9 +87,9 @@ impl Default for NodeParams {
             rig_file: DEFAULT_RIG_FILE.into(),
             estimator: EstimatorSpec::default(),
             output_width: 512,
-            sync_tolerance_secs: 0.01,
+            sync_tolerance_s: 0.01,
             sync_queue_size: 5,
-            camera_timeout_secs: 1.0,
+            camera_timeout_s: 1.0,
             max_depth_m: 1000.0,
             use_sim_time: false,
             image_transport_default: ImageTransport::Raw,
@@ -268,9 +268,15 @@ impl NodeParams {
                 }
                 self.output_width = w;
             }
-            "sync.tolerance_secs" => self.sync_tolerance_secs = positive_f64()?,
+            "sync.tolerance_s" => self.sync_tolerance_s = positive_f64()?,
             "sync.queue_size" => self.sync_queue_size = positive_usize()?,
-            "camera_timeout_secs" => self.camera_timeout_secs = positive_f64()?,
+            "camera_timeout_s" => self.camera_timeout_s = positive_f64()?,
+            // Names before the units were unified (seconds are `_s` everywhere).
+            "sync.tolerance_secs" | "camera_timeout_secs" => {
+                let current = name.replace("_secs", "_s");
+                tracing::warn!("parameter '{name}' is deprecated: use '{current}'");
+                return self.set(&current, value);
+            }
             "max_depth_m" => self.max_depth_m = positive_f64()?,
             "use_sim_time" => {
                 self.use_sim_time = match value {
@@ -380,7 +386,7 @@ mod tests {
             "-p",
             "output_width:=256",
             "-p",
-            "sync.tolerance_secs:=0.02",
+            "sync.tolerance_s:=0.02",
             "--param",
             "use_sim_time:=true",
             "-r",
@@ -400,7 +406,7 @@ mod tests {
             Some(std::path::Path::new("runs/x/ssmode_compact.safetensors"))
         );
         assert_eq!(p.output_width, 256);
-        assert_eq!(p.sync_tolerance_secs, 0.02);
+        assert_eq!(p.sync_tolerance_s, 0.02);
         assert!(p.use_sim_time);
         assert_eq!(p.namespace, "/robot1");
         assert_eq!(p.node_name, "depth360");
@@ -412,6 +418,23 @@ mod tests {
     }
 
     #[test]
+    fn deprecated_secs_names_still_set_the_seconds() {
+        let p = NodeParams::from_args(&args(&[
+            "--ros-args",
+            "-p",
+            "sync.tolerance_secs:=0.03",
+            "-p",
+            "camera_timeout_secs:=2.5",
+        ]))
+        .unwrap();
+        assert_eq!(p.sync_tolerance_s, 0.03);
+        assert_eq!(p.camera_timeout_s, 2.5);
+        assert!(
+            NodeParams::from_args(&args(&["--ros-args", "-p", "camera_timeout_secs:=-1"])).is_err()
+        );
+    }
+
+    #[test]
     fn params_file_layout_with_wildcard_and_named_node() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("p.yaml");
@@ -419,7 +442,7 @@ mod tests {
             &file,
             "/**:\n  ros__parameters:\n    use_sim_time: true\n    max_depth_m: 50.0\n\
              mode360:\n  ros__parameters:\n    estimator: photometric\n    max_depth_m: 80\n\
-             \x20   sync:\n      tolerance_secs: 0.005\n      queue_size: 3\n\
+             \x20   sync:\n      tolerance_s: 0.005\n      queue_size: 3\n\
              \x20   image_transport:\n      cam4: compressed\n\
              other_node:\n  ros__parameters:\n    output_width: 64\n",
         )
@@ -435,7 +458,7 @@ mod tests {
         .unwrap();
         assert!(p.use_sim_time);
         assert_eq!(p.max_depth_m, 80.0);
-        assert_eq!(p.sync_tolerance_secs, 0.005);
+        assert_eq!(p.sync_tolerance_s, 0.005);
         assert_eq!(p.sync_queue_size, 7);
         assert_eq!(p.output_width, NodeParams::default().output_width);
         assert_eq!(p.image_transport("cam4"), ImageTransport::Compressed);

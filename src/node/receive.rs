@@ -7,7 +7,7 @@
 //! second; a watch channel stops it. Complete groups go to the inference worker's mailbox
 //! ([`super::worker`]), which this loop starts and, at shutdown, stops and waits for.
 
-use super::clock::{secs_between, NodeClock};
+use super::clock::{seconds_between, NodeClock};
 use super::dds::{
     clock_qos, create_publisher, create_subscription, dds_context, latched_qos, output_qos,
     runtime, sensor_qos, DdsOptions, SpunNode,
@@ -232,8 +232,8 @@ impl Receiver {
                 let mut h = lock(&self.shared.health);
                 for (i, c) in self.cams.iter_mut().enumerate() {
                     h.cameras[i].rate_hz = c.received_in_period as f64 / period.as_secs_f64();
-                    h.cameras[i].age_secs = match (c.last_receipt_ns, now_ns) {
-                        (Some(t), Some(now)) => Some(secs_between(t, now)),
+                    h.cameras[i].age_s = match (c.last_receipt_ns, now_ns) {
+                        (Some(t), Some(now)) => Some(seconds_between(t, now)),
                         _ => None,
                     };
                     c.received_in_period = 0;
@@ -296,7 +296,7 @@ pub(super) fn dds_main(
         sync: ApproxTimeSync::new(
             n,
             SyncConfig {
-                tolerance_ns: (params.sync_tolerance_secs * 1e9).round() as u64,
+                tolerance_ns: (params.sync_tolerance_s * 1e9).round() as u64,
                 queue_size: params.sync_queue_size,
             },
         ),
@@ -308,7 +308,7 @@ pub(super) fn dds_main(
             })
             .collect(),
         started_ns: None,
-        timeout_ns: (params.camera_timeout_secs * 1e9).round() as u64,
+        timeout_ns: (params.camera_timeout_s * 1e9).round() as u64,
         shared: shared.clone(),
         hardware_id: params.fully_qualified_name(),
         last_diag: Instant::now(),

@@ -193,7 +193,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
             rig_file: rig_path.clone(),
             estimator: opts.estimator.clone(),
             output_width,
-            camera_timeout_secs: 60.0,
+            camera_timeout_s: 60.0,
             ..Default::default()
         },
         opts.dds.clone(),
