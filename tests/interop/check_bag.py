@@ -10,7 +10,7 @@ Readers:
      from the bag's schema text and (b) rosbags' bundled ROS 2 Humble definitions, so the
      field layout is checked against the real ROS definitions too.
 
-EXPECTED.json (written by tests/bag_interop.rs):
+EXPECTED.json (written by tests/bags/bag_interop.rs):
   {"bag": path, "profile": "ros2", "metadata": {name: {key: value}},
    "messages": [{"topic", "schema", "log_time_ns" (string), "checks": [[path, value], ...]}]}
 Check paths: fields and indices ("a.b[2].c"), "#len" suffix for a length, "@f32le[i]" /

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A Cyclone DDS peer of the mode360 node, used by tests/node_cyclone.rs.
+"""A Cyclone DDS peer of the mode360 node, used by tests/node/cyclone.rs.
 
 Types are declared here from the ROS 2 .msg definitions (rosidl's DDS names:
 `sensor_msgs::msg::dds_::Image_`, topics `rt/<name>`), independently of mode360's code.

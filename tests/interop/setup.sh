@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Prepares the third-party peers used by tests/bag_interop.rs (bag readers) and
-# tests/node_cyclone.rs (Cyclone DDS). Idempotent.
+# Prepares the third-party peers used by tests/bags/bag_interop.rs (bag readers) and
+# tests/node/cyclone.rs (Cyclone DDS). Idempotent.
 #
 # Usage: tests/interop/setup.sh DIR
 #   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support, rosbags and cyclonedds

@@ -30,6 +30,7 @@ const DROPPED_CAMERA: usize = 3;
 
 #[test]
 fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
     let rig = Rig::from_file(RIG_PATH)?;
     let frame = SynthRenderer::new(SynthConfig {
         seed: 5,

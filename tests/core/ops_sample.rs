@@ -1,6 +1,7 @@
 //! table_sample and trilinear upsampling: against nested-loop f64 references, gradients against
 //! central differences, custom == composite.
 
+use crate::common::{dot, max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Tensor, Var};
 use mode360::geometry::{ErpGrid, PixelCoord};
 use mode360::model::ops::{
@@ -11,47 +12,6 @@ use mode360::model::ops::{
 const FWD_TOL: f64 = 1e-5;
 const GRAD_TOL: f64 = 1e-4;
 const FD_STEP: f64 = 1e-3;
-
-fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
-    let mut s = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    (0..n)
-        .map(|_| {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        })
-        .collect()
-}
-
-fn tensor(v: &[f64], dims: &[usize]) -> Tensor {
-    let f: Vec<f32> = v.iter().map(|&x| x as f32).collect();
-    Tensor::from_vec(f, dims, &Device::Cpu).unwrap()
-}
-
-fn values(t: &Tensor) -> Vec<f64> {
-    t.flatten_all()
-        .unwrap()
-        .to_vec1::<f32>()
-        .unwrap()
-        .into_iter()
-        .map(f64::from)
-        .collect()
-}
-
-fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
 
 /// Gradient of `<f(v), r>` by central differences in every coordinate.
 fn fd_gradient(v: &[f64], f: impl Fn(&[f64]) -> Vec<f64>, r: &[f64]) -> Vec<f64> {

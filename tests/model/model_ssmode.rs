@@ -1,22 +1,18 @@
 //! SSMODE network: shapes for any camera count, parameter count of the paper preset, gradient
 //! flow, overfitting one synthetic frame, weight round trip, and the sweep tables.
 
+use crate::common::deep360_rig as rig;
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
-use mode360::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360::geometry::{ErpGrid, PixelCoord};
 use mode360::model::config::CostKind;
 use mode360::model::cost_volume::cost_volume;
 use mode360::model::{load_weights, save_weights, Ssmode, SsmodeConfig, SweepSampling};
 use mode360::synth::{SynthConfig, SynthRenderer};
 
-const RIG_PATH: &str = "launch_configs/rig_deep360.yaml";
 /// The paper's SSMODE has about 5.5M parameters.
 const PAPER_PARAMS: f64 = 5.5e6;
 const PAPER_PARAMS_TOLERANCE: f64 = 0.15;
-
-fn rig() -> Rig {
-    Rig::from_file(format!("{}/{RIG_PATH}", env!("CARGO_MANIFEST_DIR"))).expect("rig file")
-}
 
 fn model(cfg: &SsmodeConfig) -> (VarMap, Ssmode) {
     let varmap = VarMap::new();

@@ -1,21 +1,14 @@
 //! The SSMODE estimator: loads a weights file, resizes images in and range out, and errors
 //! clearly on a missing file.
 
+use crate::common::deep360_rig as rig;
 use candle_core::{DType, Device};
 use candle_nn::{VarBuilder, VarMap};
 use mode360::estimator::ssmode::{resample_erp, SsmodeEstimator};
 use mode360::estimator::DepthEstimator;
-use mode360::geometry::{ErpGrid, Rig};
+use mode360::geometry::ErpGrid;
 use mode360::model::{save_weights, Ssmode, SsmodeConfig};
 use mode360::synth::{SynthConfig, SynthRenderer};
-
-fn rig() -> Rig {
-    Rig::from_file(format!(
-        "{}/launch_configs/rig_deep360.yaml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .expect("rig")
-}
 
 #[test]
 fn missing_weights_name_the_path() {

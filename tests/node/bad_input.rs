@@ -162,6 +162,7 @@ fn message<'a>(array: &'a DiagnosticArray, name: &str) -> Option<&'a str> {
 
 #[test]
 fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
     let t_start = Instant::now();
     let rig = Rig::from_file(RIG_PATH)?;
     let frame = SynthRenderer::new(SynthConfig {

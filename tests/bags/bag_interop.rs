@@ -13,6 +13,7 @@
 //! `@f32le[i]` / `@u32le[i]` read a little-endian float32 / uint32 element of a byte array,
 //! and the string `"NaN"` matches a NaN.
 
+use crate::common::{NODE_DIR_ENV, PYTHON_ENV};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -22,8 +23,6 @@ use mode360::frame::{FloatImage, RgbImage};
 use mode360::msgs::*;
 use serde_json::{json, Value};
 
-const PYTHON_ENV: &str = "MODE360_PYTHON";
-const NODE_DIR_ENV: &str = "MODE360_NODE_DIR";
 const T0_NS: u64 = 1_700_000_000_000_000_000;
 const FRAME_PERIOD_NS: u64 = 100_000_000;
 const METADATA_NAME: &str = "mode360.interop";
@@ -371,18 +370,14 @@ fn write_bag(path: &Path, options: BagWriteOptions) -> Vec<Expected> {
 
 /// The env var, or `None` after printing why the check is skipped (panics under CI).
 fn tool_from_env(var: &str, what: &str) -> Option<String> {
-    match std::env::var(var) {
-        Ok(value) if !value.is_empty() => Some(value),
-        _ => {
-            let hint = format!(
-                "skipped {what}: set {PYTHON_ENV}=<python with mcap mcap-ros2-support rosbags> and \
-                 {NODE_DIR_ENV}=<folder with node_modules> (tests/interop/setup.sh DIR makes both)"
-            );
-            assert!(std::env::var_os("CI").is_none(), "CI is set: {hint}");
-            println!("{hint}");
-            None
-        }
-    }
+    crate::common::tool_from_env(
+        var,
+        what,
+        &format!(
+            "set {PYTHON_ENV}=<python with mcap mcap-ros2-support rosbags> and \
+             {NODE_DIR_ENV}=<folder with node_modules> (tests/interop/setup.sh DIR makes both)"
+        ),
+    )
 }
 
 /// Runs a checker on `json_path`; returns (success, stdout).

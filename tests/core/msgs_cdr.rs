@@ -280,13 +280,13 @@ const SEP: &str =
 #[test]
 fn image_schema_text_golden() {
     let expected = String::new()
-        + include_str!("../msg/sensor_msgs/Image.msg")
+        + include_str!("../../msg/sensor_msgs/Image.msg")
         + SEP
         + "\nMSG: std_msgs/Header\n"
-        + include_str!("../msg/std_msgs/Header.msg")
+        + include_str!("../../msg/std_msgs/Header.msg")
         + SEP
         + "\nMSG: builtin_interfaces/Time\n"
-        + include_str!("../msg/builtin_interfaces/Time.msg");
+        + include_str!("../../msg/builtin_interfaces/Time.msg");
     let text = schema_text("sensor_msgs/msg/Image").map_err(|e| e.to_string());
     assert_eq!(text.as_deref(), Ok(expected.as_str()));
     // The start, spelled out.

@@ -2,6 +2,7 @@
 //! into it, `depth` and `points` received and checked against ground truth; then malformed
 //! images are sent and the node must report them and keep publishing for good input.
 
+use crate::common::reliable_qos;
 use mode360::bag::RigBagReader;
 use mode360::cli::play::{play_bag, PlayOptions};
 use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
@@ -13,8 +14,6 @@ use mode360::node::pipeline::is_point_range;
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
 use mode360::synth::SynthConfig;
-use ros2_client::qos::History;
-use ros2_client::QosProfile;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
@@ -40,12 +39,9 @@ const POLL: Duration = Duration::from_millis(20);
 /// Stamp offset of the hand-sent messages after the bag (later than every bag stamp).
 const LATE_OFFSET_NS: u64 = 100_000_000_000;
 
-fn reliable_qos() -> QosProfile {
-    QosProfile::publisher_default().history(History::KeepLast { depth: 10 })
-}
-
 #[test]
 fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
     let t_start = Instant::now();
     let dir = tempfile::tempdir()?;
     let bag_path = dir.path().join("in.mcap");

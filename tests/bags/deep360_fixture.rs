@@ -789,17 +789,12 @@ fn numpy_written_cassini_range_reads_as_the_room_along_every_erp_ray() {
     use mode360::deep360::{cassini_to_erp_range, read_npz_array};
     use mode360::frame::FloatImage;
     use mode360::geometry::{ErpGrid, PixelCoord};
-    const PYTHON_ENV: &str = "MODE360_PYTHON";
     /// The room's walls along x_D, y_D, z_D (below and above camera 1), metres.
     const LOW_M: [f64; 3] = [-2.0, -1.5, -3.0];
     const HIGH_M: [f64; 3] = [4.0, 3.0, 7.0];
     const CASSINI_W: usize = 128;
     const CASSINI_H: usize = 256;
-    let Some(python) = std::env::var(PYTHON_ENV).ok().filter(|p| !p.is_empty()) else {
-        let hint =
-            format!("skipped: set {PYTHON_ENV} to a Python with numpy (tests/interop/setup.sh)");
-        assert!(std::env::var_os("CI").is_none(), "CI is set: {hint}");
-        println!("{hint}");
+    let Some(python) = crate::common::python_with_numpy("the numpy-written fixture") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -894,15 +889,10 @@ np.savez_compressed(sys.argv[2], r.astype(np.float32))
 #[test]
 fn python_written_cassini_images_look_along_their_erp_directions() {
     use mode360::geometry::{ErpGrid, PixelCoord};
-    const PYTHON_ENV: &str = "MODE360_PYTHON";
     /// Largest angle between an ERP pixel's direction and the one its colour encodes.
     const MAX_ANGLE_DEG: f64 = 2.0;
     const ERP_W: usize = 256;
-    let Some(python) = std::env::var(PYTHON_ENV).ok().filter(|p| !p.is_empty()) else {
-        let hint =
-            format!("skipped: set {PYTHON_ENV} to a Python with numpy (tests/interop/setup.sh)");
-        assert!(std::env::var_os("CI").is_none(), "CI is set: {hint}");
-        println!("{hint}");
+    let Some(python) = crate::common::python_with_numpy("the numpy-written fixture") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -1,6 +1,7 @@
 //! conv3d / conv_transpose3d: custom kernels against nested-loop f64 references, gradients
 //! against central differences of the reference, and custom == composite.
 
+use crate::common::{dot, max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Tensor, Var};
 use mode360::model::ops::{
     conv3d, conv3d_composite, conv3d_fused, conv3d_weight_grad, conv3d_weight_grad_composite,
@@ -14,44 +15,6 @@ const FWD_TOL: f64 = 1e-4;
 const GRAD_TOL: f64 = 1e-3;
 /// Central-difference step (the reference is f64 and linear, so the step barely matters).
 const FD_STEP: f64 = 1e-3;
-
-/// Deterministic values in [-1, 1) (64-bit LCG).
-fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
-    let mut s = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    (0..n)
-        .map(|_| {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        })
-        .collect()
-}
-
-fn tensor(v: &[f64], dims: &[usize]) -> Tensor {
-    let f: Vec<f32> = v.iter().map(|&x| x as f32).collect();
-    Tensor::from_vec(f, dims, &Device::Cpu).unwrap()
-}
-
-fn values(t: &Tensor) -> Vec<f64> {
-    t.flatten_all()
-        .unwrap()
-        .to_vec1::<f32>()
-        .unwrap()
-        .into_iter()
-        .map(f64::from)
-        .collect()
-}
-
-fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
-}
 
 /// Naive f64 conv3d, x `(B, D, H, W, Ci)`, w `(kD, kH, kW, Ci, Co)`.
 fn conv3d_ref(x: &[f64], w: &[f64], g: &Conv3dGeometry) -> Vec<f64> {
@@ -149,10 +112,6 @@ fn conv_transpose3d_ref(
         }
     }
     (y, out)
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// Central differences of `loss(v) = <f(v), r>` in every coordinate of `v` listed in `coords`.

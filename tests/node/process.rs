@@ -65,6 +65,7 @@ fn summary_counts(line: &str) -> BTreeMap<String, u64> {
 
 #[test]
 fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
     let dir = tempfile::tempdir()?;
     let rig_path = format!("{MANIFEST_DIR}/launch_configs/rig_deep360.yaml");
     let rig = Rig::from_file(&rig_path)?;

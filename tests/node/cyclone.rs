@@ -12,6 +12,8 @@
 //! Needs `MODE360_PYTHON`: a Python with `cyclonedds` (`tests/interop/setup.sh DIR` makes one).
 //! Without it the tests are skipped, unless `CI` is set, where they fail.
 
+use crate::common::reliable_qos;
+use crate::common::PYTHON_ENV;
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
@@ -21,8 +23,6 @@ use mode360::node::pipeline::{is_point_range, POINT_FIELD_NAMES, POINT_STEP_BYTE
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
 use mode360::synth::{SynthConfig, SynthRenderer};
-use ros2_client::qos::History;
-use ros2_client::QosProfile;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -34,7 +34,6 @@ use std::time::{Duration, Instant};
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;
 
-const PYTHON_ENV: &str = "MODE360_PYTHON";
 const RIG_PATH: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/launch_configs/rig_deep360.yaml"
@@ -216,10 +215,6 @@ fn fnv1a64(data: &[u8]) -> String {
     format!("{h:016x}")
 }
 
-fn reliable_qos() -> QosProfile {
-    QosProfile::publisher_default().history(History::KeepLast { depth: 10 })
-}
-
 fn node_params() -> NodeParams {
     NodeParams {
         rig_file: RIG_PATH.into(),
@@ -270,6 +265,7 @@ fn json_str<'a>(v: &'a Value, path: &str) -> Result<&'a str, String> {
 
 #[test]
 fn cyclone_subscriber_decodes_depth_and_points() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
     let Some(python) = cyclone_python() else {
         return Ok(());
     };
@@ -475,6 +471,7 @@ fn write_frames(
 
 #[test]
 fn cyclone_publisher_feeds_the_node() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
     let Some(python) = cyclone_python() else {
         return Ok(());
     };

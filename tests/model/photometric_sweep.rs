@@ -1,12 +1,10 @@
 //! Accuracy of the photometric sphere sweep against exact ground truth.
 
-mod photometric_scene;
-
+use crate::photometric_scene::{render, scores};
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::{DepthEstimator, EstimatorError};
 use mode360::frame::RgbImage;
 use mode360::geometry::{ErpGrid, Rig};
-use photometric_scene::{render, scores};
 use std::time::Instant;
 
 const RIG_PATH: &str = concat!(
@@ -55,7 +53,7 @@ fn estimate_analytic(
 ) -> Result<
     (
         mode360::estimator::DepthEstimate,
-        photometric_scene::SceneFrame,
+        crate::photometric_scene::SceneFrame,
     ),
     Box<dyn std::error::Error>,
 > {

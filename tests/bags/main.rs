@@ -1,0 +1,12 @@
+//! Bags and the commands over them: MCAP round trips, third-party readers (Python mcap,
+//! rosbags, Foxglove's decoders), the Deep360 reader with independently written fixtures,
+//! replay, and the `mode360` binary (synth, eval, errors, README option tables).
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod bag_interop;
+mod bag_roundtrip;
+mod cli;
+mod deep360_fixture;
+mod replay_bag;

@@ -1,0 +1,12 @@
+//! The library's pure parts: geometry, custom tensor ops against f64 references, ROS message
+//! encoding, and synthetic scenes.
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod geometry;
+mod msgs_cdr;
+mod ops_conv3d;
+mod ops_sample;
+mod synth_objects;
+mod synth_render;

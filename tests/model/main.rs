@@ -1,0 +1,15 @@
+//! Depth estimators end to end: SSMODE (network, weights, estimator, benchmark case), the
+//! photometric sweep, the geometry check (same-image views), and training (data, loss,
+//! resumable runs).
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod geometry_check;
+mod model_estimator;
+mod model_ssmode;
+mod photometric_scene;
+mod photometric_sweep;
+mod train_data;
+mod train_loss;
+mod train_run;
