@@ -1,5 +1,6 @@
 //! Offline replay: a small rendered bag through the node's pipeline into an output bag.
 
+use crate::common::{TestResult, RIG_PATH};
 use mode360::bag::{BagReader, RigBagReader, GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC};
 use mode360::cli::replay::{replay_bag, ReplayOptions};
 use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
@@ -11,12 +12,6 @@ use mode360::node::diagnostics::diagnostic_value;
 use mode360::node::pipeline::{decode_points, is_point_range};
 use mode360::synth::SynthConfig;
 
-type TestResult = Result<(), Box<dyn std::error::Error>>;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
 const WIDTH: usize = 128;
 const FRAMES: usize = 2;
 const MAX_DEPTH_M: f64 = 1000.0;

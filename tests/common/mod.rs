@@ -14,6 +14,15 @@ pub const NODE_DIR_ENV: &str = "MODE360_NODE_DIR";
 /// The bundled Deep360 rig, relative to the repository root.
 pub const DEEP360_RIG: &str = "launch_configs/rig_deep360.yaml";
 
+/// The bundled Deep360 rig, as an absolute path.
+pub const RIG_PATH: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/launch_configs/rig_deep360.yaml"
+);
+
+/// What the tests that use `?` return.
+pub type TestResult = Result<(), Box<dyn std::error::Error>>;
+
 /// `rel` inside the repository.
 pub fn repo_path(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)

@@ -2,6 +2,7 @@
 //! an independent brute-force ray check, the cameras' keep-out zone, soiling, render speed,
 //! and per-seed street layouts (with the regular street unchanged).
 
+use crate::common::deep360_rig;
 use mode360::geometry::{ErpGrid, PixelCoord, Rig};
 use mode360::synth::bvh::Ray;
 use mode360::synth::objects::{keep_out_box, objects_scene, KEEP_OUT_M};
@@ -11,14 +12,6 @@ use nalgebra::Vector3;
 use std::time::Instant;
 
 const MAX_DEPTH_M: f32 = 1000.0;
-
-fn deep360_rig() -> Rig {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_deep360.yaml"
-    );
-    Rig::from_file(path).expect("rig_deep360.yaml")
-}
 
 fn objects(seed: u64, width: usize, soiled: bool) -> SynthRenderer {
     SynthRenderer::new(SynthConfig {

@@ -1,16 +1,9 @@
 //! Synthetic street renderer: determinism, analytic ground truth, multi-view consistency,
 //! soiling coverage, and a quick speed measurement.
 
+use crate::common::deep360_rig;
 use mode360::geometry::{ErpGrid, PixelCoord, Rig};
 use mode360::synth::{SynthConfig, SynthRenderer};
-
-fn deep360_rig() -> Rig {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_deep360.yaml"
-    );
-    Rig::from_file(path).expect("rig_deep360.yaml")
-}
 
 fn renderer(seed: u64, width: usize, soiled: bool) -> SynthRenderer {
     SynthRenderer::new(SynthConfig {

@@ -2,6 +2,7 @@
 //! so a learning-free multi-view matcher must collapse. Covers `eval`'s same-image views,
 //! the geometry share and the same-image bag rewrite.
 
+use crate::common::{TestResult, RIG_PATH};
 use mode360::bag::{
     write_same_image_bag, BagReader, RigBagReader, GROUND_TRUTH_TOPIC, RIG_METADATA,
     SAME_IMAGE_METADATA, SYNTH_METADATA, TF_STATIC_TOPIC,
@@ -15,12 +16,6 @@ use mode360::msgs::{Image, TFMessage};
 use mode360::synth::SynthConfig;
 use std::path::{Path, PathBuf};
 
-type TestResult = Result<(), Box<dyn std::error::Error>>;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
 /// 256x128: at 128x64 the sweep's own δ1 (66 %) leaves too little room above the collapse.
 const WIDTH: usize = 256;
 const FRAMES: usize = 2;

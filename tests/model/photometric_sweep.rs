@@ -1,18 +1,12 @@
 //! Accuracy of the photometric sphere sweep against exact ground truth.
 
+use crate::common::{TestResult, RIG_PATH};
 use crate::photometric_scene::{render, scores};
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::{DepthEstimator, EstimatorError};
 use mode360::frame::RgbImage;
 use mode360::geometry::{ErpGrid, Rig};
 use std::time::Instant;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
-
-type TestResult = Result<(), Box<dyn std::error::Error>>;
 
 /// Width of the test frames (256x128 keeps CI time low).
 const TEST_WIDTH: usize = 256;

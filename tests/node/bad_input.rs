@@ -10,6 +10,7 @@
 //! Every bad message must be dropped (no depth carries its stamp), counted for its camera with
 //! a reason naming what is wrong, and the node must publish depth for the next good group.
 
+use crate::common::{TestResult, RIG_PATH};
 use mode360::frame::RgbImage;
 use mode360::geometry::Rig;
 use mode360::msgs::image::image_msg_from_rgb;
@@ -23,12 +24,6 @@ use ros2_client::{Publisher, QosProfile, Subscription};
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
-type TestResult = Result<(), Box<dyn std::error::Error>>;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
 /// Unique domain of this test file.
 const DOMAIN_ID: u16 = 46;
 const WIDTH: usize = 128;

@@ -14,6 +14,7 @@
 
 use crate::common::reliable_qos;
 use crate::common::PYTHON_ENV;
+use crate::common::{TestResult, RIG_PATH};
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
@@ -32,12 +33,6 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-type TestResult = Result<(), Box<dyn std::error::Error>>;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
 const PEER_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/cyclone_peer.py");
 /// Domain of the Cyclone-subscriber test (unique among the test files).
 const SUBSCRIBER_DOMAIN_ID: u16 = 43;

@@ -3,6 +3,7 @@
 //! images are sent and the node must report them and keep publishing for good input.
 
 use crate::common::reliable_qos;
+use crate::common::{TestResult, RIG_PATH};
 use mode360::bag::RigBagReader;
 use mode360::cli::play::{play_bag, PlayOptions};
 use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
@@ -17,12 +18,6 @@ use mode360::synth::SynthConfig;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-type TestResult = Result<(), Box<dyn std::error::Error>>;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
 /// Unique domain of this test file.
 const DOMAIN_ID: u16 = 41;
 const WIDTH: usize = 128;

@@ -1,6 +1,7 @@
 //! Camera dropout over DDS (loopback, own domain): a camera that falls silent is timed out,
 //! the node keeps publishing from the other three, and takes the camera back when it returns.
 
+use crate::common::{TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::msgs::image::image_msg_from_rgb;
 use mode360::msgs::{Header, Image};
@@ -11,12 +12,6 @@ use ros2_client::qos::History;
 use ros2_client::QosProfile;
 use std::time::{Duration, Instant};
 
-type TestResult = Result<(), Box<dyn std::error::Error>>;
-
-const RIG_PATH: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/launch_configs/rig_deep360.yaml"
-);
 /// Unique domain of this test file.
 const DOMAIN_ID: u16 = 42;
 const WIDTH: usize = 64;

@@ -4,6 +4,7 @@
 //! SIGINT must stop the process cleanly (exit code 0, within seconds) with a summary line whose
 //! counters agree with what was sent and received.
 
+use crate::common::TestResult;
 use mode360::bag::RigBagReader;
 use mode360::cli::play::{play_bag, PlayOptions};
 use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
@@ -19,8 +20,6 @@ use std::io::{BufRead, BufReader, Read};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
-
-type TestResult = Result<(), Box<dyn std::error::Error>>;
 
 const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
 /// Unique domain of this test file.
