@@ -34,8 +34,7 @@ pub const MAX_DEPTH_KEY: &str = "max_depth_m";
 pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
 /// Topic of the ground-truth range image.
 pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/depth";
-/// Topic of static transforms.
-pub const TF_STATIC_TOPIC: &str = "/tf_static";
+pub use super::format::TF_STATIC_TOPIC;
 /// Stamp (and log time) of the `/tf_static` message, written before any frame.
 const TF_STATIC_STAMP_NS: u64 = 0;
 
@@ -258,14 +257,14 @@ impl RigBagReader {
             }
             if !any {
                 // In a damaged bag the topic may just be lost after the damage: say both.
-                return Err(match &self.bag.damage {
+                return Err(match self.bag.damage_detail() {
                     Some(detail) => BagError::Damaged {
                         file: self.bag.file().to_string(),
                         detail: format!(
                             "{detail}; topic '{}' has no messages before the damage",
                             camera.topic
                         ),
-                        good_messages: self.bag.messages.len(),
+                        good_messages: self.bag.message_count(),
                     },
                     None => BagError::MissingTopic {
                         file: self.bag.file().to_string(),
