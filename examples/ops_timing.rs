@@ -15,7 +15,7 @@ const REPEATS: usize = 3;
 const GIGA: f64 = 1e9;
 
 /// Best wall time of `REPEATS` runs, seconds.
-fn best_secs(mut f: impl FnMut()) -> f64 {
+fn best_s(mut f: impl FnMut()) -> f64 {
     f(); // warm-up
     (0..REPEATS)
         .map(|_| {
@@ -38,22 +38,22 @@ fn conv3d_throughput() {
     let wt = randn(&[3, 3, 3, c, c]);
     let dy = randn(&[1, d, h, w, c]);
     let gflop = g.flops() / GIGA;
-    let fwd = best_secs(|| {
+    let fwd = best_s(|| {
         conv3d(&x, &wt, unit, unit).unwrap();
     });
-    let dx = best_secs(|| {
+    let dx = best_s(|| {
         conv3d_input_grad(&dy, &wt, unit, unit, [d, h, w]).unwrap();
     });
-    let dw = best_secs(|| {
+    let dw = best_s(|| {
         conv3d_weight_grad(&x, &dy, [3, 3, 3], unit, unit).unwrap();
     });
     let xv = Var::from_tensor(&x).unwrap();
     let wv = Var::from_tensor(&wt).unwrap();
-    let fwd_bwd = best_secs(|| {
+    let fwd_bwd = best_s(|| {
         let y = conv3d(xv.as_tensor(), wv.as_tensor(), unit, unit).unwrap();
         (y * &dy).unwrap().sum_all().unwrap().backward().unwrap();
     });
-    let composite = best_secs(|| {
+    let composite = best_s(|| {
         conv3d_composite(&x, &wt, unit, unit).unwrap();
     });
     println!("conv3d (1,{d},{h},{w},{c}->{c}) k3 s1: {gflop:.2} GFLOP per pass");
@@ -87,7 +87,7 @@ fn conv3d_throughput() {
     let s2 = [2, 2, 2];
     let g2 = Conv3dGeometry::new(1, [d, h, w], [3, 3, 3], s2, unit, c, c).unwrap();
     let small = randn(&[1, d / 2, h / 2, w / 2, c]);
-    let tr = best_secs(|| {
+    let tr = best_s(|| {
         conv_transpose3d(&small, &wt, s2, unit, g2.output_padding()).unwrap();
     });
     println!(
@@ -118,17 +118,17 @@ fn table_sample_throughput() {
     let f = randn(&[1, h, w, c]);
     let fv = Var::from_tensor(&f).unwrap();
     let g = Tensor::ones((1, n, c), candle_core::DType::F32, &Device::Cpu).unwrap();
-    let fwd = best_secs(|| {
+    let fwd = best_s(|| {
         table_sample(&f, &table).unwrap();
     });
-    let fwd_bwd = best_secs(|| {
+    let fwd_bwd = best_s(|| {
         let out = table_sample(fv.as_tensor(), &table).unwrap();
         (out * &g).unwrap().sum_all().unwrap().backward().unwrap();
     });
     // the loss and its own backward, to isolate the gather's backward
     let out_fixed = table_sample(&f, &table).unwrap();
     let ov = Var::from_tensor(&out_fixed).unwrap();
-    let loss_only = best_secs(|| {
+    let loss_only = best_s(|| {
         (ov.as_tensor() * &g)
             .unwrap()
             .sum_all()
@@ -136,10 +136,10 @@ fn table_sample_throughput() {
             .backward()
             .unwrap();
     });
-    let comp = best_secs(|| {
+    let comp = best_s(|| {
         table_sample_composite(&f, &table).unwrap();
     });
-    let comp_bwd = best_secs(|| {
+    let comp_bwd = best_s(|| {
         let out = table_sample_composite(fv.as_tensor(), &table).unwrap();
         (out * &g).unwrap().sum_all().unwrap().backward().unwrap();
     });
