@@ -73,3 +73,56 @@ pub enum BagError {
         problem: String,
     },
 }
+
+impl BagError {
+    /// The file the error is about.
+    pub fn file(&self) -> &str {
+        match self {
+            Self::Io { file, .. }
+            | Self::Mcap { file, .. }
+            | Self::Damaged { file, .. }
+            | Self::NotMcap { file, .. }
+            | Self::Msg { file, .. }
+            | Self::TypeMismatch { file, .. }
+            | Self::MissingTopic { file, .. }
+            | Self::MissingMetadata { file, .. }
+            | Self::Rig { file, .. }
+            | Self::Image { file, .. }
+            | Self::Frame { file, .. } => file,
+        }
+    }
+
+    /// The topic the error is about, if it is about one.
+    pub fn topic(&self) -> Option<&str> {
+        match self {
+            Self::Msg { topic, .. }
+            | Self::TypeMismatch { topic, .. }
+            | Self::MissingTopic { topic, .. }
+            | Self::Image { topic, .. }
+            | Self::Frame { topic, .. } => Some(topic),
+            _ => None,
+        }
+    }
+
+    /// What went wrong, without the file, topic and stamp, so that the same problem on many
+    /// messages reads the same (for drop summaries).
+    pub fn reason(&self) -> String {
+        match self {
+            Self::Io { action, source, .. } => format!("{action}: {source}"),
+            Self::Mcap { action, source, .. } => format!("MCAP error while {action}: {source}"),
+            Self::Damaged { detail, .. } => format!("damaged bag ({detail})"),
+            Self::NotMcap { detail, .. } => format!("not a readable MCAP file: {detail}"),
+            Self::Msg { source, .. } => source.to_string(),
+            Self::TypeMismatch {
+                expected, found, ..
+            } => format!("carries '{found}', not '{expected}'"),
+            Self::MissingTopic { .. } => "no messages".into(),
+            Self::MissingMetadata { name, key, .. } => {
+                format!("metadata record '{name}' (key '{key}') is missing")
+            }
+            Self::Rig { source, .. } => format!("rig from metadata: {source}"),
+            Self::Image { source, .. } => source.to_string(),
+            Self::Frame { field, problem, .. } => format!("field '{field}': {problem}"),
+        }
+    }
+}

@@ -233,26 +233,38 @@ impl RigBagReader {
         }
     }
 
-    /// Groups camera images and ground truth by header stamp.
-    fn group(&self) -> Result<BTreeMap<u64, FrameSlots<'_>>, BagError> {
+    /// Groups camera images and ground truth by header stamp. A message whose header cannot
+    /// be read, or a second message of a topic at the same stamp, is dropped and returned
+    /// with the groups; a camera topic without any message is an error (no frame can be
+    /// built).
+    fn group(&self) -> Result<(BTreeMap<u64, FrameSlots<'_>>, Vec<BagError>), BagError> {
         let n_cameras = self.rig.cameras.len();
         let mut frames: BTreeMap<u64, FrameSlots<'_>> = BTreeMap::new();
+        let mut dropped = Vec::new();
         for (index, camera) in self.rig.cameras.iter().enumerate() {
             let mut any = false;
             for msg in self.bag.messages_on(&camera.topic) {
                 any = true;
-                let stamp_ns = message_stamp(&msg)?;
+                let stamp_ns = match message_stamp(&msg) {
+                    Ok(stamp_ns) => stamp_ns,
+                    Err(err) => {
+                        dropped.push(err);
+                        continue;
+                    }
+                };
                 let slots = frames.entry(stamp_ns).or_insert_with(|| FrameSlots {
                     images: vec![None; n_cameras],
                     ground_truth: None,
                 });
-                if slots.images[index].replace(msg).is_some() {
-                    return Err(self.frame_err(
+                if slots.images[index].is_some() {
+                    dropped.push(self.frame_err(
                         &camera.topic,
                         stamp_ns,
                         "header.stamp",
-                        "two images with the same stamp".into(),
+                        "two images with the same stamp (the second is dropped)".into(),
                     ));
+                } else {
+                    slots.images[index] = Some(msg);
                 }
             }
             if !any {
@@ -274,19 +286,30 @@ impl RigBagReader {
             }
         }
         for msg in self.bag.messages_on(GROUND_TRUTH_TOPIC) {
-            let stamp_ns = message_stamp(&msg)?;
+            let stamp_ns = match message_stamp(&msg) {
+                Ok(stamp_ns) => stamp_ns,
+                Err(err) => {
+                    dropped.push(err);
+                    continue;
+                }
+            };
             if let Some(slots) = frames.get_mut(&stamp_ns) {
-                if slots.ground_truth.replace(msg).is_some() {
-                    return Err(self.frame_err(
-                        GROUND_TRUTH_TOPIC,
-                        stamp_ns,
-                        "header.stamp",
-                        "two ground-truth images with the same stamp".into(),
-                    ));
+                if slots.ground_truth.is_some() {
+                    dropped.push(
+                        self.frame_err(
+                            GROUND_TRUTH_TOPIC,
+                            stamp_ns,
+                            "header.stamp",
+                            "two ground-truth images with the same stamp (the second is dropped)"
+                                .into(),
+                        ),
+                    );
+                } else {
+                    slots.ground_truth = Some(msg);
                 }
             }
         }
-        Ok(frames)
+        Ok((frames, dropped))
     }
 
     /// Builds the frame of one stamp, checking encodings and sizes.
@@ -357,21 +380,24 @@ impl RigBagReader {
     }
 
     /// The frames in stamp order. Each item is a frame, or an error naming the file, topic
-    /// and field (a camera topic without messages, an image of the wrong encoding or size,
-    /// a stamp missing a camera); a damaged bag ends with the damage error after the frames
-    /// that were readable.
+    /// and field of something dropped: a message whose header cannot be read or that repeats
+    /// a stamp (these come first), an image of the wrong encoding or size, a stamp missing a
+    /// camera. Every good frame is still returned, so a reader that counts the errors and
+    /// goes on loses nothing else. A camera topic without messages is a single error and no
+    /// frames; a damaged bag ends with the damage error after the frames that were readable.
     pub fn frames(&self) -> impl Iterator<Item = Result<RigFrame, BagError>> + '_ {
-        let (grouped, first_error) = match self.group() {
-            Ok(grouped) => (grouped, None),
-            Err(err) => (BTreeMap::new(), Some(err)),
+        let (grouped, dropped, fatal) = match self.group() {
+            Ok((grouped, dropped)) => (grouped, dropped, None),
+            Err(err) => (BTreeMap::new(), Vec::new(), Some(err)),
         };
-        let damage = if first_error.is_none() {
+        let damage = if fatal.is_none() {
             self.bag.damage()
         } else {
             None
         };
-        first_error
+        fatal
             .into_iter()
+            .chain(dropped)
             .map(Err)
             .chain(
                 grouped

@@ -14,8 +14,11 @@ mod geometry_share;
 
 pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
+use super::drops::{DropCount, DropTally};
 use super::progress::frames_bar;
-use crate::bag::{RigBagReader, DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY, SOILED_KEY};
+use crate::bag::{
+    RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
+};
 use crate::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
@@ -116,6 +119,9 @@ pub struct EvalReport {
     #[serde(default)]
     pub views: ViewMode,
     pub rows: Vec<EvalRow>,
+    /// Malformed or mismatched messages and frames dropped (every good frame was scored).
+    #[serde(default)]
+    pub drops: Vec<DropCount>,
 }
 
 struct Group {
@@ -128,6 +134,7 @@ struct Group {
 /// Runs `estimator` over every frame of the bags and scores it.
 pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Result<EvalReport> {
     let mut groups: BTreeMap<String, Group> = BTreeMap::new();
+    let mut drops = DropTally::default();
     for path in &opts.bags {
         let bag_name = path.display().to_string();
         let reader = RigBagReader::open(path).with_context(|| format!("opening {bag_name}"))?;
@@ -166,16 +173,23 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             opts.show_progress,
         );
         let mut pair_cache: Option<(usize, GeerPair)> = None;
-        for (n, frame) in reader.frames().enumerate() {
+        let mut n = 0;
+        for frame in reader.frames() {
             if opts.max_frames.is_some_and(|m| n >= m) {
                 break;
             }
-            let frame = frame.with_context(|| format!("{bag_name}: frame {n}"))?;
+            let frame = match frame {
+                Ok(frame) => frame,
+                Err(err) => {
+                    drops.record(&err);
+                    continue;
+                }
+            };
             let at = || format!("{bag_name}: frame at stamp {} ns", frame.stamp_ns);
-            let gt = frame
-                .ground_truth
-                .as_ref()
-                .ok_or_else(|| anyhow!("{} has no ground truth on /ground_truth/depth", at()))?;
+            let Some(gt) = frame.ground_truth.as_ref() else {
+                drops.count(&bag_name, GROUND_TRUTH_TOPIC, "frame without ground truth");
+                continue;
+            };
             let images = opts.views.apply(
                 selection.iter().map(|&i| frame.images[i].clone()).collect(),
                 rig.reference,
@@ -221,6 +235,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                     .with_context(|| format!("writing preview {}", png.display()))?;
             }
             progress.inc(1);
+            n += 1;
         }
         progress.finish_and_clear();
     }
@@ -238,12 +253,13 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
         })
         .collect();
     if rows.is_empty() {
-        bail!("no frames evaluated");
+        bail!("no frames evaluated; {}", drops.summary());
     }
     Ok(EvalReport {
         estimator: estimator.name().to_string(),
         views: opts.views,
         rows,
+        drops: drops.counts(),
     })
 }
 
@@ -318,6 +334,8 @@ impl EvalReport {
                 r.s_per_frame
             ));
         }
+        s.push_str(&super::drops::summary(&self.drops));
+        s.push('\n');
         s
     }
 }

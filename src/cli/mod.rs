@@ -20,12 +20,14 @@
 //! | [`deep360_bag`] | `deep360-bag` | the paper's Deep360 frames on disk into a rig bag |
 //! | [`same_image_bag`] | `same-image-bag` | a bag with the reference image on every camera |
 //!
-//! [`progress`] holds the progress bars the long commands share.
+//! [`progress`] holds the progress bars the long commands share, [`drops`] the tally of
+//! malformed messages that `replay` and `eval` drop and go past.
 
 pub mod bench_model;
 pub mod bench_node;
 pub mod deep360_bag;
 pub mod demo;
+pub mod drops;
 pub mod eval;
 pub mod node;
 pub mod play;

@@ -6,6 +6,7 @@
 //! (relative node topics resolved in the root namespace) and `/diagnostics`, all at the
 //! frame's stamp.
 
+use super::drops::DropTally;
 use crate::bag::{RigBagReader, RigBagWriter};
 use crate::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use crate::estimator::{EstimatorKind, EstimatorSpec};
@@ -44,6 +45,8 @@ pub struct ReplayOptions {
 #[derive(Clone, Debug)]
 pub struct ReplaySummary {
     pub frames: usize,
+    /// Malformed or mismatched messages dropped (every good frame was still replayed).
+    pub drops: DropTally,
     /// Per-frame pipeline latency (estimator plus message building).
     pub latencies: Vec<Duration>,
     /// Points per frame.
@@ -83,6 +86,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     let mut pipeline: Option<Pipeline> = None;
     let mut summary = ReplaySummary {
         frames: 0,
+        drops: DropTally::default(),
         latencies: Vec::new(),
         point_counts: Vec::new(),
         metrics: None,
@@ -110,7 +114,13 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         if opts.max_frames.is_some_and(|n| summary.frames >= n) {
             break;
         }
-        let frame = frame.with_context(|| format!("bag '{file}'"))?;
+        let frame = match frame {
+            Ok(frame) => frame,
+            Err(err) => {
+                summary.drops.record(&err);
+                continue;
+            }
+        };
         writer.write_frame(&frame)?;
         let stamp_ns = frame.stamp_ns;
         let pipe = match &mut pipeline {
@@ -168,6 +178,12 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         }
     }
     writer.finish()?;
+    if summary.frames == 0 {
+        bail!(
+            "bag '{file}': no frame could be replayed; {}",
+            summary.drops.summary()
+        );
+    }
     if average.frames() > 0 {
         summary.metrics = Some(average.depth());
     }
@@ -211,6 +227,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         a.out.display(),
         summary.mean_latency_ms()
     );
+    println!("{}", summary.drops.summary());
     if let Some(m) = summary.metrics {
         println!(
             "against ground truth: delta1 {:.2} %, AbsRel {:.4}, MAE {:.3} m",

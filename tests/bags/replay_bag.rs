@@ -129,3 +129,120 @@ fn replay_writes_decodable_outputs_matching_inputs() -> TestResult {
     assert_eq!(depth2[0].data, depth[0].data);
     Ok(())
 }
+
+/// A bag with malformed and mismatched camera messages among good frames, written message by
+/// message: `replay` and `eval` drop what is bad, as the node does, process every good frame,
+/// and report each drop with its file, topic, count and reason.
+#[test]
+fn malformed_messages_are_dropped_counted_and_every_good_frame_is_kept() -> TestResult {
+    use mode360::bag::RigBagWriter;
+    use mode360::cli::eval::{evaluate, EvalOptions, ViewMode};
+    use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
+    use mode360::msgs::image::image_msg_from_rgb;
+    use mode360::msgs::Header;
+    use mode360::synth::SynthRenderer;
+    const GOOD_FRAMES: usize = 4;
+    const SMALL_WIDTH: usize = 64;
+    let dir = tempfile::tempdir()?;
+    let input = dir.path().join("bad_messages.mcap");
+    let rig = Rig::from_file(RIG_PATH)?;
+    let renderer = SynthRenderer::new(SynthConfig {
+        seed: 4,
+        width: SMALL_WIDTH,
+        max_depth_m: MAX_DEPTH_M,
+        ..Default::default()
+    })?;
+    let frames: Vec<_> = (0..GOOD_FRAMES)
+        .map(|k| renderer.render_frame(&rig, k))
+        .collect();
+    let mut writer = RigBagWriter::create(&input, &rig, &Default::default())?;
+    for f in &frames {
+        writer.write_frame(f)?;
+    }
+    let period_ns = frames[1].stamp_ns - frames[0].stamp_ns;
+    let image = |frame: &mode360::frame::RigFrame, cam: usize, stamp_ns: u64| {
+        image_msg_from_rgb(
+            Header::new(stamp_ns, &rig.cameras[cam].frame_id),
+            &frame.images[cam],
+        )
+    };
+    let bag = writer.bag_mut();
+    // 1. A frame whose camera 2 image is truncated (rgb8 with half its bytes).
+    let truncated_ns = frames[GOOD_FRAMES - 1].stamp_ns + period_ns;
+    for cam in 0..rig.cameras.len() {
+        let mut msg = image(&frames[0], cam, truncated_ns);
+        if cam == 2 {
+            msg.data.truncate(msg.data.len() / 2);
+        }
+        bag.write(&rig.cameras[cam].topic, truncated_ns, &msg)?;
+    }
+    // 2. A stamp where camera 4 never sent its image.
+    let incomplete_ns = truncated_ns + period_ns;
+    for cam in 0..rig.cameras.len() - 1 {
+        bag.write(
+            &rig.cameras[cam].topic,
+            incomplete_ns,
+            &image(&frames[1], cam, incomplete_ns),
+        )?;
+    }
+    // 3. Camera 1 sends a second image at the first good frame's stamp.
+    bag.write(
+        &rig.cameras[0].topic,
+        frames[0].stamp_ns,
+        &image(&frames[2], 0, frames[0].stamp_ns),
+    )?;
+    writer.finish()?;
+
+    let summary = replay_bag(&ReplayOptions {
+        input: input.clone(),
+        output: dir.path().join("out.mcap"),
+        estimator: EstimatorSpec::new(EstimatorKind::Photometric),
+        output_width: None,
+        max_depth_m: None,
+        max_frames: None,
+    })?;
+    assert_eq!(summary.frames, GOOD_FRAMES);
+    let drops = summary.drops.counts();
+    println!("{}", summary.drops.summary());
+    assert_eq!(summary.drops.total(), 3, "{drops:?}");
+    let on = |topic: &str, needle: &str| {
+        drops
+            .iter()
+            .any(|d| d.topic == topic && d.reason.contains(needle) && d.count == 1)
+    };
+    assert!(on(&rig.cameras[2].topic, "bytes"), "{drops:?}");
+    assert!(
+        on(&rig.cameras[3].topic, "no image from camera"),
+        "{drops:?}"
+    );
+    assert!(on(&rig.cameras[0].topic, "same stamp"), "{drops:?}");
+    assert!(drops.iter().all(|d| d.file.ends_with("bad_messages.mcap")));
+    // The kept image at the repeated stamp is the first one: replay's input copy has it.
+    let replayed = RigBagReader::open(dir.path().join("out.mcap"))?;
+    let first = replayed.frames().next().ok_or("no frames")??;
+    assert_eq!(first.images[0], frames[0].images[0]);
+
+    let mut sweep = PhotometricSweep::new(PhotometricConfig::default())?;
+    let report = evaluate(
+        &EvalOptions {
+            bags: vec![input],
+            cameras: None,
+            max_frames: None,
+            show_progress: false,
+            png_dir: None,
+            views: ViewMode::True,
+        },
+        &mut sweep,
+    )?;
+    assert_eq!(
+        report.rows.iter().map(|r| r.frames).sum::<usize>(),
+        GOOD_FRAMES
+    );
+    assert_eq!(report.drops, drops);
+    assert!(
+        report.to_table().contains("dropped 3"),
+        "{}",
+        report.to_table()
+    );
+    Ok(())
+}
