@@ -153,7 +153,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         summary.latencies.push(out.latency);
         summary.point_counts.push(out.points.width as usize);
         for cam in &mut health.cameras {
-            cam.received += 1;
+            cam.record_good();
         }
         health.groups_processed += 1;
         health.sync = SyncStats {

@@ -2,11 +2,80 @@
 //! newest image, bad messages with the last reason, whether it is waited for) and one for the
 //! pipeline (sync counters, dropped groups, inference latency, degraded cameras).
 
+use crate::msgs::image::ImageMsgError;
 use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
-use crate::sync::SyncStats;
+use crate::sync::{SyncError, SyncStats};
+use std::collections::BTreeMap;
 
 /// Prefix of every status name.
 pub const DIAGNOSTIC_PREFIX: &str = "mode360";
+
+/// Why a camera message was dropped; one `/diagnostics` counter each (`bad_<key>`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum BadImageReason {
+    /// An image encoding the node does not read.
+    Encoding,
+    /// Width, height and step do not describe the data.
+    Layout,
+    /// Fewer data bytes than height x step.
+    Truncated,
+    /// Too large, or a compressed image that does not decode.
+    Undecodable,
+    /// Not an equirectangular panorama (width must be 2 x height).
+    NotPanorama,
+    /// A stamp older than the camera's previous message.
+    OutOfOrder,
+    /// The middleware could not deliver the message (deserialization).
+    Transport,
+}
+
+impl BadImageReason {
+    /// Every reason, in the order of the diagnostics keys.
+    pub const ALL: [Self; 7] = [
+        Self::Encoding,
+        Self::Layout,
+        Self::Truncated,
+        Self::Undecodable,
+        Self::NotPanorama,
+        Self::OutOfOrder,
+        Self::Transport,
+    ];
+
+    /// The counter's key in `/diagnostics`, without the `bad_` prefix.
+    pub fn key(self) -> &'static str {
+        match self {
+            Self::Encoding => "encoding",
+            Self::Layout => "layout",
+            Self::Truncated => "truncated",
+            Self::Undecodable => "undecodable",
+            Self::NotPanorama => "not_panorama",
+            Self::OutOfOrder => "out_of_order",
+            Self::Transport => "transport",
+        }
+    }
+}
+
+impl From<&ImageMsgError> for BadImageReason {
+    fn from(e: &ImageMsgError) -> Self {
+        match e {
+            ImageMsgError::UnsupportedEncoding { .. } | ImageMsgError::UnsupportedFormat { .. } => {
+                Self::Encoding
+            }
+            ImageMsgError::StepTooSmall { .. } | ImageMsgError::DataTooLong { .. } => Self::Layout,
+            ImageMsgError::DataTooShort { .. } => Self::Truncated,
+            _ => Self::Undecodable,
+        }
+    }
+}
+
+impl From<&SyncError> for BadImageReason {
+    fn from(e: &SyncError) -> Self {
+        match e {
+            SyncError::OutOfOrder { .. } => Self::OutOfOrder,
+            SyncError::NoSuchStream { .. } => Self::Transport,
+        }
+    }
+}
 
 /// Health of one camera stream.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -25,6 +94,32 @@ pub struct CameraHealth {
     pub bad_messages: u64,
     /// Reason of the newest bad message.
     pub last_bad_reason: Option<String>,
+    /// Messages dropped, by reason.
+    pub bad_by_reason: BTreeMap<BadImageReason, u64>,
+    /// Bad messages since the newest good one (0 after a good message).
+    pub bad_since_good: u64,
+}
+
+impl CameraHealth {
+    /// Counts a dropped message.
+    pub fn record_bad(&mut self, reason: BadImageReason, detail: String) {
+        self.bad_messages += 1;
+        self.bad_since_good += 1;
+        *self.bad_by_reason.entry(reason).or_insert(0) += 1;
+        self.last_bad_reason = Some(detail);
+    }
+
+    /// Counts a good message.
+    pub fn record_good(&mut self) {
+        self.received += 1;
+        self.bad_since_good = 0;
+    }
+
+    /// True when everything the camera sent lately was dropped: it is not silent, its
+    /// images are malformed.
+    pub fn only_malformed(&self) -> bool {
+        self.bad_since_good > 0 && (!self.active || self.received == 0)
+    }
 }
 
 /// Health of the whole node.
@@ -60,36 +155,54 @@ fn opt_ms(v: Option<f64>) -> String {
 pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -> DiagnosticArray {
     let mut status = Vec::with_capacity(health.cameras.len() + 1);
     for cam in &health.cameras {
-        let (level, message) = if !cam.active {
-            (DiagnosticStatus::WARN, "timed out, not waited for")
+        let (level, message) = if cam.only_malformed() {
+            (
+                DiagnosticStatus::ERROR,
+                format!(
+                    "sending only malformed images: {}",
+                    cam.last_bad_reason.as_deref().unwrap_or("")
+                ),
+            )
+        } else if !cam.active {
+            (DiagnosticStatus::WARN, "timed out, not waited for".into())
         } else if cam.received == 0 {
-            (DiagnosticStatus::WARN, "no images yet")
+            (DiagnosticStatus::WARN, "no images yet".into())
         } else if cam.bad_messages > 0 {
-            (DiagnosticStatus::WARN, "receiving, some messages dropped")
+            (
+                DiagnosticStatus::WARN,
+                "receiving, some messages dropped".into(),
+            )
         } else {
-            (DiagnosticStatus::OK, "receiving")
+            (DiagnosticStatus::OK, "receiving".into())
         };
+        let mut values = vec![
+            kv("topic", &cam.topic),
+            kv("received", cam.received),
+            kv("rate_hz", format!("{:.2}", cam.rate_hz)),
+            kv(
+                "age_s",
+                cam.age_s
+                    .map_or_else(|| "n/a".into(), |a| format!("{a:.3}")),
+            ),
+            kv("active", cam.active),
+            kv("bad_messages", cam.bad_messages),
+            kv(
+                "last_bad_reason",
+                cam.last_bad_reason.as_deref().unwrap_or(""),
+            ),
+        ];
+        values.extend(BadImageReason::ALL.iter().map(|r| {
+            kv(
+                &format!("bad_{}", r.key()),
+                cam.bad_by_reason.get(r).copied().unwrap_or(0),
+            )
+        }));
         status.push(DiagnosticStatus {
             level,
             name: format!("{DIAGNOSTIC_PREFIX}: camera {}", cam.name),
-            message: message.to_string(),
+            message,
             hardware_id: hardware_id.to_string(),
-            values: vec![
-                kv("topic", &cam.topic),
-                kv("received", cam.received),
-                kv("rate_hz", format!("{:.2}", cam.rate_hz)),
-                kv(
-                    "age_s",
-                    cam.age_s
-                        .map_or_else(|| "n/a".into(), |a| format!("{a:.3}")),
-                ),
-                kv("active", cam.active),
-                kv("bad_messages", cam.bad_messages),
-                kv(
-                    "last_bad_reason",
-                    cam.last_bad_reason.as_deref().unwrap_or(""),
-                ),
-            ],
+            values,
         });
     }
     let degraded: Vec<&str> = health
@@ -150,6 +263,57 @@ pub fn diagnostic_value<'a>(array: &'a DiagnosticArray, name: &str, key: &str) -
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_camera_sending_only_malformed_images_is_malformed_not_silent() {
+        let mut cam = CameraHealth {
+            name: "cam3".into(),
+            active: true,
+            ..Default::default()
+        };
+        cam.record_good();
+        cam.record_bad(
+            BadImageReason::Encoding,
+            "unsupported encoding 'yuv422'".into(),
+        );
+        assert!(
+            !cam.only_malformed(),
+            "active with a good image: some dropped"
+        );
+        cam.active = false;
+        cam.record_bad(
+            BadImageReason::Encoding,
+            "unsupported encoding 'yuv422'".into(),
+        );
+        cam.record_bad(BadImageReason::Truncated, "truncated".into());
+        assert!(cam.only_malformed());
+        let health = NodeHealth {
+            cameras: vec![cam.clone()],
+            ..Default::default()
+        };
+        let array = diagnostic_array(1, "test", &health);
+        let status = &array.status[0];
+        assert_eq!(status.level, DiagnosticStatus::ERROR);
+        assert_eq!(status.message, "sending only malformed images: truncated");
+        assert_eq!(
+            diagnostic_value(&array, "mode360: camera cam3", "bad_encoding"),
+            Some("2")
+        );
+        assert_eq!(
+            diagnostic_value(&array, "mode360: camera cam3", "bad_truncated"),
+            Some("1")
+        );
+        assert_eq!(
+            diagnostic_value(&array, "mode360: camera cam3", "bad_layout"),
+            Some("0")
+        );
+        cam.record_good();
+        assert_eq!(
+            (cam.bad_since_good, cam.bad_messages, cam.received),
+            (0, 3, 2)
+        );
+        assert!(!cam.only_malformed());
+    }
 
     #[test]
     fn statuses_carry_counters_and_levels() {

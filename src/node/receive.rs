@@ -12,7 +12,7 @@ use super::dds::{
     clock_qos, create_publisher, create_subscription, dds_context, latched_qos, output_qos,
     runtime, sensor_qos, DdsOptions, SpunNode,
 };
-use super::diagnostics::diagnostic_array;
+use super::diagnostics::{diagnostic_array, BadImageReason};
 use super::error::dds_err;
 use super::params::{ImageTransport, NodeParams};
 use super::pipeline::Pipeline;
@@ -24,7 +24,7 @@ use super::{
 use crate::bag::rig_tf_static;
 use crate::frame::RgbImage;
 use crate::geometry::Rig;
-use crate::msgs::image::{rgb_from_compressed, rgb_from_image_msg};
+use crate::msgs::image::{rgb_from_compressed, rgb_from_image_msg, ImageMsgError};
 use crate::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
 use crate::sync::{ApproxTimeSync, SyncConfig};
 use futures::StreamExt;
@@ -64,23 +64,33 @@ struct CameraState {
     received_in_period: u64,
 }
 
+/// A dropped camera message: why (the diagnostics counter) and what exactly.
+type Bad = (BadImageReason, String);
+
+fn bad_image(e: ImageMsgError) -> Bad {
+    (BadImageReason::from(&e), e.to_string())
+}
+
 /// Validates and decodes one camera message: ERP size, encoding, step and data length.
-fn decode_camera(msg: &CameraMsg) -> Result<(u64, RgbImage), String> {
+fn decode_camera(msg: &CameraMsg) -> Result<(u64, RgbImage), Bad> {
     let (stamp_ns, image) = match msg {
         CameraMsg::Raw(m) => (
             m.header.stamp.to_nanos(),
-            rgb_from_image_msg(m).map_err(|e| e.to_string())?,
+            rgb_from_image_msg(m).map_err(bad_image)?,
         ),
         CameraMsg::Compressed(m) => (
             m.header.stamp.to_nanos(),
-            rgb_from_compressed(m).map_err(|e| e.to_string())?,
+            rgb_from_compressed(m).map_err(bad_image)?,
         ),
     };
     if image.width() != 2 * image.height() || image.width() == 0 {
-        return Err(format!(
-            "{}x{} is not an equirectangular image (width must be 2 x height)",
-            image.width(),
-            image.height()
+        return Err((
+            BadImageReason::NotPanorama,
+            format!(
+                "{}x{} is not an equirectangular image (width must be 2 x height)",
+                image.width(),
+                image.height()
+            ),
         ));
     }
     Ok((stamp_ns, image))
@@ -169,7 +179,7 @@ struct Receiver {
 }
 
 impl Receiver {
-    fn on_camera(&mut self, i: usize, result: Result<CameraMsg, String>) {
+    fn on_camera(&mut self, i: usize, result: Result<CameraMsg, Bad>) {
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
             self.started_ns.get_or_insert(now);
@@ -177,7 +187,10 @@ impl Receiver {
         let sync = &mut self.sync;
         let outcome = result
             .and_then(|msg| decode_camera(&msg))
-            .and_then(|(stamp_ns, img)| sync.push(i, stamp_ns, img).map_err(|e| e.to_string()));
+            .and_then(|(stamp_ns, img)| {
+                sync.push(i, stamp_ns, img)
+                    .map_err(|e| (BadImageReason::from(&e), e.to_string()))
+            });
         let mut groups = Vec::new();
         {
             let mut h = lock(&self.shared.health);
@@ -188,16 +201,13 @@ impl Receiver {
                         self.cams[i].last_receipt_ns = now_ns;
                     }
                     self.cams[i].received_in_period += 1;
-                    h.cameras[i].received += 1;
+                    h.cameras[i].record_good();
                     if !self.sync.is_active(i) {
                         h.cameras[i].active = true;
                         groups.extend(self.sync.set_active(i, true));
                     }
                 }
-                Err(reason) => {
-                    h.cameras[i].bad_messages += 1;
-                    h.cameras[i].last_bad_reason = Some(reason);
-                }
+                Err((reason, detail)) => h.cameras[i].record_bad(reason, detail),
             }
             h.sync = self.sync.stats();
         }
@@ -339,7 +349,12 @@ pub(super) fn dds_main(
                 // A stop request, or the handle dropped.
                 _ = stop.changed() => break,
                 Some((i, result)) = incoming.next() => {
-                    rx.on_camera(i, result.map_err(|e| format!("cannot deserialize: {e:?}")));
+                    rx.on_camera(
+                        i,
+                        result.map_err(|e| {
+                            (BadImageReason::Transport, format!("cannot deserialize: {e:?}"))
+                        }),
+                    );
                 }
                 Some(result) = clock_msgs.next() => match result {
                     Ok((clock, _)) => rx.clock.on_clock(clock.clock.to_nanos()),

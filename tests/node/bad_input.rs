@@ -5,7 +5,9 @@
 //!    smaller than a row, and a size (64x32) that disagrees with the data (128x64 worth);
 //! 2. a whole group older than the last processed one (stamps out of order);
 //! 3. one camera sending a well-formed image of another resolution than the others;
-//! 4. one camera silent: after `camera_timeout_s` the node publishes without it.
+//! 4. one camera silent: after `camera_timeout_s` the node publishes without it;
+//! 5. that camera back, sending only malformed images: reported as malformed (ERROR, with the
+//!    reason), not as silent.
 //!
 //! Every bad message must be dropped (no depth carries its stamp), counted for its camera with
 //! a reason naming what is wrong, and the node must publish depth for the next good group.
@@ -103,6 +105,20 @@ impl Harness {
             }
             std::thread::sleep(POLL);
         }
+    }
+
+    /// The first `/diagnostics` message already received that satisfies `done` (the others
+    /// are consumed).
+    fn try_diagnostics(
+        &mut self,
+        done: impl Fn(&DiagnosticArray) -> bool,
+    ) -> Option<DiagnosticArray> {
+        while let Ok(Some((m, _))) = self.diagnostics_sub.take() {
+            if done(&m) {
+                return Some(m);
+            }
+        }
+        None
     }
 
     /// The first `/diagnostics` message received from now on that satisfies `done`.
@@ -286,6 +302,25 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
         );
         assert_eq!(diagnostic_value(&diag, &status, "received"), Some("1"));
         assert_eq!(diagnostic_value(&diag, &status, "active"), Some("true"));
+        // One counter per reason: exactly this camera's reason counts one.
+        let expected_key = ["bad_encoding", "bad_truncated", "bad_layout", "bad_layout"][i];
+        for key in [
+            "bad_encoding",
+            "bad_layout",
+            "bad_truncated",
+            "bad_undecodable",
+            "bad_not_panorama",
+            "bad_out_of_order",
+            "bad_transport",
+        ] {
+            let want = if key == expected_key { "1" } else { "0" };
+            assert_eq!(
+                diagnostic_value(&diag, &status, key),
+                Some(want),
+                "camera {} {key}",
+                names[i]
+            );
+        }
     }
     h.send_good(stamp(3))?;
     h.await_depth(stamp(3))?;
@@ -304,6 +339,11 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
             stamp(3)
         );
         assert_eq!(reason(&diag, i), expected, "camera {name}");
+        assert_eq!(
+            diagnostic_value(&diag, &camera_status(name), "bad_out_of_order"),
+            Some("1"),
+            "camera {name}"
+        );
     }
     h.send_good(stamp(4))?;
     h.await_depth(stamp(4))?;
@@ -405,6 +445,54 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
         t_start.elapsed()
     );
 
+    // Case 5: the silent camera comes back sending only malformed images (wrong encoding):
+    // it is reported as malformed, with the reason, not as silent.
+    let mut k = k + 1;
+    let t0 = Instant::now();
+    let diag = loop {
+        let s = stamp(k);
+        h.send(
+            (0..names.len())
+                .map(|i| {
+                    let mut msg = h.good(i, s);
+                    if i == SILENT_CAMERA {
+                        msg.encoding = "yuv422".into();
+                    }
+                    Some(msg)
+                })
+                .collect(),
+        )?;
+        std::thread::sleep(SEND_PERIOD);
+        h.take_depth();
+        if let Some(d) = h.try_diagnostics(|a| {
+            message(a, &silent).is_some_and(|m| m.starts_with("sending only malformed images"))
+        }) {
+            break d;
+        }
+        if t0.elapsed() > SILENT_CASE_TIMEOUT {
+            return Err(format!(
+                "the malformed camera was not reported within {SILENT_CASE_TIMEOUT:?}; health {:?}",
+                h.node.health()
+            )
+            .into());
+        }
+        k += 1;
+    };
+    assert_eq!(level(&diag, &silent), Some(DiagnosticStatus::ERROR));
+    assert!(
+        message(&diag, &silent).is_some_and(|m| m.contains("unsupported encoding 'yuv422'")),
+        "{:?}",
+        message(&diag, &silent)
+    );
+    let bad_encoding: u64 = diagnostic_value(&diag, &silent, "bad_encoding")
+        .ok_or("no bad_encoding")?
+        .parse()?;
+    assert!(bad_encoding >= 1, "{bad_encoding}");
+    eprintln!(
+        "[{:?}] case 5 (malformed camera) done: {bad_encoding} malformed images counted",
+        t_start.elapsed()
+    );
+
     // No depth ever carried the stamp of a dropped message or group.
     h.take_depth();
     assert!(!h.depth_stamps.contains(&stamp(2)), "{:?}", h.depth_stamps);
@@ -424,14 +512,13 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
     client.stop()?;
     let health = node.shutdown()?;
     assert!(health.groups_processed >= 4, "{health:?}");
-    assert_eq!(
-        health
-            .cameras
-            .iter()
-            .map(|c| c.bad_messages)
-            .collect::<Vec<_>>(),
-        vec![2, 2, 2, 2]
-    );
+    for (i, c) in health.cameras.iter().enumerate() {
+        if i == SILENT_CAMERA {
+            assert!(c.bad_messages >= 3, "{c:?}");
+        } else {
+            assert_eq!(c.bad_messages, 2, "{c:?}");
+        }
+    }
     eprintln!("[{:?}] done", t_start.elapsed());
     Ok(())
 }
