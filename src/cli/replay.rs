@@ -13,7 +13,7 @@ use crate::estimator::{EstimatorKind, EstimatorSpec};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::float_from_image_msg;
 use crate::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
-use crate::node::pipeline::{Pipeline, PipelineParams};
+use crate::node::pipeline::{ranges_for_scoring, Pipeline, PipelineParams};
 use crate::node::{resolve_topic, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC, POINTS_TOPIC};
 use crate::sync::SyncStats;
 use anyhow::{anyhow, bail, Context, Result};
@@ -134,6 +134,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
                 let params = PipelineParams {
                     output_width: width,
                     max_depth_m: max_depth_m as f32,
+                    ..PipelineParams::default()
                 };
                 let p = Pipeline::new(rig.clone(), opts.estimator.build()?, params)
                     .with_context(|| format!("frame at {stamp_ns} ns"))?;
@@ -171,7 +172,8 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             let pred = float_from_image_msg(&out.depth)
                 .with_context(|| format!("frame at {stamp_ns} ns: own depth output unreadable"))?;
             if pred.width == gt.width && pred.height == gt.height {
-                let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
+                let scored = ranges_for_scoring(&pred.data, max_depth_m as f32);
+                let m = depth_metrics(&scored, &gt.data, max_depth_m)
                     .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
                 average.push(m, None);
             }

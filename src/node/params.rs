@@ -7,6 +7,7 @@
 //! be the node name, `/node_name`, `/ns/node_name` or the wildcard `/**`. Nested maps become
 //! dotted names (`sync: {tolerance_s: 0.01}` is `sync.tolerance_s`). Later sources win.
 
+use super::pipeline::FarValue;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -70,6 +71,10 @@ pub struct NodeParams {
     /// A camera silent for longer is no longer waited for.
     pub camera_timeout_s: f64,
     pub max_depth_m: f64,
+    /// What `depth` holds beyond `max_depth_m` (REP 117: +Inf).
+    pub far_value: FarValue,
+    /// Pixels with a lower confidence are NaN in `depth` and have no point.
+    pub min_confidence: f64,
     pub use_sim_time: bool,
     /// Transport for cameras not named in `image_transport_per_camera`.
     pub image_transport_default: ImageTransport,
@@ -91,6 +96,8 @@ impl Default for NodeParams {
             sync_queue_size: 5,
             camera_timeout_s: 1.0,
             max_depth_m: 1000.0,
+            far_value: FarValue::Inf,
+            min_confidence: 0.0,
             use_sim_time: false,
             image_transport_default: ImageTransport::Raw,
             image_transport_per_camera: BTreeMap::new(),
@@ -278,6 +285,18 @@ impl NodeParams {
                 return self.set(&current, value);
             }
             "max_depth_m" => self.max_depth_m = positive_f64()?,
+            "depth_far_value" => {
+                self.far_value = FarValue::parse(value).ok_or_else(|| {
+                    bad(&format!("expected one of: {}", FarValue::NAMES.join(", ")))
+                })?
+            }
+            "min_confidence" => {
+                self.min_confidence = value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|c| (0.0..=1.0).contains(c))
+                    .ok_or_else(|| bad("expected a number from 0 to 1"))?
+            }
             "use_sim_time" => {
                 self.use_sim_time = match value {
                     "true" | "True" => true,
@@ -415,6 +434,35 @@ mod tests {
         assert_eq!(p.remap("/cam3/image_raw"), "/cam3/image_raw");
         assert_eq!(p.image_transport("cam2"), ImageTransport::Compressed);
         assert_eq!(p.image_transport("cam1"), ImageTransport::Raw);
+    }
+
+    #[test]
+    fn rep117_parameters_are_validated() {
+        let p = NodeParams::from_args(&args(&[
+            "--ros-args",
+            "-p",
+            "depth_far_value:=max_depth",
+            "-p",
+            "min_confidence:=0.25",
+        ]))
+        .unwrap();
+        assert_eq!(p.far_value, FarValue::MaxDepth);
+        assert_eq!(p.min_confidence, 0.25);
+        assert_eq!(NodeParams::default().far_value, FarValue::Inf);
+        let err = NodeParams::from_args(&args(&["--ros-args", "-p", "depth_far_value:=zero"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("depth_far_value") && err.contains("inf, max_depth"),
+            "{err}"
+        );
+        let err = NodeParams::from_args(&args(&["--ros-args", "-p", "min_confidence:=1.5"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("min_confidence") && err.contains("0 to 1"),
+            "{err}"
+        );
     }
 
     #[test]

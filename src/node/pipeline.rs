@@ -2,6 +2,12 @@
 //! the published messages (`depth`, `points`, `confidence`) out. The live node's inference
 //! worker (`super::worker`) and offline replay ([`crate::cli::replay`]) both run this.
 //!
+//! Depth values follow REP 117: a finite range is a measurement; `+Inf` is "nothing within
+//! range" (sky, or a range at or beyond `max_depth_m`); `NaN` is "no valid measurement"
+//! (the estimator had none, or its confidence is below `min_confidence`).
+//! [`FarValue::MaxDepth`] writes `max_depth_m` instead of `+Inf` for consumers that expect
+//! the older convention.
+//!
 //! Point cloud: for every output pixel `(u, v)` with a finite range `rho < max_depth_m`,
 //! `p_out = rho * dir(u, v)` (ERP direction of the design notes) in the output frame. Its colour
 //! comes from the reference camera (or the first camera present): `p_cam = cam_from_output *
@@ -24,13 +30,42 @@ pub const POINT_FIELD_NAMES: [&str; 4] = ["x", "y", "z", "rgb"];
 /// Bytes of one published point.
 pub const POINT_STEP_BYTES: u32 = F32_BYTES * POINT_FIELD_NAMES.len() as u32;
 
+/// What `depth` holds where nothing is within range (sky, or at or beyond `max_depth_m`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FarValue {
+    /// `+Inf`, as REP 117 asks.
+    #[default]
+    Inf,
+    /// `max_depth_m` (the node's convention before REP 117).
+    MaxDepth,
+}
+
+impl FarValue {
+    /// Parameter spellings, for `depth_far_value`.
+    pub const NAMES: [&'static str; 2] = ["inf", "max_depth"];
+
+    /// From its parameter spelling.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "inf" => Some(Self::Inf),
+            "max_depth" => Some(Self::MaxDepth),
+            _ => None,
+        }
+    }
+}
+
 /// Settings of the pipeline.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PipelineParams {
     /// Width of the output ERP image (height is half of it).
     pub output_width: usize,
-    /// Ranges at or beyond this (sky) are left out of the point cloud, metres.
+    /// Ranges at or beyond this (sky) are out of range: [`FarValue`] in `depth`, no point.
     pub max_depth_m: f32,
+    /// What out-of-range pixels hold in `depth`.
+    pub far_value: FarValue,
+    /// Pixels whose confidence is below this are NaN in `depth` and have no point (0: keep
+    /// every estimate).
+    pub min_confidence: f32,
 }
 
 impl Default for PipelineParams {
@@ -38,8 +73,35 @@ impl Default for PipelineParams {
         Self {
             output_width: 512,
             max_depth_m: 1000.0,
+            far_value: FarValue::Inf,
+            min_confidence: 0.0,
         }
     }
+}
+
+/// Applies REP 117 to `range` in place: below `min_confidence` NaN, at or beyond
+/// `max_depth_m` (or +Inf) the far value; NaN and finite in-range values stay.
+pub fn apply_rep117(range: &mut FloatImage, confidence: &FloatImage, params: &PipelineParams) {
+    let far = match params.far_value {
+        FarValue::Inf => f32::INFINITY,
+        FarValue::MaxDepth => params.max_depth_m,
+    };
+    for (r, &c) in range.data.iter_mut().zip(&confidence.data) {
+        if r.is_nan() || c < params.min_confidence {
+            *r = f32::NAN;
+        } else if *r >= params.max_depth_m {
+            *r = far;
+        }
+    }
+}
+
+/// `depth` values as ranges to score against ground truth whose sky is `max_depth_m`:
+/// `+Inf` (REP 117's "beyond range") becomes `max_depth_m`.
+pub fn ranges_for_scoring(depth: &[f32], max_depth_m: f32) -> Vec<f32> {
+    depth
+        .iter()
+        .map(|&r| if r == f32::INFINITY { max_depth_m } else { r })
+        .collect()
 }
 
 /// Why a group could not be processed.
@@ -65,7 +127,7 @@ pub enum PipelineError {
 /// The messages published for one group.
 #[derive(Clone, Debug)]
 pub struct PipelineOutput {
-    /// ERP range image, 32FC1, metres, NaN where invalid.
+    /// ERP range image, 32FC1, metres (REP 117: +Inf beyond range, NaN invalid).
     pub depth: Image,
     /// Valid, non-sky pixels as coloured points in the output frame.
     pub points: PointCloud2,
@@ -157,12 +219,13 @@ impl Pipeline {
                 .join(", ");
             return Err(PipelineError::SizeMismatch { sizes });
         }
-        let estimate = if missing_cameras.is_empty() {
+        let mut estimate = if missing_cameras.is_empty() {
             self.estimator.estimate(&self.rig, &images, self.grid)?
         } else {
             let sub = self.rig.subset(&present)?;
             self.estimator.estimate(&sub, &images, self.grid)?
         };
+        apply_rep117(&mut estimate.range_m, &estimate.confidence, &self.params);
         // Colour source: the reference camera when present, else the first camera present.
         let colour_slot = present
             .iter()
@@ -356,6 +419,7 @@ mod tests {
             PipelineParams {
                 output_width: width,
                 max_depth_m,
+                ..Default::default()
             },
         )
         .unwrap()
@@ -390,6 +454,40 @@ mod tests {
         assert!((pts[0].z_m as f64 - rho * dir.z).abs() < 1e-4);
         let conf = float_from_image_msg(&out.confidence).unwrap();
         assert!(conf.data.iter().all(|&c| c == 0.5));
+    }
+
+    #[test]
+    fn depth_follows_rep117_and_only_measurements_become_points() {
+        let width = 32;
+        let (w, h) = (width, width / 2);
+        let mut p = pipeline(width);
+        let n = p.rig().cameras.len();
+        let group = || (0..n).map(|_| Some(test_image(width as u32))).collect();
+        // Default: the two sky rows are +Inf, the invalid pixel NaN, the rest finite.
+        let out = p.process(group(), 1).unwrap();
+        let range = float_from_image_msg(&out.depth).unwrap();
+        assert!(range.data[..2 * w].iter().all(|&r| r == f32::INFINITY));
+        assert!(range.data[3 * w + 5].is_nan());
+        let finite = range.data.iter().filter(|r| r.is_finite()).count();
+        assert_eq!(finite, w * (h - 2) - 1);
+        assert_eq!(out.points.width as usize, finite);
+        // The older convention on request: the sky holds max_depth_m, still no point.
+        p.params.far_value = FarValue::MaxDepth;
+        let out = p.process(group(), 2).unwrap();
+        let range = float_from_image_msg(&out.depth).unwrap();
+        assert!(range.data[..2 * w].iter().all(|&r| r == 100.0));
+        assert_eq!(out.points.width as usize, finite);
+        // Confidence 0.5 everywhere: a threshold above it leaves no measurement and no point.
+        p.params.min_confidence = 0.6;
+        let out = p.process(group(), 3).unwrap();
+        let range = float_from_image_msg(&out.depth).unwrap();
+        assert!(range.data.iter().all(|r| r.is_nan()));
+        assert_eq!(out.points.width, 0);
+        // Scoring turns +Inf back into the sky's range.
+        assert_eq!(
+            ranges_for_scoring(&[f32::INFINITY, 3.0, f32::NAN], 100.0)[..2],
+            [100.0, 3.0]
+        );
     }
 
     #[test]

@@ -137,6 +137,8 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
         PipelineParams {
             output_width: params.output_width,
             max_depth_m: params.max_depth_m as f32,
+            far_value: params.far_value,
+            min_confidence: params.min_confidence as f32,
         },
     )?;
     let shared = Arc::new(Shared {

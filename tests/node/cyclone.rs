@@ -20,7 +20,9 @@ use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360::msgs::{Header, Image, PointCloud2};
-use mode360::node::pipeline::{is_point_range, POINT_FIELD_NAMES, POINT_STEP_BYTES};
+use mode360::node::pipeline::{
+    is_point_range, ranges_for_scoring, POINT_FIELD_NAMES, POINT_STEP_BYTES,
+};
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
 use mode360::synth::{SynthConfig, SynthRenderer};
@@ -551,7 +553,11 @@ fn cyclone_publisher_feeds_the_node() -> TestResult {
             .ground_truth
             .as_ref()
             .ok_or("frame without ground truth")?;
-        let m = depth_metrics(&range.data, &gt.data, MAX_DEPTH_M)?;
+        let m = depth_metrics(
+            &ranges_for_scoring(&range.data, MAX_DEPTH_M as f32),
+            &gt.data,
+            MAX_DEPTH_M,
+        )?;
         println!(
             "Cyclone frame stamp {}: delta1 {:.2}%, AbsRel {:.3}",
             frame.stamp_ns, m.delta1_pct, m.abs_rel

@@ -11,7 +11,7 @@ use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360::msgs::{Header, Image, PointCloud2};
-use mode360::node::pipeline::is_point_range;
+use mode360::node::pipeline::{is_point_range, ranges_for_scoring};
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
 use mode360::synth::SynthConfig;
@@ -143,7 +143,11 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         assert_eq!(depth.header.frame_id, rig.output_frame_id);
         let range = float_from_image_msg(depth)?;
         assert_eq!((range.width, range.height), (WIDTH, WIDTH / 2));
-        let m = depth_metrics(&range.data, &gt.data, MAX_DEPTH_M)?;
+        let m = depth_metrics(
+            &ranges_for_scoring(&range.data, MAX_DEPTH_M as f32),
+            &gt.data,
+            MAX_DEPTH_M,
+        )?;
         println!("stamp {stamp}: delta1 {:.2}%", m.delta1_pct);
         assert!(m.delta1_pct >= MIN_DELTA1_PCT, "{m:?}");
         if let Some(cloud) = clouds.get(stamp) {
@@ -231,7 +235,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
     let (stamp, depth) = good_stamp.ok_or("no depth for good input after bad messages")?;
     assert!(stamp > late);
     let m = depth_metrics(
-        &float_from_image_msg(&depth)?.data,
+        &ranges_for_scoring(&float_from_image_msg(&depth)?.data, MAX_DEPTH_M as f32),
         &frame.ground_truth.as_ref().ok_or("no gt")?.data,
         MAX_DEPTH_M,
     )?;
