@@ -131,6 +131,8 @@ pub struct NodeHealth {
     pub groups_processed: u64,
     /// Complete groups replaced in the 1-slot mailbox by a newer one before inference.
     pub groups_dropped: u64,
+    /// Processed groups whose point cloud was not built: `points` had no subscriber.
+    pub clouds_skipped: u64,
     /// Groups the pipeline failed on.
     pub pipeline_errors: u64,
     pub last_pipeline_error: Option<String>,
@@ -228,6 +230,7 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
         values: vec![
             kv("groups_processed", health.groups_processed),
             kv("groups_dropped_mailbox", health.groups_dropped),
+            kv("points_skipped_no_subscriber", health.clouds_skipped),
             kv("sync_groups", health.sync.groups),
             kv("sync_unmatched", health.sync.unmatched),
             kv("sync_overflow", health.sync.overflow),

@@ -129,8 +129,9 @@ pub enum PipelineError {
 pub struct PipelineOutput {
     /// ERP range image, 32FC1, metres (REP 117: +Inf beyond range, NaN invalid).
     pub depth: Image,
-    /// Valid, non-sky pixels as coloured points in the output frame.
-    pub points: PointCloud2,
+    /// Valid, non-sky pixels as coloured points in the output frame (`None` when not asked
+    /// for: nobody subscribes).
+    pub points: Option<PointCloud2>,
     /// Per-pixel confidence, 32FC1 in [0, 1].
     pub confidence: Image,
     /// Names of the rig cameras that were missing from the group.
@@ -176,6 +177,17 @@ impl Pipeline {
         &mut self,
         group: Vec<Option<RgbImage>>,
         stamp_ns: u64,
+    ) -> Result<PipelineOutput, PipelineError> {
+        self.process_with(group, stamp_ns, true)
+    }
+
+    /// [`Self::process`], building the point cloud only when `want_points` (the node skips it
+    /// while `points` has no subscriber).
+    pub fn process_with(
+        &mut self,
+        group: Vec<Option<RgbImage>>,
+        stamp_ns: u64,
+        want_points: bool,
     ) -> Result<PipelineOutput, PipelineError> {
         let t0 = Instant::now();
         if group.len() != self.rig.cameras.len() {
@@ -233,15 +245,19 @@ impl Pipeline {
             .unwrap_or(0);
         let colour_cam = present[colour_slot];
         let header = Header::new(stamp_ns, self.rig.output_frame_id.clone());
-        let points = point_cloud(
-            header.clone(),
-            &estimate.range_m,
-            self.params.max_depth_m,
-            &ColourSource {
-                image: &images[colour_slot],
-                cam_from_output: self.rig.cam_from_output(colour_cam),
-            },
-        )?;
+        let points = if want_points {
+            Some(point_cloud(
+                header.clone(),
+                &estimate.range_m,
+                self.params.max_depth_m,
+                &ColourSource {
+                    image: &images[colour_slot],
+                    cam_from_output: self.rig.cam_from_output(colour_cam),
+                },
+            )?)
+        } else {
+            None
+        };
         Ok(PipelineOutput {
             depth: image_msg_from_float(header.clone(), &estimate.range_m),
             points,
@@ -440,11 +456,12 @@ mod tests {
             .count();
         // 16 rows, 2 of sky, one NaN pixel.
         assert_eq!(valid, width * (width / 2 - 2) - 1);
-        assert_eq!(out.points.width as usize, valid);
-        assert_eq!(out.points.data.len(), valid * POINT_STEP_BYTES as usize);
+        let points = out.points.as_ref().unwrap();
+        assert_eq!(points.width as usize, valid);
+        assert_eq!(points.data.len(), valid * POINT_STEP_BYTES as usize);
         assert_eq!(out.depth.header.stamp.to_nanos(), 1_234_567_890);
-        assert_eq!(out.points.header.frame_id, p.rig().output_frame_id);
-        let pts = decode_points(&out.points).unwrap();
+        assert_eq!(points.header.frame_id, p.rig().output_frame_id);
+        let pts = decode_points(out.points.as_ref().unwrap()).unwrap();
         // First point: pixel (0, 2).
         let grid = ErpGrid::new(width).unwrap();
         let dir = grid.dir_from_pixel(PixelCoord { u: 0.0, v: 2.0 });
@@ -470,19 +487,21 @@ mod tests {
         assert!(range.data[3 * w + 5].is_nan());
         let finite = range.data.iter().filter(|r| r.is_finite()).count();
         assert_eq!(finite, w * (h - 2) - 1);
-        assert_eq!(out.points.width as usize, finite);
+        assert_eq!(out.points.as_ref().unwrap().width as usize, finite);
         // The older convention on request: the sky holds max_depth_m, still no point.
         p.params.far_value = FarValue::MaxDepth;
         let out = p.process(group(), 2).unwrap();
         let range = float_from_image_msg(&out.depth).unwrap();
         assert!(range.data[..2 * w].iter().all(|&r| r == 100.0));
-        assert_eq!(out.points.width as usize, finite);
+        assert_eq!(out.points.as_ref().unwrap().width as usize, finite);
         // Confidence 0.5 everywhere: a threshold above it leaves no measurement and no point.
         p.params.min_confidence = 0.6;
         let out = p.process(group(), 3).unwrap();
         let range = float_from_image_msg(&out.depth).unwrap();
         assert!(range.data.iter().all(|r| r.is_nan()));
-        assert_eq!(out.points.width, 0);
+        assert_eq!(out.points.as_ref().unwrap().width, 0);
+        // Not asked for, not built.
+        assert!(p.process_with(group(), 4, false).unwrap().points.is_none());
         // Scoring turns +Inf back into the sky's range.
         assert_eq!(
             ranges_for_scoring(&[f32::INFINITY, 3.0, f32::NAN], 100.0)[..2],
@@ -497,7 +516,7 @@ mod tests {
         let n = p.rig().cameras.len();
         let group = (0..n).map(|_| Some(test_image(width as u32))).collect();
         let out = p.process(group, 0).unwrap();
-        let pts = decode_points(&out.points).unwrap();
+        let pts = decode_points(out.points.as_ref().unwrap()).unwrap();
         let rig = p.rig().clone();
         let cam_from_output = rig.cam_from_output(rig.reference);
         let grid = ErpGrid::new(width).unwrap();

@@ -29,6 +29,7 @@ use crate::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
 use crate::sync::{ApproxTimeSync, SyncConfig};
 use futures::StreamExt;
 use ros2_client::{Context, Publisher};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
@@ -120,7 +121,7 @@ fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetu
     let node = &mut spun.node;
     let publishers = OutputPublishers {
         depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
-        points: create_publisher(node, &topic(POINTS_TOPIC), output_qos())?,
+        points: Arc::new(create_publisher(node, &topic(POINTS_TOPIC), output_qos())?),
         confidence: create_publisher(node, &topic(CONFIDENCE_TOPIC), output_qos())?,
     };
     let tf_static: Publisher<TFMessage> = create_publisher(node, TF_STATIC_TOPIC, latched_qos())?;
@@ -214,7 +215,10 @@ impl Receiver {
         post_groups(&self.shared, groups);
     }
 
-    fn on_tick(&mut self, diagnostics: &Publisher<DiagnosticArray>) {
+    fn on_tick(&mut self, diagnostics: &Publisher<DiagnosticArray>, points_subscribers: usize) {
+        self.shared
+            .points_wanted
+            .store(points_subscribers > 0, Ordering::Relaxed);
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
             let started = *self.started_ns.get_or_insert(now);
@@ -291,6 +295,7 @@ pub(super) fn dds_main(
         compressed_subs,
         clock_sub,
     } = setup;
+    let points_pub = publishers.points.clone();
     let worker = {
         let shared = shared.clone();
         std::thread::Builder::new()
@@ -360,7 +365,9 @@ pub(super) fn dds_main(
                     Ok((clock, _)) => rx.clock.on_clock(clock.clock.to_nanos()),
                     Err(e) => tracing::warn!("/clock: cannot deserialize: {e:?}"),
                 },
-                _ = ticker.tick() => rx.on_tick(&diagnostics),
+                _ = ticker.tick() => {
+                    rx.on_tick(&diagnostics, points_pub.get_subscription_count(&spun.node))
+                }
             }
         }
     });

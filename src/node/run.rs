@@ -13,6 +13,7 @@ use super::shutdown::ShutdownSignals;
 use super::worker::{lock, Mailbox, Shared};
 use super::NodeError;
 use crate::geometry::Rig;
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use tokio::sync::watch;
@@ -144,6 +145,7 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
     let shared = Arc::new(Shared {
         mailbox: Mutex::new(Mailbox::default()),
         wake: Condvar::new(),
+        points_wanted: AtomicBool::new(false),
         health: Mutex::new(NodeHealth {
             cameras: rig
                 .cameras

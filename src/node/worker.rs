@@ -2,7 +2,8 @@
 //! 1-slot mailbox ([`post_groups`]): a newer group replaces an unprocessed older one (counted
 //! as dropped), so no queue grows without bound and inference never blocks DDS. The worker
 //! thread ([`worker_main`]) takes the newest group, runs the [`Pipeline`] and publishes
-//! `depth`, `points` and `confidence`.
+//! `depth`, `points` and `confidence`. The point cloud is built only while `points` has a
+//! subscriber (the DDS thread checks the match count every tick, [`Shared::points_wanted`]).
 
 use super::diagnostics::NodeHealth;
 use super::pipeline::Pipeline;
@@ -10,6 +11,7 @@ use crate::frame::RgbImage;
 use crate::msgs::{Image, PointCloud2};
 use crate::sync::SyncGroup;
 use ros2_client::Publisher;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 
 /// The 1-slot "latest group" mailbox between the DDS thread and the inference worker.
@@ -24,6 +26,8 @@ pub(super) struct Shared {
     pub(super) mailbox: Mutex<Mailbox>,
     pub(super) wake: Condvar,
     pub(super) health: Mutex<NodeHealth>,
+    /// Whether `points` has a matched subscriber (set by the DDS thread every tick).
+    pub(super) points_wanted: AtomicBool,
 }
 
 /// Locks `m`, also after a thread panicked while holding it.
@@ -55,7 +59,8 @@ pub(super) fn post_groups(shared: &Shared, groups: Vec<SyncGroup<RgbImage>>) {
 /// The publishers of the worker's outputs.
 pub(super) struct OutputPublishers {
     pub(super) depth: Publisher<Image>,
-    pub(super) points: Publisher<PointCloud2>,
+    /// Shared with the DDS thread, which counts its matched subscribers.
+    pub(super) points: Arc<Publisher<PointCloud2>>,
     pub(super) confidence: Publisher<Image>,
 }
 
@@ -88,14 +93,18 @@ pub(super) fn worker_main(
             .into_iter()
             .map(|m| m.map(|(_, img)| img))
             .collect();
-        match pipeline.process(images, group.stamp_ns) {
+        let want_points = shared.points_wanted.load(Ordering::Relaxed);
+        match pipeline.process_with(images, group.stamp_ns, want_points) {
             Ok(out) => {
                 let mut errors = Vec::new();
                 if let Err(e) = publishers.depth.publish(out.depth) {
                     errors.push(format!("publishing depth: {e:?}"));
                 }
-                if let Err(e) = publishers.points.publish(out.points) {
-                    errors.push(format!("publishing points: {e:?}"));
+                let skipped_points = out.points.is_none();
+                if let Some(points) = out.points {
+                    if let Err(e) = publishers.points.publish(points) {
+                        errors.push(format!("publishing points: {e:?}"));
+                    }
                 }
                 if let Err(e) = publishers.confidence.publish(out.confidence) {
                     errors.push(format!("publishing confidence: {e:?}"));
@@ -103,6 +112,9 @@ pub(super) fn worker_main(
                 let ms = out.latency.as_secs_f64() * 1e3;
                 let mut h = lock(&shared.health);
                 h.groups_processed += 1;
+                if skipped_points {
+                    h.clouds_skipped += 1;
+                }
                 total_ms += ms;
                 h.last_latency_ms = Some(ms);
                 h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);

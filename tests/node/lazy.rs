@@ -1,0 +1,142 @@
+//! Lazy outputs over DDS (loopback, own domain): while nobody subscribes to `points` the node
+//! publishes depth but builds no point cloud (counted on its health); once a subscriber
+//! matches, clouds arrive with one point per finite depth pixel.
+
+use crate::common::{reliable_qos, TestResult, RIG_PATH};
+use mode360::geometry::Rig;
+use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
+use mode360::msgs::{Header, Image, PointCloud2};
+use mode360::node::pipeline::is_point_range;
+use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
+use mode360::node::{spawn_node, DdsOptions, NodeParams};
+use mode360::synth::{SynthConfig, SynthRenderer};
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+/// Unique domain of this test file.
+const DOMAIN_ID: u16 = 47;
+const WIDTH: usize = 64;
+const MAX_DEPTH_M: f64 = 1000.0;
+const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
+const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
+const SEND_PERIOD: Duration = Duration::from_millis(200);
+const POLL: Duration = Duration::from_millis(20);
+const STAMP_STEP_NS: u64 = 100_000_000;
+/// Depth images to receive before anybody subscribes to `points`.
+const DEPTHS_WITHOUT_POINTS: usize = 3;
+
+#[test]
+fn points_are_built_only_while_someone_subscribes() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
+    let rig = Rig::from_file(RIG_PATH)?;
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: 8,
+        width: WIDTH,
+        max_depth_m: MAX_DEPTH_M,
+        ..Default::default()
+    })?
+    .render_frame(&rig, 0);
+    let dds = DdsOptions {
+        domain_id: DOMAIN_ID,
+        loopback_only: true,
+    };
+    let node = spawn_node(
+        NodeParams {
+            rig_file: RIG_PATH.into(),
+            output_width: WIDTH,
+            max_depth_m: MAX_DEPTH_M,
+            ..Default::default()
+        },
+        dds.clone(),
+    )?;
+    let context = dds_context(&dds)?;
+    let mut client = SpunNode::new(&context, "/", "mode360_lazy_client")?;
+    let depth_sub = create_subscription::<Image>(&mut client.node, "/depth", reliable_qos())?;
+    let pubs = rig
+        .cameras
+        .iter()
+        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let t0 = Instant::now();
+    while pubs
+        .iter()
+        .any(|p| p.get_subscription_count(&client.node) == 0)
+        && t0.elapsed() < DISCOVERY_TIMEOUT
+    {
+        std::thread::sleep(POLL);
+    }
+    let mut stamp = frame.stamp_ns;
+    let mut send = || -> Result<u64, String> {
+        stamp += STAMP_STEP_NS;
+        for (i, p) in pubs.iter().enumerate() {
+            let msg = image_msg_from_rgb(
+                Header::new(stamp, &rig.cameras[i].frame_id),
+                &frame.images[i],
+            );
+            p.publish(msg).map_err(|e| format!("{e:?}"))?;
+        }
+        Ok(stamp)
+    };
+    let mut depths: BTreeMap<u64, Image> = BTreeMap::new();
+
+    // Phase 1: depth only.
+    let t0 = Instant::now();
+    while depths.len() < DEPTHS_WITHOUT_POINTS && t0.elapsed() < PHASE_TIMEOUT {
+        send()?;
+        std::thread::sleep(SEND_PERIOD);
+        while let Some((m, _)) = depth_sub.take()? {
+            depths.insert(m.header.stamp.to_nanos(), m);
+        }
+    }
+    let h = node.health();
+    assert!(depths.len() >= DEPTHS_WITHOUT_POINTS, "{h:?}");
+    assert!(h.groups_processed >= DEPTHS_WITHOUT_POINTS as u64, "{h:?}");
+    assert_eq!(
+        h.clouds_skipped, h.groups_processed,
+        "a cloud was built with nobody subscribed: {h:?}"
+    );
+
+    // Phase 2: a points subscriber appears; clouds come, one point per finite pixel.
+    let points_sub =
+        create_subscription::<PointCloud2>(&mut client.node, "/points", reliable_qos())?;
+    let skipped_before = h.clouds_skipped;
+    let t0 = Instant::now();
+    let mut cloud: Option<PointCloud2> = None;
+    while cloud.is_none() && t0.elapsed() < PHASE_TIMEOUT {
+        send()?;
+        std::thread::sleep(SEND_PERIOD);
+        while let Some((m, _)) = depth_sub.take()? {
+            depths.insert(m.header.stamp.to_nanos(), m);
+        }
+        while let Some((m, _)) = points_sub.take()? {
+            cloud = Some(m);
+        }
+    }
+    let cloud = cloud.ok_or_else(|| format!("no cloud after subscribing: {:?}", node.health()))?;
+    // The depth of the same stamp may still be on its way.
+    let t0 = Instant::now();
+    let cloud_stamp = cloud.header.stamp.to_nanos();
+    while !depths.contains_key(&cloud_stamp) && t0.elapsed() < PHASE_TIMEOUT {
+        while let Some((m, _)) = depth_sub.take()? {
+            depths.insert(m.header.stamp.to_nanos(), m);
+        }
+        std::thread::sleep(POLL);
+    }
+    let range = float_from_image_msg(depths.get(&cloud_stamp).ok_or("no depth for the cloud")?)?;
+    let wanted = range
+        .data
+        .iter()
+        .filter(|&&r| is_point_range(r, MAX_DEPTH_M as f32))
+        .count();
+    assert!(wanted > 0);
+    assert_eq!(cloud.width as usize, wanted);
+    let h = node.health();
+    assert!(h.groups_processed > h.clouds_skipped, "{h:?}");
+    assert!(h.clouds_skipped >= skipped_before);
+    drop(pubs);
+    drop(depth_sub);
+    drop(points_sub);
+    client.stop()?;
+    node.shutdown()?;
+    Ok(())
+}
