@@ -2,7 +2,8 @@
 //! DDS, deterministically, and write inputs plus outputs to a new bag.
 //!
 //! Output bag: the input's rig and synth metadata, `/tf_static`, each frame's camera images
-//! and ground truth (as recorded), and per frame `/depth`, `/points`, `/confidence`
+//! and ground truth (as recorded), and per frame every topic the node publishes: `/depth`,
+//! `/depth/compressedDepth`, `/points`, `/confidence`
 //! (relative node topics resolved in the root namespace) and `/diagnostics`, all at the
 //! frame's stamp.
 
@@ -14,7 +15,10 @@ use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::float_from_image_msg;
 use crate::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
 use crate::node::pipeline::{ranges_for_scoring, Pipeline, PipelineParams};
-use crate::node::{resolve_topic, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC, POINTS_TOPIC};
+use crate::node::{
+    resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
+    POINTS_TOPIC,
+};
 use crate::sync::SyncStats;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
@@ -109,6 +113,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     let depth_topic = resolve_topic(REPLAY_NAMESPACE, DEPTH_TOPIC);
     let points_topic = resolve_topic(REPLAY_NAMESPACE, POINTS_TOPIC);
     let confidence_topic = resolve_topic(REPLAY_NAMESPACE, CONFIDENCE_TOPIC);
+    let compressed_depth_topic = resolve_topic(REPLAY_NAMESPACE, COMPRESSED_DEPTH_TOPIC);
     let mut total_latency_ms = 0.0;
     for frame in reader.frames() {
         if opts.max_frames.is_some_and(|n| summary.frames >= n) {
@@ -150,6 +155,9 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         bag.write(&depth_topic, stamp_ns, &out.depth)?;
         bag.write(&points_topic, stamp_ns, &points)?;
         bag.write(&confidence_topic, stamp_ns, &out.confidence)?;
+        if let Some(compressed) = &out.compressed_depth {
+            bag.write(&compressed_depth_topic, stamp_ns, compressed)?;
+        }
         let latency_ms = out.latency.as_secs_f64() * 1e3;
         total_latency_ms += latency_ms;
         summary.frames += 1;

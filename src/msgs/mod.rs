@@ -8,6 +8,7 @@
 //! including the NUL terminator, the bytes, and the NUL; sequences as a u32 element count then
 //! the elements.
 
+pub mod compressed_depth;
 pub mod image;
 pub mod schema;
 pub mod types;

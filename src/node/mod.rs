@@ -35,6 +35,8 @@ pub use pipeline::{Pipeline, PipelineError, PipelineOutput, PipelineParams};
 
 /// Relative topic of the range image.
 pub const DEPTH_TOPIC: &str = "depth";
+/// Relative topic of the range image in image_transport's compressedDepth format.
+pub const COMPRESSED_DEPTH_TOPIC: &str = "depth/compressedDepth";
 /// Relative topic of the point cloud.
 pub const POINTS_TOPIC: &str = "points";
 /// Relative topic of the confidence image.

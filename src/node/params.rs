@@ -8,6 +8,7 @@
 //! dotted names (`sync: {tolerance_s: 0.01}` is `sync.tolerance_s`). Later sources win.
 
 use super::pipeline::FarValue;
+use crate::msgs::compressed_depth::DEFAULT_DEPTH_QUANTIZATION;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -75,6 +76,8 @@ pub struct NodeParams {
     pub far_value: FarValue,
     /// Pixels with a lower confidence are NaN in `depth` and have no point.
     pub min_confidence: f64,
+    /// Quantization `Q` of `depth/compressedDepth` (image_transport's `depth_quantization`).
+    pub depth_quantization: f64,
     pub use_sim_time: bool,
     /// Transport for cameras not named in `image_transport_per_camera`.
     pub image_transport_default: ImageTransport,
@@ -98,6 +101,7 @@ impl Default for NodeParams {
             max_depth_m: 1000.0,
             far_value: FarValue::Inf,
             min_confidence: 0.0,
+            depth_quantization: f64::from(DEFAULT_DEPTH_QUANTIZATION),
             use_sim_time: false,
             image_transport_default: ImageTransport::Raw,
             image_transport_per_camera: BTreeMap::new(),
@@ -290,6 +294,7 @@ impl NodeParams {
                     bad(&format!("expected one of: {}", FarValue::NAMES.join(", ")))
                 })?
             }
+            "depth_quantization" => self.depth_quantization = positive_f64()?,
             "min_confidence" => {
                 self.min_confidence = value
                     .parse::<f64>()

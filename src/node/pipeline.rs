@@ -19,8 +19,11 @@ use crate::estimator::{DepthEstimator, EstimatorError};
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::rig::MIN_CAMERAS;
 use crate::geometry::{ErpGrid, GeometryError, PixelCoord, Rig, RigError};
+use crate::msgs::compressed_depth::{
+    encode_compressed_depth, CompressedDepthError, DEFAULT_DEPTH_QUANTIZATION,
+};
 use crate::msgs::image::image_msg_from_float;
-use crate::msgs::{Header, Image, PointCloud2, PointField};
+use crate::msgs::{CompressedImage, Header, Image, PointCloud2, PointField};
 use std::time::{Duration, Instant};
 
 /// Bytes of one float32 value.
@@ -54,6 +57,21 @@ impl FarValue {
     }
 }
 
+/// Which optional outputs to build for a group (the node skips those nobody subscribes to).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OutputRequest {
+    pub points: bool,
+    pub compressed_depth: bool,
+}
+
+impl OutputRequest {
+    /// Every output (replay).
+    pub const ALL: Self = Self {
+        points: true,
+        compressed_depth: true,
+    };
+}
+
 /// Settings of the pipeline.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PipelineParams {
@@ -66,6 +84,8 @@ pub struct PipelineParams {
     /// Pixels whose confidence is below this are NaN in `depth` and have no point (0: keep
     /// every estimate).
     pub min_confidence: f32,
+    /// `depth/compressedDepth`'s quantization `Q` (image_transport's `depth_quantization`).
+    pub depth_quantization: f32,
 }
 
 impl Default for PipelineParams {
@@ -75,6 +95,7 @@ impl Default for PipelineParams {
             max_depth_m: 1000.0,
             far_value: FarValue::Inf,
             min_confidence: 0.0,
+            depth_quantization: DEFAULT_DEPTH_QUANTIZATION,
         }
     }
 }
@@ -122,6 +143,8 @@ pub enum PipelineError {
     Rig(#[from] RigError),
     #[error("output grid: {0}")]
     Geometry(#[from] GeometryError),
+    #[error("depth/compressedDepth: {0}")]
+    CompressedDepth(#[from] CompressedDepthError),
 }
 
 /// The messages published for one group.
@@ -132,6 +155,8 @@ pub struct PipelineOutput {
     /// Valid, non-sky pixels as coloured points in the output frame (`None` when not asked
     /// for: nobody subscribes).
     pub points: Option<PointCloud2>,
+    /// `depth` in image_transport's compressedDepth format (`None` when not asked for).
+    pub compressed_depth: Option<CompressedImage>,
     /// Per-pixel confidence, 32FC1 in [0, 1].
     pub confidence: Image,
     /// Names of the rig cameras that were missing from the group.
@@ -178,16 +203,16 @@ impl Pipeline {
         group: Vec<Option<RgbImage>>,
         stamp_ns: u64,
     ) -> Result<PipelineOutput, PipelineError> {
-        self.process_with(group, stamp_ns, true)
+        self.process_with(group, stamp_ns, OutputRequest::ALL)
     }
 
-    /// [`Self::process`], building the point cloud only when `want_points` (the node skips it
-    /// while `points` has no subscriber).
+    /// [`Self::process`], building the optional outputs `want` asks for (the node skips those
+    /// without a subscriber).
     pub fn process_with(
         &mut self,
         group: Vec<Option<RgbImage>>,
         stamp_ns: u64,
-        want_points: bool,
+        want: OutputRequest,
     ) -> Result<PipelineOutput, PipelineError> {
         let t0 = Instant::now();
         if group.len() != self.rig.cameras.len() {
@@ -245,7 +270,7 @@ impl Pipeline {
             .unwrap_or(0);
         let colour_cam = present[colour_slot];
         let header = Header::new(stamp_ns, self.rig.output_frame_id.clone());
-        let points = if want_points {
+        let points = if want.points {
             Some(point_cloud(
                 header.clone(),
                 &estimate.range_m,
@@ -258,8 +283,19 @@ impl Pipeline {
         } else {
             None
         };
+        let compressed_depth = if want.compressed_depth {
+            Some(encode_compressed_depth(
+                header.clone(),
+                &estimate.range_m,
+                self.params.depth_quantization,
+                self.params.max_depth_m,
+            )?)
+        } else {
+            None
+        };
         Ok(PipelineOutput {
             depth: image_msg_from_float(header.clone(), &estimate.range_m),
+            compressed_depth,
             points,
             confidence: image_msg_from_float(header, &estimate.confidence),
             missing_cameras,
@@ -501,7 +537,12 @@ mod tests {
         assert!(range.data.iter().all(|r| r.is_nan()));
         assert_eq!(out.points.as_ref().unwrap().width, 0);
         // Not asked for, not built.
-        assert!(p.process_with(group(), 4, false).unwrap().points.is_none());
+        let none = OutputRequest {
+            points: false,
+            compressed_depth: false,
+        };
+        let out = p.process_with(group(), 4, none).unwrap();
+        assert!(out.points.is_none() && out.compressed_depth.is_none());
         // Scoring turns +Inf back into the sky's range.
         assert_eq!(
             ranges_for_scoring(&[f32::INFINITY, 3.0, f32::NAN], 100.0)[..2],

@@ -18,8 +18,8 @@ use super::params::{ImageTransport, NodeParams};
 use super::pipeline::Pipeline;
 use super::worker::{lock, post_groups, worker_main, OutputPublishers, Shared};
 use super::{
-    resolve_topic, NodeError, CLOCK_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
-    POINTS_TOPIC, TF_STATIC_TOPIC,
+    resolve_topic, NodeError, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
+    DIAGNOSTICS_TOPIC, POINTS_TOPIC, TF_STATIC_TOPIC,
 };
 use crate::bag::rig_tf_static;
 use crate::frame::RgbImage;
@@ -122,6 +122,11 @@ fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetu
     let publishers = OutputPublishers {
         depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
         points: Arc::new(create_publisher(node, &topic(POINTS_TOPIC), output_qos())?),
+        compressed_depth: Arc::new(create_publisher(
+            node,
+            &topic(COMPRESSED_DEPTH_TOPIC),
+            output_qos(),
+        )?),
         confidence: create_publisher(node, &topic(CONFIDENCE_TOPIC), output_qos())?,
     };
     let tf_static: Publisher<TFMessage> = create_publisher(node, TF_STATIC_TOPIC, latched_qos())?;
@@ -164,6 +169,13 @@ fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetu
         compressed_subs,
         clock_sub,
     })
+}
+
+/// Matched subscribers of the outputs built only on demand.
+#[derive(Clone, Copy, Debug)]
+struct Subscribers {
+    points: usize,
+    compressed_depth: usize,
 }
 
 /// Receive-side state of the DDS loop: synchronizer, clock, per-camera bookkeeping.
@@ -215,10 +227,13 @@ impl Receiver {
         post_groups(&self.shared, groups);
     }
 
-    fn on_tick(&mut self, diagnostics: &Publisher<DiagnosticArray>, points_subscribers: usize) {
+    fn on_tick(&mut self, diagnostics: &Publisher<DiagnosticArray>, subscribers: Subscribers) {
         self.shared
             .points_wanted
-            .store(points_subscribers > 0, Ordering::Relaxed);
+            .store(subscribers.points > 0, Ordering::Relaxed);
+        self.shared
+            .compressed_depth_wanted
+            .store(subscribers.compressed_depth > 0, Ordering::Relaxed);
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
             let started = *self.started_ns.get_or_insert(now);
@@ -296,6 +311,7 @@ pub(super) fn dds_main(
         clock_sub,
     } = setup;
     let points_pub = publishers.points.clone();
+    let compressed_pub = publishers.compressed_depth.clone();
     let worker = {
         let shared = shared.clone();
         std::thread::Builder::new()
@@ -366,7 +382,11 @@ pub(super) fn dds_main(
                     Err(e) => tracing::warn!("/clock: cannot deserialize: {e:?}"),
                 },
                 _ = ticker.tick() => {
-                    rx.on_tick(&diagnostics, points_pub.get_subscription_count(&spun.node))
+                    let subscribers = Subscribers {
+                        points: points_pub.get_subscription_count(&spun.node),
+                        compressed_depth: compressed_pub.get_subscription_count(&spun.node),
+                    };
+                    rx.on_tick(&diagnostics, subscribers)
                 }
             }
         }

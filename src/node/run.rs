@@ -140,12 +140,14 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
             max_depth_m: params.max_depth_m as f32,
             far_value: params.far_value,
             min_confidence: params.min_confidence as f32,
+            depth_quantization: params.depth_quantization as f32,
         },
     )?;
     let shared = Arc::new(Shared {
         mailbox: Mutex::new(Mailbox::default()),
         wake: Condvar::new(),
         points_wanted: AtomicBool::new(false),
+        compressed_depth_wanted: AtomicBool::new(false),
         health: Mutex::new(NodeHealth {
             cameras: rig
                 .cameras

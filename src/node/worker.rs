@@ -6,9 +6,9 @@
 //! subscriber (the DDS thread checks the match count every tick, [`Shared::points_wanted`]).
 
 use super::diagnostics::NodeHealth;
-use super::pipeline::Pipeline;
+use super::pipeline::{OutputRequest, Pipeline};
 use crate::frame::RgbImage;
-use crate::msgs::{Image, PointCloud2};
+use crate::msgs::{CompressedImage, Image, PointCloud2};
 use crate::sync::SyncGroup;
 use ros2_client::Publisher;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -28,6 +28,8 @@ pub(super) struct Shared {
     pub(super) health: Mutex<NodeHealth>,
     /// Whether `points` has a matched subscriber (set by the DDS thread every tick).
     pub(super) points_wanted: AtomicBool,
+    /// Whether `depth/compressedDepth` has a matched subscriber.
+    pub(super) compressed_depth_wanted: AtomicBool,
 }
 
 /// Locks `m`, also after a thread panicked while holding it.
@@ -61,6 +63,8 @@ pub(super) struct OutputPublishers {
     pub(super) depth: Publisher<Image>,
     /// Shared with the DDS thread, which counts its matched subscribers.
     pub(super) points: Arc<Publisher<PointCloud2>>,
+    /// Shared with the DDS thread, which counts its matched subscribers.
+    pub(super) compressed_depth: Arc<Publisher<CompressedImage>>,
     pub(super) confidence: Publisher<Image>,
 }
 
@@ -93,12 +97,20 @@ pub(super) fn worker_main(
             .into_iter()
             .map(|m| m.map(|(_, img)| img))
             .collect();
-        let want_points = shared.points_wanted.load(Ordering::Relaxed);
-        match pipeline.process_with(images, group.stamp_ns, want_points) {
+        let want = OutputRequest {
+            points: shared.points_wanted.load(Ordering::Relaxed),
+            compressed_depth: shared.compressed_depth_wanted.load(Ordering::Relaxed),
+        };
+        match pipeline.process_with(images, group.stamp_ns, want) {
             Ok(out) => {
                 let mut errors = Vec::new();
                 if let Err(e) = publishers.depth.publish(out.depth) {
                     errors.push(format!("publishing depth: {e:?}"));
+                }
+                if let Some(compressed) = out.compressed_depth {
+                    if let Err(e) = publishers.compressed_depth.publish(compressed) {
+                        errors.push(format!("publishing depth/compressedDepth: {e:?}"));
+                    }
                 }
                 let skipped_points = out.points.is_none();
                 if let Some(points) = out.points {

@@ -127,6 +127,7 @@ fn replay_writes_decodable_outputs_matching_inputs() -> TestResult {
     let depth2 = BagReader::open(&output2)?.decode_topic::<Image>("/depth")?;
     assert_eq!(depth2.len(), 1);
     assert_eq!(depth2[0].data, depth[0].data);
+    check_compressed_depth(&output, FRAMES)?;
     Ok(())
 }
 
@@ -244,5 +245,46 @@ fn malformed_messages_are_dropped_counted_and_every_good_frame_is_kept() -> Test
         "{}",
         report.to_table()
     );
+    Ok(())
+}
+
+/// `/depth/compressedDepth` of a replayed bag: one message per frame, and an independent
+/// Python decoder (tests/interop/check_compressed_depth.py: PNG and header from the format's
+/// description) reads back every measurable `/depth` pixel within half a quantization step.
+fn check_compressed_depth(output: &std::path::Path, frames: usize) -> TestResult {
+    use mode360::msgs::compressed_depth::{quantization_params, DEFAULT_DEPTH_QUANTIZATION};
+    use mode360::msgs::CompressedImage;
+    let compressed =
+        BagReader::open(output)?.decode_topic::<CompressedImage>("/depth/compressedDepth")?;
+    assert_eq!(compressed.len(), frames);
+    let Some(python) = crate::common::tool_from_env(
+        crate::common::PYTHON_ENV,
+        "the Python compressedDepth decoder",
+        "set MODE360_PYTHON to a Python with mcap and mcap-ros2-support (tests/interop/setup.sh)",
+    ) else {
+        return Ok(());
+    };
+    let script = crate::common::repo_path("tests/interop/check_compressed_depth.py");
+    let out = std::process::Command::new(python)
+        .arg(script)
+        .arg(output)
+        .output()?;
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    println!("Python compressedDepth decoder: {report}");
+    let (a, _) = quantization_params(DEFAULT_DEPTH_QUANTIZATION, MAX_DEPTH_M as f32);
+    // Half a code: |dd| <= d^2 / (2 A), i.e. a relative error of at most max_depth / (2 A).
+    let bound = MAX_DEPTH_M / (2.0 * f64::from(a)) * 1.01;
+    assert_eq!(report["frames"], frames);
+    assert_eq!(report["pixels"], frames * WIDTH * WIDTH / 2);
+    assert_eq!(report["nan_where_invalid"], true);
+    assert_eq!(report["format"], "32FC1; compressedDepth png");
+    let max_rel = report["max_rel_err"].as_f64().ok_or("max_rel_err")?;
+    assert!(max_rel <= bound, "relative error {max_rel} > {bound}");
     Ok(())
 }

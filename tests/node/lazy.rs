@@ -1,11 +1,15 @@
 //! Lazy outputs over DDS (loopback, own domain): while nobody subscribes to `points` the node
 //! publishes depth but builds no point cloud (counted on its health); once a subscriber
-//! matches, clouds arrive with one point per finite depth pixel.
+//! matches, clouds arrive with one point per finite depth pixel. `depth/compressedDepth` is
+//! likewise encoded only for a subscriber, and decodes to the `depth` of its stamp.
 
 use crate::common::{reliable_qos, TestResult, RIG_PATH};
 use mode360::geometry::Rig;
+use mode360::msgs::compressed_depth::{
+    decode_compressed_depth, quantization_params, DEFAULT_DEPTH_QUANTIZATION,
+};
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
-use mode360::msgs::{Header, Image, PointCloud2};
+use mode360::msgs::{CompressedImage, Header, Image, PointCloud2};
 use mode360::node::pipeline::is_point_range;
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, DdsOptions, NodeParams};
@@ -99,6 +103,12 @@ fn points_are_built_only_while_someone_subscribes() -> TestResult {
     // Phase 2: a points subscriber appears; clouds come, one point per finite pixel.
     let points_sub =
         create_subscription::<PointCloud2>(&mut client.node, "/points", reliable_qos())?;
+    let compressed_sub = create_subscription::<CompressedImage>(
+        &mut client.node,
+        "/depth/compressedDepth",
+        reliable_qos(),
+    )?;
+    let mut compressed: BTreeMap<u64, CompressedImage> = BTreeMap::new();
     let skipped_before = h.clouds_skipped;
     let t0 = Instant::now();
     let mut cloud: Option<PointCloud2> = None;
@@ -110,6 +120,9 @@ fn points_are_built_only_while_someone_subscribes() -> TestResult {
         }
         while let Some((m, _)) = points_sub.take()? {
             cloud = Some(m);
+        }
+        while let Some((m, _)) = compressed_sub.take()? {
+            compressed.insert(m.header.stamp.to_nanos(), m);
         }
     }
     let cloud = cloud.ok_or_else(|| format!("no cloud after subscribing: {:?}", node.health()))?;
@@ -130,6 +143,34 @@ fn points_are_built_only_while_someone_subscribes() -> TestResult {
         .count();
     assert!(wanted > 0);
     assert_eq!(cloud.width as usize, wanted);
+    // compressedDepth of a stamp decodes to its depth within half a quantization step.
+    let t0 = Instant::now();
+    while !compressed.contains_key(&cloud_stamp) && t0.elapsed() < PHASE_TIMEOUT {
+        while let Some((m, _)) = compressed_sub.take()? {
+            compressed.insert(m.header.stamp.to_nanos(), m);
+        }
+        std::thread::sleep(POLL);
+    }
+    let decoded = decode_compressed_depth(
+        compressed
+            .get(&cloud_stamp)
+            .ok_or("no compressedDepth for the cloud's stamp")?,
+    )?;
+    let (a, _) = quantization_params(DEFAULT_DEPTH_QUANTIZATION, MAX_DEPTH_M as f32);
+    let mut compared = 0;
+    for (&d, &r) in decoded.data.iter().zip(&range.data) {
+        if is_point_range(r, MAX_DEPTH_M as f32) {
+            assert!(
+                (d - r).abs() <= r * r / (2.0 * a) * 1.01 + 1e-4,
+                "{d} vs {r}"
+            );
+            compared += 1;
+        } else {
+            assert!(d.is_nan(), "{d} where depth is {r}");
+        }
+    }
+    assert_eq!(compared, wanted);
+    drop(compressed_sub);
     let h = node.health();
     assert!(h.groups_processed > h.clouds_skipped, "{h:?}");
     assert!(h.clouds_skipped >= skipped_before);
