@@ -27,6 +27,7 @@ pub mod clock;
 pub mod diagnostics;
 pub mod params;
 pub mod pipeline;
+pub mod qos_overrides;
 
 pub use clock::{ClockSource, NodeClock};
 pub use diagnostics::{diagnostic_array, CameraHealth, NodeHealth};

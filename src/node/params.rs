@@ -8,6 +8,7 @@
 //! dotted names (`sync: {tolerance_s: 0.01}` is `sync.tolerance_s`). Later sources win.
 
 use super::pipeline::FarValue;
+use super::qos_overrides::{QosOverrides, QOS_OVERRIDES_PREFIX};
 use crate::msgs::compressed_depth::DEFAULT_DEPTH_QUANTIZATION;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -79,6 +80,10 @@ pub struct NodeParams {
     /// Quantization `Q` of `depth/compressedDepth` (image_transport's `depth_quantization`).
     pub depth_quantization: f64,
     pub use_sim_time: bool,
+    /// Publish the rig's extrinsics on `/tf_static` (off where the robot's URDF does).
+    pub publish_tf: bool,
+    /// `qos_overrides./<topic>.<publisher|subscription>.<policy>` parameters.
+    pub qos_overrides: QosOverrides,
     /// Transport for cameras not named in `image_transport_per_camera`.
     pub image_transport_default: ImageTransport,
     /// Per camera name.
@@ -103,6 +108,8 @@ impl Default for NodeParams {
             min_confidence: 0.0,
             depth_quantization: f64::from(DEFAULT_DEPTH_QUANTIZATION),
             use_sim_time: false,
+            publish_tf: true,
+            qos_overrides: QosOverrides::default(),
             image_transport_default: ImageTransport::Raw,
             image_transport_per_camera: BTreeMap::new(),
             remaps: BTreeMap::new(),
@@ -302,6 +309,13 @@ impl NodeParams {
                     .filter(|c| (0.0..=1.0).contains(c))
                     .ok_or_else(|| bad("expected a number from 0 to 1"))?
             }
+            "publish_tf" => {
+                self.publish_tf = match value {
+                    "true" | "True" => true,
+                    "false" | "False" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
             "use_sim_time" => {
                 self.use_sim_time = match value {
                     "true" | "True" => true,
@@ -314,7 +328,9 @@ impl NodeParams {
                     ImageTransport::parse(value).ok_or_else(|| bad("expected raw or compressed"))?
             }
             _ => {
-                if let Some(camera) = name.strip_prefix("image_transport.") {
+                if let Some(rest) = name.strip_prefix(QOS_OVERRIDES_PREFIX) {
+                    self.qos_overrides.set(rest, value).map_err(|p| bad(&p))?;
+                } else if let Some(camera) = name.strip_prefix("image_transport.") {
                     let t = ImageTransport::parse(value)
                         .ok_or_else(|| bad("expected raw or compressed"))?;
                     self.image_transport_per_camera

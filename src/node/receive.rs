@@ -16,6 +16,7 @@ use super::diagnostics::{diagnostic_array, BadImageReason};
 use super::error::dds_err;
 use super::params::{ImageTransport, NodeParams};
 use super::pipeline::Pipeline;
+use super::qos_overrides::QosEntity;
 use super::worker::{lock, post_groups, worker_main, OutputPublishers, Shared};
 use super::{
     resolve_topic, NodeError, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
@@ -102,7 +103,8 @@ struct DdsSetup {
     context: Context,
     spun: SpunNode,
     publishers: OutputPublishers,
-    tf_static: Publisher<TFMessage>,
+    /// `None` with `publish_tf: false`.
+    tf_static: Option<Publisher<TFMessage>>,
     diagnostics: Publisher<DiagnosticArray>,
     raw_subs: Vec<(usize, ros2_client::Subscription<Image>)>,
     compressed_subs: Vec<(usize, ros2_client::Subscription<CompressedImage>)>,
@@ -118,31 +120,55 @@ fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetu
         Some(to) => resolve_topic(&ns, to),
         None => params.remap(&resolve_topic(&ns, name)),
     };
-    let node = &mut spun.node;
-    let publishers = OutputPublishers {
-        depth: create_publisher(node, &topic(DEPTH_TOPIC), output_qos())?,
-        points: Arc::new(create_publisher(node, &topic(POINTS_TOPIC), output_qos())?),
-        compressed_depth: Arc::new(create_publisher(
-            node,
-            &topic(COMPRESSED_DEPTH_TOPIC),
-            output_qos(),
-        )?),
-        confidence: create_publisher(node, &topic(CONFIDENCE_TOPIC), output_qos())?,
+    // QoS of each endpoint: the node's default for its kind, then the parameters' overrides.
+    let pub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Publisher, base);
+    let sub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Subscription, base);
+    let output = |name: &str| {
+        let t = topic(name);
+        let q = pub_qos(&t, output_qos());
+        (t, q)
     };
-    let tf_static: Publisher<TFMessage> = create_publisher(node, TF_STATIC_TOPIC, latched_qos())?;
-    let diagnostics: Publisher<DiagnosticArray> =
-        create_publisher(node, DIAGNOSTICS_TOPIC, output_qos())?;
+    let node = &mut spun.node;
+    let (t, q) = output(DEPTH_TOPIC);
+    let depth = create_publisher(node, &t, q)?;
+    let (t, q) = output(POINTS_TOPIC);
+    let points = Arc::new(create_publisher(node, &t, q)?);
+    let (t, q) = output(COMPRESSED_DEPTH_TOPIC);
+    let compressed_depth = Arc::new(create_publisher(node, &t, q)?);
+    let (t, q) = output(CONFIDENCE_TOPIC);
+    let confidence = create_publisher(node, &t, q)?;
+    let publishers = OutputPublishers {
+        depth,
+        points,
+        compressed_depth,
+        confidence,
+    };
+    let tf_static: Option<Publisher<TFMessage>> = if params.publish_tf {
+        Some(create_publisher(
+            node,
+            TF_STATIC_TOPIC,
+            pub_qos(TF_STATIC_TOPIC, latched_qos()),
+        )?)
+    } else {
+        None
+    };
+    let diagnostics: Publisher<DiagnosticArray> = create_publisher(
+        node,
+        DIAGNOSTICS_TOPIC,
+        pub_qos(DIAGNOSTICS_TOPIC, output_qos()),
+    )?;
     let mut raw_subs = Vec::new();
     let mut compressed_subs = Vec::new();
     for (i, cam) in rig.cameras.iter().enumerate() {
         let t = camera_topic(params, &cam.name, &cam.topic);
         match params.image_transport(&cam.name) {
-            ImageTransport::Raw => {
-                raw_subs.push((i, create_subscription::<Image>(node, &t, sensor_qos())?))
-            }
+            ImageTransport::Raw => raw_subs.push((
+                i,
+                create_subscription::<Image>(node, &t, sub_qos(&t, sensor_qos()))?,
+            )),
             ImageTransport::Compressed => compressed_subs.push((
                 i,
-                create_subscription::<CompressedImage>(node, &t, sensor_qos())?,
+                create_subscription::<CompressedImage>(node, &t, sub_qos(&t, sensor_qos()))?,
             )),
         }
     }
@@ -150,15 +176,17 @@ fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetu
         Some(create_subscription::<Clock>(
             node,
             CLOCK_TOPIC,
-            clock_qos(),
+            sub_qos(CLOCK_TOPIC, clock_qos()),
         )?)
     } else {
         None
     };
-    tf_static
-        .publish(rig_tf_static(rig))
-        .map_err(|e| format!("{e:?}"))
-        .map_err(dds_err("publishing /tf_static"))?;
+    if let Some(tf_static) = &tf_static {
+        tf_static
+            .publish(rig_tf_static(rig))
+            .map_err(|e| format!("{e:?}"))
+            .map_err(dds_err("publishing /tf_static"))?;
+    }
     Ok(DdsSetup {
         context,
         spun,

@@ -13,3 +13,4 @@ mod dds;
 mod dropout;
 mod lazy;
 mod process;
+mod qos;
