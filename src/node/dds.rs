@@ -185,12 +185,27 @@ pub struct SpunNode {
 impl SpunNode {
     /// Creates node `name` in `namespace` and starts its spinner.
     pub fn new(context: &Context, namespace: &str, name: &str) -> Result<Self, NodeError> {
+        Self::with_options(
+            context,
+            namespace,
+            name,
+            NodeOptions::new().enable_rosout(false),
+        )
+    }
+
+    /// [`Self::new`] with `options` (declared parameters and their services).
+    pub fn with_options(
+        context: &Context,
+        namespace: &str,
+        name: &str,
+        options: NodeOptions,
+    ) -> Result<Self, NodeError> {
         let node_name = NodeName::new(namespace, name).map_err(|e| NodeError::TopicName {
             topic: format!("{namespace}/{name}"),
             problem: format!("{e:?}"),
         })?;
         let mut node = context
-            .new_node(node_name, NodeOptions::new().enable_rosout(false))
+            .new_node(node_name, options)
             .map_err(|e| NodeError::Dds {
                 what: "creating the node".into(),
                 problem: format!("{e:?}"),

@@ -28,6 +28,7 @@ pub mod diagnostics;
 pub mod params;
 pub mod pipeline;
 pub mod qos_overrides;
+pub mod ros_params;
 
 pub use clock::{ClockSource, NodeClock};
 pub use diagnostics::{diagnostic_array, CameraHealth, NodeHealth};

@@ -34,6 +34,14 @@ pub enum ImageTransport {
 }
 
 impl ImageTransport {
+    /// Its parameter spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Raw => "raw",
+            Self::Compressed => "compressed",
+        }
+    }
+
     fn parse(value: &str) -> Option<Self> {
         match value {
             "raw" => Some(Self::Raw),

@@ -196,6 +196,12 @@ impl Pipeline {
         &self.params
     }
 
+    /// Replaces the settings (the output width must stay: the grid is built once).
+    pub fn set_params(&mut self, params: PipelineParams) {
+        debug_assert_eq!(params.output_width, self.params.output_width);
+        self.params = params;
+    }
+
     /// Runs the estimator on the cameras present in `group` (one slot per rig camera, rig
     /// order) and builds the output messages stamped `stamp_ns` in the rig's output frame.
     pub fn process(

@@ -17,6 +17,7 @@ use super::error::dds_err;
 use super::params::{ImageTransport, NodeParams};
 use super::pipeline::Pipeline;
 use super::qos_overrides::QosEntity;
+use super::ros_params::{node_options, RuntimeParams};
 use super::worker::{lock, post_groups, worker_main, OutputPublishers, Shared};
 use super::{
     resolve_topic, NodeError, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
@@ -111,9 +112,15 @@ struct DdsSetup {
     clock_sub: Option<ros2_client::Subscription<Clock>>,
 }
 
-fn dds_setup(params: &NodeParams, dds: &DdsOptions, rig: &Rig) -> Result<DdsSetup, NodeError> {
+fn dds_setup(
+    params: &NodeParams,
+    dds: &DdsOptions,
+    rig: &Rig,
+    runtime: RuntimeParams,
+) -> Result<DdsSetup, NodeError> {
     let context = dds_context(dds)?;
-    let mut spun = SpunNode::new(&context, &params.namespace, &params.node_name)?;
+    let options = node_options(params, runtime);
+    let mut spun = SpunNode::with_options(&context, &params.namespace, &params.node_name, options)?;
     let ns = params.namespace.clone();
     let topic = |name: &str| match params.remaps.get(name) {
         // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
@@ -316,7 +323,8 @@ pub(super) fn dds_main(
     mut stop: watch::Receiver<bool>,
     ready: std::sync::mpsc::Sender<Result<(), NodeError>>,
 ) -> Result<(), NodeError> {
-    let setup = runtime().and_then(|rt| Ok((rt, dds_setup(&params, &dds, &rig)?)));
+    let setup =
+        runtime().and_then(|rt| Ok((rt, dds_setup(&params, &dds, &rig, shared.runtime.clone())?)));
     let (rt, setup) = match setup {
         Ok(s) => s,
         Err(e) => {

@@ -148,6 +148,7 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
         wake: Condvar::new(),
         points_wanted: AtomicBool::new(false),
         compressed_depth_wanted: AtomicBool::new(false),
+        runtime: Arc::new(Mutex::new(pipeline.params().clone())),
         health: Mutex::new(NodeHealth {
             cameras: rig
                 .cameras

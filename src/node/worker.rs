@@ -7,6 +7,7 @@
 
 use super::diagnostics::NodeHealth;
 use super::pipeline::{OutputRequest, Pipeline};
+use super::ros_params::RuntimeParams;
 use crate::frame::RgbImage;
 use crate::msgs::{CompressedImage, Image, PointCloud2};
 use crate::sync::SyncGroup;
@@ -30,6 +31,8 @@ pub(super) struct Shared {
     pub(super) points_wanted: AtomicBool,
     /// Whether `depth/compressedDepth` has a matched subscriber.
     pub(super) compressed_depth_wanted: AtomicBool,
+    /// Pipeline settings as the parameter services last set them (read before each group).
+    pub(super) runtime: RuntimeParams,
 }
 
 /// Locks `m`, also after a thread panicked while holding it.
@@ -97,6 +100,10 @@ pub(super) fn worker_main(
             .into_iter()
             .map(|m| m.map(|(_, img)| img))
             .collect();
+        let current = lock(&shared.runtime).clone();
+        if pipeline.params() != &current {
+            pipeline.set_params(current);
+        }
         let want = OutputRequest {
             points: shared.points_wanted.load(Ordering::Relaxed),
             compressed_depth: shared.compressed_depth_wanted.load(Ordering::Relaxed),

@@ -12,5 +12,6 @@ mod cyclone;
 mod dds;
 mod dropout;
 mod lazy;
+mod params;
 mod process;
 mod qos;

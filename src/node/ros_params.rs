@@ -1,0 +1,164 @@
+//! The node's parameters as ROS 2 parameters: declared with ros2-client, so that
+//! `ros2 param list/get/set/dump` work on the node.
+//!
+//! Every parameter of [`NodeParams`] that has one value is declared with its current value.
+//! The ones in [`RUNTIME_PARAMS`] take effect at once when set ([`RuntimeParams`], read by the
+//! inference worker before each group); setting any other one is refused with the reason
+//! (restart the node with the new value). A value the node would refuse at start is refused
+//! at run time with the same reason, and the node keeps running.
+
+use super::params::NodeParams;
+use super::pipeline::{FarValue, PipelineParams};
+use ros2_client::{NodeOptions, ParameterValue};
+use std::sync::{Arc, Mutex};
+
+/// Parameters that may change while the node runs.
+pub const RUNTIME_PARAMS: [&str; 4] = [
+    "max_depth_m",
+    "min_confidence",
+    "depth_far_value",
+    "depth_quantization",
+];
+
+/// The run-time changeable part of the pipeline's settings, shared with the worker.
+pub type RuntimeParams = Arc<Mutex<PipelineParams>>;
+
+fn far_value_name(f: FarValue) -> &'static str {
+    match f {
+        FarValue::Inf => FarValue::NAMES[0],
+        FarValue::MaxDepth => FarValue::NAMES[1],
+    }
+}
+
+/// Every single-valued parameter of `p` with its ROS 2 value.
+pub fn declared_parameters(p: &NodeParams) -> Vec<(&'static str, ParameterValue)> {
+    use ParameterValue::{Boolean, Double, Integer, String as Text};
+    vec![
+        ("rig_file", Text(p.rig_file.display().to_string())),
+        ("estimator", Text(p.estimator.kind.to_string())),
+        (
+            "weights",
+            Text(
+                p.estimator
+                    .weights
+                    .as_ref()
+                    .map(|w| w.display().to_string())
+                    .unwrap_or_default(),
+            ),
+        ),
+        ("output_width", Integer(p.output_width as i64)),
+        ("sync.tolerance_s", Double(p.sync_tolerance_s)),
+        ("sync.queue_size", Integer(p.sync_queue_size as i64)),
+        ("camera_timeout_s", Double(p.camera_timeout_s)),
+        ("max_depth_m", Double(p.max_depth_m)),
+        ("depth_far_value", Text(far_value_name(p.far_value).into())),
+        ("min_confidence", Double(p.min_confidence)),
+        ("depth_quantization", Double(p.depth_quantization)),
+        ("publish_tf", Boolean(p.publish_tf)),
+        (
+            "image_transport",
+            Text(p.image_transport_default.as_str().into()),
+        ),
+    ]
+}
+
+/// A ROS 2 value as the text [`NodeParams::set`] parses (`None` for arrays and unset).
+fn as_text(value: &ParameterValue) -> Option<String> {
+    match value {
+        ParameterValue::Boolean(b) => Some(b.to_string()),
+        ParameterValue::Integer(i) => Some(i.to_string()),
+        ParameterValue::Double(d) => Some(d.to_string()),
+        ParameterValue::String(s) => Some(s.clone()),
+        _ => None,
+    }
+}
+
+/// Checks that `name = value` may be set now: a run-time parameter with a valid value.
+fn validate(base: &NodeParams, name: &str, value: &ParameterValue) -> Result<NodeParams, String> {
+    if !RUNTIME_PARAMS.contains(&name) {
+        // Declaring sets each parameter to its value once; only a change is refused.
+        let unchanged = declared_parameters(base)
+            .into_iter()
+            .any(|(n, v)| n == name && &v == value);
+        if unchanged {
+            return Ok(base.clone());
+        }
+        return Err(format!(
+            "'{name}' cannot change while the node runs (restart it with the new value); \
+             these can: {}",
+            RUNTIME_PARAMS.join(", ")
+        ));
+    }
+    let text = as_text(value).ok_or_else(|| format!("'{name}': expected a single value"))?;
+    let mut next = base.clone();
+    next.set(name, &text).map_err(|e| e.to_string())?;
+    Ok(next)
+}
+
+/// Node options declaring every parameter of `params`, with the validator and the action
+/// that updates `runtime`.
+pub fn node_options(params: &NodeParams, runtime: RuntimeParams) -> NodeOptions {
+    let mut options = NodeOptions::new()
+        .enable_rosout(false)
+        .start_parameter_services(true);
+    for (name, value) in declared_parameters(params) {
+        options = options.declare_parameter(name, value);
+    }
+    let current = Arc::new(Mutex::new(params.clone()));
+    let for_validator = current.clone();
+    options
+        .parameter_validator(Box::new(move |name, value| {
+            let base = for_validator
+                .lock()
+                .map_err(|_| "parameters lock poisoned")?;
+            validate(&base, name, value).map(|_| ())
+        }))
+        .parameter_set_action(Box::new(move |name, value| {
+            let mut base = current.lock().map_err(|_| "parameters lock poisoned")?;
+            let next = validate(&base, name, value)?;
+            let mut pipeline = runtime.lock().map_err(|_| "pipeline lock poisoned")?;
+            pipeline.max_depth_m = next.max_depth_m as f32;
+            pipeline.min_confidence = next.min_confidence as f32;
+            pipeline.far_value = next.far_value;
+            pipeline.depth_quantization = next.depth_quantization as f32;
+            tracing::info!("parameter {name} = {value:?}");
+            *base = next;
+            Ok(())
+        }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn runtime_parameters_validate_like_the_params_file() {
+        let p = NodeParams::default();
+        let names: Vec<&str> = declared_parameters(&p).iter().map(|(n, _)| *n).collect();
+        for r in RUNTIME_PARAMS {
+            assert!(names.contains(&r), "{r} is not declared");
+        }
+        let next = validate(&p, "min_confidence", &ParameterValue::Double(0.4)).unwrap();
+        assert_eq!(next.min_confidence, 0.4);
+        let e = validate(&p, "min_confidence", &ParameterValue::Double(1.4)).unwrap_err();
+        assert!(e.contains("0 to 1"), "{e}");
+        let e = validate(&p, "output_width", &ParameterValue::Integer(128)).unwrap_err();
+        // Declaring (setting the current value) is not a change.
+        assert!(validate(&p, "output_width", &ParameterValue::Integer(512)).is_ok());
+        assert!(e.contains("cannot change while the node runs"), "{e}");
+        let e = validate(
+            &p,
+            "depth_far_value",
+            &ParameterValue::String("zero".into()),
+        )
+        .unwrap_err();
+        assert!(e.contains("inf, max_depth"), "{e}");
+        let next = validate(
+            &p,
+            "depth_far_value",
+            &ParameterValue::String("max_depth".into()),
+        )
+        .unwrap();
+        assert_eq!(next.far_value, FarValue::MaxDepth);
+    }
+}

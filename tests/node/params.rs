@@ -1,0 +1,215 @@
+//! The node's parameters over ROS 2's parameter services (loopback, own domain), called by a
+//! separate ros2-client node as `ros2 param` does: `get_parameters` reads the declared values,
+//! `set_parameters` changes a run-time parameter at once (the next depth image follows it) and
+//! refuses, with a reason, a parameter that cannot change while running and an invalid value,
+//! while the node keeps running.
+
+use crate::common::{reliable_qos, TestResult, RIG_PATH};
+use mode360::geometry::Rig;
+use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
+use mode360::msgs::{Header, Image};
+use mode360::node::{
+    create_publisher, create_subscription, dds_context, runtime, sensor_qos, spawn_node,
+    DdsOptions, NodeParams, SpunNode,
+};
+use mode360::synth::{SynthConfig, SynthRenderer};
+use ros2_client::rcl_interfaces::{
+    GetParametersRequest, GetParametersResponse, SetParametersRequest, SetParametersResponse,
+};
+use ros2_client::service::Client;
+use ros2_client::{Name, Parameter, ParameterValue, ServiceMapping, ServiceTypeName};
+use std::time::{Duration, Instant};
+
+/// Unique domain of this test file.
+const DOMAIN_ID: u16 = 49;
+const WIDTH: usize = 64;
+const SERVICE_TIMEOUT: Duration = Duration::from_secs(15);
+const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
+const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
+const SEND_PERIOD: Duration = Duration::from_millis(200);
+const POLL: Duration = Duration::from_millis(20);
+const STAMP_STEP_NS: u64 = 100_000_000;
+/// A maximum range below every range in the scene: all of depth becomes +Inf.
+const TINY_MAX_DEPTH_M: f64 = 0.01;
+
+/// Calls `client` with `request`, waiting for the service first.
+fn call<Req, Resp>(
+    node: &ros2_client::Node,
+    client: &Client<Req, Resp>,
+    request: Req,
+) -> Result<Resp, Box<dyn std::error::Error>>
+where
+    Req: ros2_client::Message + Clone + 'static,
+    Resp: ros2_client::Message + 'static,
+{
+    let rt = runtime()?;
+    rt.block_on(async {
+        tokio::time::timeout(SERVICE_TIMEOUT, async {
+            client.wait_for_service(node).await;
+            client.async_call_service(request).await
+        })
+        .await
+    })
+    .map_err(|_| "parameter service timed out")?
+    .map_err(|e| format!("{e:?}").into())
+}
+
+#[test]
+fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> TestResult {
+    let _one_node_at_a_time = crate::common::live_node_lock();
+    let rig = Rig::from_file(RIG_PATH)?;
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: 6,
+        width: WIDTH,
+        ..Default::default()
+    })?
+    .render_frame(&rig, 0);
+    let dds = DdsOptions {
+        domain_id: DOMAIN_ID,
+        loopback_only: true,
+    };
+    let node = spawn_node(
+        NodeParams {
+            rig_file: RIG_PATH.into(),
+            output_width: WIDTH,
+            min_confidence: 0.0,
+            ..Default::default()
+        },
+        dds.clone(),
+    )?;
+    let context = dds_context(&dds)?;
+    let mut client = SpunNode::new(&context, "/", "mode360_param_client")?;
+    let qos = reliable_qos();
+    let get = client
+        .node
+        .create_client::<GetParametersRequest, GetParametersResponse>(
+            ServiceMapping::Enhanced,
+            &Name::new("/mode360", "get_parameters")?,
+            &ServiceTypeName::new("rcl_interfaces", "GetParameters"),
+            qos.clone(),
+            qos.clone(),
+        )?;
+    let set = client
+        .node
+        .create_client::<SetParametersRequest, SetParametersResponse>(
+            ServiceMapping::Enhanced,
+            &Name::new("/mode360", "set_parameters")?,
+            &ServiceTypeName::new("rcl_interfaces", "SetParameters"),
+            qos.clone(),
+            qos,
+        )?;
+
+    // get: the declared values.
+    let got = call(
+        &client.node,
+        &get,
+        GetParametersRequest {
+            names: vec![
+                "output_width".into(),
+                "max_depth_m".into(),
+                "estimator".into(),
+            ],
+        },
+    )?;
+    let values: Vec<ParameterValue> = got.values.into_iter().map(ParameterValue::from).collect();
+    assert_eq!(
+        values,
+        vec![
+            ParameterValue::Integer(WIDTH as i64),
+            ParameterValue::Double(1000.0),
+            ParameterValue::String("photometric".into()),
+        ]
+    );
+
+    // set: one run-time change accepted, a start-up-only one and an invalid one refused.
+    let set_one =
+        |name: &str, value: ParameterValue| -> Result<(bool, String), Box<dyn std::error::Error>> {
+            let r = call(
+                &client.node,
+                &set,
+                SetParametersRequest {
+                    parameter: vec![Parameter {
+                        name: name.into(),
+                        value,
+                    }
+                    .into()],
+                },
+            )?;
+            let first = r.results.into_iter().next().ok_or("no result")?;
+            Ok((first.successful, first.reason))
+        };
+    let (ok, reason) = set_one("output_width", ParameterValue::Integer(128))?;
+    assert!(
+        !ok && reason.contains("cannot change while the node runs"),
+        "{reason}"
+    );
+    let (ok, reason) = set_one("min_confidence", ParameterValue::Double(1.5))?;
+    assert!(!ok && reason.contains("0 to 1"), "{reason}");
+    let (ok, reason) = set_one("max_depth_m", ParameterValue::Double(TINY_MAX_DEPTH_M))?;
+    assert!(ok, "max_depth_m refused: {reason}");
+    let got = call(
+        &client.node,
+        &get,
+        GetParametersRequest {
+            names: vec!["max_depth_m".into(), "output_width".into()],
+        },
+    )?;
+    let values: Vec<ParameterValue> = got.values.into_iter().map(ParameterValue::from).collect();
+    assert_eq!(
+        values,
+        vec![
+            ParameterValue::Double(TINY_MAX_DEPTH_M),
+            ParameterValue::Integer(WIDTH as i64)
+        ]
+    );
+
+    // The next depth image follows the new maximum range: nothing is within 1 cm.
+    let depth_sub = create_subscription::<Image>(&mut client.node, "/depth", reliable_qos())?;
+    let pubs = rig
+        .cameras
+        .iter()
+        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let t0 = Instant::now();
+    while pubs
+        .iter()
+        .any(|p| p.get_subscription_count(&client.node) == 0)
+        && t0.elapsed() < DISCOVERY_TIMEOUT
+    {
+        std::thread::sleep(POLL);
+    }
+    let mut stamp = frame.stamp_ns;
+    let t0 = Instant::now();
+    let mut depth = None;
+    while depth.is_none() && t0.elapsed() < PHASE_TIMEOUT {
+        stamp += STAMP_STEP_NS;
+        for (i, p) in pubs.iter().enumerate() {
+            p.publish(image_msg_from_rgb(
+                Header::new(stamp, &rig.cameras[i].frame_id),
+                &frame.images[i],
+            ))
+            .map_err(|e| format!("{e:?}"))?;
+        }
+        std::thread::sleep(SEND_PERIOD);
+        while let Some((m, _)) = depth_sub.take()? {
+            depth = Some(m);
+        }
+    }
+    let range = float_from_image_msg(&depth.ok_or("no depth after the parameter change")?)?;
+    let measured = range.data.iter().filter(|r| r.is_finite()).count();
+    let beyond = range.data.iter().filter(|r| **r == f32::INFINITY).count();
+    assert_eq!(measured, 0, "ranges within {TINY_MAX_DEPTH_M} m");
+    assert!(
+        beyond > range.data.len() / 2,
+        "{beyond} of {} +Inf",
+        range.data.len()
+    );
+    assert!(!node.is_finished(), "the node stopped");
+    drop(pubs);
+    drop(depth_sub);
+    drop(get);
+    drop(set);
+    client.stop()?;
+    node.shutdown()?;
+    Ok(())
+}
