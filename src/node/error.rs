@@ -28,6 +28,8 @@ pub enum NodeError {
     ThreadPanic { thread: String },
     #[error("tokio: {what}: {problem}")]
     Runtime { what: String, problem: String },
+    #[error("{problem}")]
+    Extrinsics { problem: String },
 }
 
 /// A [`NodeError::Dds`] maker for `map_err` on a `String` problem.

@@ -29,6 +29,7 @@ pub mod params;
 pub mod pipeline;
 pub mod qos_overrides;
 pub mod ros_params;
+pub mod tf_extrinsics;
 
 pub use clock::{ClockSource, NodeClock};
 pub use diagnostics::{diagnostic_array, CameraHealth, NodeHealth};

@@ -51,6 +51,16 @@ impl ImageTransport {
     }
 }
 
+/// Where the rig's extrinsics come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ExtrinsicsSource {
+    /// The rig YAML (`rig_file`).
+    #[default]
+    Yaml,
+    /// `/tf_static` and `/tf` (the robot's URDF); the YAML still gives cameras and topics.
+    Tf,
+}
+
 /// Bad arguments or parameters.
 #[derive(Debug, thiserror::Error)]
 pub enum ParamsError {
@@ -90,6 +100,10 @@ pub struct NodeParams {
     pub use_sim_time: bool,
     /// Publish the rig's extrinsics on `/tf_static` (off where the robot's URDF does).
     pub publish_tf: bool,
+    /// Where `rig_from_cam` comes from.
+    pub extrinsics_source: ExtrinsicsSource,
+    /// How long to wait at start for the cameras' transforms with `extrinsics_source: tf`.
+    pub tf_timeout_s: f64,
     /// `qos_overrides./<topic>.<publisher|subscription>.<policy>` parameters.
     pub qos_overrides: QosOverrides,
     /// Transport for cameras not named in `image_transport_per_camera`.
@@ -117,6 +131,8 @@ impl Default for NodeParams {
             depth_quantization: f64::from(DEFAULT_DEPTH_QUANTIZATION),
             use_sim_time: false,
             publish_tf: true,
+            extrinsics_source: ExtrinsicsSource::Yaml,
+            tf_timeout_s: 5.0,
             qos_overrides: QosOverrides::default(),
             image_transport_default: ImageTransport::Raw,
             image_transport_per_camera: BTreeMap::new(),
@@ -324,6 +340,14 @@ impl NodeParams {
                     _ => return Err(bad("expected true or false")),
                 }
             }
+            "extrinsics_source" => {
+                self.extrinsics_source = match value {
+                    "yaml" => ExtrinsicsSource::Yaml,
+                    "tf" => ExtrinsicsSource::Tf,
+                    _ => return Err(bad("expected one of: yaml, tf")),
+                }
+            }
+            "tf_timeout_s" => self.tf_timeout_s = positive_f64()?,
             "use_sim_time" => {
                 self.use_sim_time = match value {
                     "true" | "True" => true,

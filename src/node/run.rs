@@ -6,16 +6,18 @@
 
 use super::dds::{runtime, DdsOptions};
 use super::diagnostics::{CameraHealth, NodeHealth};
-use super::params::NodeParams;
+use super::params::{ExtrinsicsSource, NodeParams};
 use super::pipeline::{Pipeline, PipelineParams};
 use super::receive::{camera_topic, dds_main};
 use super::shutdown::ShutdownSignals;
+use super::tf_extrinsics::wait_for_extrinsics;
 use super::worker::{lock, Mailbox, Shared};
 use super::NodeError;
 use crate::geometry::Rig;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
+use std::time::Duration;
 use tokio::sync::watch;
 
 /// A running node (in-process); [`NodeHandle::shutdown`] stops it.
@@ -25,9 +27,17 @@ pub struct NodeHandle {
     done: watch::Receiver<()>,
     shared: Arc<Shared>,
     thread: Option<JoinHandle<Result<(), NodeError>>>,
+    /// The rig the node runs with (extrinsics from the YAML or from TF).
+    rig: Rig,
 }
 
 impl NodeHandle {
+    /// The rig the node runs with: the YAML's cameras with the extrinsics of
+    /// `extrinsics_source`.
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+
     /// A snapshot of the node's health.
     pub fn health(&self) -> NodeHealth {
         lock(&self.shared.health).clone()
@@ -129,8 +139,20 @@ pub fn run_node(args: Vec<String>) -> Result<NodeRun, NodeError> {
 
 /// Starts the node on its own threads and returns once it is set up (publishers created,
 /// `/tf_static` sent).
-pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, NodeError> {
+pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, NodeError> {
     let rig = Rig::from_file(&params.rig_file)?;
+    let rig = match params.extrinsics_source {
+        ExtrinsicsSource::Yaml => rig,
+        ExtrinsicsSource::Tf => {
+            if params.publish_tf {
+                tracing::warn!(
+                    "extrinsics_source is tf: not publishing /tf_static (it would echo the robot's transforms)"
+                );
+                params.publish_tf = false;
+            }
+            wait_for_extrinsics(&rig, &dds, Duration::from_secs_f64(params.tf_timeout_s))?
+        }
+    };
     let estimator = params.estimator.build()?;
     let pipeline = Pipeline::new(
         rig.clone(),
@@ -168,6 +190,7 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<(), NodeError>>();
     let thread = {
         let shared = shared.clone();
+        let rig = rig.clone();
         std::thread::Builder::new()
             .name("mode360-dds".into())
             .spawn(move || {
@@ -185,6 +208,7 @@ pub fn spawn_node(params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, Nod
         done: done_rx,
         shared,
         thread: Some(thread),
+        rig,
     };
     match ready_rx.recv() {
         Ok(Ok(())) => Ok(handle),
