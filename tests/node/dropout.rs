@@ -1,13 +1,11 @@
 //! Camera dropout over DDS (loopback, own domain): a camera that falls silent is timed out,
 //! the node keeps publishing from the other three, and takes the camera back when it returns.
 
+use super::harness::{loopback, render, Cameras};
 use crate::common::{TestResult, RIG_PATH};
 use mode360::geometry::Rig;
-use mode360::msgs::image::image_msg_from_rgb;
-use mode360::msgs::{Header, Image};
-use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
-use mode360::node::{spawn_node, DdsOptions, NodeParams};
-use mode360::synth::{SynthConfig, SynthRenderer};
+use mode360::msgs::Image;
+use mode360::node::{create_subscription, dds_context, spawn_node, NodeParams, SpunNode};
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
 use std::time::{Duration, Instant};
@@ -16,10 +14,8 @@ use std::time::{Duration, Instant};
 const DOMAIN_ID: u16 = 42;
 const WIDTH: usize = 64;
 const CAMERA_TIMEOUT_S: f64 = 0.5;
-const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
 const SEND_PERIOD: Duration = Duration::from_millis(200);
-const POLL: Duration = Duration::from_millis(20);
 const STAMP_STEP_NS: u64 = 10_000_000;
 const DROPPED_CAMERA: usize = 3;
 
@@ -27,16 +23,8 @@ const DROPPED_CAMERA: usize = 3;
 fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
     let _one_node_at_a_time = crate::common::live_node_lock();
     let rig = Rig::from_file(RIG_PATH)?;
-    let frame = SynthRenderer::new(SynthConfig {
-        seed: 5,
-        width: WIDTH,
-        ..Default::default()
-    })?
-    .render_frame(&rig, 0);
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let frame = render(&rig, 5, WIDTH)?;
+    let dds = loopback(DOMAIN_ID);
     let node = spawn_node(
         NodeParams {
             rig_file: RIG_PATH.into(),
@@ -53,31 +41,7 @@ fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
         "/depth",
         QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
     )?;
-    let pubs = rig
-        .cameras
-        .iter()
-        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
-        .collect::<Result<Vec<_>, _>>()?;
-    let t0 = Instant::now();
-    while pubs
-        .iter()
-        .any(|p| p.get_subscription_count(&client.node) == 0)
-        && t0.elapsed() < DISCOVERY_TIMEOUT
-    {
-        std::thread::sleep(POLL);
-    }
-    let mut stamp = frame.stamp_ns;
-    let mut send = |cams: &[usize]| -> Result<u64, String> {
-        stamp += STAMP_STEP_NS;
-        for &i in cams {
-            let msg = image_msg_from_rgb(
-                Header::new(stamp, &rig.cameras[i].frame_id),
-                &frame.images[i],
-            );
-            pubs[i].publish(msg).map_err(|e| format!("{e:?}"))?;
-        }
-        Ok(stamp)
-    };
+    let mut cameras = Cameras::new(&mut client, &rig, frame, STAMP_STEP_NS)?;
     // Phase 1: three cameras only; after the timeout the node publishes without cam4.
     let three: Vec<usize> = (0..rig.cameras.len())
         .filter(|&i| i != DROPPED_CAMERA)
@@ -85,7 +49,7 @@ fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
     let mut got_degraded = false;
     let t0 = Instant::now();
     while !got_degraded && t0.elapsed() < PHASE_TIMEOUT {
-        let sent = send(&three)?;
+        let sent = cameras.send(&three)?;
         std::thread::sleep(SEND_PERIOD);
         while let Some((m, _)) = depth_sub.take()? {
             got_degraded |= m.header.stamp.to_nanos() <= sent;
@@ -98,13 +62,13 @@ fn silent_camera_is_timed_out_and_taken_back() -> TestResult {
     // Phase 2: all four again; the camera is taken back.
     let t0 = Instant::now();
     while !node.health().cameras[DROPPED_CAMERA].active && t0.elapsed() < PHASE_TIMEOUT {
-        send(&[0, 1, 2, 3])?;
+        cameras.send_all()?;
         std::thread::sleep(SEND_PERIOD);
     }
     let h = node.health();
     assert!(h.cameras[DROPPED_CAMERA].active, "{h:?}");
     assert!(h.cameras[DROPPED_CAMERA].received >= 1);
-    drop(pubs);
+    drop(cameras);
     drop(depth_sub);
     client.stop()?;
     let final_health = node.shutdown()?;

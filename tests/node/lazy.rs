@@ -3,17 +3,16 @@
 //! matches, clouds arrive with one point per finite depth pixel. `depth/compressedDepth` is
 //! likewise encoded only for a subscriber, and decodes to the `depth` of its stamp.
 
+use super::harness::{loopback, render, Cameras};
 use crate::common::{reliable_qos, TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::msgs::compressed_depth::{
     decode_compressed_depth, quantization_params, DEFAULT_DEPTH_QUANTIZATION,
 };
-use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
-use mode360::msgs::{CompressedImage, Header, Image, PointCloud2};
+use mode360::msgs::image::float_from_image_msg;
+use mode360::msgs::{CompressedImage, Image, PointCloud2};
 use mode360::node::pipeline::is_point_range;
-use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
-use mode360::node::{spawn_node, DdsOptions, NodeParams};
-use mode360::synth::{SynthConfig, SynthRenderer};
+use mode360::node::{create_subscription, dds_context, spawn_node, NodeParams, SpunNode};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
@@ -21,7 +20,6 @@ use std::time::{Duration, Instant};
 const DOMAIN_ID: u16 = 47;
 const WIDTH: usize = 64;
 const MAX_DEPTH_M: f64 = 1000.0;
-const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
 const SEND_PERIOD: Duration = Duration::from_millis(200);
 const POLL: Duration = Duration::from_millis(20);
@@ -33,17 +31,8 @@ const DEPTHS_WITHOUT_POINTS: usize = 3;
 fn points_are_built_only_while_someone_subscribes() -> TestResult {
     let _one_node_at_a_time = crate::common::live_node_lock();
     let rig = Rig::from_file(RIG_PATH)?;
-    let frame = SynthRenderer::new(SynthConfig {
-        seed: 8,
-        width: WIDTH,
-        max_depth_m: MAX_DEPTH_M,
-        ..Default::default()
-    })?
-    .render_frame(&rig, 0);
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let frame = render(&rig, 8, WIDTH)?;
+    let dds = loopback(DOMAIN_ID);
     let node = spawn_node(
         NodeParams {
             rig_file: RIG_PATH.into(),
@@ -56,37 +45,13 @@ fn points_are_built_only_while_someone_subscribes() -> TestResult {
     let context = dds_context(&dds)?;
     let mut client = SpunNode::new(&context, "/", "mode360_lazy_client")?;
     let depth_sub = create_subscription::<Image>(&mut client.node, "/depth", reliable_qos())?;
-    let pubs = rig
-        .cameras
-        .iter()
-        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
-        .collect::<Result<Vec<_>, _>>()?;
-    let t0 = Instant::now();
-    while pubs
-        .iter()
-        .any(|p| p.get_subscription_count(&client.node) == 0)
-        && t0.elapsed() < DISCOVERY_TIMEOUT
-    {
-        std::thread::sleep(POLL);
-    }
-    let mut stamp = frame.stamp_ns;
-    let mut send = || -> Result<u64, String> {
-        stamp += STAMP_STEP_NS;
-        for (i, p) in pubs.iter().enumerate() {
-            let msg = image_msg_from_rgb(
-                Header::new(stamp, &rig.cameras[i].frame_id),
-                &frame.images[i],
-            );
-            p.publish(msg).map_err(|e| format!("{e:?}"))?;
-        }
-        Ok(stamp)
-    };
+    let mut cameras = Cameras::new(&mut client, &rig, frame, STAMP_STEP_NS)?;
     let mut depths: BTreeMap<u64, Image> = BTreeMap::new();
 
     // Phase 1: depth only.
     let t0 = Instant::now();
     while depths.len() < DEPTHS_WITHOUT_POINTS && t0.elapsed() < PHASE_TIMEOUT {
-        send()?;
+        cameras.send_all()?;
         std::thread::sleep(SEND_PERIOD);
         while let Some((m, _)) = depth_sub.take()? {
             depths.insert(m.header.stamp.to_nanos(), m);
@@ -113,7 +78,7 @@ fn points_are_built_only_while_someone_subscribes() -> TestResult {
     let t0 = Instant::now();
     let mut cloud: Option<PointCloud2> = None;
     while cloud.is_none() && t0.elapsed() < PHASE_TIMEOUT {
-        send()?;
+        cameras.send_all()?;
         std::thread::sleep(SEND_PERIOD);
         while let Some((m, _)) = depth_sub.take()? {
             depths.insert(m.header.stamp.to_nanos(), m);
@@ -174,7 +139,7 @@ fn points_are_built_only_while_someone_subscribes() -> TestResult {
     let h = node.health();
     assert!(h.groups_processed > h.clouds_skipped, "{h:?}");
     assert!(h.clouds_skipped >= skipped_before);
-    drop(pubs);
+    drop(cameras);
     drop(depth_sub);
     drop(points_sub);
     client.stop()?;

@@ -4,15 +4,12 @@
 //! refuses, with a reason, a parameter that cannot change while running and an invalid value,
 //! while the node keeps running.
 
+use super::harness::{loopback, render, Cameras};
 use crate::common::{reliable_qos, TestResult, RIG_PATH};
 use mode360::geometry::Rig;
-use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
-use mode360::msgs::{Header, Image};
-use mode360::node::{
-    create_publisher, create_subscription, dds_context, runtime, sensor_qos, spawn_node,
-    DdsOptions, NodeParams, SpunNode,
-};
-use mode360::synth::{SynthConfig, SynthRenderer};
+use mode360::msgs::image::float_from_image_msg;
+use mode360::msgs::Image;
+use mode360::node::{create_subscription, dds_context, runtime, spawn_node, NodeParams, SpunNode};
 use ros2_client::rcl_interfaces::{
     GetParametersRequest, GetParametersResponse, SetParametersRequest, SetParametersResponse,
 };
@@ -25,9 +22,7 @@ const DOMAIN_ID: u16 = 49;
 const WIDTH: usize = 64;
 const SERVICE_TIMEOUT: Duration = Duration::from_secs(15);
 const PHASE_TIMEOUT: Duration = Duration::from_secs(20);
-const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 const SEND_PERIOD: Duration = Duration::from_millis(200);
-const POLL: Duration = Duration::from_millis(20);
 const STAMP_STEP_NS: u64 = 100_000_000;
 /// A maximum range below every range in the scene: all of depth becomes +Inf.
 const TINY_MAX_DEPTH_M: f64 = 0.01;
@@ -58,16 +53,8 @@ where
 fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> TestResult {
     let _one_node_at_a_time = crate::common::live_node_lock();
     let rig = Rig::from_file(RIG_PATH)?;
-    let frame = SynthRenderer::new(SynthConfig {
-        seed: 6,
-        width: WIDTH,
-        ..Default::default()
-    })?
-    .render_frame(&rig, 0);
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let frame = render(&rig, 6, WIDTH)?;
+    let dds = loopback(DOMAIN_ID);
     let node = spawn_node(
         NodeParams {
             rig_file: RIG_PATH.into(),
@@ -165,31 +152,11 @@ fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> Test
 
     // The next depth image follows the new maximum range: nothing is within 1 cm.
     let depth_sub = create_subscription::<Image>(&mut client.node, "/depth", reliable_qos())?;
-    let pubs = rig
-        .cameras
-        .iter()
-        .map(|c| create_publisher::<Image>(&mut client.node, &c.topic, sensor_qos()))
-        .collect::<Result<Vec<_>, _>>()?;
-    let t0 = Instant::now();
-    while pubs
-        .iter()
-        .any(|p| p.get_subscription_count(&client.node) == 0)
-        && t0.elapsed() < DISCOVERY_TIMEOUT
-    {
-        std::thread::sleep(POLL);
-    }
-    let mut stamp = frame.stamp_ns;
+    let mut cameras = Cameras::new(&mut client, &rig, frame, STAMP_STEP_NS)?;
     let t0 = Instant::now();
     let mut depth = None;
     while depth.is_none() && t0.elapsed() < PHASE_TIMEOUT {
-        stamp += STAMP_STEP_NS;
-        for (i, p) in pubs.iter().enumerate() {
-            p.publish(image_msg_from_rgb(
-                Header::new(stamp, &rig.cameras[i].frame_id),
-                &frame.images[i],
-            ))
-            .map_err(|e| format!("{e:?}"))?;
-        }
+        cameras.send_all()?;
         std::thread::sleep(SEND_PERIOD);
         while let Some((m, _)) = depth_sub.take()? {
             depth = Some(m);
@@ -205,7 +172,7 @@ fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> Test
         range.data.len()
     );
     assert!(!node.is_finished(), "the node stopped");
-    drop(pubs);
+    drop(cameras);
     drop(depth_sub);
     drop(get);
     drop(set);
