@@ -206,7 +206,11 @@ impl NodeParams {
                         problem: e.to_string(),
                     })?;
                     for (name, value) in params.file_parameters(&text, &file)? {
-                        params.set(&name, &value)?;
+                        // A bad value names the file as well as the parameter.
+                        params.set(&name, &value).map_err(|e| ParamsError::File {
+                            file: file.clone(),
+                            problem: e.to_string(),
+                        })?;
                     }
                 }
                 Source::Param { name, value } => params.set(&name, &value)?,
@@ -487,6 +491,27 @@ mod tests {
         assert_eq!(p.remap("/cam3/image_raw"), "/cam3/image_raw");
         assert_eq!(p.image_transport("cam2"), ImageTransport::Compressed);
         assert_eq!(p.image_transport("cam1"), ImageTransport::Raw);
+    }
+
+    #[test]
+    fn a_bad_value_in_a_params_file_names_the_file_parameter_and_allowed_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("bad.yaml");
+        std::fs::write(
+            &file,
+            "mode360:\n  ros__parameters:\n    depth_far_value: zero\n",
+        )
+        .unwrap();
+        let f = file.display().to_string();
+        let err = NodeParams::from_args(&args(&["--ros-args", "--params-file", &f]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("bad.yaml")
+                && err.contains("depth_far_value")
+                && err.contains("inf, max_depth"),
+            "{err}"
+        );
     }
 
     #[test]
