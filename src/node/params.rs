@@ -100,6 +100,10 @@ pub struct NodeParams {
     pub use_sim_time: bool,
     /// Publish the rig's extrinsics on `/tf_static` (off where the robot's URDF does).
     pub publish_tf: bool,
+    /// Output toggles (`points`, `confidence`, `depth/compressedDepth`); `depth` is always on.
+    pub publish_points: bool,
+    pub publish_confidence: bool,
+    pub publish_compressed_depth: bool,
     /// Where `rig_from_cam` comes from.
     pub extrinsics_source: ExtrinsicsSource,
     /// How long to wait at start for the cameras' transforms with `extrinsics_source: tf`.
@@ -131,6 +135,9 @@ impl Default for NodeParams {
             depth_quantization: f64::from(DEFAULT_DEPTH_QUANTIZATION),
             use_sim_time: false,
             publish_tf: true,
+            publish_points: true,
+            publish_confidence: true,
+            publish_compressed_depth: true,
             extrinsics_source: ExtrinsicsSource::Yaml,
             tf_timeout_s: 5.0,
             qos_overrides: QosOverrides::default(),
@@ -292,6 +299,13 @@ impl NodeParams {
                 .filter(|v| v.is_finite() && *v > 0.0)
                 .ok_or_else(|| bad("expected a positive number"))
         };
+        let boolean = || -> Result<bool, ParamsError> {
+            match value {
+                "true" | "True" => Ok(true),
+                "false" | "False" => Ok(false),
+                _ => Err(bad("expected true or false")),
+            }
+        };
         let positive_usize = || -> Result<usize, ParamsError> {
             value
                 .parse::<usize>()
@@ -337,13 +351,10 @@ impl NodeParams {
                     .filter(|c| (0.0..=1.0).contains(c))
                     .ok_or_else(|| bad("expected a number from 0 to 1"))?
             }
-            "publish_tf" => {
-                self.publish_tf = match value {
-                    "true" | "True" => true,
-                    "false" | "False" => false,
-                    _ => return Err(bad("expected true or false")),
-                }
-            }
+            "publish_tf" => self.publish_tf = boolean()?,
+            "publish_points" => self.publish_points = boolean()?,
+            "publish_confidence" => self.publish_confidence = boolean()?,
+            "publish_compressed_depth" => self.publish_compressed_depth = boolean()?,
             "extrinsics_source" => {
                 self.extrinsics_source = match value {
                     "yaml" => ExtrinsicsSource::Yaml,
@@ -352,13 +363,7 @@ impl NodeParams {
                 }
             }
             "tf_timeout_s" => self.tf_timeout_s = positive_f64()?,
-            "use_sim_time" => {
-                self.use_sim_time = match value {
-                    "true" | "True" => true,
-                    "false" | "False" => false,
-                    _ => return Err(bad("expected true or false")),
-                }
-            }
+            "use_sim_time" => self.use_sim_time = boolean()?,
             "image_transport" => {
                 self.image_transport_default =
                     ImageTransport::parse(value).ok_or_else(|| bad("expected raw or compressed"))?

@@ -13,15 +13,44 @@ use ros2_client::{NodeOptions, ParameterValue};
 use std::sync::{Arc, Mutex};
 
 /// Parameters that may change while the node runs.
-pub const RUNTIME_PARAMS: [&str; 4] = [
+pub const RUNTIME_PARAMS: [&str; 7] = [
     "max_depth_m",
     "min_confidence",
     "depth_far_value",
     "depth_quantization",
+    "publish_points",
+    "publish_confidence",
+    "publish_compressed_depth",
 ];
 
-/// The run-time changeable part of the pipeline's settings, shared with the worker.
-pub type RuntimeParams = Arc<Mutex<PipelineParams>>;
+/// Which optional outputs are switched on (each is also built only while subscribed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OutputToggles {
+    pub points: bool,
+    pub confidence: bool,
+    pub compressed_depth: bool,
+}
+
+impl OutputToggles {
+    /// The toggles of `p`.
+    pub fn of(p: &NodeParams) -> Self {
+        Self {
+            points: p.publish_points,
+            confidence: p.publish_confidence,
+            compressed_depth: p.publish_compressed_depth,
+        }
+    }
+}
+
+/// What may change while the node runs: the pipeline's settings and the output toggles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RuntimeSettings {
+    pub pipeline: PipelineParams,
+    pub outputs: OutputToggles,
+}
+
+/// The run-time settings, shared between the parameter services and the worker.
+pub type RuntimeParams = Arc<Mutex<RuntimeSettings>>;
 
 fn far_value_name(f: FarValue) -> &'static str {
     match f {
@@ -55,6 +84,12 @@ pub fn declared_parameters(p: &NodeParams) -> Vec<(&'static str, ParameterValue)
         ("min_confidence", Double(p.min_confidence)),
         ("depth_quantization", Double(p.depth_quantization)),
         ("publish_tf", Boolean(p.publish_tf)),
+        ("publish_points", Boolean(p.publish_points)),
+        ("publish_confidence", Boolean(p.publish_confidence)),
+        (
+            "publish_compressed_depth",
+            Boolean(p.publish_compressed_depth),
+        ),
         (
             "image_transport",
             Text(p.image_transport_default.as_str().into()),
@@ -116,11 +151,13 @@ pub fn node_options(params: &NodeParams, runtime: RuntimeParams) -> NodeOptions 
         .parameter_set_action(Box::new(move |name, value| {
             let mut base = current.lock().map_err(|_| "parameters lock poisoned")?;
             let next = validate(&base, name, value)?;
-            let mut pipeline = runtime.lock().map_err(|_| "pipeline lock poisoned")?;
+            let mut settings = runtime.lock().map_err(|_| "settings lock poisoned")?;
+            let pipeline = &mut settings.pipeline;
             pipeline.max_depth_m = next.max_depth_m as f32;
             pipeline.min_confidence = next.min_confidence as f32;
             pipeline.far_value = next.far_value;
             pipeline.depth_quantization = next.depth_quantization as f32;
+            settings.outputs = OutputToggles::of(&next);
             tracing::info!("parameter {name} = {value:?}");
             *base = next;
             Ok(())

@@ -9,6 +9,7 @@ use super::diagnostics::{CameraHealth, NodeHealth};
 use super::params::{ExtrinsicsSource, NodeParams};
 use super::pipeline::{Pipeline, PipelineParams};
 use super::receive::{camera_topic, dds_main};
+use super::ros_params::{OutputToggles, RuntimeSettings};
 use super::shutdown::ShutdownSignals;
 use super::tf_extrinsics::wait_for_extrinsics;
 use super::worker::{lock, Mailbox, Shared};
@@ -170,7 +171,10 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
         wake: Condvar::new(),
         points_wanted: AtomicBool::new(false),
         compressed_depth_wanted: AtomicBool::new(false),
-        runtime: Arc::new(Mutex::new(pipeline.params().clone())),
+        runtime: Arc::new(Mutex::new(RuntimeSettings {
+            pipeline: pipeline.params().clone(),
+            outputs: OutputToggles::of(&params),
+        })),
         health: Mutex::new(NodeHealth {
             cameras: rig
                 .cameras

@@ -101,12 +101,14 @@ pub(super) fn worker_main(
             .map(|m| m.map(|(_, img)| img))
             .collect();
         let current = lock(&shared.runtime).clone();
-        if pipeline.params() != &current {
-            pipeline.set_params(current);
+        if pipeline.params() != &current.pipeline {
+            pipeline.set_params(current.pipeline);
         }
+        let outputs = current.outputs;
         let want = OutputRequest {
-            points: shared.points_wanted.load(Ordering::Relaxed),
-            compressed_depth: shared.compressed_depth_wanted.load(Ordering::Relaxed),
+            points: outputs.points && shared.points_wanted.load(Ordering::Relaxed),
+            compressed_depth: outputs.compressed_depth
+                && shared.compressed_depth_wanted.load(Ordering::Relaxed),
         };
         match pipeline.process_with(images, group.stamp_ns, want) {
             Ok(out) => {
@@ -125,8 +127,10 @@ pub(super) fn worker_main(
                         errors.push(format!("publishing points: {e:?}"));
                     }
                 }
-                if let Err(e) = publishers.confidence.publish(out.confidence) {
-                    errors.push(format!("publishing confidence: {e:?}"));
+                if outputs.confidence {
+                    if let Err(e) = publishers.confidence.publish(out.confidence) {
+                        errors.push(format!("publishing confidence: {e:?}"));
+                    }
                 }
                 let ms = out.latency.as_secs_f64() * 1e3;
                 let mut h = lock(&shared.health);

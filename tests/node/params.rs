@@ -1,6 +1,7 @@
 //! The node's parameters over ROS 2's parameter services (loopback, own domain), called by a
 //! separate ros2-client node as `ros2 param` does: `get_parameters` reads the declared values,
-//! `set_parameters` changes a run-time parameter at once (the next depth image follows it) and
+//! `set_parameters` changes run-time parameters at once (the next depth image follows the new
+//! maximum range, and `publish_points: false` stops the clouds of a subscribed `points`) and
 //! refuses, with a reason, a parameter that cannot change while running and an invalid value,
 //! while the node keeps running.
 
@@ -8,7 +9,7 @@ use super::harness::{loopback, render, Cameras};
 use crate::common::{reliable_qos, TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::msgs::image::float_from_image_msg;
-use mode360::msgs::Image;
+use mode360::msgs::{Image, PointCloud2};
 use mode360::node::{create_subscription, dds_context, runtime, spawn_node, NodeParams, SpunNode};
 use ros2_client::rcl_interfaces::{
     GetParametersRequest, GetParametersResponse, SetParametersRequest, SetParametersResponse,
@@ -86,6 +87,10 @@ fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> Test
             qos,
         )?;
 
+    // A points subscriber from the start: only the toggle below keeps clouds away.
+    let points_sub =
+        create_subscription::<PointCloud2>(&mut client.node, "/points", reliable_qos())?;
+
     // get: the declared values.
     let got = call(
         &client.node,
@@ -134,6 +139,9 @@ fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> Test
     assert!(!ok && reason.contains("0 to 1"), "{reason}");
     let (ok, reason) = set_one("max_depth_m", ParameterValue::Double(TINY_MAX_DEPTH_M))?;
     assert!(ok, "max_depth_m refused: {reason}");
+    // An output toggle: no point cloud even with a subscriber.
+    let (ok, reason) = set_one("publish_points", ParameterValue::Boolean(false))?;
+    assert!(ok, "publish_points refused: {reason}");
     let got = call(
         &client.node,
         &get,
@@ -172,6 +180,16 @@ fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> Test
         range.data.len()
     );
     assert!(!node.is_finished(), "the node stopped");
+    assert!(
+        points_sub.take()?.is_none(),
+        "a cloud with publish_points false"
+    );
+    let h = node.health();
+    assert!(
+        h.groups_processed >= 1 && h.clouds_skipped == h.groups_processed,
+        "{h:?}"
+    );
+    drop(points_sub);
     drop(cameras);
     drop(depth_sub);
     drop(get);
