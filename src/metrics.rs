@@ -12,7 +12,9 @@
 //! deltaK = 100 * fraction of pixels with max(p/g, g/p) < 1.25^K,  K = 1, 2, 3
 //! ```
 //!
-//! A prediction that is not finite and positive on a valid pixel counts as a failure for the
+//! A prediction of `+Inf` (REP 117: nothing within range, as the node publishes the sky)
+//! counts as `max_depth`, the range ground truth gives the sky. Any other prediction that is
+//! not finite and positive on a valid pixel counts as a failure for the
 //! delta accuracies and is left out of the error means; `coverage_pct` says how many valid
 //! pixels had a usable prediction.
 //!
@@ -98,6 +100,7 @@ pub fn depth_metrics(
             continue;
         }
         n_valid += 1;
+        let p = if p == f64::INFINITY { max_depth_m } else { p };
         if !(p.is_finite() && p > 0.0) {
             continue;
         }
@@ -272,6 +275,15 @@ mod tests {
         assert_relative_eq!(m.mae_m, 0.0);
         assert_relative_eq!(m.delta1_pct, 50.0);
         assert_relative_eq!(m.coverage_pct, 50.0);
+    }
+
+    #[test]
+    fn an_infinite_prediction_is_the_sky_at_max_depth() {
+        // REP 117's +Inf scores as max_depth: right for the sky, wrong for a near wall.
+        let m = depth_metrics(&[f32::INFINITY, f32::INFINITY], &[100.0, 10.0], 100.0).unwrap();
+        assert_eq!(m.delta1_pct, 50.0);
+        assert_eq!(m.coverage_pct, 100.0);
+        assert!((m.mae_m - 45.0).abs() < 1e-9, "{m:?}");
     }
 
     #[test]

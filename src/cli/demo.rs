@@ -12,7 +12,7 @@ use crate::frame::{FloatImage, RgbImage};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use crate::msgs::{Header, Image, PointCloud2};
-use crate::node::pipeline::{decode_points, ranges_for_scoring};
+use crate::node::pipeline::decode_points;
 use crate::node::{
     create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeParams, SpunNode,
 };
@@ -185,12 +185,8 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
             .with_context(|| format!("the depth image at {} ns", f.stamp_ns))?;
         if let Some(gt) = &f.ground_truth {
             average.push(
-                depth_metrics(
-                    &ranges_for_scoring(&pred.data, max_depth_m as f32),
-                    &gt.data,
-                    max_depth_m,
-                )
-                .with_context(|| format!("metrics of the frame at {} ns", f.stamp_ns))?,
+                depth_metrics(&pred.data, &gt.data, max_depth_m)
+                    .with_context(|| format!("metrics of the frame at {} ns", f.stamp_ns))?,
                 None,
             );
         }

@@ -14,7 +14,7 @@ use crate::estimator::{EstimatorKind, EstimatorSpec};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::float_from_image_msg;
 use crate::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
-use crate::node::pipeline::{ranges_for_scoring, Pipeline, PipelineParams};
+use crate::node::pipeline::{Pipeline, PipelineParams};
 use crate::node::{
     resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
     POINTS_TOPIC,
@@ -182,8 +182,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             let pred = float_from_image_msg(&out.depth)
                 .with_context(|| format!("frame at {stamp_ns} ns: own depth output unreadable"))?;
             if pred.width == gt.width && pred.height == gt.height {
-                let scored = ranges_for_scoring(&pred.data, max_depth_m as f32);
-                let m = depth_metrics(&scored, &gt.data, max_depth_m)
+                let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
                     .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
                 average.push(m, None);
             }

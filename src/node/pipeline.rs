@@ -47,13 +47,19 @@ impl FarValue {
     /// Parameter spellings, for `depth_far_value`.
     pub const NAMES: [&'static str; 2] = ["inf", "max_depth"];
 
+    /// Its parameter spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Inf => Self::NAMES[0],
+            Self::MaxDepth => Self::NAMES[1],
+        }
+    }
+
     /// From its parameter spelling.
     pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "inf" => Some(Self::Inf),
-            "max_depth" => Some(Self::MaxDepth),
-            _ => None,
-        }
+        [Self::Inf, Self::MaxDepth]
+            .into_iter()
+            .find(|f| f.as_str() == s)
     }
 }
 
@@ -114,15 +120,6 @@ pub fn apply_rep117(range: &mut FloatImage, confidence: &FloatImage, params: &Pi
             *r = far;
         }
     }
-}
-
-/// `depth` values as ranges to score against ground truth whose sky is `max_depth_m`:
-/// `+Inf` (REP 117's "beyond range") becomes `max_depth_m`.
-pub fn ranges_for_scoring(depth: &[f32], max_depth_m: f32) -> Vec<f32> {
-    depth
-        .iter()
-        .map(|&r| if r == f32::INFINITY { max_depth_m } else { r })
-        .collect()
 }
 
 /// Why a group could not be processed.
@@ -549,11 +546,6 @@ mod tests {
         };
         let out = p.process_with(group(), 4, none).unwrap();
         assert!(out.points.is_none() && out.compressed_depth.is_none());
-        // Scoring turns +Inf back into the sky's range.
-        assert_eq!(
-            ranges_for_scoring(&[f32::INFINITY, 3.0, f32::NAN], 100.0)[..2],
-            [100.0, 3.0]
-        );
     }
 
     #[test]

@@ -8,7 +8,7 @@
 //! at run time with the same reason, and the node keeps running.
 
 use super::params::NodeParams;
-use super::pipeline::{FarValue, PipelineParams};
+use super::pipeline::PipelineParams;
 use ros2_client::{NodeOptions, ParameterValue};
 use std::sync::{Arc, Mutex};
 
@@ -52,13 +52,6 @@ pub struct RuntimeSettings {
 /// The run-time settings, shared between the parameter services and the worker.
 pub type RuntimeParams = Arc<Mutex<RuntimeSettings>>;
 
-fn far_value_name(f: FarValue) -> &'static str {
-    match f {
-        FarValue::Inf => FarValue::NAMES[0],
-        FarValue::MaxDepth => FarValue::NAMES[1],
-    }
-}
-
 /// Every single-valued parameter of `p` with its ROS 2 value.
 pub fn declared_parameters(p: &NodeParams) -> Vec<(&'static str, ParameterValue)> {
     use ParameterValue::{Boolean, Double, Integer, String as Text};
@@ -80,7 +73,7 @@ pub fn declared_parameters(p: &NodeParams) -> Vec<(&'static str, ParameterValue)
         ("sync.queue_size", Integer(p.sync_queue_size as i64)),
         ("camera_timeout_s", Double(p.camera_timeout_s)),
         ("max_depth_m", Double(p.max_depth_m)),
-        ("depth_far_value", Text(far_value_name(p.far_value).into())),
+        ("depth_far_value", Text(p.far_value.as_str().into())),
         ("min_confidence", Double(p.min_confidence)),
         ("depth_quantization", Double(p.depth_quantization)),
         ("publish_tf", Boolean(p.publish_tf)),
@@ -167,6 +160,7 @@ pub fn node_options(params: &NodeParams, runtime: RuntimeParams) -> NodeOptions 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::node::pipeline::FarValue;
 
     #[test]
     fn runtime_parameters_validate_like_the_params_file() {

@@ -12,6 +12,7 @@
 //! Every bad message must be dropped (no depth carries its stamp), counted for its camera with
 //! a reason naming what is wrong, and the node must publish depth for the next good group.
 
+use super::harness::loopback;
 use crate::common::{TestResult, RIG_PATH};
 use mode360::frame::RgbImage;
 use mode360::geometry::Rig;
@@ -19,7 +20,7 @@ use mode360::msgs::image::image_msg_from_rgb;
 use mode360::msgs::{DiagnosticArray, DiagnosticStatus, Header, Image};
 use mode360::node::diagnostics::{diagnostic_value, DIAGNOSTIC_PREFIX};
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
-use mode360::node::{spawn_node, DdsOptions, NodeHandle, NodeParams, DIAGNOSTICS_TOPIC};
+use mode360::node::{spawn_node, NodeHandle, NodeParams, DIAGNOSTICS_TOPIC};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use ros2_client::qos::History;
 use ros2_client::{Publisher, QosProfile, Subscription};
@@ -182,10 +183,7 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
         ..Default::default()
     })?
     .render_frame(&rig, 0);
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(DOMAIN_ID);
     let node = spawn_node(
         NodeParams {
             rig_file: RIG_PATH.into(),

@@ -12,6 +12,7 @@
 //! Needs `MODE360_PYTHON`: a Python with `cyclonedds` (`tests/interop/setup.sh DIR` makes one).
 //! Without it the tests are skipped, unless `CI` is set, where they fail.
 
+use super::harness::loopback;
 use crate::common::reliable_qos;
 use crate::common::PYTHON_ENV;
 use crate::common::{TestResult, RIG_PATH};
@@ -20,11 +21,9 @@ use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360::msgs::{Header, Image, PointCloud2};
-use mode360::node::pipeline::{
-    is_point_range, ranges_for_scoring, POINT_FIELD_NAMES, POINT_STEP_BYTES,
-};
+use mode360::node::pipeline::{is_point_range, POINT_FIELD_NAMES, POINT_STEP_BYTES};
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
-use mode360::node::{spawn_node, DdsOptions, NodeParams};
+use mode360::node::{spawn_node, NodeParams};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -269,10 +268,7 @@ fn cyclone_subscriber_decodes_depth_and_points() -> TestResult {
     let t_start = Instant::now();
     let rig = Rig::from_file(RIG_PATH)?;
     let frame = render(&rig, 1)?.remove(0);
-    let dds = DdsOptions {
-        domain_id: SUBSCRIBER_DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(SUBSCRIBER_DOMAIN_ID);
     let node = spawn_node(node_params(), dds.clone())?;
 
     let context = dds_context(&dds)?;
@@ -477,10 +473,7 @@ fn cyclone_publisher_feeds_the_node() -> TestResult {
     let frames = render(&rig, FRAMES)?;
     let dir = tempfile::tempdir()?;
     let spec = write_frames(&rig, &frames, dir.path())?;
-    let dds = DdsOptions {
-        domain_id: PUBLISHER_DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(PUBLISHER_DOMAIN_ID);
     let node = spawn_node(node_params(), dds.clone())?;
     let context = dds_context(&dds)?;
     let mut listener = SpunNode::new(&context, "/", "mode360_cyclone_pub_listener")?;
@@ -553,11 +546,7 @@ fn cyclone_publisher_feeds_the_node() -> TestResult {
             .ground_truth
             .as_ref()
             .ok_or("frame without ground truth")?;
-        let m = depth_metrics(
-            &ranges_for_scoring(&range.data, MAX_DEPTH_M as f32),
-            &gt.data,
-            MAX_DEPTH_M,
-        )?;
+        let m = depth_metrics(&range.data, &gt.data, MAX_DEPTH_M)?;
         println!(
             "Cyclone frame stamp {}: delta1 {:.2}%, AbsRel {:.3}",
             frame.stamp_ns, m.delta1_pct, m.abs_rel

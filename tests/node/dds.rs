@@ -2,6 +2,7 @@
 //! into it, `depth` and `points` received and checked against ground truth; then malformed
 //! images are sent and the node must report them and keep publishing for good input.
 
+use super::harness::loopback;
 use crate::common::reliable_qos;
 use crate::common::{TestResult, RIG_PATH};
 use mode360::bag::RigBagReader;
@@ -11,9 +12,9 @@ use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360::msgs::{Header, Image, PointCloud2};
-use mode360::node::pipeline::{is_point_range, ranges_for_scoring};
+use mode360::node::pipeline::is_point_range;
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
-use mode360::node::{spawn_node, DdsOptions, NodeParams};
+use mode360::node::{spawn_node, NodeParams};
 use mode360::synth::SynthConfig;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -61,10 +62,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         .filter_map(|f| Some((f.stamp_ns, f.ground_truth.clone()?)))
         .collect();
 
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(DOMAIN_ID);
     let params = NodeParams {
         rig_file: RIG_PATH.into(),
         output_width: WIDTH,
@@ -143,11 +141,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
         assert_eq!(depth.header.frame_id, rig.output_frame_id);
         let range = float_from_image_msg(depth)?;
         assert_eq!((range.width, range.height), (WIDTH, WIDTH / 2));
-        let m = depth_metrics(
-            &ranges_for_scoring(&range.data, MAX_DEPTH_M as f32),
-            &gt.data,
-            MAX_DEPTH_M,
-        )?;
+        let m = depth_metrics(&range.data, &gt.data, MAX_DEPTH_M)?;
         println!("stamp {stamp}: delta1 {:.2}%", m.delta1_pct);
         assert!(m.delta1_pct >= MIN_DELTA1_PCT, "{m:?}");
         if let Some(cloud) = clouds.get(stamp) {
@@ -235,7 +229,7 @@ fn node_publishes_depth_and_points_and_survives_bad_input() -> TestResult {
     let (stamp, depth) = good_stamp.ok_or("no depth for good input after bad messages")?;
     assert!(stamp > late);
     let m = depth_metrics(
-        &ranges_for_scoring(&float_from_image_msg(&depth)?.data, MAX_DEPTH_M as f32),
+        &float_from_image_msg(&depth)?.data,
         &frame.ground_truth.as_ref().ok_or("no gt")?.data,
         MAX_DEPTH_M,
     )?;

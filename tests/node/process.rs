@@ -4,6 +4,7 @@
 //! SIGINT must stop the process cleanly (exit code 0, within seconds) with a summary line whose
 //! counters agree with what was sent and received.
 
+use super::harness::loopback;
 use crate::common::TestResult;
 use mode360::bag::RigBagReader;
 use mode360::cli::play::{play_bag, PlayOptions};
@@ -11,7 +12,7 @@ use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::geometry::Rig;
 use mode360::msgs::{DiagnosticArray, Image};
 use mode360::node::diagnostics::diagnostic_value;
-use mode360::node::{create_subscription, dds_context, DdsOptions, SpunNode};
+use mode360::node::{create_subscription, dds_context, SpunNode};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
@@ -127,10 +128,7 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
         }
     }
 
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(DOMAIN_ID);
     let context = dds_context(&dds)?;
     let mut listener = SpunNode::new(&context, "/", "mode360_process_test_listener")?;
     let qos = QosProfile::publisher_default().history(History::KeepLast { depth: 10 });

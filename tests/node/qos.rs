@@ -4,13 +4,14 @@
 //! reliable one, while the other cameras keep the best-effort default; with
 //! `publish_tf: false` no `/tf_static` reaches a latched subscriber.
 
+use super::harness::loopback;
 use crate::common::{TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::msgs::{Image, TFMessage};
 use mode360::node::params::NodeParams;
 use mode360::node::{
     create_publisher, create_subscription, dds_context, latched_qos, sensor_qos, spawn_node,
-    DdsOptions, SpunNode,
+    SpunNode,
 };
 use ros2_client::QosProfile;
 use std::time::{Duration, Instant};
@@ -38,10 +39,7 @@ fn camera_qos_override_and_publish_tf_off_are_seen_on_dds() -> TestResult {
     ])?;
     params.rig_file = RIG_PATH.into();
     params.output_width = 64;
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(DOMAIN_ID);
     let node = spawn_node(params, dds.clone())?;
     let context = dds_context(&dds)?;
     let mut client = SpunNode::new(&context, "/", "mode360_qos_client")?;

@@ -3,13 +3,12 @@
 //! node runs with; without a transform for one camera the node refuses to start and names the
 //! frames.
 
+use super::harness::loopback;
 use crate::common::{TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::msgs::{Header, TFMessage, Transform, TransformStamped};
 use mode360::node::params::ExtrinsicsSource;
-use mode360::node::{
-    create_publisher, dds_context, latched_qos, spawn_node, DdsOptions, NodeParams, SpunNode,
-};
+use mode360::node::{create_publisher, dds_context, latched_qos, spawn_node, NodeParams, SpunNode};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// Unique domain of this test file.
@@ -37,10 +36,7 @@ fn params(tf_timeout_s: f64) -> NodeParams {
 fn extrinsics_come_from_tf_and_a_missing_camera_is_named() -> TestResult {
     let _one_node_at_a_time = crate::common::live_node_lock();
     let yaml = Rig::from_file(RIG_PATH)?;
-    let dds = DdsOptions {
-        domain_id: DOMAIN_ID,
-        loopback_only: true,
-    };
+    let dds = loopback(DOMAIN_ID);
     // The robot's tree: a roof rack 0.3 m higher and turned 5° about z, cameras on it.
     let base_from_rack = Isometry3::from_parts(
         Translation3::new(0.1, 0.0, 0.3),
