@@ -5,16 +5,18 @@
 //! (colour-mapped depth under the panorama; a top-down view of the point cloud) and scores the
 //! received depth against the bag's ground truth.
 
-use super::play::{play_bag, PlayOptions};
+use super::play::{play_bag, play_bag_until, PlayOptions};
 use crate::bag::{BagWriter, RigBagReader};
 use crate::estimator::{EstimatorKind, EstimatorSpec};
 use crate::frame::{FloatImage, RgbImage};
 use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use crate::msgs::{Header, Image, PointCloud2};
+use crate::node::live_view::{DEFAULT_FOXGLOVE_PORT, FOXGLOVE_OFF};
 use crate::node::pipeline::decode_points;
 use crate::node::{
-    create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeParams, SpunNode,
+    create_subscription, dds_context, runtime, spawn_node, stop_flag_on_signals, DdsOptions,
+    NodeHandle, NodeParams, SpunNode,
 };
 use crate::viz::{colorize_range, stack_vertical};
 use anyhow::{anyhow, Context, Result};
@@ -49,6 +51,9 @@ pub struct DemoOptions {
     /// Playback speed factor; slow enough that inference keeps up.
     pub rate: f64,
     pub dds: DdsOptions,
+    /// Serve the Foxglove live view on this port and keep playing the bag, in a loop, after
+    /// the demo until SIGINT or SIGTERM.
+    pub foxglove_port: Option<u16>,
 }
 
 /// What came back.
@@ -68,6 +73,13 @@ fn dds_read(e: impl std::fmt::Display) -> anyhow::Error {
 
 /// Runs the demo (see the module docs).
 pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
+    let (summary, node) = demo_with_node(opts)?;
+    node.shutdown()?;
+    Ok(summary)
+}
+
+/// The demo, leaving the node running.
+fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
     let reader =
         RigBagReader::open(&opts.bag).with_context(|| format!("opening {}", opts.bag.display()))?;
     let rig = reader.rig().clone();
@@ -87,6 +99,7 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
         output_width: width,
         max_depth_m,
         camera_timeout_s: 60.0,
+        foxglove_port: opts.foxglove_port.unwrap_or(FOXGLOVE_OFF),
         ..Default::default()
     };
     let node = spawn_node(params, opts.dds.clone())?;
@@ -144,7 +157,6 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
         std::thread::sleep(POLL);
     }
     listener.stop()?;
-    node.shutdown()?;
 
     // Output bag: inputs, then what the node published.
     let mut out = BagWriter::create(&opts.out_bag)?;
@@ -209,13 +221,47 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
                 .with_context(|| format!("writing {}", png.display()))?;
         }
     }
-    Ok(DemoSummary {
+    let summary = DemoSummary {
         frames_played: frames.len(),
         depth_received: depths.len(),
         points_received: clouds.len(),
         mean_points: total_points as f64 / clouds.len().max(1) as f64,
         metrics: (average.frames() > 0).then(|| average.depth()),
-    })
+    };
+    Ok((summary, node))
+}
+
+/// Keeps the node's live view fed: plays the bag in a loop until SIGINT or SIGTERM.
+fn serve_live_view(opts: &DemoOptions, port: u16) -> Result<()> {
+    let rig = RigBagReader::open(&opts.bag)
+        .with_context(|| format!("opening {}", opts.bag.display()))?
+        .rig()
+        .clone();
+    let stop = stop_flag_on_signals()?;
+    println!(
+        "Foxglove live view on ws://127.0.0.1:{port}: in Foxglove, Open connection > Foxglove \
+         WebSocket, then import the layout launch_configs/foxglove_layout.json; replaying {} \
+         in a loop, Ctrl-C to stop",
+        opts.bag.display()
+    );
+    let summary = play_bag_until(
+        &PlayOptions {
+            input: opts.bag.clone(),
+            rate: opts.rate,
+            loops: usize::MAX,
+            publish_clock: true,
+            dds: opts.dds.clone(),
+            wait_for_subscribers: Some(DISCOVERY_TIMEOUT),
+            wait_topics: rig.cameras.iter().map(|c| c.topic.clone()).collect(),
+        },
+        &stop,
+        |_| {},
+    )?;
+    tracing::info!(
+        "live view stopped after {} loops of the bag",
+        summary.loops_played
+    );
+    Ok(())
 }
 
 /// Top-down view of a cloud (x forward = up in the image, y left = left), coloured by the
@@ -267,13 +313,19 @@ pub struct DemoArgs {
     /// Playback speed factor: slow enough that every frame is processed.
     #[arg(long, default_value_t = 0.03)]
     pub rate: f64,
+    /// After the demo, serve the Foxglove live view and replay the bag in a loop until Ctrl-C.
+    #[arg(long)]
+    pub foxglove: bool,
+    /// Port of the live view (with --foxglove).
+    #[arg(long, default_value_t = DEFAULT_FOXGLOVE_PORT)]
+    pub foxglove_port: u16,
 }
 
 /// `mode360 demo`: runs the demo and prints what came back and how good it was.
 pub fn run(a: DemoArgs) -> Result<()> {
     let mut dds = DdsOptions::from_env()?;
     dds.loopback_only = true;
-    let s = run_demo(&DemoOptions {
+    let opts = DemoOptions {
         bag: a.bag,
         rig_file: a.rig,
         estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
@@ -281,7 +333,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
         png_dir: a.png_dir.clone(),
         rate: a.rate,
         dds,
-    })?;
+        foxglove_port: a.foxglove.then_some(a.foxglove_port),
+    };
+    let (s, node) = demo_with_node(&opts)?;
     println!(
         "played {} frames; received {} depth images and {} point clouds ({:.0} points each)",
         s.frames_played, s.depth_received, s.points_received, s.mean_points
@@ -297,5 +351,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
         a.out.display(),
         a.png_dir.display()
     );
+    if let Some(port) = node.foxglove_port() {
+        serve_live_view(&opts, port)?;
+    }
+    node.shutdown()?;
     Ok(())
 }

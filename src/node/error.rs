@@ -1,6 +1,7 @@
 //! The node's error type, shared by every room of the live node; the lowest of them, it
-//! imports none of the others (`dds`, `shutdown`, `worker`, `receive`, `run`).
+//! imports none of the others but their error types (`dds`, `shutdown`, `worker`, `receive`, `run`).
 
+use super::live_view::LiveViewError;
 use super::params::ParamsError;
 use super::pipeline::PipelineError;
 use super::ROS_DOMAIN_ID_ENV;
@@ -18,6 +19,8 @@ pub enum NodeError {
     Estimator(#[from] EstimatorError),
     #[error(transparent)]
     Pipeline(#[from] PipelineError),
+    #[error(transparent)]
+    LiveView(#[from] LiveViewError),
     #[error("environment variable {ROS_DOMAIN_ID_ENV}='{value}' is not a domain id (0..=232)")]
     DomainId { value: String },
     #[error("topic '{topic}': not a valid ROS 2 name: {problem}")]

@@ -15,7 +15,9 @@
 //!   dropped) and the inference worker that runs the [`Pipeline`] and publishes `depth`,
 //!   `points` and `confidence`;
 //! - `run.rs`: the lifecycle: [`spawn_node`], [`NodeHandle`], [`run_node`] and [`NodeRun`];
-//! - `error.rs`: [`NodeError`].
+//! - `error.rs`: [`NodeError`];
+//! - [`live_view`]: the Foxglove WebSocket server (`foxglove_port`), fed by the receive loop
+//!   (camera inputs, `/diagnostics`, `/tf_static`) and the worker (outputs).
 //!
 //! Threads: the DDS thread (receive loop), the inference worker and the ros2-client spinner
 //! (discovery), each on its own; [`NodeHandle::shutdown`] stops them all and waits for them.
@@ -25,6 +27,7 @@
 
 pub mod clock;
 pub mod diagnostics;
+pub mod live_view;
 pub mod params;
 pub mod pipeline;
 pub mod qos_overrides;

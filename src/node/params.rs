@@ -7,10 +7,12 @@
 //! be the node name, `/node_name`, `/ns/node_name` or the wildcard `/**`. Nested maps become
 //! dotted names (`sync: {tolerance_s: 0.01}` is `sync.tolerance_s`). Later sources win.
 
+use super::live_view::{LiveViewAddress, FOXGLOVE_OFF};
 use super::pipeline::FarValue;
 use super::qos_overrides::{QosOverrides, QOS_OVERRIDES_PREFIX};
 use crate::msgs::compressed_depth::DEFAULT_DEPTH_QUANTIZATION;
 use std::collections::BTreeMap;
+use std::net::{IpAddr, Ipv4Addr};
 use std::path::PathBuf;
 
 use crate::estimator::{EstimatorError, EstimatorSpec};
@@ -23,6 +25,8 @@ pub const DEFAULT_RIG_FILE: &str = "launch_configs/rig_deep360.yaml";
 pub const ROS_PARAMETERS_KEY: &str = "ros__parameters";
 /// Wildcard node key matching every node.
 pub const WILDCARD_NODE_KEY: &str = "/**";
+/// Default interface of the Foxglove live view: loopback only.
+pub const DEFAULT_FOXGLOVE_IP: Ipv4Addr = Ipv4Addr::LOCALHOST;
 
 /// How a camera's images arrive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -59,6 +63,16 @@ pub enum ExtrinsicsSource {
     Yaml,
     /// `/tf_static` and `/tf` (the robot's URDF); the YAML still gives cameras and topics.
     Tf,
+}
+
+impl ExtrinsicsSource {
+    /// Its parameter spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Yaml => "yaml",
+            Self::Tf => "tf",
+        }
+    }
 }
 
 /// Bad arguments or parameters.
@@ -116,6 +130,10 @@ pub struct NodeParams {
     pub image_transport_per_camera: BTreeMap<String, ImageTransport>,
     /// Topic remappings `from -> to` (names as written on the command line).
     pub remaps: BTreeMap<String, String>,
+    /// Port of the Foxglove live view ([`FOXGLOVE_OFF`]: no server).
+    pub foxglove_port: u16,
+    /// Interface the Foxglove live view listens on.
+    pub foxglove_address: IpAddr,
 }
 
 impl Default for NodeParams {
@@ -144,6 +162,8 @@ impl Default for NodeParams {
             image_transport_default: ImageTransport::Raw,
             image_transport_per_camera: BTreeMap::new(),
             remaps: BTreeMap::new(),
+            foxglove_port: FOXGLOVE_OFF,
+            foxglove_address: IpAddr::from(DEFAULT_FOXGLOVE_IP),
         }
     }
 }
@@ -364,6 +384,16 @@ impl NodeParams {
             }
             "tf_timeout_s" => self.tf_timeout_s = positive_f64()?,
             "use_sim_time" => self.use_sim_time = boolean()?,
+            "foxglove_port" => {
+                self.foxglove_port = value
+                    .parse::<u16>()
+                    .map_err(|_| bad("expected a TCP port from 1 to 65535, or 0 for no live view"))?
+            }
+            "foxglove_address" => {
+                self.foxglove_address = value.parse::<IpAddr>().map_err(|_| {
+                    bad("expected an IP address (127.0.0.1: this machine only; 0.0.0.0: every interface)")
+                })?
+            }
             "image_transport" => {
                 self.image_transport_default =
                     ImageTransport::parse(value).ok_or_else(|| bad("expected raw or compressed"))?
@@ -390,6 +420,14 @@ impl NodeParams {
             .get(camera)
             .copied()
             .unwrap_or(self.image_transport_default)
+    }
+
+    /// Where the Foxglove live view listens (`None`: `foxglove_port` is 0, no live view).
+    pub fn live_view_address(&self) -> Option<LiveViewAddress> {
+        (self.foxglove_port != FOXGLOVE_OFF).then_some(LiveViewAddress {
+            address: self.foxglove_address,
+            port: self.foxglove_port,
+        })
     }
 
     /// `topic` after remapping (exact match of the name as written).
@@ -632,5 +670,37 @@ mod tests {
         assert!(NodeParams::from_args(&args(&["--frobnicate"])).is_err());
         assert!(NodeParams::from_args(&args(&["--ros-args", "-p"])).is_err());
         assert!(NodeParams::from_args(&args(&["--ros-args", "-p", "x=1"])).is_err());
+    }
+
+    #[test]
+    fn the_live_view_is_off_by_default_and_validated() {
+        assert_eq!(NodeParams::default().live_view_address(), None);
+        let p = NodeParams::from_args(&args(&[
+            "--ros-args",
+            "-p",
+            "foxglove_port:=8765",
+            "-p",
+            "foxglove_address:=0.0.0.0",
+        ]))
+        .unwrap();
+        let at = p.live_view_address().unwrap();
+        assert_eq!(
+            (at.address.to_string().as_str(), at.port),
+            ("0.0.0.0", 8765)
+        );
+        for (name, value) in [
+            ("foxglove_port", "70000"),
+            ("foxglove_port", "-1"),
+            ("foxglove_address", "robot.local:1"),
+        ] {
+            let e =
+                NodeParams::from_args(&args(&["--ros-args", "-p", &format!("{name}:={value}")]))
+                    .unwrap_err()
+                    .to_string();
+            assert!(
+                e.contains(name) && e.contains(value) && e.contains("expected"),
+                "{e}"
+            );
+        }
     }
 }

@@ -14,6 +14,7 @@ use super::dds::{
 };
 use super::diagnostics::{diagnostic_array, BadImageReason};
 use super::error::dds_err;
+use super::live_view::LiveViewTopics;
 use super::params::{ImageTransport, NodeParams};
 use super::pipeline::Pipeline;
 use super::qos_overrides::QosEntity;
@@ -51,6 +52,36 @@ pub(super) fn camera_topic(params: &NodeParams, name: &str, topic: &str) -> Stri
     match params.image_transport(name) {
         ImageTransport::Raw => base,
         ImageTransport::Compressed => format!("{base}/{COMPRESSED_SUFFIX}"),
+    }
+}
+
+/// The topic output `name` (relative or absolute) is published on, after namespace and
+/// remapping.
+pub(super) fn output_topic(params: &NodeParams, name: &str) -> String {
+    match params.remaps.get(name) {
+        // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
+        Some(to) => resolve_topic(&params.namespace, to),
+        None => params.remap(&resolve_topic(&params.namespace, name)),
+    }
+}
+
+/// The live view's topics: the node's, as on DDS.
+pub(super) fn live_view_topics(params: &NodeParams, rig: &Rig) -> LiveViewTopics {
+    LiveViewTopics {
+        cameras: rig
+            .cameras
+            .iter()
+            .map(|c| {
+                let compressed = params.image_transport(&c.name) == ImageTransport::Compressed;
+                (camera_topic(params, &c.name, &c.topic), compressed)
+            })
+            .collect(),
+        depth: output_topic(params, DEPTH_TOPIC),
+        compressed_depth: output_topic(params, COMPRESSED_DEPTH_TOPIC),
+        points: output_topic(params, POINTS_TOPIC),
+        confidence: output_topic(params, CONFIDENCE_TOPIC),
+        tf_static: TF_STATIC_TOPIC.to_string(),
+        diagnostics: DIAGNOSTICS_TOPIC.to_string(),
     }
 }
 
@@ -121,12 +152,7 @@ fn dds_setup(
     let context = dds_context(dds)?;
     let options = node_options(params, runtime);
     let mut spun = SpunNode::with_options(&context, &params.namespace, &params.node_name, options)?;
-    let ns = params.namespace.clone();
-    let topic = |name: &str| match params.remaps.get(name) {
-        // `-r depth:=range` remaps the relative name; the result resolves in the namespace.
-        Some(to) => resolve_topic(&ns, to),
-        None => params.remap(&resolve_topic(&ns, name)),
-    };
+    let topic = |name: &str| output_topic(params, name);
     // QoS of each endpoint: the node's default for its kind, then the parameters' overrides.
     let pub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Publisher, base);
     let sub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Subscription, base);
@@ -224,6 +250,8 @@ struct Receiver {
     shared: Arc<Shared>,
     hardware_id: String,
     last_diag: Instant,
+    /// The rig's transforms, for the live view.
+    tf_static: TFMessage,
 }
 
 impl Receiver {
@@ -231,6 +259,12 @@ impl Receiver {
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
             self.started_ns.get_or_insert(now);
+        }
+        if let (Some(live), Ok(msg)) = (&self.shared.live, &result) {
+            match msg {
+                CameraMsg::Raw(m) => live.log_camera_raw(i, m),
+                CameraMsg::Compressed(m) => live.log_camera_compressed(i, m),
+            }
         }
         let sync = &mut self.sync;
         let outcome = result
@@ -306,6 +340,13 @@ impl Receiver {
                 // Stamp 0 with simulated time before the first /clock, as in ROS 2.
                 diagnostic_array(now_ns.unwrap_or(0), &self.hardware_id, &h)
             };
+            if let Some(live) = &self.shared.live {
+                live.diagnostics.log(&report);
+                // No latching on the WebSocket: the rig's transforms again for late viewers.
+                if live.tf_static.wanted() {
+                    live.tf_static.log(&self.tf_static);
+                }
+            }
             if let Err(e) = diagnostics.publish(report) {
                 tracing::warn!("publishing /diagnostics: {e:?}");
             }
@@ -379,6 +420,7 @@ pub(super) fn dds_main(
         shared: shared.clone(),
         hardware_id: params.fully_qualified_name(),
         last_diag: Instant::now(),
+        tf_static: rig_tf_static(&rig),
     };
 
     rt.block_on(async {

@@ -87,6 +87,13 @@ pub fn declared_parameters(p: &NodeParams) -> Vec<(&'static str, ParameterValue)
             "image_transport",
             Text(p.image_transport_default.as_str().into()),
         ),
+        (
+            "extrinsics_source",
+            Text(p.extrinsics_source.as_str().into()),
+        ),
+        ("tf_timeout_s", Double(p.tf_timeout_s)),
+        ("foxglove_port", Integer(i64::from(p.foxglove_port))),
+        ("foxglove_address", Text(p.foxglove_address.to_string())),
     ]
 }
 

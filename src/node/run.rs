@@ -6,9 +6,10 @@
 
 use super::dds::{runtime, DdsOptions};
 use super::diagnostics::{CameraHealth, NodeHealth};
+use super::live_view::LiveView;
 use super::params::{ExtrinsicsSource, NodeParams};
 use super::pipeline::{Pipeline, PipelineParams};
-use super::receive::{camera_topic, dds_main};
+use super::receive::{camera_topic, dds_main, live_view_topics};
 use super::ros_params::{OutputToggles, RuntimeSettings};
 use super::shutdown::ShutdownSignals;
 use super::tf_extrinsics::wait_for_extrinsics;
@@ -37,6 +38,11 @@ impl NodeHandle {
     /// `extrinsics_source`.
     pub fn rig(&self) -> &Rig {
         &self.rig
+    }
+
+    /// The port of the Foxglove live view (`None` without one).
+    pub fn foxglove_port(&self) -> Option<u16> {
+        self.shared.live.as_ref().map(LiveView::port)
     }
 
     /// A snapshot of the node's health.
@@ -166,11 +172,16 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
             depth_quantization: params.depth_quantization as f32,
         },
     )?;
+    let live = match params.live_view_address() {
+        Some(at) => Some(LiveView::start(&at, &live_view_topics(&params, &rig))?),
+        None => None,
+    };
     let shared = Arc::new(Shared {
         mailbox: Mutex::new(Mailbox::default()),
         wake: Condvar::new(),
         points_wanted: AtomicBool::new(false),
         compressed_depth_wanted: AtomicBool::new(false),
+        live,
         runtime: Arc::new(Mutex::new(RuntimeSettings {
             pipeline: pipeline.params().clone(),
             outputs: OutputToggles::of(&params),

@@ -6,6 +6,7 @@
 //! subscriber (the DDS thread checks the match count every tick, [`Shared::points_wanted`]).
 
 use super::diagnostics::NodeHealth;
+use super::live_view::LiveView;
 use super::pipeline::{OutputRequest, Pipeline};
 use super::ros_params::RuntimeParams;
 use crate::frame::RgbImage;
@@ -33,6 +34,8 @@ pub(super) struct Shared {
     pub(super) compressed_depth_wanted: AtomicBool,
     /// Pipeline settings as the parameter services last set them (read before each group).
     pub(super) runtime: RuntimeParams,
+    /// The Foxglove live view (`foxglove_port` set).
+    pub(super) live: Option<LiveView>,
 }
 
 /// Locks `m`, also after a thread panicked while holding it.
@@ -105,13 +108,29 @@ pub(super) fn worker_main(
             pipeline.set_params(current.pipeline);
         }
         let outputs = current.outputs;
+        let live = shared.live.as_ref();
         let want = OutputRequest {
-            points: outputs.points && shared.points_wanted.load(Ordering::Relaxed),
+            points: outputs.points
+                && (shared.points_wanted.load(Ordering::Relaxed)
+                    || live.is_some_and(|l| l.points.wanted())),
             compressed_depth: outputs.compressed_depth
-                && shared.compressed_depth_wanted.load(Ordering::Relaxed),
+                && (shared.compressed_depth_wanted.load(Ordering::Relaxed)
+                    || live.is_some_and(|l| l.compressed_depth.wanted())),
         };
         match pipeline.process_with(images, group.stamp_ns, want) {
             Ok(out) => {
+                if let Some(live) = live {
+                    live.depth.log(&out.depth);
+                    if let Some(m) = &out.compressed_depth {
+                        live.compressed_depth.log(m);
+                    }
+                    if let Some(m) = &out.points {
+                        live.points.log(m);
+                    }
+                    if outputs.confidence {
+                        live.confidence.log(&out.confidence);
+                    }
+                }
                 let mut errors = Vec::new();
                 if let Err(e) = publishers.depth.publish(out.depth) {
                     errors.push(format!("publishing depth: {e:?}"));

@@ -2,7 +2,7 @@
 //! played into it (`dds`), camera dropout (`dropout`), the binary under `use_sim_time` and
 //! SIGINT (`process`), Eclipse Cyclone DDS peers both ways (`cyclone`), and bad input seen on
 //! `/diagnostics` (`bad_input`), outputs built only while subscribed (`lazy`), QoS overrides and
-//! `publish_tf` (`qos`), the parameter services (`params`) and extrinsics from TF (`tf`). The tests take [`common::live_node_lock`] so that one node
+//! `publish_tf` (`qos`), the parameter services (`params`) and extrinsics from TF (`tf`), and the Foxglove live view (`foxglove`). The tests take [`common::live_node_lock`] so that one node
 //! runs at a time.
 
 #[path = "../common/mod.rs"]
@@ -12,6 +12,7 @@ mod bad_input;
 mod cyclone;
 mod dds;
 mod dropout;
+mod foxglove;
 mod harness;
 mod lazy;
 mod params;
