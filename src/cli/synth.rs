@@ -33,6 +33,7 @@ pub struct RecordSummary {
 
 /// Renders `frames` frames and writes them, with the rig and the scene settings, to a bag.
 pub fn record_synthetic_bag(opts: &RecordOptions) -> Result<RecordSummary> {
+    opts.rig.require_equirectangular("synth's renderer")?;
     let renderer = SynthRenderer::new(opts.config.clone())?;
     let mut info = opts.config.to_info();
     info.insert(SOILED_KEY.into(), opts.config.soiled.to_string());

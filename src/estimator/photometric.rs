@@ -228,6 +228,7 @@ impl PhotometricSweep {
         images: &[RgbImage],
         output: ErpGrid,
     ) -> Result<Vec<Vec<f32>>, EstimatorError> {
+        rig.require_equirectangular("the photometric sweep")?;
         if images.len() != rig.cameras.len() {
             return Err(EstimatorError::ImageCount {
                 got: images.len(),

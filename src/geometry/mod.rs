@@ -4,14 +4,19 @@
 //!   longitude wrap.
 //! * [`geer`]: the paper's generalized epipolar equirectangular projection (GEER) for a camera
 //!   pair, in which epipolar lines are image rows.
+//! * [`camera`]: camera models (double sphere, Kannala-Brandt, EUCM, dual fisheye, and the
+//!   ERP grid) behind one `project` / `unproject` interface.
 //! * [`rig`]: the rig calibration read from YAML, validated.
 //! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
 
+pub mod camera;
 pub mod erp;
 pub mod geer;
 pub mod rig;
+mod rig_projection;
 pub mod sweep;
 
+pub use camera::{CameraModel, ImageSize, IntrinsicsError};
 pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
 pub use geer::{GeerAngles, GeerPair};
 pub use rig::{Projection, Rig, RigCamera, RigError};
@@ -30,4 +35,10 @@ pub enum GeometryError {
     TooFewHypotheses { count: usize, min: usize },
     #[error("camera index {index} out of range for a rig of {count} cameras")]
     NoSuchCamera { index: usize, count: usize },
+    #[error("camera {camera}: projection {projection} is not supported by {consumer} yet (equirectangular cameras only)")]
+    UnsupportedProjection {
+        camera: String,
+        projection: &'static str,
+        consumer: &'static str,
+    },
 }

@@ -10,14 +10,25 @@
 //!   - name: cam1
 //!     topic: /cam1/image_raw
 //!     frame_id: cam1_link
-//!     projection: equirectangular
+//!     projection: equirectangular     # or double_sphere, kannala_brandt, eucm, dual_fisheye
 //!     rig_from_cam:
 //!       translation: [0.5, 0.5, 1.8]     # metres
 //!       rotation_xyzw: [0, 0, 0, 1]      # or rotation_rpy: [roll, pitch, yaw] in radians
 //! ```
 //!
 //! `rig_from_cam` maps a point in the camera frame to the rig frame: `p_rig = R p_cam + t`.
+//! The camera frame depends on the projection: an equirectangular camera's frame is REP 103
+//! (x at the panorama's centre column, y left, z up); a fisheye camera's frame is its lens's
+//! optical frame (z along the optical axis, x right, y down in the image), as Kalibr and Basalt
+//! calibrate it; a dual-fisheye camera's frame is the body frame its lenses' `cam_from_lens`
+//! are given in. The fisheye fields (`image_size`, `intrinsics`, `lenses`) are described in
+//! [`super::rig_projection`].
 
+use super::camera::{CameraModel, DualFisheye, FisheyeCamera};
+use super::rig_projection::{
+    parse_projection, projection_to_raw, RawIntrinsics, RawLens, RawProjection,
+};
+use super::GeometryError;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
@@ -57,11 +68,40 @@ pub enum RigError {
 }
 
 /// How a camera maps rays to pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Projection {
-    /// Full-sphere equirectangular panorama, see [`super::erp`].
+    /// Full-sphere equirectangular panorama, see [`super::erp`]; its size is the image's own.
     Equirectangular,
+    /// One fisheye lens (double sphere, Kannala-Brandt or EUCM) and its image size.
+    Fisheye(FisheyeCamera),
+    /// Two fisheye lenses back to back in one image.
+    DualFisheye(DualFisheye),
+}
+
+impl Projection {
+    /// The name in the rig YAML (`equirectangular`, `double_sphere`, `kannala_brandt`,
+    /// `eucm`, `dual_fisheye`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Equirectangular => "equirectangular",
+            Self::Fisheye(c) => c.lens().name(),
+            Self::DualFisheye(_) => DualFisheye::NAME,
+        }
+    }
+
+    pub fn is_equirectangular(&self) -> bool {
+        matches!(self, Self::Equirectangular)
+    }
+
+    /// The camera model of a fisheye projection (`None` for equirectangular, whose grid
+    /// comes from the image size: see [`super::ErpGrid`]).
+    pub fn fisheye_model(&self) -> Option<&dyn CameraModel> {
+        match self {
+            Self::Equirectangular => None,
+            Self::Fisheye(c) => Some(c),
+            Self::DualFisheye(d) => Some(d),
+        }
+    }
 }
 
 /// One camera of the rig.
@@ -111,25 +151,31 @@ struct RawCamera {
     topic: Option<String>,
     frame_id: Option<String>,
     projection: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    image_size: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    intrinsics: Option<RawIntrinsics>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lenses: Option<Vec<RawLens>>,
     rig_from_cam: Option<RawPose>,
 }
 
-#[derive(Debug, Deserialize, Serialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-struct RawPose {
+pub(super) struct RawPose {
     translation: Option<Vec<f64>>,
     rotation_xyzw: Option<Vec<f64>>,
     rotation_rpy: Option<Vec<f64>>,
 }
 
 /// Where a problem was found, for error messages.
-struct Ctx<'a> {
+pub(super) struct Ctx<'a> {
     file: &'a str,
     camera: Option<&'a str>,
 }
 
 impl Ctx<'_> {
-    fn err(&self, field: &str, problem: impl Into<String>) -> RigError {
+    pub(super) fn err(&self, field: &str, problem: impl Into<String>) -> RigError {
         match self.camera {
             Some(c) => RigError::Camera {
                 file: self.file.to_string(),
@@ -162,7 +208,11 @@ fn finite_vec<const N: usize>(
     Ok(out)
 }
 
-fn parse_pose(ctx: &Ctx, prefix: &str, raw: &RawPose) -> Result<Isometry3<f64>, RigError> {
+pub(super) fn parse_pose(
+    ctx: &Ctx,
+    prefix: &str,
+    raw: &RawPose,
+) -> Result<Isometry3<f64>, RigError> {
     let field = |f: &str| format!("{prefix}.{f}");
     let t = raw
         .translation
@@ -198,6 +248,16 @@ fn parse_pose(ctx: &Ctx, prefix: &str, raw: &RawPose) -> Result<Isometry3<f64>, 
         Translation3::new(tx, ty, tz),
         rotation,
     ))
+}
+
+/// The YAML form of a pose: translation and quaternion xyzw.
+pub(super) fn pose_to_raw(iso: &Isometry3<f64>) -> RawPose {
+    let q = iso.rotation.quaternion();
+    RawPose {
+        translation: Some(iso.translation.vector.iter().copied().collect()),
+        rotation_xyzw: Some(vec![q.i, q.j, q.k, q.w]),
+        rotation_rpy: None,
+    }
 }
 
 fn non_empty(ctx: &Ctx, field: &str, v: &Option<String>) -> Result<String, RigError> {
@@ -271,15 +331,15 @@ impl Rig {
                     format!("frame_id '{frame_id}' is used by another camera"),
                 ));
             }
-            let projection = match rc.projection.as_deref().unwrap_or("equirectangular") {
-                "equirectangular" => Projection::Equirectangular,
-                other => {
-                    return Err(ctx.err(
-                        "projection",
-                        format!("unsupported projection '{other}' (supported: equirectangular)"),
-                    ))
-                }
-            };
+            let projection = parse_projection(
+                &ctx,
+                &RawProjection {
+                    projection: rc.projection.as_deref(),
+                    image_size: rc.image_size.as_deref(),
+                    intrinsics: rc.intrinsics.as_ref(),
+                    lenses: rc.lenses.as_deref(),
+                },
+            )?;
             let pose = rc
                 .rig_from_cam
                 .as_ref()
@@ -332,14 +392,7 @@ impl Rig {
 
     /// Serializes the rig back to YAML (the form [`Self::from_yaml_str`] reads).
     pub fn to_yaml(&self) -> String {
-        let pose = |iso: &Isometry3<f64>| {
-            let q = iso.rotation.quaternion();
-            RawPose {
-                translation: Some(iso.translation.vector.iter().copied().collect()),
-                rotation_xyzw: Some(vec![q.i, q.j, q.k, q.w]),
-                rotation_rpy: None,
-            }
-        };
+        let pose = pose_to_raw;
         let raw = RawRig {
             rig_frame: Some(self.rig_frame.clone()),
             reference_camera: Some(self.cameras[self.reference].name.clone()),
@@ -350,12 +403,18 @@ impl Rig {
             cameras: Some(
                 self.cameras
                     .iter()
-                    .map(|c| RawCamera {
-                        name: Some(c.name.clone()),
-                        topic: Some(c.topic.clone()),
-                        frame_id: Some(c.frame_id.clone()),
-                        projection: Some("equirectangular".into()),
-                        rig_from_cam: Some(pose(&c.rig_from_cam)),
+                    .map(|c| {
+                        let p = projection_to_raw(&c.projection);
+                        RawCamera {
+                            name: Some(c.name.clone()),
+                            topic: Some(c.topic.clone()),
+                            frame_id: Some(c.frame_id.clone()),
+                            projection: Some(p.projection),
+                            image_size: p.image_size,
+                            intrinsics: p.intrinsics,
+                            lenses: p.lenses,
+                            rig_from_cam: Some(pose(&c.rig_from_cam)),
+                        }
                     })
                     .collect(),
             ),
@@ -402,6 +461,23 @@ impl Rig {
             output_frame_id: self.output_frame_id.clone(),
             rig_from_output: self.rig_from_output,
         })
+    }
+
+    /// `Ok` when every camera is equirectangular; otherwise an error naming the first camera
+    /// that is not and `consumer`, the part of the project that handles only panoramas.
+    pub fn require_equirectangular(&self, consumer: &'static str) -> Result<(), GeometryError> {
+        match self
+            .cameras
+            .iter()
+            .find(|c| !c.projection.is_equirectangular())
+        {
+            None => Ok(()),
+            Some(c) => Err(GeometryError::UnsupportedProjection {
+                camera: c.name.clone(),
+                projection: c.projection.name(),
+                consumer,
+            }),
+        }
     }
 
     /// Camera centre in the rig frame, metres.

@@ -116,13 +116,15 @@ pub struct SweepGeometry {
 
 impl SweepGeometry {
     /// Sweep for `rig` with an output ERP grid and per-camera image grids (same order as
-    /// `rig.cameras`).
+    /// `rig.cameras`). Only equirectangular cameras are swept so far: a fisheye camera is an
+    /// [`GeometryError::UnsupportedProjection`].
     pub fn new(
         rig: &Rig,
         output: ErpGrid,
         camera_grids: Vec<ErpGrid>,
         hypotheses: InverseDepthHypotheses,
     ) -> Result<Self, GeometryError> {
+        rig.require_equirectangular("the spherical sweep")?;
         if camera_grids.len() != rig.cameras.len() {
             return Err(GeometryError::NoSuchCamera {
                 index: camera_grids.len(),

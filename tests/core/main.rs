@@ -4,8 +4,10 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod camera_models;
 mod geometry;
 mod msgs_cdr;
+mod rig_models;
 mod ops_conv3d;
 mod ops_sample;
 mod synth_objects;
