@@ -443,8 +443,19 @@ pub(super) fn dds_main(
         };
         let mut ticker = tokio::time::interval(TICK);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        // ros2-client logs an ERROR for every match count of a publisher that never had a
+        // subscriber (it keeps no entry for it), 20 times a second here: count only after
+        // the first match.
+        let mut first_points_subscriber = Box::pin(points_pub.wait_for_subscription(&spun.node));
+        let mut first_compressed_subscriber =
+            Box::pin(compressed_pub.wait_for_subscription(&spun.node));
+        let (mut points_matched, mut compressed_matched) = (false, false);
         loop {
             tokio::select! {
+                _ = &mut first_points_subscriber, if !points_matched => points_matched = true,
+                _ = &mut first_compressed_subscriber, if !compressed_matched => {
+                    compressed_matched = true
+                }
                 // A stop request, or the handle dropped.
                 _ = stop.changed() => break,
                 Some((i, result)) = incoming.next() => {
@@ -461,8 +472,16 @@ pub(super) fn dds_main(
                 },
                 _ = ticker.tick() => {
                     let subscribers = Subscribers {
-                        points: points_pub.get_subscription_count(&spun.node),
-                        compressed_depth: compressed_pub.get_subscription_count(&spun.node),
+                        points: if points_matched {
+                            points_pub.get_subscription_count(&spun.node)
+                        } else {
+                            0
+                        },
+                        compressed_depth: if compressed_matched {
+                            compressed_pub.get_subscription_count(&spun.node)
+                        } else {
+                            0
+                        },
                     };
                     rx.on_tick(&diagnostics, subscribers)
                 }
