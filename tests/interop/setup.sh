@@ -1,15 +1,19 @@
 #!/usr/bin/env bash
-# Prepares the third-party peers used by tests/bags/bag_interop.rs (bag readers) and
-# tests/node/cyclone.rs (Cyclone DDS). Idempotent.
+# Prepares the third-party peers used by tests/bags/bag_interop.rs (bag readers),
+# tests/node/cyclone.rs (Cyclone DDS) and tests/node/fastdds.rs (Fast DDS). Idempotent.
 #
 # Usage: tests/interop/setup.sh DIR
 #   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support, rosbags and cyclonedds
 #     (its wheel bundles the Cyclone DDS C library)
 #     (skipped when it already imports them);
 #   - runs `npm install` (from package.json / package-lock.json) into tests/interop
-#     (skipped when node_modules already holds the pinned packages).
+#     (skipped when node_modules already holds the pinned packages);
+#   - installs Debian's libfastrtps-dev, libfastcdr-dev, fastddsgen and g++ with apt-get
+#     (skipped when dpkg has them; needs root otherwise) and builds the Fast DDS peer
+#     tests/interop/fastdds into DIR/.fastdds-peer (skipped when up to date).
 # Then export, as printed at the end:
 #   MODE360_PYTHON=DIR/.venv/bin/python  MODE360_NODE_DIR=<repo>/tests/interop
+#   MODE360_FASTDDS_PEER=DIR/.fastdds-peer/fastdds_peer
 set -euo pipefail
 
 if [[ $# -ne 1 ]]; then
@@ -50,5 +54,21 @@ else
   fi
 fi
 
+# Fast DDS 2.9 (Debian bookworm) and its IDL code generator.
+apt_packages=(libfastrtps-dev libfastcdr-dev fastddsgen g++)
+missing=()
+for p in "${apt_packages[@]}"; do
+  dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
+done
+if [[ ${#missing[@]} -eq 0 ]]; then
+  echo "fastdds: dpkg already has ${apt_packages[*]}"
+else
+  echo "fastdds: apt-get install ${missing[*]}"
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+fastdds_peer="$(bash "$here/fastdds/build.sh" "$root/.fastdds-peer" | tail -n 1)"
+
 echo "export MODE360_PYTHON=$python"
 echo "export MODE360_NODE_DIR=$here"
+echo "export MODE360_FASTDDS_PEER=$fastdds_peer"

@@ -12,7 +12,7 @@
 //! Needs `MODE360_PYTHON`: a Python with `cyclonedds` (`tests/interop/setup.sh DIR` makes one).
 //! Without it the tests are skipped, unless `CI` is set, where they fail.
 
-use super::harness::loopback;
+use super::harness::{assert_peer_decoded, json_u64, loopback, wait_for, Peer};
 use crate::common::reliable_qos;
 use crate::common::PYTHON_ENV;
 use crate::common::{TestResult, RIG_PATH};
@@ -21,20 +21,17 @@ use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360::msgs::{Header, Image, PointCloud2};
-use mode360::node::pipeline::{is_point_range, POINT_FIELD_NAMES, POINT_STEP_BYTES};
 use mode360::node::{create_publisher, create_subscription, dds_context, sensor_qos, SpunNode};
 use mode360::node::{spawn_node, NodeParams};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use serde_json::Value;
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
-use std::sync::{Arc, Mutex};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const PEER_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/cyclone_peer.py");
+const PEER_NAME: &str = "cyclone_peer.py";
 /// Domain of the Cyclone-subscriber test (unique among the test files).
 const SUBSCRIBER_DOMAIN_ID: u16 = 43;
 /// Domain of the Cyclone-publisher test (unique among the test files).
@@ -54,7 +51,6 @@ const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(20);
 const ROUND_TRIP_TIMEOUT: Duration = Duration::from_secs(8);
 const TEST_TIMEOUT: Duration = Duration::from_secs(45);
 const SEND_ATTEMPTS: usize = 3;
-const POLL: Duration = Duration::from_millis(20);
 
 /// The Python with `cyclonedds`, or `None` after printing why the test is skipped (panics
 /// under CI).
@@ -82,135 +78,6 @@ fn cyclone_python() -> Option<String> {
     None
 }
 
-/// A running `cyclone_peer.py`: its stdout lines arrive on a channel, stderr is kept for error
-/// messages, and dropping it kills the process.
-struct Peer {
-    child: Child,
-    stdin: Option<ChildStdin>,
-    lines: Receiver<String>,
-    stderr: Arc<Mutex<String>>,
-}
-
-impl Peer {
-    fn start(python: &str, args: &[String]) -> Result<Self, Box<dyn std::error::Error>> {
-        let mut child = Command::new(python)
-            .arg(PEER_SCRIPT)
-            .args(args)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| format!("starting {python} {PEER_SCRIPT}: {e}"))?;
-        let stdout = child.stdout.take().ok_or("peer has no stdout")?;
-        let mut stderr_pipe = child.stderr.take().ok_or("peer has no stderr")?;
-        let (tx, lines) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let stderr = Arc::new(Mutex::new(String::new()));
-        let sink = stderr.clone();
-        std::thread::spawn(move || {
-            let mut text = String::new();
-            let _ = stderr_pipe.read_to_string(&mut text);
-            if let Ok(mut s) = sink.lock() {
-                s.push_str(&text);
-            }
-        });
-        Ok(Self {
-            stdin: child.stdin.take(),
-            child,
-            lines,
-            stderr,
-        })
-    }
-
-    fn stderr_text(&self) -> String {
-        self.stderr.lock().map(|s| s.clone()).unwrap_or_default()
-    }
-
-    /// The next stdout line, waiting at most `timeout`.
-    fn next_line(&self, timeout: Duration) -> Result<Option<String>, String> {
-        match self.lines.recv_timeout(timeout) {
-            Ok(line) => Ok(Some(line)),
-            Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => {
-                // Give the stderr reader a moment to collect the reason.
-                let t0 = Instant::now();
-                while self.stderr_text().is_empty() && t0.elapsed() < Duration::from_secs(2) {
-                    std::thread::sleep(POLL);
-                }
-                Err(format!(
-                    "cyclone_peer.py ended early; stderr:\n{}",
-                    self.stderr_text()
-                ))
-            }
-        }
-    }
-
-    /// Waits for a line starting with `prefix`; other lines are errors.
-    fn expect_line(&self, prefix: &str, timeout: Duration) -> Result<String, String> {
-        match self.next_line(timeout)? {
-            Some(line) if line.starts_with(prefix) => Ok(line[prefix.len()..].trim().to_string()),
-            Some(line) => Err(format!(
-                "cyclone_peer.py said '{line}', expected '{prefix}'"
-            )),
-            None => Err(format!(
-                "cyclone_peer.py did not say '{prefix}' within {timeout:?}; stderr:\n{}",
-                self.stderr_text()
-            )),
-        }
-    }
-
-    fn send(&mut self, command: &str) -> Result<(), String> {
-        let stdin = self.stdin.as_mut().ok_or("peer stdin closed")?;
-        writeln!(stdin, "{command}")
-            .and_then(|_| stdin.flush())
-            .map_err(|e| format!("writing '{command}' to cyclone_peer.py: {e}"))
-    }
-
-    /// Closes stdin and waits for a successful exit.
-    fn finish(mut self, timeout: Duration) -> Result<(), String> {
-        drop(self.stdin.take());
-        let t0 = Instant::now();
-        loop {
-            match self.child.try_wait() {
-                Ok(Some(status)) if status.success() => return Ok(()),
-                Ok(Some(status)) => {
-                    return Err(format!(
-                        "cyclone_peer.py exited with {status}; stderr:\n{}",
-                        self.stderr_text()
-                    ))
-                }
-                Ok(None) if t0.elapsed() < timeout => std::thread::sleep(POLL),
-                Ok(None) => return Err(format!("cyclone_peer.py still running after {timeout:?}")),
-                Err(e) => return Err(format!("waiting for cyclone_peer.py: {e}")),
-            }
-        }
-    }
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
-        }
-        let _ = self.child.wait();
-    }
-}
-
-/// FNV-1a (64 bit) of `data`, as `cyclone_peer.py` computes it.
-fn fnv1a64(data: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in data {
-        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
-
 fn node_params() -> NodeParams {
     NodeParams {
         rig_file: RIG_PATH.into(),
@@ -229,34 +96,6 @@ fn render(rig: &Rig, frames: usize) -> Result<Vec<RigFrame>, Box<dyn std::error:
         ..Default::default()
     })?;
     Ok((0..frames).map(|k| renderer.render_frame(rig, k)).collect())
-}
-
-/// Waits until `done()` or `timeout`; false on timeout.
-fn wait_for(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
-    let t0 = Instant::now();
-    while !done() {
-        if t0.elapsed() > timeout {
-            return false;
-        }
-        std::thread::sleep(POLL);
-    }
-    true
-}
-
-fn json_u64(v: &Value, path: &str) -> Result<u64, String> {
-    let field = v
-        .pointer(path)
-        .ok_or(format!("result has no {path}: {v}"))?;
-    field
-        .as_u64()
-        .or_else(|| field.as_str().and_then(|s| s.parse().ok()))
-        .ok_or(format!("{path} is not an unsigned integer: {field}"))
-}
-
-fn json_str<'a>(v: &'a Value, path: &str) -> Result<&'a str, String> {
-    v.pointer(path)
-        .and_then(Value::as_str)
-        .ok_or(format!("result has no string {path}: {v}"))
 }
 
 #[test]
@@ -283,8 +122,10 @@ fn cyclone_subscriber_decodes_depth_and_points() -> TestResult {
         .collect::<Result<Vec<_>, _>>()?;
 
     let peer = Peer::start(
+        PEER_NAME,
         &python,
         &[
+            PEER_SCRIPT.into(),
             "subscribe".into(),
             "--domain".into(),
             SUBSCRIBER_DOMAIN_ID.to_string(),
@@ -357,63 +198,22 @@ fn cyclone_subscriber_decodes_depth_and_points() -> TestResult {
         depths.contains_key(&stamp) && clouds.contains_key(&stamp)
     });
     assert!(got_both, "our subscriber did not receive stamp {stamp}");
-    let depth = &depths[&stamp];
-    let cloud = &clouds[&stamp];
-    let range = float_from_image_msg(depth)?;
-    let finite = range.data.iter().filter(|r| r.is_finite()).count();
-    let point_ranges = range
-        .data
-        .iter()
-        .filter(|&&r| is_point_range(r, MAX_DEPTH_M as f32))
-        .count();
+    let decoded = assert_peer_decoded(
+        &result,
+        &depths[&stamp],
+        &clouds[&stamp],
+        &rig.output_frame_id,
+        MAX_DEPTH_M,
+        MAX_XYZ_ERROR_M,
+    )?;
     println!(
-        "cyclone decoded {}x{} depth, {finite} finite ranges, {} points, max xyz error {} m",
+        "cyclone decoded {}x{} depth, {} finite ranges, {} points, max xyz error {} m",
         WIDTH,
         WIDTH / 2,
-        cloud.width,
-        result["points"]["max_xyz_error_m"]
+        decoded.finite_ranges,
+        decoded.points,
+        decoded.max_xyz_error_m
     );
-
-    assert_eq!(json_str(&result, "/depth/frame_id")?, rig.output_frame_id);
-    assert_eq!(json_str(&result, "/points/frame_id")?, rig.output_frame_id);
-    assert_eq!(json_str(&result, "/depth/encoding")?, "32FC1");
-    assert_eq!(json_u64(&result, "/depth/width")?, WIDTH as u64);
-    assert_eq!(json_u64(&result, "/depth/height")?, WIDTH as u64 / 2);
-    assert_eq!(json_u64(&result, "/depth/step")?, 4 * WIDTH as u64);
-    assert_eq!(json_u64(&result, "/depth/finite_ranges")?, finite as u64);
-    assert_eq!(
-        json_u64(&result, "/depth/point_ranges")?,
-        point_ranges as u64
-    );
-    assert!(
-        point_ranges > WIDTH * WIDTH / 8,
-        "only {point_ranges} points"
-    );
-    assert_eq!(json_str(&result, "/depth/fnv1a64")?, fnv1a64(&depth.data));
-    assert_eq!(json_u64(&result, "/points/width")?, cloud.width as u64);
-    assert_eq!(cloud.width as usize, point_ranges);
-    assert_eq!(json_u64(&result, "/points/height")?, 1);
-    assert_eq!(
-        json_u64(&result, "/points/point_step")?,
-        u64::from(POINT_STEP_BYTES)
-    );
-    assert_eq!(
-        json_u64(&result, "/points/checked_points")?,
-        point_ranges as u64
-    );
-    let fields: Vec<(String, u64, u64, u64)> =
-        serde_json::from_value(result["points"]["fields"].clone())?;
-    let expected_fields: Vec<(String, u64, u64, u64)> = POINT_FIELD_NAMES
-        .iter()
-        .enumerate()
-        .map(|(k, n)| (n.to_string(), 4 * k as u64, 7, 1))
-        .collect();
-    assert_eq!(fields, expected_fields);
-    let max_err = result["points"]["max_xyz_error_m"]
-        .as_f64()
-        .ok_or("no max_xyz_error_m")?;
-    assert!(max_err < MAX_XYZ_ERROR_M, "points off by {max_err} m");
-    assert_eq!(json_str(&result, "/points/fnv1a64")?, fnv1a64(&cloud.data));
 
     drop(pubs);
     drop(depth_sub);
@@ -484,8 +284,10 @@ fn cyclone_publisher_feeds_the_node() -> TestResult {
     assert!(matched, "listener did not match the node's depth");
 
     let mut peer = Peer::start(
+        PEER_NAME,
         &python,
         &[
+            PEER_SCRIPT.into(),
             "publish".into(),
             "--domain".into(),
             PUBLISHER_DOMAIN_ID.to_string(),

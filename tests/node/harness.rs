@@ -1,13 +1,20 @@
-//! Set-up shared by the live-node tests: a loopback domain, a rendered frame, and a client
-//! that plays the cameras.
+//! Set-up shared by the live-node tests: a loopback domain, a rendered frame, a client that
+//! plays the cameras, and for the third-party DDS tests (`cyclone`, `fastdds`) a peer process
+//! with its line protocol and the check of what a peer decoded of the node's outputs.
 
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;
-use mode360::msgs::image::image_msg_from_rgb;
-use mode360::msgs::{Header, Image};
+use mode360::msgs::image::{float_from_image_msg, image_msg_from_rgb};
+use mode360::msgs::{Header, Image, PointCloud2};
+use mode360::node::pipeline::{is_point_range, POINT_FIELD_NAMES, POINT_STEP_BYTES};
 use mode360::node::{create_publisher, sensor_qos, DdsOptions, SpunNode};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use ros2_client::Publisher;
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// How long to wait for the node to subscribe to the cameras.
@@ -91,4 +98,251 @@ impl Cameras {
         let all: Vec<usize> = (0..self.pubs.len()).collect();
         self.send(&all)
     }
+}
+
+/// A third-party DDS peer program (`tests/interop/cyclone_peer.py`, the Fast DDS
+/// `fastdds_peer`) speaking a line protocol: its stdout lines arrive on a channel, stderr is
+/// kept for error messages, and dropping it kills the process.
+pub struct Peer {
+    name: String,
+    child: Child,
+    stdin: Option<ChildStdin>,
+    lines: Receiver<String>,
+    stderr: Arc<Mutex<String>>,
+}
+
+impl Peer {
+    /// Starts `program` with `args`; `name` is how messages call it.
+    pub fn start(
+        name: &str,
+        program: &str,
+        args: &[String],
+    ) -> Result<Self, Box<dyn std::error::Error>> {
+        let mut child = Command::new(program)
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| format!("starting {name} ({program}): {e}"))?;
+        let stdout = child.stdout.take().ok_or("peer has no stdout")?;
+        let mut stderr_pipe = child.stderr.take().ok_or("peer has no stderr")?;
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let stderr = Arc::new(Mutex::new(String::new()));
+        let sink = stderr.clone();
+        std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = stderr_pipe.read_to_string(&mut text);
+            if let Ok(mut s) = sink.lock() {
+                s.push_str(&text);
+            }
+        });
+        Ok(Self {
+            name: name.to_string(),
+            stdin: child.stdin.take(),
+            child,
+            lines,
+            stderr,
+        })
+    }
+
+    fn stderr_text(&self) -> String {
+        self.stderr.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+
+    /// The next stdout line, waiting at most `timeout`.
+    pub fn next_line(&self, timeout: Duration) -> Result<Option<String>, String> {
+        match self.lines.recv_timeout(timeout) {
+            Ok(line) => Ok(Some(line)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => {
+                // Give the stderr reader a moment to collect the reason.
+                let t0 = Instant::now();
+                while self.stderr_text().is_empty() && t0.elapsed() < Duration::from_secs(2) {
+                    std::thread::sleep(POLL);
+                }
+                Err(format!(
+                    "{} ended early; stderr:\n{}",
+                    self.name,
+                    self.stderr_text()
+                ))
+            }
+        }
+    }
+
+    /// Waits for a line starting with `prefix`; other lines are errors.
+    pub fn expect_line(&self, prefix: &str, timeout: Duration) -> Result<String, String> {
+        match self.next_line(timeout)? {
+            Some(line) if line.starts_with(prefix) => Ok(line[prefix.len()..].trim().to_string()),
+            Some(line) => Err(format!("{} said '{line}', expected '{prefix}'", self.name)),
+            None => Err(format!(
+                "{} did not say '{prefix}' within {timeout:?}; stderr:\n{}",
+                self.name,
+                self.stderr_text()
+            )),
+        }
+    }
+
+    /// Writes one line to the peer's stdin.
+    pub fn send(&mut self, command: &str) -> Result<(), String> {
+        let stdin = self.stdin.as_mut().ok_or("peer stdin closed")?;
+        writeln!(stdin, "{command}")
+            .and_then(|_| stdin.flush())
+            .map_err(|e| format!("writing '{command}' to {}: {e}", self.name))
+    }
+
+    /// Closes stdin and waits for a successful exit.
+    pub fn finish(mut self, timeout: Duration) -> Result<(), String> {
+        drop(self.stdin.take());
+        let t0 = Instant::now();
+        loop {
+            match self.child.try_wait() {
+                Ok(Some(status)) if status.success() => return Ok(()),
+                Ok(Some(status)) => {
+                    return Err(format!(
+                        "{} exited with {status}; stderr:\n{}",
+                        self.name,
+                        self.stderr_text()
+                    ))
+                }
+                Ok(None) if t0.elapsed() < timeout => std::thread::sleep(POLL),
+                Ok(None) => return Err(format!("{} still running after {timeout:?}", self.name)),
+                Err(e) => return Err(format!("waiting for {}: {e}", self.name)),
+            }
+        }
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+    }
+}
+
+/// FNV-1a (64 bit) of `data`, as the peers compute it.
+pub fn fnv1a64(data: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in data {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// Waits until `done()` or `timeout`; false on timeout.
+pub fn wait_for(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
+    let t0 = Instant::now();
+    while !done() {
+        if t0.elapsed() > timeout {
+            return false;
+        }
+        std::thread::sleep(POLL);
+    }
+    true
+}
+
+/// The unsigned integer (or decimal string) at JSON pointer `path` of `v`.
+pub fn json_u64(v: &Value, path: &str) -> Result<u64, String> {
+    let field = v
+        .pointer(path)
+        .ok_or(format!("result has no {path}: {v}"))?;
+    field
+        .as_u64()
+        .or_else(|| field.as_str().and_then(|s| s.parse().ok()))
+        .ok_or(format!("{path} is not an unsigned integer: {field}"))
+}
+
+/// The string at JSON pointer `path` of `v`.
+pub fn json_str<'a>(v: &'a Value, path: &str) -> Result<&'a str, String> {
+    v.pointer(path)
+        .and_then(Value::as_str)
+        .ok_or(format!("result has no string {path}: {v}"))
+}
+
+/// What a peer's subscriber decoded of the node's outputs.
+#[derive(Debug)]
+pub struct DecodedOutputs {
+    /// Ranges of the depth image that are finite.
+    pub finite_ranges: usize,
+    /// Points in the cloud: one per range in (0, max_depth_m).
+    pub points: usize,
+    /// Largest distance of a decoded x, y or z from range x ERP direction.
+    pub max_xyz_error_m: f64,
+}
+
+/// Asserts that a peer's `result` JSON (the `summarize` of `tests/interop/cyclone_peer.py`,
+/// also written by `fastdds_peer`) describes exactly the `depth` and `cloud` our own
+/// subscriber received: headers, sizes, range counts, the bytes' FNV-1a hashes, the point
+/// fields, and points within `max_xyz_error_m` of range x direction.
+pub fn assert_peer_decoded(
+    result: &Value,
+    depth: &Image,
+    cloud: &PointCloud2,
+    output_frame_id: &str,
+    max_depth_m: f64,
+    max_xyz_error_m: f64,
+) -> Result<DecodedOutputs, Box<dyn std::error::Error>> {
+    let range = float_from_image_msg(depth)?;
+    let (width, height) = (range.width, range.height);
+    let finite = range.data.iter().filter(|r| r.is_finite()).count();
+    let point_ranges = range
+        .data
+        .iter()
+        .filter(|&&r| is_point_range(r, max_depth_m as f32))
+        .count();
+
+    assert_eq!(json_str(result, "/depth/frame_id")?, output_frame_id);
+    assert_eq!(json_str(result, "/points/frame_id")?, output_frame_id);
+    assert_eq!(json_str(result, "/depth/encoding")?, "32FC1");
+    assert_eq!(json_u64(result, "/depth/width")?, width as u64);
+    assert_eq!(json_u64(result, "/depth/height")?, height as u64);
+    assert_eq!(json_u64(result, "/depth/step")?, 4 * width as u64);
+    assert_eq!(json_u64(result, "/depth/finite_ranges")?, finite as u64);
+    assert_eq!(
+        json_u64(result, "/depth/point_ranges")?,
+        point_ranges as u64
+    );
+    assert!(
+        point_ranges > width * height / 4,
+        "only {point_ranges} points"
+    );
+    assert_eq!(json_str(result, "/depth/fnv1a64")?, fnv1a64(&depth.data));
+    assert_eq!(json_u64(result, "/points/width")?, cloud.width as u64);
+    assert_eq!(cloud.width as usize, point_ranges);
+    assert_eq!(json_u64(result, "/points/height")?, 1);
+    assert_eq!(
+        json_u64(result, "/points/point_step")?,
+        u64::from(POINT_STEP_BYTES)
+    );
+    assert_eq!(
+        json_u64(result, "/points/checked_points")?,
+        point_ranges as u64
+    );
+    let fields: Vec<(String, u64, u64, u64)> =
+        serde_json::from_value(result["points"]["fields"].clone())?;
+    let expected_fields: Vec<(String, u64, u64, u64)> = POINT_FIELD_NAMES
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (n.to_string(), 4 * k as u64, 7, 1))
+        .collect();
+    assert_eq!(fields, expected_fields);
+    let max_err = result["points"]["max_xyz_error_m"]
+        .as_f64()
+        .ok_or("no max_xyz_error_m")?;
+    assert!(max_err < max_xyz_error_m, "points off by {max_err} m");
+    assert_eq!(json_str(result, "/points/fnv1a64")?, fnv1a64(&cloud.data));
+    Ok(DecodedOutputs {
+        finite_ranges: finite,
+        points: cloud.width as usize,
+        max_xyz_error_m: max_err,
+    })
 }

@@ -12,6 +12,7 @@ mod bad_input;
 mod cyclone;
 mod dds;
 mod dropout;
+mod fastdds;
 mod foxglove;
 mod harness;
 mod lazy;
