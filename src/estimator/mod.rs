@@ -44,6 +44,8 @@ pub enum EstimatorError {
         width: u32,
         height: u32,
     },
+    #[error("camera '{camera}': {problem}")]
+    BadImage { camera: String, problem: String },
     #[error("estimator config field '{field}': {problem}")]
     BadConfig { field: String, problem: String },
     #[error("unknown estimator '{name}' (known: {known})")]

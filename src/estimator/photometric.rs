@@ -34,6 +34,7 @@ mod sgm;
 
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::frame::RgbImage;
+use crate::geometry::panorama::{panorama_rig, RigRemap};
 use crate::geometry::{DepthRange, ErpGrid, InverseDepthHypotheses, Rig};
 use cost::{PairCostParams, ViewStats};
 use nalgebra::Isometry3;
@@ -178,6 +179,10 @@ struct CacheKey {
 #[derive(Debug)]
 struct RigCache {
     key: CacheKey,
+    /// Fisheye images into panoramas as wide as the output.
+    remap: RigRemap,
+    /// Per camera, where its panorama holds content (`None`: everywhere).
+    validity: Vec<Option<Vec<f32>>>,
     samplers: Vec<CameraSampler>,
     /// Per camera pair `(a < b)`, per output pixel: `sin(angle(ray, baseline))^k`.
     pair_weights: Vec<Vec<f32>>,
@@ -228,15 +233,31 @@ impl PhotometricSweep {
         images: &[RgbImage],
         output: ErpGrid,
     ) -> Result<Vec<Vec<f32>>, EstimatorError> {
-        rig.require_equirectangular("the photometric sweep")?;
         if images.len() != rig.cameras.len() {
             return Err(EstimatorError::ImageCount {
                 got: images.len(),
                 expected: rig.cameras.len(),
             });
         }
+        // Fisheye cameras are swept through panoramas of their own frame.
+        let remap = match self.cache.take() {
+            Some(c) if c.remap.serves(rig, output) => {
+                let remap = c.remap.clone();
+                self.cache = Some(c);
+                remap
+            }
+            _ => RigRemap::new(rig, output),
+        };
+        let panoramas =
+            remap
+                .panoramas(images)
+                .map_err(|(camera, e)| EstimatorError::BadImage {
+                    camera,
+                    problem: e.to_string(),
+                })?;
+        let pano_rig = panorama_rig(rig);
         let mut camera_grids = Vec::with_capacity(images.len());
-        for (img, cam) in images.iter().zip(&rig.cameras) {
+        for (img, cam) in panoramas.iter().zip(&rig.cameras) {
             let (width, height) = img.dimensions();
             let bad = || EstimatorError::BadImageSize {
                 camera: cam.name.clone(),
@@ -252,7 +273,7 @@ impl PhotometricSweep {
             output,
             camera_grids,
             cam_from_output: (0..rig.cameras.len())
-                .map(|i| rig.cam_from_output(i))
+                .map(|i| pano_rig.cam_from_output(i))
                 .collect(),
         };
         if self.cache.as_ref().map(|c| &c.key) != Some(&key) {
@@ -265,11 +286,13 @@ impl PhotometricSweep {
             let pair_weights = pair_parallax_weights(&key, self.cfg.parallax_exponent);
             self.cache = Some(RigCache {
                 key,
+                validity: remap.validity(),
+                remap,
                 samplers,
                 pair_weights,
             });
         }
-        Ok(images.par_iter().map(grey_image).collect())
+        Ok(panoramas.par_iter().map(|p| grey_image(p)).collect())
     }
 
     fn pair_params(&self, cameras: usize) -> PairCostParams {
@@ -327,7 +350,20 @@ impl PhotometricSweep {
                     .zip(&fixed)
                     .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
                     .collect();
-                cost::sphere_cost(&views, &cache.pair_weights, w, h, &params)
+                // Where each camera's lens sees the sphere's points (`None`: everywhere).
+                let seen: Vec<Option<Vec<f32>>> = cache
+                    .samplers
+                    .iter()
+                    .zip(&cache.validity)
+                    .map(|(sampler, valid)| {
+                        valid.as_ref().map(|valid| {
+                            let mut warped = vec![0.0f32; n];
+                            sampler.warp(valid, range_m, &mut warped);
+                            warped
+                        })
+                    })
+                    .collect();
+                cost::sphere_cost(&views, &seen, &cache.pair_weights, w, h, &params)
             })
             .collect();
         let prior_step = self.cfg.far_prior / (d_count - 1).max(1) as f32;

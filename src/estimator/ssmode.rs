@@ -1,5 +1,7 @@
 //! The SSMODE network as a [`DepthEstimator`]: loads a weights file, resizes the panoramas to
-//! the network's width (bilinear, longitude wraps), runs the forward pass on the CPU and resizes
+//! the network's width (bilinear, longitude wraps; fisheye images are first resampled into
+//! panoramas of their own frame, [`RigRemap`], and the sweep aggregates only the cameras that
+//! see each point; confidence is scaled by the share of spheres that two cameras see), runs the forward pass on the CPU and resizes
 //! the range back to the requested output grid. Sweep tables are cached per rig.
 
 use std::path::{Path, PathBuf};
@@ -8,6 +10,7 @@ use candle_core::{Device, Tensor};
 
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::frame::RgbImage;
+use crate::geometry::panorama::RigRemap;
 pub use crate::geometry::resample_erp;
 use crate::geometry::{ErpGrid, Rig};
 use crate::model::{input_tensor, load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
@@ -58,6 +61,8 @@ pub struct SsmodeEstimator {
     device: Device,
     /// Sampling tables of the last rig seen.
     cached: Option<(Rig, SweepSampling)>,
+    /// Fisheye images into panoramas at the network's width, for the last rig seen.
+    remap: Option<RigRemap>,
 }
 
 fn model_err(e: impl Into<ModelError>) -> EstimatorError {
@@ -90,6 +95,7 @@ impl SsmodeEstimator {
             model,
             device,
             cached: None,
+            remap: None,
         })
     }
 
@@ -100,6 +106,7 @@ impl SsmodeEstimator {
             model,
             device: Device::Cpu,
             cached: None,
+            remap: None,
         }
     }
 
@@ -154,8 +161,22 @@ impl DepthEstimator for SsmodeEstimator {
         }
         let cfg = self.model.config().clone();
         let net_grid = ErpGrid::new(cfg.width)?;
+        if !self.remap.as_ref().is_some_and(|r| r.serves(rig, net_grid)) {
+            self.remap = Some(RigRemap::new(rig, net_grid));
+        }
+        let panoramas = match &self.remap {
+            Some(remap) => {
+                remap
+                    .panoramas(images)
+                    .map_err(|(camera, e)| EstimatorError::BadImage {
+                        camera,
+                        problem: e.to_string(),
+                    })?
+            }
+            None => images.iter().map(std::borrow::Cow::Borrowed).collect(),
+        };
         let mut tensors = Vec::with_capacity(images.len());
-        for (cam, img) in images.iter().enumerate() {
+        for (cam, img) in panoramas.iter().enumerate() {
             let t = input_tensor(img, cfg.width, &self.device).map_err(|e| match e {
                 ModelError::BadImage { width, height } => EstimatorError::BadImageSize {
                     camera: rig.cameras[cam].name.clone(),
@@ -192,7 +213,14 @@ impl DepthEstimator for SsmodeEstimator {
                 .map_err(model_err)
         };
         let range = resample_erp(&to_vec(final_range)?, 1, net_grid, output);
-        let conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
+        let mut conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
+        // Where fewer than two cameras see a direction at any range, the estimate is a guess.
+        if let Some(coverage) = sampling.coverage() {
+            let coverage = resample_erp(&coverage, 1, sampling.geometry().output(), output);
+            for (c, k) in conf.iter_mut().zip(coverage) {
+                *c *= k.clamp(0.0, 1.0);
+            }
+        }
         Ok(DepthEstimate::on_grid(output, range, conf))
     }
 }

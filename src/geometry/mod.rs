@@ -7,11 +7,14 @@
 //! * [`camera`]: camera models (double sphere, Kannala-Brandt, EUCM, dual fisheye, and the
 //!   ERP grid) behind one `project` / `unproject` interface.
 //! * [`rig`]: the rig calibration read from YAML, validated.
+//! * [`panorama`]: every camera as a panorama (its REP 103 frame, which directions it sees,
+//!   a fisheye image resampled into an ERP panorama with a validity mask).
 //! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
 
 pub mod camera;
 pub mod erp;
 pub mod geer;
+pub mod panorama;
 pub mod rig;
 mod rig_projection;
 pub mod sweep;
@@ -33,6 +36,11 @@ pub enum GeometryError {
     BadDepthRange { min_m: f64, max_m: f64 },
     #[error("need at least {min} hypotheses, got {count}")]
     TooFewHypotheses { count: usize, min: usize },
+    #[error("image is {}x{}, expected {}x{}", got.0, got.1, expected.0, expected.1)]
+    WrongImageSize {
+        expected: (usize, usize),
+        got: (usize, usize),
+    },
     #[error("camera index {index} out of range for a rig of {count} cameras")]
     NoSuchCamera { index: usize, count: usize },
     #[error("camera {camera}: projection {projection} is not supported by {consumer} yet (equirectangular cameras only)")]

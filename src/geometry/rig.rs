@@ -95,7 +95,7 @@ impl Projection {
 
     /// The camera model of a fisheye projection (`None` for equirectangular, whose grid
     /// comes from the image size: see [`super::ErpGrid`]).
-    pub fn fisheye_model(&self) -> Option<&dyn CameraModel> {
+    pub fn fisheye_model(&self) -> Option<&(dyn CameraModel + Sync)> {
         match self {
             Self::Equirectangular => None,
             Self::Fisheye(c) => Some(c),

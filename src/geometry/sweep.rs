@@ -7,9 +7,12 @@
 //! pixel_c = erp_c( cam_from_output * (rho_i * dir(u, v)) )
 //! ```
 //!
-//! which is exact for every sphere, including spheres nearer than the baseline.
+//! which is exact for every sphere, including spheres nearer than the baseline. A fisheye
+//! camera `c` is swept through its panorama (see [`super::panorama`]): `cam_from_output` is then
+//! `panorama_from_output`, and [`SweepGeometry::sees`] tells whether its lens sees the point.
 
 use super::erp::{BilinearTaps, ErpGrid, PixelCoord};
+use super::panorama::{rig_panoramas, CameraPanorama};
 use super::rig::Rig;
 use super::GeometryError;
 use nalgebra::{Isometry3, Point3};
@@ -106,39 +109,63 @@ impl InverseDepthHypotheses {
 }
 
 /// Everything needed to sample a rig's cameras on sweep spheres around the output frame.
+///
+/// Each camera is swept as its panorama ([`CameraPanorama`]): an ERP camera directly, a fisheye
+/// through its image resampled into an ERP panorama of its panorama frame
+/// ([`super::panorama::PanoramaRemap`]). [`Self::sees`] says whether the camera's model sees a
+/// sample at all; a sweep aggregates only the cameras that do.
 #[derive(Clone, Debug)]
 pub struct SweepGeometry {
     output: ErpGrid,
     hypotheses: InverseDepthHypotheses,
+    /// `panorama_from_output` of every camera.
     cam_from_output: Vec<Isometry3<f64>>,
     camera_grids: Vec<ErpGrid>,
+    panoramas: Vec<CameraPanorama>,
 }
 
 impl SweepGeometry {
-    /// Sweep for `rig` with an output ERP grid and per-camera image grids (same order as
-    /// `rig.cameras`). Only equirectangular cameras are swept so far: a fisheye camera is an
-    /// [`GeometryError::UnsupportedProjection`].
+    /// Sweep for `rig` with an output ERP grid and per-camera panorama grids (same order as
+    /// `rig.cameras`).
     pub fn new(
         rig: &Rig,
         output: ErpGrid,
         camera_grids: Vec<ErpGrid>,
         hypotheses: InverseDepthHypotheses,
     ) -> Result<Self, GeometryError> {
-        rig.require_equirectangular("the spherical sweep")?;
         if camera_grids.len() != rig.cameras.len() {
             return Err(GeometryError::NoSuchCamera {
                 index: camera_grids.len(),
                 count: rig.cameras.len(),
             });
         }
+        let panoramas = rig_panoramas(rig);
         Ok(Self {
             output,
             hypotheses,
-            cam_from_output: (0..rig.cameras.len())
-                .map(|i| rig.cam_from_output(i))
+            cam_from_output: panoramas
+                .iter()
+                .map(|p| p.rig_from_panorama.inverse() * rig.rig_from_output)
                 .collect(),
             camera_grids,
+            panoramas,
         })
+    }
+
+    /// Whether every camera sees every direction (all ERP): no visibility to track.
+    pub fn all_see_everything(&self) -> bool {
+        self.panoramas.iter().all(|p| !p.needs_remap())
+    }
+
+    /// Whether camera `cam` sees the point of output pixel `p` on a sphere of `range_m`.
+    pub fn sees_at_range(&self, cam: usize, p: PixelCoord, range_m: f64) -> bool {
+        let point_out = Point3::from(self.output.dir_from_pixel(p) * range_m);
+        self.panoramas[cam].sees(&(self.cam_from_output[cam] * point_out).coords)
+    }
+
+    /// Whether camera `cam` sees output pixel `p` on sphere `sphere`.
+    pub fn sees(&self, cam: usize, sphere: usize, p: PixelCoord) -> bool {
+        self.sees_at_range(cam, p, self.hypotheses.depth_m(sphere as f64))
     }
 
     pub fn output(&self) -> ErpGrid {

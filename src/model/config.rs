@@ -5,10 +5,18 @@ use serde::{Deserialize, Serialize};
 
 use super::sphere_conv::SphereConvTable;
 use super::ModelError;
+use crate::geometry::BilinearTaps;
 use crate::geometry::{
     DepthRange, ErpGrid, InverseDepthHypotheses, PixelCoord, Rig, SweepGeometry,
 };
-use crate::model::ops::SampleTable;
+use crate::model::ops::{view_scale, SampleTable};
+use std::sync::Arc;
+
+/// Taps of a sample the camera does not see: zero weights, so it contributes nothing.
+const UNSEEN_TAPS: BilinearTaps = BilinearTaps {
+    index: [0; 4],
+    weight: [0.0; 4],
+};
 
 /// The feature extractor works at `1 / FEATURE_DOWNSAMPLE` of the input resolution.
 pub const FEATURE_DOWNSAMPLE: usize = 4;
@@ -466,11 +474,15 @@ impl SsmodeConfig {
 /// - one sweep table per camera: for every sphere `d` and cost-volume cell `(v, u)` (sample
 ///   index `(d H + v) W + u`, at [`SsmodeConfig::cost_width`]), the bilinear taps of
 ///   `erp_c(cam_from_output * (rho_d * dir(u, v)))` in that camera's matching features (at the
-///   same resolution);
+///   same resolution; a fisheye camera's features are those of its panorama, and its taps
+///   are all zero where its lens does not see the point);
 /// - the SphereNet kernel table of the stage-4 spherical convolution (quarter resolution).
 #[derive(Clone, Debug)]
 pub struct SweepSampling {
     geometry: SweepGeometry,
+    /// Per sweep sample `1 / views seeing it` (0 below two views); `None` when every camera
+    /// sees everything (360° cameras).
+    view_scale: Option<Arc<[f32]>>,
     sweep_tables: Vec<SampleTable>,
     sphere_conv: SphereConvTable,
 }
@@ -505,13 +517,19 @@ impl SweepSampling {
                             u: (k % w) as f64,
                             v: (k / w) as f64,
                         };
-                        camera_grid.bilinear_taps(geometry.sample(cam, sphere, p))
+                        if geometry.sees(cam, sphere, p) {
+                            camera_grid.bilinear_taps(geometry.sample(cam, sphere, p))
+                        } else {
+                            UNSEEN_TAPS
+                        }
                     })
                     .collect();
                 SampleTable::new(&taps)
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let view_scale = (!geometry.all_see_everything()).then(|| view_scale(&sweep_tables));
         Ok(Self {
+            view_scale,
             sweep_tables,
             sphere_conv: SphereConvTable::new(trunk_grid),
             geometry,
@@ -535,5 +553,27 @@ impl SweepSampling {
     /// The SphereNet kernel table of the stage-4 spherical convolution.
     pub fn sphere_conv(&self) -> &SphereConvTable {
         &self.sphere_conv
+    }
+
+    /// Per sweep sample (sphere-major, row-major) `1 / views seeing it`, 0 where fewer than
+    /// two cameras see it; `None` when every camera sees every sample.
+    pub fn view_scale(&self) -> Option<&Arc<[f32]>> {
+        self.view_scale.as_ref()
+    }
+
+    /// Per cost-volume cell (row-major): the fraction of spheres that at least two cameras
+    /// see there; `None` when every camera sees everything (all 1).
+    pub fn coverage(&self) -> Option<Vec<f32>> {
+        let scale = self.view_scale.as_ref()?;
+        let pixels = self.geometry.output().len();
+        let spheres = self.geometry.hypotheses().count();
+        Some(
+            (0..pixels)
+                .map(|k| {
+                    (0..spheres).filter(|d| scale[d * pixels + k] > 0.0).count() as f32
+                        / spheres as f32
+                })
+                .collect(),
+        )
     }
 }

@@ -12,11 +12,16 @@
 //!
 //! The variance is zero wherever the views agree, whatever they show, so a variance-only
 //! volume holds matching evidence alone; the mean also carries the reference view's look.
+//! On rigs whose cameras do not see everything (fisheyes), `N` is per cell the number of
+//! cameras that see it, and a cell fewer than two cameras see gets mean and variance 0
+//! ([`SweepSampling::view_scale`]).
 
 use candle_core::{Result, Tensor};
 
 use super::config::{CostKind, SweepSampling};
-use crate::model::ops::{has_custom_kernels, sweep_variance, table_sample, OpsError};
+use crate::model::ops::{
+    has_custom_kernels, sweep_variance, sweep_variance_visible, table_sample, OpsError,
+};
 
 /// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
 /// `(M B, H, W, C)` (camera `c`'s batch at rows `c B .. (c + 1) B`), with
@@ -56,7 +61,11 @@ pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) 
             })
             .collect::<std::result::Result<Vec<_>, _>>()?;
         // (M B, H, W, C) -> (B, D H W, C) -> (B, D, H, W, C)
-        return sweep_variance(features, &tables)?.reshape((b, spheres, h, w, c));
+        let var = match sampling.view_scale() {
+            None => sweep_variance(features, &tables)?,
+            Some(scale) => sweep_variance_visible(features, &tables, scale)?,
+        };
+        return var.reshape((b, spheres, h, w, c));
     }
     let mut sum: Option<Tensor> = None;
     let mut sum_sq: Option<Tensor> = None;
@@ -78,7 +87,6 @@ pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) 
             None => sq,
         });
     }
-    let n = cameras as f64;
     let (Some(sum), Some(sum_sq)) = (sum, sum_sq) else {
         return Err(OpsError::Shape {
             op: OP,
@@ -87,8 +95,21 @@ pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) 
         .into());
     };
     // (B, D, H, W, C) each
-    let mean = (sum / n)?;
-    let var = ((sum_sq / n)? - mean.sqr()?)?;
+    let (mean, var) = match sampling.view_scale() {
+        None => {
+            let n = cameras as f64;
+            let mean = (sum / n)?;
+            let var = ((sum_sq / n)? - mean.sqr()?)?;
+            (mean, var)
+        }
+        Some(scale) => {
+            // (D H W) -> (1, D, H, W, 1)
+            let scale = Tensor::from_slice(scale, (1, spheres, h, w, 1), features.device())?;
+            let mean = sum.broadcast_mul(&scale)?;
+            let var = (sum_sq.broadcast_mul(&scale)? - mean.sqr()?)?;
+            (mean, var)
+        }
+    };
     match kind {
         // (B, D, H, W, 2 C)
         CostKind::MeanVariance => Tensor::cat(&[&mean, &var], 4),

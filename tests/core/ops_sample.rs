@@ -5,8 +5,9 @@ use crate::common::{dot, max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Tensor, Var};
 use mode360::geometry::{ErpGrid, PixelCoord};
 use mode360::model::ops::{
-    resample_linear_axis, sweep_variance, table_sample, table_sample_composite, upsample_trilinear,
-    upsample_trilinear_composite, SampleTable,
+    resample_linear_axis, sweep_variance, sweep_variance_visible, table_sample,
+    table_sample_composite, upsample_trilinear, upsample_trilinear_composite, view_scale,
+    SampleTable,
 };
 
 const FWD_TOL: f64 = 1e-5;
@@ -243,11 +244,26 @@ fn table_sample_dense_table_gradient_matches_composite() {
 fn sweep_variance_matches_a_per_camera_reference_with_gradients() {
     // 2 channels run the generic kernel, 4 and 8 the unrolled ones.
     for c in [2, 4, 8] {
-        sweep_variance_matches_reference(c);
+        sweep_variance_matches_reference(c, false);
     }
 }
 
-fn sweep_variance_matches_reference(c: usize) {
+#[test]
+fn sweep_variance_over_the_cameras_that_see_each_sample() {
+    // Cameras that do not see a sample (zero taps) are left out of its mean and variance;
+    // a sample fewer than two cameras see has variance 0 and no gradient.
+    for c in [2, 4, 8] {
+        sweep_variance_matches_reference(c, true);
+    }
+}
+
+/// Whether camera `cam` is blind to sample `k` in the masked variant: every fourth sample
+/// for one camera each, and every seventh for cameras 0 and 1 together (one view left).
+fn blind(cam: usize, k: usize) -> bool {
+    (k + cam).is_multiple_of(4) || (k.is_multiple_of(7) && cam < 2)
+}
+
+fn sweep_variance_matches_reference(c: usize, masked: bool) {
     // Three cameras, two batch items, 30 samples per camera table: the fused kernel against
     // the variance of the bilinear reference samples, and its gradient against differences.
     let grid = ErpGrid::new(8).unwrap(); // 4 x 8
@@ -266,10 +282,18 @@ fn sweep_variance_matches_reference(c: usize) {
     let n = coords[0].len();
     let tables: Vec<SampleTable> = coords
         .iter()
-        .map(|cs| {
+        .enumerate()
+        .map(|(cam, cs)| {
             SampleTable::from(
                 cs.iter()
-                    .map(|&p| grid.bilinear_taps(p))
+                    .enumerate()
+                    .map(|(k, &p)| {
+                        let mut t = grid.bilinear_taps(p);
+                        if masked && blind(cam, k) {
+                            t.weight = [0.0; 4];
+                        }
+                        t
+                    })
                     .collect::<Vec<_>>(),
             )
         })
@@ -284,15 +308,20 @@ fn sweep_variance_matches_reference(c: usize) {
                 let samples: Vec<Vec<f64>> = coords
                     .iter()
                     .enumerate()
+                    .filter(|(cam, _)| !(masked && blind(*cam, k)))
                     .map(|(cam, cs)| {
                         let img = &f[(cam * b + bi) * image..(cam * b + bi + 1) * image];
                         erp_bilinear_ref(img, h, w, c, cs[k])
                     })
                     .collect();
+                let views = samples.len() as f64;
                 for ch in 0..c {
-                    let mean = samples.iter().map(|s| s[ch]).sum::<f64>() / m as f64;
-                    let var =
-                        samples.iter().map(|s| (s[ch] - mean).powi(2)).sum::<f64>() / m as f64;
+                    if samples.len() < 2 {
+                        out.push(0.0);
+                        continue;
+                    }
+                    let mean = samples.iter().map(|s| s[ch]).sum::<f64>() / views;
+                    let var = samples.iter().map(|s| (s[ch] - mean).powi(2)).sum::<f64>() / views;
                     out.push(var);
                 }
             }
@@ -300,7 +329,17 @@ fn sweep_variance_matches_reference(c: usize) {
         out
     };
     let features = Var::from_tensor(&tensor(&fv, &[m * b, h, w, c])).unwrap();
-    let out = sweep_variance(features.as_tensor(), &tables).unwrap();
+    let out = if masked {
+        let scale = view_scale(&tables);
+        assert_eq!(
+            scale.iter().filter(|&&s| s == 0.0).count(),
+            5,
+            "samples fewer than two cameras see"
+        );
+        sweep_variance_visible(features.as_tensor(), &tables, &scale).unwrap()
+    } else {
+        sweep_variance(features.as_tensor(), &tables).unwrap()
+    };
     assert_eq!(out.dims(), &[b, n, c]);
     let err = max_abs_diff(&values(&out), &reference(&fv));
     assert!(err < FWD_TOL, "{c} channels: forward error {err}");

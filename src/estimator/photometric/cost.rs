@@ -15,6 +15,10 @@
 
 /// Cost of a pair that cannot tell hypotheses apart.
 pub(crate) const UNDECIDED_COST: f32 = 0.5;
+/// Cost of a pair one of whose cameras does not see the point: never among the best.
+const UNSEEN_COST: f32 = f32::INFINITY;
+/// A warped validity mask at least this high counts as seen.
+const SEEN_THRESHOLD: f32 = 0.5;
 
 /// Windowed box mean with longitude wrap along rows and replicated rows at the poles.
 ///
@@ -106,9 +110,12 @@ impl ViewStats {
 ///
 /// `pair_weights` (one per pair, in `(a, b)`, `a < b` order, each per pixel or empty) blend a
 /// pair's cost toward the undecided `1/2` where the pair has little parallax:
-/// `cost' = w cost + (1 - w) / 2`.
+/// `cost' = w cost + (1 - w) / 2`. `seen[c]` (per pixel, `None`: everywhere) says where camera
+/// `c` sees the sphere's point; a pair counts only where both see it, and a pixel no pair
+/// sees is undecided.
 pub(crate) fn sphere_cost(
     views: &[&ViewStats],
+    seen: &[Option<Vec<f32>>],
     pair_weights: &[Vec<f32>],
     w: usize,
     h: usize,
@@ -142,13 +149,21 @@ pub(crate) fn sphere_cost(
                     *c = wt * *c + (1.0 - wt) * UNDECIDED_COST;
                 }
             }
+            for mask in [seen.get(a), seen.get(b)].into_iter().flatten().flatten() {
+                for (c, m) in cost.iter_mut().zip(mask) {
+                    if *m < SEEN_THRESHOLD {
+                        *c = UNSEEN_COST;
+                    }
+                }
+            }
             pair_costs.push(cost);
         }
     }
     combine_best(&pair_costs, n, p.best_pairs)
 }
 
-/// Per pixel, the mean of the `best` smallest of the pair costs.
+/// Per pixel, the mean of the `best` smallest of the pair costs that were seen (an unseen
+/// pair is [`UNSEEN_COST`]); undecided where no pair was seen.
 fn combine_best(pair_costs: &[Vec<f32>], n: usize, best: usize) -> Vec<f32> {
     let pairs = pair_costs.len();
     if pairs == 0 {
@@ -156,23 +171,22 @@ fn combine_best(pair_costs: &[Vec<f32>], n: usize, best: usize) -> Vec<f32> {
         return vec![UNDECIDED_COST; n];
     }
     let best = best.clamp(1, pairs);
-    if best == pairs {
-        // Plain mean of all pairs.
-        let mut out = pair_costs[0].clone();
-        for c in &pair_costs[1..] {
-            for (o, x) in out.iter_mut().zip(c) {
-                *o += x;
-            }
-        }
-        let inv = 1.0 / pairs as f32;
-        out.iter_mut().for_each(|o| *o *= inv);
-        return out;
-    }
     let mut out = vec![0.0f32; n];
     let mut buf = vec![0.0f32; pairs];
     for (k, o) in out.iter_mut().enumerate() {
         for (b, c) in buf.iter_mut().zip(pair_costs) {
             *b = c[k];
+        }
+        let seen = buf.iter().filter(|c| c.is_finite()).count();
+        if seen == 0 {
+            *o = UNDECIDED_COST;
+            continue;
+        }
+        let take = best.min(seen);
+        if take == pairs {
+            // Plain mean of all pairs, in pair order.
+            *o = buf.iter().sum::<f32>() / pairs as f32;
+            continue;
         }
         // Insertion sort: the pair count is small (6 for four cameras).
         for i in 1..pairs {
@@ -184,7 +198,7 @@ fn combine_best(pair_costs: &[Vec<f32>], n: usize, best: usize) -> Vec<f32> {
             }
             buf[j] = x;
         }
-        *o = buf[..best].iter().sum::<f32>() / best as f32;
+        *o = buf[..take].iter().sum::<f32>() / take as f32;
     }
     out
 }
@@ -227,5 +241,14 @@ mod tests {
         assert!((out[0] - 0.15).abs() < 1e-6);
         assert!((combine_best(&costs, 1, 3)[0] - 0.4).abs() < 1e-6);
         assert_eq!(combine_best(&[], 2, 1), vec![UNDECIDED_COST; 2]);
+        // Unseen pairs never count; a pixel no pair sees is undecided.
+        let costs = vec![
+            vec![0.1f32, UNSEEN_COST],
+            vec![UNSEEN_COST, UNSEEN_COST],
+            vec![0.3, UNSEEN_COST],
+        ];
+        let out = combine_best(&costs, 2, 3);
+        assert!((out[0] - 0.2).abs() < 1e-6);
+        assert_eq!(out[1], UNDECIDED_COST);
     }
 }

@@ -8,9 +8,16 @@
 //! var[b, n] = (1/M) Σ_c v_c²  -  ((1/M) Σ_c v_c)²
 //! ∂L/∂v_c   = (2/M) · g[b, n] · (v_c - mean)        then through table c's adjoint to f_c
 //! ```
+//!
+//! With cameras that do not see every sample ([`sweep_variance_visible`]), a camera's table has
+//! all-zero weights where it sees nothing (so `v_c = 0` there and no gradient reaches it), and
+//! `1/M` becomes the per-sample `s[n] = 1 / (views seeing n)`, or 0 where fewer than two views
+//! see the sample: the variance is then 0 (no matching evidence) instead of mixing in views
+//! that show something else.
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 use super::composite;
 use super::table::adjoint_into;
@@ -29,9 +36,20 @@ struct SweepShape {
     pixels: usize,
     image: [usize; 2],
     channels: usize,
+    /// Per sample `1 / views` (0 below two views); `None`: every camera sees every sample.
+    view_scale: Option<Arc<[f32]>>,
 }
 
 impl SweepShape {
+    /// The factor that turns sums over cameras into means at sample `n`.
+    #[inline]
+    fn scale(&self, n: usize) -> f32 {
+        match &self.view_scale {
+            Some(s) => s[n],
+            None => 1.0 / self.cameras() as f32,
+        }
+    }
+
     fn cameras(&self) -> usize {
         self.tables.len()
     }
@@ -83,7 +101,6 @@ impl SweepShape {
         mean_b: Option<&mut [f32]>,
         var_b: Option<&mut [f32]>,
     ) {
-        let inv_m = 1.0 / self.cameras() as f32;
         let planes: Vec<&[f32]> = (0..self.cameras())
             .map(|cam| {
                 let base = (cam * self.batch + b) * self.pixels * C;
@@ -115,6 +132,7 @@ impl SweepShape {
                     sq[j] += v * v;
                 }
             }
+            let inv_m = self.scale(n);
             for j in 0..C {
                 m[j] *= inv_m;
                 sq[j] = sq[j] * inv_m - m[j] * m[j];
@@ -159,7 +177,6 @@ impl SweepShape {
     /// [`Self::moments`] for any channel count.
     fn moments_any(&self, f: &[f32], b: usize, mean_b: &mut [f32], var_b: Option<&mut [f32]>) {
         let c = self.channels;
-        let inv_m = 1.0 / self.cameras() as f32;
         let task = SAMPLES_PER_TASK * c;
         let fill = |t: usize, mean_t: &mut [f32], var_t: Option<&mut [f32]>| {
             let mut v = vec![0f32; c];
@@ -176,6 +193,7 @@ impl SweepShape {
                         *s += x * x;
                     }
                 }
+                let inv_m = self.scale(n);
                 for x in m.iter_mut() {
                     *x *= inv_m;
                 }
@@ -204,6 +222,55 @@ impl SweepShape {
 /// (camera-major: camera `c`'s batch at rows `c B .. (c + 1) B`) and one table of `N` samples
 /// per camera -> `(B, N, C)`. Gradients flow to the features.
 pub fn sweep_variance(features: &Tensor, tables: &[SampleTable]) -> Result<Tensor> {
+    sweep_variance_impl(features, tables, None)
+}
+
+/// [`sweep_variance`] over the cameras that see each sample: `view_scale[n]` is
+/// `1 / (cameras seeing sample n)`, or 0 where fewer than two do (see [`view_scale`]); the
+/// tables have zero weights where their camera sees nothing.
+pub fn sweep_variance_visible(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: &Arc<[f32]>,
+) -> Result<Tensor> {
+    sweep_variance_impl(features, tables, Some(view_scale))
+}
+
+/// Fewest views whose agreement is evidence.
+pub const MIN_VIEWS: usize = 2;
+
+/// Per sample of `tables`: `1 / views` where `views >= MIN_VIEWS` cameras see it (the sum of a
+/// table's weights is 1 where its camera sees the sample, 0 where it does not), else 0.
+pub fn view_scale(tables: &[SampleTable]) -> Arc<[f32]> {
+    let samples = tables.first().map_or(0, SampleTable::len);
+    (0..samples)
+        .into_par_iter()
+        .with_min_len(SAMPLES_PER_TASK)
+        .map(|n| {
+            let s = n * SampleTable::TAPS;
+            let views: f32 = tables
+                .iter()
+                .map(|t| {
+                    t.flat_weights()[s..s + SampleTable::TAPS]
+                        .iter()
+                        .sum::<f32>()
+                })
+                .sum();
+            if views + 0.5 >= MIN_VIEWS as f32 {
+                1.0 / views
+            } else {
+                0.0
+            }
+        })
+        .collect::<Vec<f32>>()
+        .into()
+}
+
+fn sweep_variance_impl(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&Arc<[f32]>>,
+) -> Result<Tensor> {
     const OP: &str = "sweep_variance";
     let dims = dims_of(features, OP, "features", FEATURE_RANK)?;
     let cameras = tables.len();
@@ -222,13 +289,20 @@ pub fn sweep_variance(features: &Tensor, tables: &[SampleTable]) -> Result<Tenso
         }
         .into());
     }
+    if let Some(v) = view_scale.filter(|v| v.len() != samples) {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!("{} view scales for {samples} samples", v.len()),
+        }
+        .into());
+    }
     let pixels = dims[1] * dims[2];
     for t in tables {
         t.check_pixels(pixels, OP)?;
     }
     let batch = dims[0] / cameras;
     if !has_custom_kernels(features.device()) {
-        return sweep_variance_composite(features, tables, batch);
+        return sweep_variance_composite(features, tables, batch, view_scale);
     }
     features
         .contiguous()?
@@ -238,6 +312,7 @@ pub fn sweep_variance(features: &Tensor, tables: &[SampleTable]) -> Result<Tenso
             pixels,
             image: [dims[1], dims[2]],
             channels: dims[3],
+            view_scale: view_scale.cloned(),
         }))
 }
 
@@ -246,6 +321,7 @@ fn sweep_variance_composite(
     features: &Tensor,
     tables: &[SampleTable],
     batch: usize,
+    view_scale: Option<&Arc<[f32]>>,
 ) -> Result<Tensor> {
     let mut sum: Option<Tensor> = None;
     let mut sum_sq: Option<Tensor> = None;
@@ -262,13 +338,21 @@ fn sweep_variance_composite(
             None => sq,
         });
     }
-    let m = tables.len() as f64;
-    match (sum, sum_sq) {
-        (Some(s), Some(q)) => {
+    let (Some(s), Some(q)) = (sum, sum_sq) else {
+        candle_core::bail!("sweep_variance: no cameras")
+    };
+    match view_scale {
+        None => {
+            let m = tables.len() as f64;
             let mean = (s / m)?;
             (q / m)? - mean.sqr()?
         }
-        _ => candle_core::bail!("sweep_variance: no cameras"),
+        Some(scale) => {
+            // (N) -> (1, N, 1)
+            let scale = Tensor::from_slice(scale, (1, scale.len(), 1), features.device())?;
+            let mean = s.broadcast_mul(&scale)?;
+            q.broadcast_mul(&scale)? - mean.sqr()?
+        }
     }
 }
 
@@ -317,7 +401,6 @@ impl CustomOp2 for SweepVarianceGradOp {
         let g = cpu_slice(s2, l2, self.name())?;
         let sh = &self.0;
         let (n, c, m) = (sh.samples(), sh.channels, sh.cameras());
-        let scale = 2.0 / m as f32;
         let mut out = vec![0f32; m * sh.batch * sh.pixels * c];
         let mut mean = vec![0f32; n * c];
         let mut g_cam = vec![0f32; n * c];
@@ -334,6 +417,7 @@ impl CustomOp2 for SweepVarianceGradOp {
                             let s = t * SAMPLES_PER_TASK + j;
                             sh.gather(f, cam, b, s, &mut v);
                             let (gs, ms) = (&g_b[s * c..(s + 1) * c], &mean[s * c..(s + 1) * c]);
+                            let scale = 2.0 * sh.scale(s);
                             for (((o, x), gv), mv) in o.iter_mut().zip(&v).zip(gs).zip(ms) {
                                 *o = scale * gv * (x - mv);
                             }
