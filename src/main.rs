@@ -65,6 +65,8 @@ enum Command {
     Deep360Bag(cli::deep360_bag::Deep360BagArgs),
     /// Copy a rig bag with the reference camera's image on every camera topic (geometry check).
     SameImageBag(cli::same_image_bag::SameImageBagArgs),
+    /// Rig calibration tools: `rig import` converts a Kalibr or Basalt calibration.
+    Rig(cli::rig::RigArgs),
 }
 
 fn main() -> Result<()> {
@@ -87,5 +89,6 @@ fn main() -> Result<()> {
         Command::BenchModel(a) => cli::bench_model::run(a),
         Command::Deep360Bag(a) => cli::deep360_bag::run(a),
         Command::SameImageBag(a) => cli::same_image_bag::run(a),
+        Command::Rig(a) => cli::rig::run(a),
     }
 }

@@ -19,6 +19,7 @@
 //! | [`bench_model`] | `bench-model` | SSMODE forward passes: time per stage, GFLOP/s, peak memory |
 //! | [`deep360_bag`] | `deep360-bag` | the paper's Deep360 frames on disk into a rig bag |
 //! | [`same_image_bag`] | `same-image-bag` | a bag with the reference image on every camera |
+//! | [`rig`] | `rig import` | a Kalibr camchain or Basalt calibration into a rig YAML |
 //!
 //! [`progress`] holds the progress bars the long commands share, [`drops`] the tally of
 //! malformed messages that `replay` and `eval` drop and go past.
@@ -33,6 +34,7 @@ pub mod node;
 pub mod play;
 pub mod progress;
 pub mod replay;
+pub mod rig;
 pub mod same_image_bag;
 pub mod synth;
 pub mod train;

@@ -7,6 +7,7 @@
 //! * [`camera`]: camera models (double sphere, Kannala-Brandt, EUCM, dual fisheye, and the
 //!   ERP grid) behind one `project` / `unproject` interface.
 //! * [`rig`]: the rig calibration read from YAML, validated.
+//! * [`import`]: a Kalibr camchain or a Basalt `calibration.json` into a rig.
 //! * [`panorama`]: every camera as a panorama (its REP 103 frame, which directions it sees,
 //!   a fisheye image resampled into an ERP panorama with a validity mask).
 //! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
@@ -14,6 +15,7 @@
 pub mod camera;
 pub mod erp;
 pub mod geer;
+pub mod import;
 pub mod panorama;
 pub mod rig;
 mod rig_projection;

@@ -287,7 +287,10 @@ fn readme_option_tables() -> Vec<OptionTable> {
 
 /// `--flag` -> its `[default: X]` (None without one), from `mode360 COMMAND --help`.
 fn help_options(command: &str) -> std::collections::BTreeMap<String, Option<String>> {
-    let o = mode360(&[command, "--help"]);
+    // A nested command's table is announced with its words, e.g. `rig import`.
+    let mut args: Vec<&str> = command.split_whitespace().collect();
+    args.push("--help");
+    let o = mode360(&args);
     assert!(o.status.success(), "{command} --help");
     let text = String::from_utf8_lossy(&o.stdout).to_string();
     let mut options = std::collections::BTreeMap::new();
@@ -376,7 +379,10 @@ fn readme_option_tables_match_help() {
         .collect();
     assert!(commands.len() >= 10, "{text}");
     for c in commands {
-        if !tables.iter().any(|t| t.command == c) {
+        if !tables
+            .iter()
+            .any(|t| t.command.split_whitespace().next() == Some(c))
+        {
             problems.push(format!("{c}: no README option table"));
         }
     }
@@ -385,4 +391,72 @@ fn readme_option_tables_match_help() {
         "README vs --help:\n{}",
         problems.join("\n")
     );
+}
+
+/// `mode360 rig import` writes a rig YAML that loads, from a Kalibr camchain and a Basalt
+/// calibration (tests/fixtures/calib); a camchain with an unknown model is a clear error that
+/// names the camera and the model, not a panic.
+#[test]
+fn rig_import_writes_a_loadable_rig_and_refuses_unknown_models() {
+    let dir = tempfile::tempdir().unwrap();
+    let fixture = |n: &str| format!("{}/tests/fixtures/calib/{n}", env!("CARGO_MANIFEST_DIR"));
+    let out = dir.path().join("rig.yaml");
+    let o = mode360(&[
+        "rig",
+        "import",
+        "--kalibr",
+        &fixture("kalibr_camchain.yaml"),
+        "--out",
+        out.to_str().unwrap(),
+        "--rig-frame",
+        "cam0_rig",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rig = mode360::geometry::Rig::from_file(&out).unwrap();
+    assert_eq!(rig.rig_frame, "cam0_rig");
+    let kinds: Vec<&str> = rig.cameras.iter().map(|c| c.projection.name()).collect();
+    assert_eq!(kinds, ["double_sphere", "kannala_brandt", "eucm", "eucm"]);
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("cam1: kannala_brandt on /camera1/image_raw")
+    );
+
+    let o = mode360(&[
+        "rig",
+        "import",
+        "--basalt",
+        &fixture("basalt_calibration.json"),
+        "--out",
+        out.to_str().unwrap(),
+        "--topic-prefix",
+        "/vi",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rig = mode360::geometry::Rig::from_file(&out).unwrap();
+    assert_eq!(rig.cameras[3].topic, "/vi/cam3/image_raw");
+
+    let bad = dir.path().join("camchain.yaml");
+    let text = std::fs::read_to_string(fixture("kalibr_camchain.yaml")).unwrap();
+    std::fs::write(
+        &bad,
+        text.replacen("camera_model: omni", "camera_model: scaramuzza", 1),
+    )
+    .unwrap();
+    let o = mode360(&[
+        "rig",
+        "import",
+        "--kalibr",
+        bad.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("camera 'cam2'") && err.contains("unknown camera model 'scaramuzza'"),
+        "{err}"
+    );
+    // Neither or both sources: clap refuses.
+    let o = mode360(&["rig", "import", "--out", out.to_str().unwrap()]);
+    assert!(!o.status.success());
 }

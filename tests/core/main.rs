@@ -4,6 +4,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod calib_import;
 mod camera_models;
 mod geometry;
 mod msgs_cdr;

@@ -4,9 +4,7 @@
 
 use mode360::geometry::camera::CameraModel;
 use mode360::geometry::erp::PixelCoord;
-use mode360::geometry::{
-    DepthRange, ErpGrid, GeometryError, InverseDepthHypotheses, Projection, Rig, SweepGeometry,
-};
+use mode360::geometry::{GeometryError, Projection, Rig};
 use nalgebra::Vector3;
 
 const RIG: &str = r#"
@@ -257,23 +255,25 @@ fn bad_intrinsics_name_file_camera_and_field() {
     assert!(e.contains("alpah") && e.contains("fisheye_rig.yaml"), "{e}");
 }
 
+/// `Rig::require_equirectangular`: the check a part that handles panoramas only uses to refuse
+/// a fisheye rig by name.
 #[test]
 fn panorama_only_parts_refuse_a_fisheye_rig_by_name() {
     let rig = load(RIG).unwrap();
-    let grid = ErpGrid::new(64).unwrap();
-    let hyp = InverseDepthHypotheses::new(DepthRange::paper(), 8).unwrap();
-    let e = SweepGeometry::new(&rig, grid, vec![grid; rig.cameras.len()], hyp).unwrap_err();
+    let e = rig
+        .require_equirectangular("the photometric sweep")
+        .unwrap_err();
     assert_eq!(
         e,
         GeometryError::UnsupportedProjection {
             camera: "front".into(),
             projection: "double_sphere",
-            consumer: "the spherical sweep",
+            consumer: "the photometric sweep",
         }
     );
     assert!(
         e.to_string().contains(
-            "camera front: projection double_sphere is not supported by the spherical sweep"
+            "camera front: projection double_sphere is not supported by the photometric sweep"
         ),
         "{e}"
     );
@@ -285,4 +285,10 @@ fn panorama_only_parts_refuse_a_fisheye_rig_by_name() {
             .contains("camera left: projection kannala_brandt"),
         "{e}"
     );
+    // A rig of panoramas only passes.
+    let deep360 = Rig::from_file(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_deep360.yaml"
+    ));
+    assert_eq!(deep360.unwrap().require_equirectangular("x"), Ok(()));
 }

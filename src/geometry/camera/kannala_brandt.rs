@@ -162,7 +162,7 @@ impl KannalaBrandt {
             }
             let slope = self.derivative(theta);
             let mut next = theta - f / slope;
-            if !(next > lo && next < hi) || !next.is_finite() {
+            if !(next > lo && next < hi && next.is_finite()) {
                 next = 0.5 * (lo + hi);
             }
             if (next - theta).abs() < THETA_TOLERANCE_RAD {

@@ -155,8 +155,9 @@ pub(crate) fn in_range(field: &str, v: f64, lo: f64, hi: f64) -> Result<f64, Int
     Ok(v)
 }
 
-/// A camera: projects camera-frame points to pixels and pixels back to unit rays.
-pub trait CameraModel {
+/// A camera: projects camera-frame points to pixels and pixels back to unit rays. Models are
+/// plain data, shared freely between threads (sampling tables are built in parallel).
+pub trait CameraModel: Send + Sync {
     /// The image this model draws into.
     fn image_size(&self) -> ImageSize;
     /// The pixel that sees `p_cam` (any non-zero length), or `None` when the point is outside

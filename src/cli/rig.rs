@@ -1,0 +1,78 @@
+//! `mode360 rig import`: a Kalibr camchain or a Basalt `calibration.json` into the project's
+//! rig YAML ([`crate::geometry::import`] does the work; this is the command around it).
+
+use crate::geometry::import::{rig_from_basalt_json, rig_from_kalibr_camchain, ImportOptions};
+use crate::geometry::rig::DEFAULT_RIG_FRAME;
+use crate::geometry::Rig;
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct RigArgs {
+    #[command(subcommand)]
+    pub command: RigCommand,
+}
+
+#[derive(Subcommand)]
+pub enum RigCommand {
+    /// Convert a Kalibr camchain or a Basalt calibration.json into a rig YAML.
+    Import(RigImportArgs),
+}
+
+#[derive(Args)]
+#[command(group = clap::ArgGroup::new("source").required(true).args(["kalibr", "basalt"]))]
+pub struct RigImportArgs {
+    /// Kalibr camchain YAML (camera 0 becomes the rig frame).
+    #[arg(long)]
+    pub kalibr: Option<PathBuf>,
+    /// Basalt calibration.json (the IMU becomes the rig frame).
+    #[arg(long)]
+    pub basalt: Option<PathBuf>,
+    /// Rig YAML to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Name of the rig frame.
+    #[arg(long, default_value = DEFAULT_RIG_FRAME)]
+    pub rig_frame: String,
+    /// Camera topics become PREFIX/<camera>/image_raw (default: Kalibr's rostopic, else
+    /// /<camera>/image_raw).
+    #[arg(long)]
+    pub topic_prefix: Option<String>,
+}
+
+/// `mode360 rig ...`.
+pub fn run(a: RigArgs) -> Result<()> {
+    match a.command {
+        RigCommand::Import(i) => run_import(i),
+    }
+}
+
+/// Reads the calibration, writes the rig YAML, and says what it wrote.
+pub fn run_import(a: RigImportArgs) -> Result<()> {
+    let opts = ImportOptions {
+        rig_frame: a.rig_frame,
+        topic_prefix: a.topic_prefix,
+    };
+    let rig = match (&a.kalibr, &a.basalt) {
+        (Some(k), _) => rig_from_kalibr_camchain(k, &opts)?,
+        (None, Some(b)) => rig_from_basalt_json(b, &opts)?,
+        (None, None) => anyhow::bail!("give --kalibr or --basalt"),
+    };
+    write_rig(&rig, &a.out)?;
+    println!("wrote {} cameras to {}", rig.cameras.len(), a.out.display());
+    for c in &rig.cameras {
+        println!("  {}: {} on {}", c.name, c.projection.name(), c.topic);
+    }
+    Ok(())
+}
+
+/// Writes `rig` as YAML with a header naming how to read it.
+pub fn write_rig(rig: &Rig, out: &Path) -> Result<()> {
+    let text = format!(
+        "# mode360 rig calibration (mode360 rig import). Fisheye cameras' frames are their\n\
+         # optical frames (z forward, x right, y down); see README, \"Rig calibration\".\n{}",
+        rig.to_yaml()
+    );
+    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))
+}

@@ -1,0 +1,198 @@
+//! Kalibr's camchain YAML (`kalibr_calibrate_cameras` output, `camchain-*.yaml`):
+//!
+//! ```yaml
+//! cam0:
+//!   camera_model: ds                 # pinhole | omni | ds | eucm (others are refused)
+//!   intrinsics: [xi, alpha, fu, fv, pu, pv]
+//!   distortion_model: none           # equidistant with pinhole; none (or all-zero radtan)
+//!   distortion_coeffs: []
+//!   resolution: [1280, 1024]
+//!   rostopic: /cam0/image_raw
+//! cam1:
+//!   T_cn_cnm1:                       # p_cam1 = T_cn_cnm1 p_cam0, a 4x4 row-major matrix
+//!   - [r11, r12, r13, tx]
+//!   - ...
+//! ```
+//!
+//! Intrinsics per `camera_model`: `pinhole` `[fu, fv, pu, pv]`, `omni` `[xi, fu, fv, pu, pv]`,
+//! `ds` `[xi, alpha, fu, fv, pu, pv]`, `eucm` `[alpha, beta, fu, fv, pu, pv]`.
+//! The module docs of [`super`] give the frames and the model conversions.
+
+use super::{assemble, read, CamCtx, ImportError, ImportOptions, ImportedCamera};
+use crate::geometry::camera::{DoubleSphere, Eucm, FisheyeLens, Focal, KannalaBrandt};
+use crate::geometry::Rig;
+use nalgebra::Isometry3;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+const SUPPORTED: &str = "pinhole, omni, ds, eucm";
+
+/// One camera of a camchain; fields Kalibr adds that the rig does not use are ignored.
+#[derive(Debug, Deserialize)]
+struct KalibrCamera {
+    camera_model: Option<String>,
+    intrinsics: Option<Vec<f64>>,
+    distortion_model: Option<String>,
+    distortion_coeffs: Option<Vec<f64>>,
+    resolution: Option<Vec<f64>>,
+    rostopic: Option<String>,
+    #[serde(rename = "T_cn_cnm1")]
+    t_cn_cnm1: Option<Vec<Vec<f64>>>,
+}
+
+/// Reads a Kalibr camchain file into a rig (camera 0 is the rig frame).
+pub fn rig_from_kalibr_camchain(
+    path: impl AsRef<Path>,
+    opts: &ImportOptions,
+) -> Result<Rig, ImportError> {
+    let (file, text) = read(path.as_ref())?;
+    let raw: BTreeMap<String, KalibrCamera> =
+        serde_yaml::from_str(&text).map_err(|e| ImportError::Parse {
+            file: file.clone(),
+            format: "Kalibr camchain YAML",
+            message: e.to_string(),
+        })?;
+    // cam0, cam1, ... in chain order, none missing.
+    let mut ordered: Vec<(usize, &String, &KalibrCamera)> = Vec::with_capacity(raw.len());
+    for (key, cam) in &raw {
+        let index = key
+            .strip_prefix("cam")
+            .and_then(|n| n.parse::<usize>().ok())
+            .ok_or_else(|| ImportError::File {
+                file: file.clone(),
+                problem: format!("key '{key}' is not a Kalibr camera (cam0, cam1, ...)"),
+            })?;
+        ordered.push((index, key, cam));
+    }
+    ordered.sort_by_key(|(i, _, _)| *i);
+    if let Some((pos, (i, key, _))) = ordered.iter().enumerate().find(|(pos, (i, _, _))| pos != i) {
+        return Err(ImportError::File {
+            file: file.clone(),
+            problem: format!("the chain has a gap: '{key}' (index {i}) where cam{pos} should be"),
+        });
+    }
+    let mut cams = Vec::with_capacity(ordered.len());
+    let mut cn_from_c0 = Isometry3::identity();
+    for (i, key, cam) in ordered {
+        let ctx = CamCtx {
+            file: &file,
+            camera: key,
+        };
+        if i > 0 {
+            let rows = cam.t_cn_cnm1.as_deref().ok_or_else(|| {
+                ctx.err("T_cn_cnm1", "missing (every camera after cam0 needs it)")
+            })?;
+            cn_from_c0 = ctx.isometry("T_cn_cnm1", rows)? * cn_from_c0;
+        }
+        cams.push(ImportedCamera {
+            name: key.clone(),
+            topic: cam.rostopic.clone(),
+            projection: projection(&ctx, cam)?,
+            rig_from_cam: cn_from_c0.inverse(),
+        });
+    }
+    assemble(&file, cams, opts)
+}
+
+/// `Err` naming `field` unless `v` has `n` numbers.
+fn exactly<'a>(
+    ctx: &CamCtx,
+    field: &str,
+    v: &'a [f64],
+    n: usize,
+    layout: &str,
+) -> Result<&'a [f64], ImportError> {
+    if v.len() != n {
+        return Err(ctx.err(
+            field,
+            format!("expected {n} numbers {layout}, got {}", v.len()),
+        ));
+    }
+    Ok(v)
+}
+
+fn focal(ctx: &CamCtx, f: &[f64]) -> Result<Focal, ImportError> {
+    Focal::new(f[0], f[1], f[2], f[3]).map_err(|e| ctx.intrinsics("intrinsics", e))
+}
+
+fn projection(
+    ctx: &CamCtx,
+    cam: &KalibrCamera,
+) -> Result<crate::geometry::Projection, ImportError> {
+    let model = cam
+        .camera_model
+        .as_deref()
+        .ok_or_else(|| ctx.err("camera_model", "missing"))?;
+    let intr = cam
+        .intrinsics
+        .as_deref()
+        .ok_or_else(|| ctx.err("intrinsics", "missing"))?;
+    let size = ctx.image_size(
+        "resolution",
+        cam.resolution
+            .as_deref()
+            .ok_or_else(|| ctx.err("resolution", "missing"))?,
+    )?;
+    let distortion = cam.distortion_model.as_deref().unwrap_or("none");
+    let coeffs = cam.distortion_coeffs.as_deref().unwrap_or(&[]);
+    // A distortion that is there in name only (all coefficients zero) changes nothing.
+    let undistorted = distortion == "none" || coeffs.iter().all(|c| *c == 0.0);
+    let refuse = |reason: &str| ctx.unrepresentable(&format!("{model}/{distortion}"), reason);
+    let ie = |e| ctx.intrinsics("intrinsics", e);
+    let lens = match model {
+        "ds" | "eucm" | "omni" if !undistorted => return Err(refuse(
+            "the rig's fisheye models carry no extra distortion (expected distortion_model: none)",
+        )),
+        "ds" => {
+            let v = exactly(ctx, "intrinsics", intr, 6, "[xi, alpha, fu, fv, pu, pv]")?;
+            FisheyeLens::DoubleSphere(
+                DoubleSphere::new(focal(ctx, &v[2..])?, v[0], v[1]).map_err(ie)?,
+            )
+        }
+        "eucm" => {
+            let v = exactly(ctx, "intrinsics", intr, 6, "[alpha, beta, fu, fv, pu, pv]")?;
+            FisheyeLens::Eucm(Eucm::new(focal(ctx, &v[2..])?, v[0], v[1]).map_err(ie)?)
+        }
+        "omni" => {
+            let v = exactly(ctx, "intrinsics", intr, 5, "[xi, fu, fv, pu, pv]")?;
+            let xi = v[0];
+            if !(xi >= 0.0 && xi.is_finite()) {
+                return Err(refuse(&format!(
+                    "xi = {xi}: the unified model maps to EUCM only for xi >= 0"
+                )));
+            }
+            let s = 1.0 + xi;
+            let f = Focal::new(v[1] / s, v[2] / s, v[3], v[4]).map_err(ie)?;
+            FisheyeLens::Eucm(Eucm::new(f, xi / s, 1.0).map_err(ie)?)
+        }
+        "pinhole" => {
+            let v = exactly(ctx, "intrinsics", intr, 4, "[fu, fv, pu, pv]")?;
+            let f = focal(ctx, v)?;
+            match distortion {
+                "equidistant" => {
+                    let k = exactly(ctx, "distortion_coeffs", coeffs, 4, "[k1, k2, k3, k4]")?;
+                    FisheyeLens::KannalaBrandt(
+                        KannalaBrandt::new(f, [k[0], k[1], k[2], k[3]])
+                            .map_err(|e| ctx.intrinsics("distortion_coeffs", e))?,
+                    )
+                }
+                _ if undistorted => ctx.pinhole("intrinsics", f)?,
+                _ => {
+                    return Err(refuse(
+                        "only equidistant (Kannala-Brandt) or no distortion converts exactly",
+                    ))
+                }
+            }
+        }
+        other => {
+            return Err(ImportError::UnknownModel {
+                file: ctx.file.into(),
+                camera: ctx.camera.into(),
+                model: other.into(),
+                supported: SUPPORTED,
+            })
+        }
+    };
+    ctx.fisheye("intrinsics", lens, size)
+}

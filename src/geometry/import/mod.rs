@@ -1,0 +1,266 @@
+//! Calibration import: a Kalibr camchain or a Basalt `calibration.json` into a [`Rig`].
+//!
+//! Frames. Both tools calibrate each camera in its optical frame (z along the optical axis,
+//! x right, y down in the image), which is the frame a fisheye camera's `rig_from_cam` maps
+//! from in the rig YAML ([`super::camera`]). The rig frame is
+//!
+//! * Kalibr: camera 0. Its `T_cn_cnm1` (`p_cn = T_cn_cnm1 p_cn-1`) chain gives
+//!   `cn_from_c0 = T_cn_cnm1 * ... * T_c1_c0` and `rig_from_cn = cn_from_c0^-1`.
+//! * Basalt: the IMU. Its `T_imu_cam` (px py pz, qx qy qz qw) is `rig_from_cam` as it is.
+//!
+//! The depth output frame (`<first camera>_depth`) sits at the first camera's centre in the
+//! REP 103 orientation of its optical frame: x along the optical axis, y to the image's left,
+//! z to the image's top (`cam_from_output` columns `(0,0,1)`, `(-1,0,0)`, `(0,-1,0)`).
+//!
+//! Models, converted exactly or refused:
+//!
+//! | Kalibr `camera_model` / `distortion_model` | Basalt `camera_type` | rig `projection` |
+//! |---|---|---|
+//! | `ds` / `none` | `ds` | `double_sphere` |
+//! | `eucm` / `none` | `eucm` | `eucm` |
+//! | `pinhole` / `equidistant` | `kb4` | `kannala_brandt` |
+//! | `omni` / `none` (Mei's unified model) | `ucm` | `eucm` with `beta = 1` |
+//! | `pinhole` / `none` | `pinhole` | `eucm` with `alpha = 0`, `beta = 1` |
+//!
+//! Mei's `xi` becomes `alpha = xi / (1 + xi)` with the focal lengths divided by `1 + xi`
+//! (`fu x / (xi d + z) = (fu / (1 + xi)) x / (alpha d + (1 - alpha) z)`); Basalt's `ucm` is
+//! already written with `alpha`. A radial-tangential or FOV distortion with non-zero
+//! coefficients has no exact counterpart and is refused, naming the camera and the model.
+
+mod basalt;
+mod kalibr;
+
+pub use basalt::rig_from_basalt_json;
+pub use kalibr::rig_from_kalibr_camchain;
+
+use super::camera::{Eucm, FisheyeCamera, FisheyeLens, Focal, ImageSize, IntrinsicsError};
+use super::rig::{Projection, Rig, RigCamera, RigError, DEFAULT_RIG_FRAME};
+use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion};
+use std::path::Path;
+
+/// How imported cameras are named and where they publish.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImportOptions {
+    /// The rig frame's name (Kalibr: camera 0; Basalt: the IMU).
+    pub rig_frame: String,
+    /// Topics become `<prefix>/<camera>/image_raw`; `None` keeps Kalibr's `rostopic` (and
+    /// gives `/<camera>/image_raw` where there is none).
+    pub topic_prefix: Option<String>,
+}
+
+impl Default for ImportOptions {
+    fn default() -> Self {
+        Self {
+            rig_frame: DEFAULT_RIG_FRAME.into(),
+            topic_prefix: None,
+        }
+    }
+}
+
+/// A calibration file that cannot become a rig: names the file and, where it applies, the
+/// camera and the field or model.
+#[derive(Debug, thiserror::Error)]
+pub enum ImportError {
+    #[error("{file}: cannot read calibration: {source}")]
+    Io {
+        file: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{file}: malformed {format}: {message}")]
+    Parse {
+        file: String,
+        format: &'static str,
+        message: String,
+    },
+    #[error("{file}: camera '{camera}': field '{field}': {problem}")]
+    Camera {
+        file: String,
+        camera: String,
+        field: String,
+        problem: String,
+    },
+    #[error("{file}: camera '{camera}': unknown camera model '{model}' (supported: {supported})")]
+    UnknownModel {
+        file: String,
+        camera: String,
+        model: String,
+        supported: &'static str,
+    },
+    #[error("{file}: camera '{camera}': model '{model}' cannot be represented exactly: {reason}")]
+    Unrepresentable {
+        file: String,
+        camera: String,
+        model: String,
+        reason: String,
+    },
+    #[error("{file}: {problem}")]
+    File { file: String, problem: String },
+    #[error(transparent)]
+    Rig(#[from] RigError),
+}
+
+/// A rotation matrix whose `R^T R` differs from the identity by more than this is refused.
+pub const ROTATION_ORTHONORMAL_TOLERANCE: f64 = 1e-6;
+
+/// One camera as read from a calibration file.
+pub(crate) struct ImportedCamera {
+    pub name: String,
+    /// The tool's own topic, if it has one.
+    pub topic: Option<String>,
+    pub projection: Projection,
+    pub rig_from_cam: Isometry3<f64>,
+}
+
+/// Errors of one camera of one file.
+pub(crate) struct CamCtx<'a> {
+    pub file: &'a str,
+    pub camera: &'a str,
+}
+
+impl CamCtx<'_> {
+    pub fn err(&self, field: &str, problem: impl Into<String>) -> ImportError {
+        ImportError::Camera {
+            file: self.file.into(),
+            camera: self.camera.into(),
+            field: field.into(),
+            problem: problem.into(),
+        }
+    }
+
+    pub fn unrepresentable(&self, model: &str, reason: impl Into<String>) -> ImportError {
+        ImportError::Unrepresentable {
+            file: self.file.into(),
+            camera: self.camera.into(),
+            model: model.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// An intrinsics error from a model constructor, under the calibration's own field.
+    pub fn intrinsics(&self, field: &str, e: IntrinsicsError) -> ImportError {
+        self.err(field, format!("{}: {}", e.field, e.problem))
+    }
+
+    /// `[w, h]` from the file's resolution field.
+    pub fn image_size(&self, field: &str, v: &[f64]) -> Result<ImageSize, ImportError> {
+        let whole = |x: f64| x.is_finite() && x.fract() == 0.0 && x > 0.0 && x <= u32::MAX as f64;
+        match v {
+            [w, h] if whole(*w) && whole(*h) => {
+                ImageSize::new(*w as u32, *h as u32).map_err(|e| self.intrinsics(field, e))
+            }
+            _ => Err(self.err(
+                field,
+                format!("expected [width, height] in whole pixels, got {v:?}"),
+            )),
+        }
+    }
+
+    /// A single-lens camera, its principal point checked against the image.
+    pub fn fisheye(
+        &self,
+        field: &str,
+        lens: FisheyeLens,
+        size: ImageSize,
+    ) -> Result<Projection, ImportError> {
+        FisheyeCamera::new(lens, size)
+            .map(Projection::Fisheye)
+            .map_err(|e| self.intrinsics(field, e))
+    }
+
+    /// A pinhole camera as EUCM with `alpha = 0`, `beta = 1` (exact: `u = fx x / z + cx`).
+    pub fn pinhole(&self, field: &str, focal: Focal) -> Result<FisheyeLens, ImportError> {
+        Eucm::new(focal, 0.0, 1.0)
+            .map(FisheyeLens::Eucm)
+            .map_err(|e| self.intrinsics(field, e))
+    }
+
+    /// A 4x4 homogeneous transform as an isometry; refuses a non-rigid one.
+    pub fn isometry(&self, field: &str, rows: &[Vec<f64>]) -> Result<Isometry3<f64>, ImportError> {
+        let bad = |p: String| self.err(field, p);
+        if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
+            return Err(bad("expected a 4x4 matrix".into()));
+        }
+        if rows.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(bad("has a value that is not finite".into()));
+        }
+        if rows[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(bad(format!(
+                "last row is {:?}, expected [0, 0, 0, 1]",
+                rows[3]
+            )));
+        }
+        let m = Matrix3::from_fn(|r, c| rows[r][c]);
+        let err = (m.transpose() * m - Matrix3::identity()).amax();
+        if err > ROTATION_ORTHONORMAL_TOLERANCE || m.determinant() <= 0.0 {
+            return Err(bad(format!(
+                "upper-left 3x3 is not a rotation (|R^T R - I| = {err:.2e}, det {:.6})",
+                m.determinant()
+            )));
+        }
+        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&m));
+        Ok(Isometry3::from_parts(
+            nalgebra::Translation3::new(rows[0][3], rows[1][3], rows[2][3]),
+            rotation,
+        ))
+    }
+}
+
+/// `cam_from_output` for the REP 103 output frame at a camera's centre: columns are the
+/// output's x, y, z in the optical frame: `(0, 0, 1)`, `(-1, 0, 0)`, `(0, -1, 0)`.
+pub fn optical_from_body() -> UnitQuaternion<f64> {
+    let m = Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
+    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m))
+}
+
+/// The rig from imported cameras, validated as any rig YAML is (through its YAML form).
+pub(crate) fn assemble(
+    file: &str,
+    cams: Vec<ImportedCamera>,
+    opts: &ImportOptions,
+) -> Result<Rig, ImportError> {
+    let first = cams.first().ok_or_else(|| ImportError::File {
+        file: file.into(),
+        problem: "no cameras".into(),
+    })?;
+    let output_frame_id = format!("{}_depth", first.name);
+    let rig_from_output = first.rig_from_cam
+        * Isometry3::from_parts(nalgebra::Translation3::identity(), optical_from_body());
+    let cameras = cams
+        .into_iter()
+        .map(|c| {
+            let topic = match (&opts.topic_prefix, c.topic) {
+                (Some(prefix), _) => {
+                    format!("{}/{}/image_raw", prefix.trim_end_matches('/'), c.name)
+                }
+                (None, Some(t)) => t,
+                (None, None) => format!("/{}/image_raw", c.name),
+            };
+            RigCamera {
+                frame_id: format!("{}_optical_frame", c.name),
+                name: c.name,
+                topic,
+                projection: c.projection,
+                rig_from_cam: c.rig_from_cam,
+            }
+        })
+        .collect();
+    let rig = Rig {
+        rig_frame: opts.rig_frame.clone(),
+        cameras,
+        reference: 0,
+        output_frame_id,
+        rig_from_output,
+    };
+    Ok(Rig::from_yaml_str(&rig.to_yaml(), file)?)
+}
+
+/// Reads a calibration file's text.
+pub(crate) fn read(path: &Path) -> Result<(String, String), ImportError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ImportError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    Ok((file, text))
+}
