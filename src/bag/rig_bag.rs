@@ -5,7 +5,9 @@
 //! - `/tf_static` (`tf2_msgs/TFMessage`): `rig_frame <- camera frame` for every camera, and
 //!   `rig_frame <- output frame` when the output frame is not a camera frame;
 //! - per frame, one `sensor_msgs/Image` rgb8 per camera on that camera's topic, all stamped
-//!   with the frame stamp (also their log time), and optionally the ground-truth range on
+//!   with the frame stamp (also their log time): an ERP panorama (2:1, one size for all
+//!   panorama cameras) or, for a fisheye or dual-fisheye camera, the raw image at exactly its
+//!   `image_size` (both the writer and the reader refuse other sizes); and optionally the ground-truth range on
 //!   [`GROUND_TRUTH_TOPIC`] (32FC1, ERP, frame `rig.output_frame_id`).
 
 use std::collections::BTreeMap;
@@ -108,6 +110,20 @@ impl RigBagWriter {
                     self.rig.cameras.len()
                 ),
             });
+        }
+        for (camera, image) in self.rig.cameras.iter().zip(&frame.images) {
+            if let Err(e) = camera
+                .projection
+                .check_image_size(image.width(), image.height())
+            {
+                return Err(BagError::Frame {
+                    file,
+                    topic: camera.topic.clone(),
+                    stamp_ns: frame.stamp_ns,
+                    field: "width/height".into(),
+                    problem: format!("camera '{}': {e}", camera.name),
+                });
+            }
         }
         for (camera, image) in self.rig.cameras.iter().zip(&frame.images) {
             let msg = image_msg_from_rgb(Header::new(frame.stamp_ns, &camera.frame_id), image);
@@ -325,28 +341,37 @@ impl RigBagReader {
                 ));
             };
             let image = decode_camera_image(msg, stamp_ns)?;
-            if image.width() != 2 * image.height() {
+            if let Err(e) = camera
+                .projection
+                .check_image_size(image.width(), image.height())
+            {
                 return Err(self.frame_err(
                     &camera.topic,
                     stamp_ns,
-                    "width",
-                    format!(
-                        "{}x{} is not an equirectangular panorama (width must be 2 x height)",
-                        image.width(),
-                        image.height()
-                    ),
+                    "width/height",
+                    format!("camera '{}': {e}", camera.name),
                 ));
             }
-            if let Some(first) = images.first() {
+            // Panoramas of one frame share a size (fisheye images were checked above).
+            let first_erp = self
+                .rig
+                .cameras
+                .iter()
+                .zip(&images)
+                .find(|(c, _)| c.projection.is_equirectangular());
+            if let (true, Some((first_cam, first))) =
+                (camera.projection.is_equirectangular(), first_erp)
+            {
                 if first.dimensions() != image.dimensions() {
                     return Err(self.frame_err(
                         &camera.topic,
                         stamp_ns,
                         "width/height",
                         format!(
-                            "{}x{} differs from the first camera's {}x{}",
+                            "{}x{} differs from camera '{}' ({}x{}): the panoramas of a frame share one size",
                             image.width(),
                             image.height(),
+                            first_cam.name,
                             first.width(),
                             first.height()
                         ),

@@ -32,8 +32,9 @@ pub struct RecordSummary {
 }
 
 /// Renders `frames` frames and writes them, with the rig and the scene settings, to a bag.
+/// Any camera model: ERP cameras at the configured width, fisheye and dual-fisheye cameras at
+/// their `image_size` (scale the rig first with [`Rig::scaled`] for a lower resolution).
 pub fn record_synthetic_bag(opts: &RecordOptions) -> Result<RecordSummary> {
-    opts.rig.require_equirectangular("synth's renderer")?;
     let renderer = SynthRenderer::new(opts.config.clone())?;
     let mut info = opts.config.to_info();
     info.insert(SOILED_KEY.into(), opts.config.soiled.to_string());
@@ -69,7 +70,8 @@ pub struct SynthArgs {
     /// Index of the first frame along the drive.
     #[arg(long, default_value_t = 0)]
     pub first_frame: usize,
-    /// Panorama width in pixels (height = width / 2).
+    /// Panorama width in pixels (height = width / 2): equirectangular cameras and the ground
+    /// truth. Fisheye cameras render at their image_size (see --fisheye-scale).
     #[arg(long, default_value_t = 512)]
     pub width: usize,
     /// Soil one or two lenses per frame (mud, water drops, glare).
@@ -89,6 +91,11 @@ pub struct SynthArgs {
     /// lane and sidewalk widths, setbacks, heights, parked cars, trees, rig height and tilt).
     #[arg(long, value_enum, default_value_t = StreetStyle::Regular)]
     pub street: StreetStyle,
+    /// Resolution factor for the rig's fisheye and dual-fisheye cameras (0.5: half their
+    /// calibrated width and height, intrinsics scaled to match; ERP cameras use --width). The
+    /// bag records the scaled rig.
+    #[arg(long, default_value_t = 1.0)]
+    pub fisheye_scale: f64,
     /// Output bag.
     #[arg(long)]
     pub out: PathBuf,
@@ -97,6 +104,12 @@ pub struct SynthArgs {
 /// `mode360 synth`: renders the frames into the bag and prints the size and the rate.
 pub fn run(a: SynthArgs) -> Result<()> {
     let rig = Rig::from_file(&a.rig)?;
+    let rig = if a.fisheye_scale == 1.0 {
+        rig
+    } else {
+        rig.scaled(a.fisheye_scale)
+            .with_context(|| format!("--fisheye-scale {}", a.fisheye_scale))?
+    };
     let config = SynthConfig {
         seed: a.seed,
         width: a.width,

@@ -25,6 +25,7 @@
 //! [`super::rig_projection`].
 
 use super::camera::{CameraModel, DualFisheye, FisheyeCamera};
+pub use super::rig_projection::ImageSizeError;
 use super::rig_projection::{
     parse_projection, projection_to_raw, RawIntrinsics, RawLens, RawProjection,
 };
@@ -461,6 +462,28 @@ impl Rig {
             output_frame_id: self.output_frame_id.clone(),
             rig_from_output: self.rig_from_output,
         })
+    }
+
+    /// The rig with every fisheye and dual-fisheye camera at `factor` times its resolution
+    /// (0.5: half the width and height; intrinsics scaled to match, see
+    /// [`FisheyeCamera::scaled`]); equirectangular cameras, poses and the output frame stay.
+    /// For rendering and training at a lower resolution than the calibration's.
+    pub fn scaled(&self, factor: f64) -> Result<Self, RigError> {
+        let mut rig = self.clone();
+        for cam in &mut rig.cameras {
+            let scaled = match &cam.projection {
+                Projection::Equirectangular => continue,
+                Projection::Fisheye(c) => c.scaled(factor).map(Projection::Fisheye),
+                Projection::DualFisheye(d) => d.scaled(factor).map(Projection::DualFisheye),
+            };
+            cam.projection = scaled.map_err(|e| RigError::Camera {
+                file: format!("<rig scaled by {factor}>"),
+                camera: cam.name.clone(),
+                field: e.field,
+                problem: e.problem,
+            })?;
+        }
+        Ok(rig)
     }
 
     /// `Ok` when every camera is equirectangular; otherwise an error naming the first camera

@@ -271,6 +271,55 @@ pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Project
     }
 }
 
+/// An image whose size does not fit its camera's projection.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ImageSizeError {
+    #[error("expected a 2:1 equirectangular panorama (width = 2 x height), got {width}x{height}")]
+    NotPanorama { width: u32, height: u32 },
+    #[error("expected {expected_width}x{expected_height} (its {projection} image_size), got {width}x{height}")]
+    NotImageSize {
+        projection: &'static str,
+        expected_width: u32,
+        expected_height: u32,
+        width: u32,
+        height: u32,
+    },
+}
+
+impl Projection {
+    /// The image size the projection is calibrated for; `None` for equirectangular (any 2:1
+    /// size).
+    pub fn image_size(&self) -> Option<ImageSize> {
+        use super::camera::CameraModel;
+        match self {
+            Projection::Equirectangular => None,
+            Projection::Fisheye(c) => Some(c.image_size()),
+            Projection::DualFisheye(d) => Some(d.image_size()),
+        }
+    }
+
+    /// Whether a `width x height` image can be this camera's: an equirectangular camera's must
+    /// be 2:1 (and not empty), a fisheye or dual-fisheye camera's exactly its `image_size`.
+    pub fn check_image_size(&self, width: u32, height: u32) -> Result<(), ImageSizeError> {
+        match self.image_size() {
+            None if width == 0 || width != 2 * height => {
+                Err(ImageSizeError::NotPanorama { width, height })
+            }
+            None => Ok(()),
+            Some(s) if (s.width, s.height) != (width, height) => {
+                Err(ImageSizeError::NotImageSize {
+                    projection: self.name(),
+                    expected_width: s.width,
+                    expected_height: s.height,
+                    width,
+                    height,
+                })
+            }
+            Some(_) => Ok(()),
+        }
+    }
+}
+
 fn lens_to_raw(lens: &FisheyeLens) -> RawIntrinsics {
     let f = lens.focal();
     let mut raw = RawIntrinsics {

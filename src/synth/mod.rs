@@ -9,8 +9,10 @@
 //!   frame rides the ego lane: `world_from_rig(i) = (x0 + speed t_i, ego_lane_y, 0)` with
 //!   `t_i = i * frame_period_s` (varied streets add a height offset, roll and pitch). In
 //!   random-objects scenes the rig frame is the world frame.
-//! * Pixel rays come from [`ErpGrid::dir_from_pixel`]; a camera ray in the world is
-//!   `world_from_rig * rig_from_cam * dir`.
+//! * Pixel rays come from [`ErpGrid::dir_from_pixel`] for equirectangular cameras (at the
+//!   configured width) and from the camera model for fisheye and dual-fisheye cameras (at
+//!   their `image_size`, black where the model sees nothing: [`camera_view`]); a camera ray in
+//!   the world is `world_from_rig * rig_from_cam * (origin + t dir)`.
 //! * Ground truth: for every output-frame pixel the Euclidean range to the first surface,
 //!   `min(t, max_depth_m)`; sky pixels are `max_depth_m`.
 //! * Shading: Lambertian sun with hard shadows (shadow rays), hemispherical sky ambient, fog
@@ -18,6 +20,7 @@
 //!   coordinates, so every camera sees the same surface colour.
 
 pub mod bvh;
+pub mod camera_view;
 pub mod material;
 pub mod noise;
 pub mod objects;
@@ -32,6 +35,7 @@ pub mod world;
 use crate::frame::{FloatImage, RgbImage, RigFrame};
 use crate::geometry::{ErpGrid, GeometryError, PixelCoord, Rig};
 use bvh::{Bvh, Ray};
+use camera_view::PixelRays;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use noise::Rng;
 use pattern::Background;
@@ -199,7 +203,7 @@ pub struct FrameReport {
     pub soiling: Vec<CameraSoiling>,
 }
 
-/// A single rendered view: the ERP image and its range image (metres).
+/// A single rendered view: the image (ERP, or a camera model's) and its range image (metres).
 #[derive(Clone, Debug)]
 pub struct CameraView {
     pub image: RgbImage,
@@ -322,24 +326,29 @@ impl SynthRenderer {
     pub fn render_frame_with_report(&self, rig: &Rig, index: usize) -> (RigFrame, FrameReport) {
         let t_s = self.frame_time_s(index);
         let world_from_rig = self.world_from_rig(index);
-        let mut centres: Vec<Vector3<f64>> = rig
-            .cameras
-            .iter()
-            .map(|c| (world_from_rig * c.rig_from_cam).translation.vector)
-            .collect();
-        centres.push((world_from_rig * rig.rig_from_output).translation.vector);
-        let scene = self.frame_scene(index, &centres);
-        let output_cam = rig
-            .cameras
-            .iter()
-            .position(|c| same_pose(&c.rig_from_cam, &rig.rig_from_output));
+        let scene = self.frame_scene(index, &Self::centres(rig, &world_from_rig));
+        // Only an ERP camera's range image can double as the ground truth.
+        let output_cam = rig.cameras.iter().position(|c| {
+            c.projection.is_equirectangular() && same_pose(&c.rig_from_cam, &rig.rig_from_output)
+        });
         let mut images = Vec::with_capacity(rig.cameras.len());
+        // Where each camera sees (None: every pixel, an ERP panorama), for the soiling.
+        let mut masks: Vec<Option<Vec<bool>>> = Vec::with_capacity(rig.cameras.len());
         let mut gt: Option<FloatImage> = None;
         for (ci, cam) in rig.cameras.iter().enumerate() {
             let world_from_cam = world_from_rig * cam.rig_from_cam;
+            if let Some(rays) = PixelRays::of_projection(&cam.projection) {
+                let (img, _) = camera_view::render_rays(&scene, &world_from_cam, &rays, |c| {
+                    to_srgb8(&self.gamma_lut, c)
+                });
+                images.push(img);
+                masks.push(Some(rays.valid_mask()));
+                continue;
+            }
             let keep_range = output_cam == Some(ci);
             let (img, range) = self.render_view(&scene, &world_from_cam, keep_range);
             images.push(img);
+            masks.push(None);
             if keep_range {
                 gt = range;
             }
@@ -364,7 +373,10 @@ impl SynthRenderer {
                 vec![first]
             };
             for c in chosen {
-                soiling[c] = soiling::soil_image(&mut images[c], &mut rng);
+                soiling[c] = match &masks[c] {
+                    None => soiling::soil_image(&mut images[c], &mut rng),
+                    Some(mask) => soiling::soil_image_within(&mut images[c], mask, &mut rng),
+                };
             }
         }
         let stamp_ns = self.frame_stamp_ns(index);
@@ -394,6 +406,42 @@ impl SynthRenderer {
         let range_m = range
             .unwrap_or_else(|| FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN));
         CameraView { image, range_m }
+    }
+
+    /// Camera `camera` of `rig` (rig order) at frame `index`, clean, in the scene
+    /// [`Self::render_frame`] renders for that rig: its image (an ERP panorama at the
+    /// configured width, or the camera model's image) and the range along every pixel's ray
+    /// from the ray's origin, metres (NaN where the model sees nothing). `None` when `rig`
+    /// has no such camera. For checking the rendering against the ground truth.
+    pub fn render_rig_camera(&self, rig: &Rig, index: usize, camera: usize) -> Option<CameraView> {
+        let cam = rig.cameras.get(camera)?;
+        let world_from_rig = self.world_from_rig(index);
+        let scene = self.frame_scene(index, &Self::centres(rig, &world_from_rig));
+        let world_from_cam = world_from_rig * cam.rig_from_cam;
+        let (image, range_m) = match PixelRays::of_projection(&cam.projection) {
+            Some(rays) => camera_view::render_rays(&scene, &world_from_cam, &rays, |c| {
+                to_srgb8(&self.gamma_lut, c)
+            }),
+            None => {
+                let (image, range) = self.render_view(&scene, &world_from_cam, true);
+                let range_m = range.unwrap_or_else(|| {
+                    FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN)
+                });
+                (image, range_m)
+            }
+        };
+        Some(CameraView { image, range_m })
+    }
+
+    /// World-frame centres of the rig's cameras and of its output frame at `world_from_rig`.
+    fn centres(rig: &Rig, world_from_rig: &Isometry3<f64>) -> Vec<Vector3<f64>> {
+        let mut centres: Vec<Vector3<f64>> = rig
+            .cameras
+            .iter()
+            .map(|c| (world_from_rig * c.rig_from_cam).translation.vector)
+            .collect();
+        centres.push((world_from_rig * rig.rig_from_output).translation.vector);
+        centres
     }
 
     /// The scene of frame `index`; `camera_centres_w` (world frame) shape the keep-out box

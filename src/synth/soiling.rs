@@ -1,7 +1,15 @@
-//! Lens soiling on ERP images: mud spots (opaque brownish blobs with soft, ragged edges),
-//! water drops (local inverted refraction with blur and a bright rim) and glare (a radial
-//! flare with streaks). Effects are painted in pixel space until the covered fraction of the
-//! image reaches a target drawn in `[MIN_TARGET_COVERAGE, MAX_TARGET_COVERAGE]`.
+//! Lens soiling: mud spots (opaque brownish blobs with soft, ragged edges), water drops (local
+//! inverted refraction with blur and a bright rim) and glare (a radial flare with streaks).
+//! Effects are painted in pixel space until the covered fraction of the image reaches a
+//! target drawn in `[MIN_TARGET_COVERAGE, MAX_TARGET_COVERAGE]`.
+//!
+//! * ERP panoramas ([`soil_image`]): effects wrap across the longitude seam; radii are
+//!   fractions of the image width.
+//! * Fisheye images ([`soil_image_within`]): soiling sits on the lens, so effects stay inside
+//!   the pixels the lens sees (the mask; black pixels outside the lens circle stay black),
+//!   centres are drawn among those pixels, nothing wraps, coverage is a fraction of the seen
+//!   pixels, and radii are fractions of the image's shorter side (one lens circle's
+//!   diameter, also for a dual-fisheye image).
 
 use super::noise::{value2, Rng};
 use crate::frame::RgbImage;
@@ -32,6 +40,30 @@ const GLARE_RADIUS: RadiusRange = RadiusRange {
 };
 /// Safety bound on the number of effects per image.
 const MAX_EFFECTS: usize = 400;
+/// Draws of an effect centre inside a fisheye mask before the effect is given up.
+const MAX_CENTRE_DRAWS: usize = 64;
+
+/// Where effects may go.
+#[derive(Clone, Copy)]
+enum Region<'a> {
+    /// An ERP panorama: every pixel, columns wrap.
+    Panorama,
+    /// Only the pixels marked `true` (row-major), no wrapping.
+    Within(&'a [bool]),
+}
+
+impl Region<'_> {
+    fn wraps(&self) -> bool {
+        matches!(self, Region::Panorama)
+    }
+
+    fn contains(&self, i: usize) -> bool {
+        match self {
+            Region::Panorama => true,
+            Region::Within(mask) => mask[i],
+        }
+    }
+}
 
 /// Kinds of soiling effects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,15 +131,51 @@ impl Effect {
     }
 }
 
-/// Soils `img` in place with effects drawn from `rng`; returns what was done.
+/// Soils the ERP panorama `img` in place with effects drawn from `rng`; returns what was done.
 pub fn soil_image(img: &mut RgbImage, rng: &mut Rng) -> CameraSoiling {
+    soil(img, Region::Panorama, rng)
+}
+
+/// Soils a fisheye image in place, only where `mask` (row-major, one entry per pixel) is
+/// `true`: the pixels the lens sees. Coverage is the fraction of those pixels. A mask of the
+/// wrong length, or without any `true`, leaves the image as it is.
+pub fn soil_image_within(img: &mut RgbImage, mask: &[bool], rng: &mut Rng) -> CameraSoiling {
+    let n = img.width() as usize * img.height() as usize;
+    if mask.len() != n || !mask.iter().any(|&m| m) {
+        return CameraSoiling::default();
+    }
+    soil(img, Region::Within(mask), rng)
+}
+
+/// An effect centre: anywhere (rows 10..90 %) on a panorama, on a seen pixel of a fisheye.
+fn draw_centre(region: Region, w: usize, h: usize, rng: &mut Rng) -> Option<(f64, f64)> {
+    match region {
+        Region::Panorama => Some((
+            rng.range(0.0, w as f64),
+            rng.range(0.1 * h as f64, 0.9 * h as f64),
+        )),
+        Region::Within(mask) => (0..MAX_CENTRE_DRAWS).find_map(|_| {
+            let (u, v) = (rng.range(0.0, w as f64), rng.range(0.0, h as f64));
+            let (x, y) = ((u as usize).min(w - 1), (v as usize).min(h - 1));
+            mask[y * w + x].then_some((u, v))
+        }),
+    }
+}
+
+fn soil(img: &mut RgbImage, region: Region, rng: &mut Rng) -> CameraSoiling {
     let (w, h) = (img.width() as usize, img.height() as usize);
+    let (area_px, scale_px) = match region {
+        Region::Panorama => (w * h, w),
+        Region::Within(mask) => (mask.iter().filter(|&&m| m).count(), w.min(h)),
+    };
     let target = rng.range(MIN_TARGET_COVERAGE, MAX_TARGET_COVERAGE);
     let mut covered = vec![false; w * h];
     let mut n_covered = 0usize;
     let mut effects = Vec::new();
     let mut report = CameraSoiling::default();
-    while (n_covered as f64) < target * (w * h) as f64 && effects.len() < MAX_EFFECTS {
+    let mut attempts = 0usize;
+    while (n_covered as f64) < target * area_px as f64 && attempts < MAX_EFFECTS {
+        attempts += 1;
         let pick = rng.unit();
         let (kind, radii) = if pick < 0.5 {
             (SoilingKind::Mud, MUD_RADIUS)
@@ -116,11 +184,14 @@ pub fn soil_image(img: &mut RgbImage, rng: &mut Rng) -> CameraSoiling {
         } else {
             (SoilingKind::Glare, GLARE_RADIUS)
         };
+        let Some((centre_u, centre_v)) = draw_centre(region, w, h, rng) else {
+            continue;
+        };
         let e = Effect {
             kind,
-            centre_u: rng.range(0.0, w as f64),
-            centre_v: rng.range(0.1 * h as f64, 0.9 * h as f64),
-            radius_px: rng.range(radii.min_frac, radii.max_frac) * w as f64,
+            centre_u,
+            centre_v,
+            radius_px: rng.range(radii.min_frac, radii.max_frac) * scale_px as f64,
             seed: (rng.next_u64() >> 32) as u32,
             strength: match kind {
                 SoilingKind::Mud => rng.range(0.85, 1.0),
@@ -137,7 +208,7 @@ pub fn soil_image(img: &mut RgbImage, rng: &mut Rng) -> CameraSoiling {
             SoilingKind::WaterDrop => report.water_drops += 1,
             SoilingKind::Glare => report.glares += 1,
         }
-        for_each_pixel(&e, w, h, |x, y, du, dv| {
+        for_each_pixel(&e, w, h, region, |x, y, du, dv| {
             if e.alpha(du, dv) >= COVERAGE_ALPHA_THRESHOLD as f64 && !covered[y * w + x] {
                 covered[y * w + x] = true;
                 n_covered += 1;
@@ -147,14 +218,21 @@ pub fn soil_image(img: &mut RgbImage, rng: &mut Rng) -> CameraSoiling {
     }
     let src = img.clone();
     for e in &effects {
-        apply(e, img, &src);
+        apply(e, img, &src, region);
     }
-    report.coverage = n_covered as f64 / (w * h) as f64;
+    report.coverage = n_covered as f64 / area_px as f64;
     report
 }
 
-/// Calls `f(x, y, du, dv)` for every pixel within the effect's reach; columns wrap.
-fn for_each_pixel(e: &Effect, w: usize, h: usize, mut f: impl FnMut(usize, usize, f64, f64)) {
+/// Calls `f(x, y, du, dv)` for every pixel of `region` within the effect's reach; columns
+/// wrap on a panorama.
+fn for_each_pixel(
+    e: &Effect,
+    w: usize,
+    h: usize,
+    region: Region,
+    mut f: impl FnMut(usize, usize, f64, f64),
+) {
     let reach = e.reach_px();
     let y0 = (e.centre_v - reach).floor().max(0.0) as usize;
     let y1 = ((e.centre_v + reach).ceil() as usize).min(h.saturating_sub(1));
@@ -165,23 +243,34 @@ fn for_each_pixel(e: &Effect, w: usize, h: usize, mut f: impl FnMut(usize, usize
         let dv = y as f64 + 0.5 - e.centre_v;
         for k in 0..span {
             let xi = x_lo + k;
+            if !region.wraps() && (xi < 0 || xi >= w as i64) {
+                continue;
+            }
+            let x = xi.rem_euclid(w as i64) as usize;
+            if !region.contains(y * w + x) {
+                continue;
+            }
             let du = xi as f64 + 0.5 - e.centre_u;
-            f(xi.rem_euclid(w as i64) as usize, y, du, dv);
+            f(x, y, du, dv);
         }
     }
 }
 
-fn sample(src: &RgbImage, u: f64, v: f64) -> [f64; 3] {
+fn sample(src: &RgbImage, u: f64, v: f64, wrap: bool) -> [f64; 3] {
     let (w, h) = (src.width() as i64, src.height() as i64);
-    let x = (u.floor() as i64).rem_euclid(w) as u32;
+    let x = if wrap {
+        (u.floor() as i64).rem_euclid(w)
+    } else {
+        (u.floor() as i64).clamp(0, w - 1)
+    } as u32;
     let y = (v.floor() as i64).clamp(0, h - 1) as u32;
     let p = src.get_pixel(x, y).0;
     [p[0] as f64, p[1] as f64, p[2] as f64]
 }
 
-fn apply(e: &Effect, img: &mut RgbImage, src: &RgbImage) {
+fn apply(e: &Effect, img: &mut RgbImage, src: &RgbImage, region: Region) {
     let (w, h) = (img.width() as usize, img.height() as usize);
-    for_each_pixel(e, w, h, |x, y, du, dv| {
+    for_each_pixel(e, w, h, region, |x, y, du, dv| {
         let a = e.alpha(du, dv);
         if a <= 0.0 {
             return;
@@ -201,7 +290,7 @@ fn apply(e: &Effect, img: &mut RgbImage, src: &RgbImage) {
                 let (su, sv) = (e.centre_u - 1.6 * du, e.centre_v - 1.6 * dv);
                 let mut acc = [0.0; 3];
                 for (ou, ov) in [(0.0, 0.0), (1.5, 0.0), (-1.5, 0.0), (0.0, 1.5), (0.0, -1.5)] {
-                    let s = sample(src, su + ou, sv + ov);
+                    let s = sample(src, su + ou, sv + ov, region.wraps());
                     for i in 0..3 {
                         acc[i] += s[i] / 5.0;
                     }
@@ -247,6 +336,48 @@ mod tests {
             assert!(
                 changed >= r.coverage * 0.8,
                 "changed {changed} coverage {}",
+                r.coverage
+            );
+        }
+    }
+
+    #[test]
+    fn fisheye_soiling_stays_inside_the_lens_circle() {
+        let (w, h) = (160usize, 160usize);
+        let (c, r) = (79.5, 70.0);
+        let mask: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                (x - c).hypot(y - c) <= r
+            })
+            .collect();
+        let inside = mask.iter().filter(|&&m| m).count() as f64;
+        for seed in 0..20u64 {
+            let mut img = RgbImage::from_fn(w as u32, h as u32, |x, y| {
+                if mask[y as usize * w + x as usize] {
+                    image::Rgb([100, 120, 140])
+                } else {
+                    image::Rgb([0, 0, 0])
+                }
+            });
+            let before = img.clone();
+            let r = soil_image_within(&mut img, &mask, &mut Rng::new(&[seed]));
+            assert!(
+                (0.05..=0.20).contains(&r.coverage),
+                "seed {seed}: coverage {}",
+                r.coverage
+            );
+            let mut changed_inside = 0usize;
+            for (i, (a, b)) in img.pixels().zip(before.pixels()).enumerate() {
+                if !mask[i] {
+                    assert_eq!(a.0, [0, 0, 0], "seed {seed}: pixel {i} outside the lens");
+                } else if a != b {
+                    changed_inside += 1;
+                }
+            }
+            assert!(
+                changed_inside as f64 / inside >= r.coverage * 0.8,
+                "seed {seed}: changed {changed_inside} of {inside}, coverage {}",
                 r.coverage
             );
         }

@@ -9,4 +9,5 @@ mod bag_interop;
 mod bag_roundtrip;
 mod cli;
 mod deep360_fixture;
+mod fisheye_bag;
 mod replay_bag;

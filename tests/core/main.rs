@@ -11,5 +11,6 @@ mod msgs_cdr;
 mod rig_models;
 mod ops_conv3d;
 mod ops_sample;
+mod synth_fisheye;
 mod synth_objects;
 mod synth_render;

@@ -24,11 +24,13 @@ mod double_sphere;
 mod dual_fisheye;
 mod eucm;
 mod kannala_brandt;
+mod scale;
 
 pub use double_sphere::DoubleSphere;
 pub use dual_fisheye::{DualFisheye, DualLens, Ray, DUAL_FISHEYE_LENSES};
 pub use eucm::Eucm;
 pub use kannala_brandt::KannalaBrandt;
+pub use scale::MAX_SCALE_FACTOR;
 
 use super::erp::{ErpGrid, PixelCoord};
 use nalgebra::{Unit, Vector3};
