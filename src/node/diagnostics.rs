@@ -21,8 +21,9 @@ pub enum BadImageReason {
     Truncated,
     /// Too large, or a compressed image that does not decode.
     Undecodable,
-    /// Not an equirectangular panorama (width must be 2 x height).
-    NotPanorama,
+    /// Not the size the camera's model takes: an equirectangular camera's image must be 2:1,
+    /// a fisheye or dual-fisheye camera's exactly its `image_size`.
+    WrongSize,
     /// A stamp older than the camera's previous message.
     OutOfOrder,
     /// The middleware could not deliver the message (deserialization).
@@ -36,7 +37,7 @@ impl BadImageReason {
         Self::Layout,
         Self::Truncated,
         Self::Undecodable,
-        Self::NotPanorama,
+        Self::WrongSize,
         Self::OutOfOrder,
         Self::Transport,
     ];
@@ -48,7 +49,7 @@ impl BadImageReason {
             Self::Layout => "layout",
             Self::Truncated => "truncated",
             Self::Undecodable => "undecodable",
-            Self::NotPanorama => "not_panorama",
+            Self::WrongSize => "wrong_size",
             Self::OutOfOrder => "out_of_order",
             Self::Transport => "transport",
         }

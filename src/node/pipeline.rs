@@ -11,27 +11,26 @@
 //! Point cloud: for every output pixel `(u, v)` with a finite range `rho < max_depth_m`,
 //! `p_out = rho * dir(u, v)` (ERP direction of the design notes) in the output frame. Its colour
 //! comes from the reference camera (or the first camera present): `p_cam = cam_from_output *
-//! p_out`, projected with that camera's ERP model, nearest pixel. The colour is packed as
+//! p_out`, projected with that camera's model (ERP or fisheye), nearest pixel; where a fisheye
+//! reference does not see the point, the next present camera that does ([`points`]). Images
+//! must fit their cameras: panoramas one 2:1 size, fisheye images their `image_size`. The
+//! colour is packed as
 //! `0x00RRGGBB` and those bits are stored as a float32 field `rgb` (the rviz / Foxglove
 //! convention).
 
 use crate::estimator::{DepthEstimator, EstimatorError};
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::rig::MIN_CAMERAS;
-use crate::geometry::{ErpGrid, GeometryError, PixelCoord, Rig, RigError};
+use crate::geometry::{ErpGrid, GeometryError, Rig, RigError};
 use crate::msgs::compressed_depth::{
     encode_compressed_depth, CompressedDepthError, DEFAULT_DEPTH_QUANTIZATION,
 };
 use crate::msgs::image::image_msg_from_float;
-use crate::msgs::{CompressedImage, Header, Image, PointCloud2, PointField};
+use crate::msgs::{CompressedImage, Header, Image, PointCloud2};
 use std::time::{Duration, Instant};
 
-/// Bytes of one float32 value.
-const F32_BYTES: u32 = 4;
-/// Fields of a published point: x, y, z, rgb (all float32).
-pub const POINT_FIELD_NAMES: [&str; 4] = ["x", "y", "z", "rgb"];
-/// Bytes of one published point.
-pub const POINT_STEP_BYTES: u32 = F32_BYTES * POINT_FIELD_NAMES.len() as u32;
+mod points;
+pub use points::*;
 
 /// What `depth` holds where nothing is within range (sky, or at or beyond `max_depth_m`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -129,7 +128,7 @@ pub enum PipelineError {
     GroupSize { got: usize, expected: usize },
     #[error("only {present} cameras present in the group; at least {MIN_CAMERAS} are needed")]
     TooFewCameras { present: usize },
-    #[error("the cameras' images differ in size ({sizes}); all must be the same")]
+    #[error("the cameras' images do not fit their cameras ({sizes}): panoramas must share one 2:1 size, fisheye images must be their image_size")]
     SizeMismatch {
         /// Every camera of the group with its image size, e.g. `cam1 128x64, cam2 64x32`.
         sizes: String,
@@ -241,8 +240,7 @@ impl Pipeline {
                 present: present.len(),
             });
         }
-        let first = images[0].dimensions();
-        if images.iter().any(|img| img.dimensions() != first) {
+        if !self.sizes_fit(&present, &images) {
             // Name every camera: which one is "wrong" is not knowable from the sizes alone.
             let sizes = present
                 .iter()
@@ -271,17 +269,23 @@ impl Pipeline {
             .iter()
             .position(|&i| i == self.rig.reference)
             .unwrap_or(0);
-        let colour_cam = present[colour_slot];
         let header = Header::new(stamp_ns, self.rig.output_frame_id.clone());
         let points = if want.points {
+            // The colour source first, then the others for what a fisheye lens does not see.
+            let order = std::iter::once(colour_slot)
+                .chain((0..present.len()).filter(|&k| k != colour_slot));
+            let colours: Vec<ColourSource> = order
+                .map(|k| ColourSource {
+                    image: &images[k],
+                    cam_from_output: self.rig.cam_from_output(present[k]),
+                    projection: &self.rig.cameras[present[k]].projection,
+                })
+                .collect();
             Some(point_cloud(
                 header.clone(),
                 &estimate.range_m,
                 self.params.max_depth_m,
-                &ColourSource {
-                    image: &images[colour_slot],
-                    cam_from_output: self.rig.cam_from_output(colour_cam),
-                },
+                &colours,
             )?)
         } else {
             None
@@ -307,122 +311,30 @@ impl Pipeline {
     }
 }
 
-/// The camera image points take their colour from, with its pose.
-pub struct ColourSource<'a> {
-    pub image: &'a RgbImage,
-    pub cam_from_output: nalgebra::Isometry3<f64>,
-}
-
-/// Packs an RGB colour as `0x00RRGGBB` and reinterprets the bits as f32.
-pub fn pack_rgb(r: u8, g: u8, b: u8) -> f32 {
-    f32::from_bits((u32::from(r) << 16) | (u32::from(g) << 8) | u32::from(b))
-}
-
-/// Inverse of [`pack_rgb`].
-pub fn unpack_rgb(packed: f32) -> [u8; 3] {
-    let bits = packed.to_bits();
-    [(bits >> 16) as u8, (bits >> 8) as u8, bits as u8]
-}
-
-/// True when a range becomes a point: finite, positive and nearer than `max_depth_m`.
-pub fn is_point_range(range_m: f32, max_depth_m: f32) -> bool {
-    range_m.is_finite() && range_m > 0.0 && range_m < max_depth_m
-}
-
-/// An unorganized (height 1) cloud of x y z rgb float32 points for every pixel of `range`
-/// passing [`is_point_range`].
-pub fn point_cloud(
-    header: Header,
-    range: &FloatImage,
-    max_depth_m: f32,
-    colour: &ColourSource<'_>,
-) -> Result<PointCloud2, PipelineError> {
-    let grid = ErpGrid::new(range.width)?;
-    let cam_grid = ErpGrid::new(colour.image.width() as usize)?;
-    let (cam_w, cam_h) = (colour.image.width(), colour.image.height());
-    let mut data = Vec::new();
-    let mut count: u32 = 0;
-    for v in 0..range.height {
-        for u in 0..range.width {
-            let rho = range.data[v * range.width + u];
-            if !is_point_range(rho, max_depth_m) {
-                continue;
+impl Pipeline {
+    /// Whether every image fits its camera (a fisheye image is its `image_size`, a panorama
+    /// 2:1) and the panoramas share one size.
+    fn sizes_fit(&self, present: &[usize], images: &[RgbImage]) -> bool {
+        let mut panorama: Option<(u32, u32)> = None;
+        present.iter().zip(images).all(|(&i, img)| {
+            let projection = &self.rig.cameras[i].projection;
+            if projection
+                .check_image_size(img.width(), img.height())
+                .is_err()
+            {
+                return false;
             }
-            let dir = grid.dir_from_pixel(PixelCoord {
-                u: u as f64,
-                v: v as f64,
-            });
-            let p_out = dir * f64::from(rho);
-            let p_cam = colour.cam_from_output.transform_point(&p_out.into());
-            let px = cam_grid.pixel_from_dir(&p_cam.coords);
-            let cu = (px.u.round().max(0.0) as u32).min(cam_w.saturating_sub(1));
-            let cv = (px.v.round().max(0.0) as u32).min(cam_h.saturating_sub(1));
-            let [r, g, b] = colour.image.get_pixel(cu, cv).0;
-            for value in [
-                p_out.x as f32,
-                p_out.y as f32,
-                p_out.z as f32,
-                pack_rgb(r, g, b),
-            ] {
-                data.extend_from_slice(&value.to_le_bytes());
-            }
-            count += 1;
-        }
+            !projection.is_equirectangular()
+                || *panorama.get_or_insert(img.dimensions()) == img.dimensions()
+        })
     }
-    Ok(PointCloud2 {
-        header,
-        height: 1,
-        width: count,
-        fields: POINT_FIELD_NAMES
-            .iter()
-            .enumerate()
-            .map(|(k, name)| PointField::new(*name, k as u32 * F32_BYTES, PointField::FLOAT32, 1))
-            .collect(),
-        is_bigendian: false,
-        point_step: POINT_STEP_BYTES,
-        row_step: POINT_STEP_BYTES * count,
-        data,
-        is_dense: true,
-    })
-}
-
-/// One decoded point of a cloud written by [`point_cloud`].
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DecodedPoint {
-    pub x_m: f32,
-    pub y_m: f32,
-    pub z_m: f32,
-    pub rgb: [u8; 3],
-}
-
-/// Reads back the points of an x y z rgb float32 little-endian cloud (`None` if the layout
-/// differs).
-pub fn decode_points(cloud: &PointCloud2) -> Option<Vec<DecodedPoint>> {
-    if cloud.point_step != POINT_STEP_BYTES || cloud.is_bigendian {
-        return None;
-    }
-    let f = |c: &[u8], k: usize| {
-        let o = k * F32_BYTES as usize;
-        f32::from_le_bytes([c[o], c[o + 1], c[o + 2], c[o + 3]])
-    };
-    Some(
-        cloud
-            .data
-            .chunks_exact(POINT_STEP_BYTES as usize)
-            .map(|c| DecodedPoint {
-                x_m: f(c, 0),
-                y_m: f(c, 1),
-                z_m: f(c, 2),
-                rgb: unpack_rgb(f(c, 3)),
-            })
-            .collect(),
-    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::estimator::DepthEstimate;
+    use crate::geometry::PixelCoord;
     use crate::msgs::image::float_from_image_msg;
 
     const RIG_YAML: &str = "launch_configs/rig_deep360.yaml";
@@ -622,10 +534,59 @@ mod tests {
         let err = p.process(group, 5).err().map(|e| e.to_string());
         let names: Vec<String> = p.rig().cameras.iter().map(|c| c.name.clone()).collect();
         let expected = format!(
-            "the cameras' images differ in size ({} 8x4, {} 16x8, {} 16x8, {} 16x8); all must be \
-             the same",
+            "the cameras' images do not fit their cameras ({} 8x4, {} 16x8, {} 16x8, {} 16x8): \
+             panoramas must share one 2:1 size, fisheye images must be their image_size",
             names[0], names[1], names[2], names[3]
         );
         assert_eq!(err, Some(expected));
+    }
+
+    #[test]
+    fn fisheye_points_take_colour_from_a_camera_that_sees_them() {
+        let rig = Rig::from_file("launch_configs/rig_omnimvs.yaml")
+            .and_then(|r| r.scaled(0.125))
+            .unwrap();
+        let max_depth_m = 100.0;
+        let params = PipelineParams {
+            output_width: 32,
+            max_depth_m,
+            ..PipelineParams::default()
+        };
+        let estimator = Box::new(FakeEstimator { max_depth_m });
+        let mut p = Pipeline::new(rig.clone(), estimator, params).unwrap();
+        // Camera k's image is one flat colour; corners outside the lens stay black.
+        let colour = |k: usize| [40 + 50 * k as u8, 7, 9];
+        let group = || {
+            (0..4)
+                .map(|k| Some(RgbImage::from_pixel(48, 48, image::Rgb(colour(k)))))
+                .collect::<Vec<_>>()
+        };
+        let out = p.process(group(), 0).unwrap();
+        let pts = decode_points(out.points.as_ref().unwrap()).unwrap();
+        assert_eq!(pts.len(), 32 * 14 - 1);
+        let mut by_camera = [0usize; 4];
+        for pt in &pts {
+            let k = (0..4)
+                .find(|&k| colour(k) == pt.rgb)
+                .expect("a camera's colour");
+            by_camera[k] += 1;
+            // The reference (front-left, yaw +45°) colours all it sees.
+            let p_out = nalgebra::Vector3::new(pt.x_m as f64, pt.y_m as f64, pt.z_m as f64);
+            let p_cam = rig.cam_from_output(0).transform_point(&p_out.into()).coords;
+            let seen = rig.cameras[0]
+                .projection
+                .fisheye_model()
+                .unwrap()
+                .project(&p_cam);
+            assert_eq!(seen.is_some(), k == 0, "{p_out:?} coloured by camera {k}");
+        }
+        assert!(by_camera[0] > pts.len() / 3, "{by_camera:?}");
+        // Then the next cameras in rig order: front-right and rear-left cover the rest.
+        assert!(by_camera[1] > 0 && by_camera[2] > 0, "{by_camera:?}");
+        // A fisheye image at the wrong size is refused by name.
+        let mut bad = group();
+        bad[2] = Some(RgbImage::new(64, 32));
+        let err = p.process(bad, 1).err().map(|e| e.to_string()).unwrap();
+        assert!(err.contains("rear_left 64x32"), "{err}");
     }
 }

@@ -26,7 +26,7 @@ use super::{
 };
 use crate::bag::rig_tf_static;
 use crate::frame::RgbImage;
-use crate::geometry::Rig;
+use crate::geometry::{Rig, RigCamera};
 use crate::msgs::image::{rgb_from_compressed, rgb_from_image_msg, ImageMsgError};
 use crate::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
 use crate::sync::{ApproxTimeSync, SyncConfig};
@@ -105,8 +105,11 @@ fn bad_image(e: ImageMsgError) -> Bad {
     (BadImageReason::from(&e), e.to_string())
 }
 
-/// Validates and decodes one camera message: ERP size, encoding, step and data length.
-fn decode_camera(msg: &CameraMsg) -> Result<(u64, RgbImage), Bad> {
+/// Validates and decodes one camera message of `camera`: encoding, step and data length, and
+/// the size its model takes (an ERP panorama 2:1 at any width, a fisheye or dual-fisheye
+/// image exactly its `image_size`). A wrong size is [`BadImageReason::WrongSize`], with a
+/// detail naming the camera, the size expected and the size received.
+fn decode_camera(camera: &RigCamera, msg: &CameraMsg) -> Result<(u64, RgbImage), Bad> {
     let (stamp_ns, image) = match msg {
         CameraMsg::Raw(m) => (
             m.header.stamp.to_nanos(),
@@ -117,16 +120,15 @@ fn decode_camera(msg: &CameraMsg) -> Result<(u64, RgbImage), Bad> {
             rgb_from_compressed(m).map_err(bad_image)?,
         ),
     };
-    if image.width() != 2 * image.height() || image.width() == 0 {
-        return Err((
-            BadImageReason::NotPanorama,
-            format!(
-                "{}x{} is not an equirectangular image (width must be 2 x height)",
-                image.width(),
-                image.height()
-            ),
-        ));
-    }
+    camera
+        .projection
+        .check_image_size(image.width(), image.height())
+        .map_err(|e| {
+            (
+                BadImageReason::WrongSize,
+                format!("camera '{}': {e}", camera.name),
+            )
+        })?;
     Ok((stamp_ns, image))
 }
 
@@ -252,6 +254,8 @@ struct Receiver {
     last_diag: Instant,
     /// The rig's transforms, for the live view.
     tf_static: TFMessage,
+    /// The rig's cameras (rig order), whose models say which image sizes are accepted.
+    cameras: Vec<RigCamera>,
 }
 
 impl Receiver {
@@ -267,12 +271,14 @@ impl Receiver {
             }
         }
         let sync = &mut self.sync;
-        let outcome = result
-            .and_then(|msg| decode_camera(&msg))
-            .and_then(|(stamp_ns, img)| {
-                sync.push(i, stamp_ns, img)
-                    .map_err(|e| (BadImageReason::from(&e), e.to_string()))
-            });
+        let camera = &self.cameras[i];
+        let outcome =
+            result
+                .and_then(|msg| decode_camera(camera, &msg))
+                .and_then(|(stamp_ns, img)| {
+                    sync.push(i, stamp_ns, img)
+                        .map_err(|e| (BadImageReason::from(&e), e.to_string()))
+                });
         let mut groups = Vec::new();
         {
             let mut h = lock(&self.shared.health);
@@ -421,6 +427,7 @@ pub(super) fn dds_main(
         hardware_id: params.fully_qualified_name(),
         last_diag: Instant::now(),
         tf_static: rig_tf_static(&rig),
+        cameras: rig.cameras.clone(),
     };
 
     rt.block_on(async {
@@ -510,4 +517,94 @@ pub(super) fn dds_main(
     worker_result.map_err(|_| NodeError::ThreadPanic {
         thread: "inference".into(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::image::image_msg_from_rgb;
+    use crate::msgs::Header;
+
+    const OMNIMVS_RIG: &str = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_omnimvs.yaml"
+    );
+    const DUAL_RIG: &str = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_dual_fisheye.yaml"
+    );
+    const DEEP360_RIG: &str = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_deep360.yaml"
+    );
+    const STAMP_NS: u64 = 1_700_000_000_000_000_000;
+
+    fn raw(width: u32, height: u32) -> CameraMsg {
+        let img = RgbImage::from_pixel(width, height, image::Rgb([10, 20, 30]));
+        CameraMsg::Raw(image_msg_from_rgb(Header::new(STAMP_NS, "cam"), &img))
+    }
+
+    fn png(width: u32, height: u32) -> CameraMsg {
+        let img = RgbImage::from_pixel(width, height, image::Rgb([10, 20, 30]));
+        let mut data = Vec::new();
+        img.write_to(
+            &mut std::io::Cursor::new(&mut data),
+            image::ImageFormat::Png,
+        )
+        .expect("png");
+        CameraMsg::Compressed(CompressedImage {
+            header: Header::new(STAMP_NS, "cam"),
+            format: "rgb8; png compressed bgr8".into(),
+            data,
+        })
+    }
+
+    #[test]
+    fn fisheye_images_are_accepted_at_their_image_size_only() {
+        let rig = Rig::from_file(OMNIMVS_RIG).expect("omnimvs rig");
+        let cam = &rig.cameras[1];
+        for msg in [raw(384, 384), png(384, 384)] {
+            let (stamp_ns, img) = decode_camera(cam, &msg).expect("good fisheye image");
+            assert_eq!((stamp_ns, img.dimensions()), (STAMP_NS, (384, 384)));
+        }
+        // A panorama, a half-size image and a transposed one are all dropped.
+        for (w, h) in [(768, 384), (192, 192), (384, 383)] {
+            for msg in [raw(w, h), png(w, h)] {
+                let (reason, detail) = decode_camera(cam, &msg).expect_err("wrong size");
+                assert_eq!(reason, BadImageReason::WrongSize);
+                assert_eq!(reason.key(), "wrong_size");
+                assert_eq!(
+                    detail,
+                    format!(
+                        "camera 'front_right': expected 384x384 (its double_sphere image_size), got {w}x{h}"
+                    )
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn dual_fisheye_and_panorama_sizes() {
+        let dual = Rig::from_file(DUAL_RIG).expect("dual rig");
+        let cam = &dual.cameras[0];
+        assert!(decode_camera(cam, &raw(512, 256)).is_ok());
+        let (reason, detail) = decode_camera(cam, &raw(256, 256)).expect_err("one lens only");
+        assert_eq!(reason, BadImageReason::WrongSize);
+        assert_eq!(
+            detail,
+            "camera 'cam1': expected 512x256 (its dual_fisheye image_size), got 256x256"
+        );
+        // ERP cameras: any 2:1 size.
+        let erp = Rig::from_file(DEEP360_RIG).expect("deep360 rig");
+        let cam = &erp.cameras[2];
+        for w in [64, 512, 1024] {
+            assert!(decode_camera(cam, &raw(w, w / 2)).is_ok(), "{w}");
+        }
+        let (reason, detail) = decode_camera(cam, &png(384, 384)).expect_err("square");
+        assert_eq!(reason, BadImageReason::WrongSize);
+        assert_eq!(
+            detail,
+            "camera 'cam3': expected a 2:1 equirectangular panorama (width = 2 x height), got 384x384"
+        );
+    }
 }

@@ -307,7 +307,7 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
             "bad_layout",
             "bad_truncated",
             "bad_undecodable",
-            "bad_not_panorama",
+            "bad_wrong_size",
             "bad_out_of_order",
             "bad_transport",
         ] {
@@ -365,8 +365,9 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
     ));
     h.send(msgs)?;
     let expected_error = format!(
-        "the cameras' images differ in size ({} {}x{}, {} {WIDTH}x{}, {} {WIDTH}x{}, {} \
-         {WIDTH}x{}); all must be the same",
+        "the cameras' images do not fit their cameras ({} {}x{}, {} {WIDTH}x{}, {} {WIDTH}x{}, \
+         {} {WIDTH}x{}): panoramas must share one 2:1 size, fisheye images must be their \
+         image_size",
         names[0],
         WIDTH / 2,
         WIDTH / 4,
