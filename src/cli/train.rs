@@ -56,6 +56,9 @@ pub struct TrainArgs {
     /// Layout variation of the training streets.
     #[arg(long, value_enum, default_value_t = StreetStyle::Regular)]
     pub street: StreetStyle,
+    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs.
+    #[arg(long, default_value_t = 0.0)]
+    pub fisheye_fraction: f64,
     /// Fraction of samples with lens soiling.
     #[arg(long, default_value_t = 0.3)]
     pub soiled_fraction: f64,
@@ -86,6 +89,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         init_weights: a.init_weights,
         objects_fraction: a.objects_fraction,
         street: a.street,
+        fisheye_fraction: a.fisheye_fraction,
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,

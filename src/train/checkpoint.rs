@@ -51,6 +51,9 @@ pub struct CheckpointState {
     /// Street style of the stream (older checkpoints: regular).
     #[serde(default)]
     pub street: StreetStyle,
+    /// Fisheye-rig share of the stream (older checkpoints: none).
+    #[serde(default)]
+    pub fisheye_fraction: f64,
 }
 
 /// What a resume must find again to read the same Deep360 frames for the same samples.
@@ -178,6 +181,13 @@ pub(super) fn load_checkpoint(
             "objects_fraction",
             state.objects_fraction.to_string(),
             expected.objects_fraction.to_string(),
+        ));
+    }
+    if state.fisheye_fraction != expected.fisheye_fraction {
+        return Err(mismatch(
+            "fisheye_fraction",
+            state.fisheye_fraction.to_string(),
+            expected.fisheye_fraction.to_string(),
         ));
     }
     if state.street != expected.street {

@@ -10,6 +10,9 @@
 //! `RACK_HALF_SIZE_M`-square around the rig origin (at least `MIN_CAMERA_SEPARATION_M`
 //! apart), heights in `[MIN_HEIGHT_M, MAX_HEIGHT_M]`, small random roll/pitch/yaw per camera.
 //! Camera 1 is the reference and output frame, so the ground truth is camera 1's range.
+//! With probability [`DataConfig::fisheye_fraction`] (its own stream) the rig is a random
+//! fisheye or dual-fisheye rack instead ([`super::fisheye_rigs`]), whose images enter the
+//! network as panoramas of their own frames ([`RigRemap`]) and whose depth is in `rack_center`.
 //!
 //! Deep360 on disk (fine-tuning): with [`DataConfig::deep360_disk`] set, sample `k` is, with
 //! probability [`Deep360Mix::fraction`], a frame of the dataset's training split read from
@@ -27,12 +30,14 @@
 //! Training world seeds have the top bit clear, validation world seeds have it set, so the
 //! held-out set never shares a world with training.
 
+use super::fisheye_rigs::random_fisheye_rig;
 use crate::deep360::{
     clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId,
     Deep360FrameVariant, Deep360Split,
 };
 use crate::frame::{FloatImage, RgbImage};
-use crate::geometry::{Rig, RigError};
+use crate::geometry::panorama::RigRemap;
+use crate::geometry::{ErpGrid, Rig, RigError};
 use crate::model::{input_tensor, ModelError};
 use crate::synth::noise::{hash_words, Rng};
 use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer};
@@ -63,6 +68,7 @@ const SAMPLE_TAG: u64 = 0x7A41_0001;
 const VALIDATION_TAG: u64 = 0x7A41_0002;
 const DEEP360_DISK_TAG: u64 = 0x7A41_0003;
 const SCENE_TAG: u64 = 0x7A41_0004;
+const FISHEYE_TAG: u64 = 0x7A41_0005;
 /// Set in validation world seeds, clear in training world seeds.
 const VALIDATION_SEED_BIT: u64 = 1 << 63;
 
@@ -102,6 +108,9 @@ pub struct DataConfig {
     pub objects_fraction: f64,
     /// Layout variation of the training streets.
     pub street: StreetStyle,
+    /// Fraction of rendered training samples on random fisheye and dual-fisheye rigs (drawn
+    /// from its own stream, so a stream without them is unchanged).
+    pub fisheye_fraction: f64,
 }
 
 /// The paper's Deep360 dataset on disk as a source of training samples.
@@ -163,6 +172,7 @@ impl DataConfig {
             ("soiled_fraction", self.soiled_fraction),
             ("deep360_fraction", self.deep360_fraction),
             ("objects_fraction", self.objects_fraction),
+            ("fisheye_fraction", self.fisheye_fraction),
         ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(DataError::Config(format!(
@@ -182,6 +192,9 @@ pub enum RigChoice {
     Deep360,
     /// A random rig, a function of this seed.
     Random(u64),
+    /// A random fisheye or dual-fisheye rig ([`random_fisheye_rig`]), a function of this seed
+    /// and the ERP width.
+    Fisheye(u64),
 }
 
 /// Everything that determines one sample.
@@ -211,10 +224,9 @@ pub struct TrainSample {
     pub range_m: FloatImage,
 }
 
-/// A random roof-rack rig (see the module docs), validated by [`Rig::from_yaml_str`].
-pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
-    let mut rng = Rng::new(&[seed, 0x416]);
-    let n = MIN_RIG_CAMERAS + rng.index(MAX_RIG_CAMERAS - MIN_RIG_CAMERAS + 1);
+/// `n` camera positions on the roof rack (`[x, y]`, metres), at least
+/// `MIN_CAMERA_SEPARATION_M` apart where `PLACEMENT_ATTEMPTS` draws allow.
+pub(super) fn rack_positions(rng: &mut Rng, n: usize) -> Vec<[f64; 2]> {
     let mut xy: Vec<[f64; 2]> = Vec::with_capacity(n);
     for _ in 0..n {
         let mut best = [0.0, 0.0];
@@ -238,6 +250,14 @@ pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
         }
         xy.push(best);
     }
+    xy
+}
+
+/// A random roof-rack rig (see the module docs), validated by [`Rig::from_yaml_str`].
+pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
+    let mut rng = Rng::new(&[seed, 0x416]);
+    let n = MIN_RIG_CAMERAS + rng.index(MAX_RIG_CAMERAS - MIN_RIG_CAMERAS + 1);
+    let xy = rack_positions(&mut rng, n);
     let mut yaml = String::from("rig_frame: base_link\nreference_camera: cam1\ncameras:\n");
     for (k, p) in xy.iter().enumerate() {
         let z = rng.range(MIN_HEIGHT_M, MAX_HEIGHT_M);
@@ -267,6 +287,12 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         RigChoice::Deep360
     } else {
         RigChoice::Random(rng.next_u64())
+    };
+    let mut fisheye = Rng::new(&[cfg.seed, index, FISHEYE_TAG]);
+    let rig = if cfg.fisheye_fraction > 0.0 && fisheye.chance(cfg.fisheye_fraction) {
+        RigChoice::Fisheye(fisheye.next_u64())
+    } else {
+        rig
     };
     let scene = if Rng::new(&[cfg.seed, index, SCENE_TAG]).chance(cfg.objects_fraction) {
         SceneKind::Objects
@@ -331,6 +357,7 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
     let rig = match spec.rig {
         RigChoice::Deep360 => deep360_rig()?,
         RigChoice::Random(seed) => random_rig(seed)?,
+        RigChoice::Fisheye(seed) => random_fisheye_rig(seed, cfg.width)?,
     };
     let renderer = SynthRenderer::new(SynthConfig {
         seed: spec.world_seed,
@@ -342,10 +369,17 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
         ..SynthConfig::default()
     })?;
     let frame = renderer.render_frame(&rig, spec.frame_index);
-    let images = frame
-        .images
+    // Fisheye images enter the network as panoramas of their own frame, as at inference.
+    let remap = RigRemap::new(
+        &rig,
+        ErpGrid::new(cfg.width).map_err(|e| DataError::Config(e.to_string()))?,
+    );
+    let panoramas = remap
+        .panoramas(&frame.images)
+        .map_err(|(camera, e)| DataError::Config(format!("camera {camera}: {e}")))?;
+    let images = panoramas
         .iter()
-        .map(image_tensor)
+        .map(|p| image_tensor(p))
         .collect::<Result<Vec<_>, _>>()?;
     let range_m = frame.ground_truth.ok_or_else(|| {
         DataError::Config("renderer returned no ground truth for the output frame".into())

@@ -27,6 +27,7 @@
 //! network, the validation pass).
 
 pub mod data;
+pub mod fisheye_rigs;
 pub mod log;
 pub mod loss;
 pub mod optim;

@@ -82,6 +82,8 @@ pub struct TrainOptions {
     pub objects_fraction: f64,
     /// Layout variation of the training streets.
     pub street: StreetStyle,
+    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs.
+    pub fisheye_fraction: f64,
     /// Clip the global gradient norm to this (`None`: no clipping).
     pub max_grad_norm: Option<f64>,
     /// Start a new run (not a resumed one) from these weights instead of the random
@@ -113,6 +115,7 @@ impl Default for TrainOptions {
             deep360_disk_fraction: 1.0,
             objects_fraction: 0.0,
             street: StreetStyle::Regular,
+            fisheye_fraction: 0.0,
             max_grad_norm: None,
             init_weights: None,
             show_progress: true,

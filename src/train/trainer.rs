@@ -99,6 +99,7 @@ impl Trainer {
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
             objects_fraction: opts.objects_fraction,
             street: opts.street,
+            fisheye_fraction: opts.fisheye_fraction,
         };
         let mut resumed = false;
         if opts.resume {
@@ -134,6 +135,7 @@ impl Trainer {
             deep360_disk,
             objects_fraction: opts.objects_fraction,
             street: opts.street,
+            fisheye_fraction: opts.fisheye_fraction,
         };
         let loss_cfg = LossConfig {
             min_depth_m: cfg.min_depth_m,

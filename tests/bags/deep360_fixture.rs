@@ -626,6 +626,7 @@ fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
         deep360_disk: mix,
         objects_fraction: 0.0,
         street: mode360::synth::StreetStyle::Regular,
+        fisheye_fraction: 0.0,
     }
 }
 

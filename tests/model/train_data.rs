@@ -19,6 +19,7 @@ fn cfg(seed: u64) -> DataConfig {
         deep360_disk: None,
         objects_fraction: 0.0,
         street: mode360::synth::StreetStyle::Regular,
+        fisheye_fraction: 0.0,
     }
 }
 
