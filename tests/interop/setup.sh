@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Prepares the third-party peers used by tests/bags/bag_interop.rs (bag readers),
-# tests/node/cyclone.rs (Cyclone DDS) and tests/node/fastdds.rs (Fast DDS). Idempotent.
+# tests/node/cyclone.rs (Cyclone DDS), tests/node/foxglove.rs (Foxglove's WebSocket client) and
+# tests/node/fastdds.rs (Fast DDS). Idempotent.
 #
 # Usage: tests/interop/setup.sh DIR
 #   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support, rosbags and cyclonedds
@@ -38,7 +39,7 @@ else
   "$python" -m pip install --quiet --upgrade "${python_packages[@]}"
 fi
 
-node_packages=(@mcap/core @foxglove/rosmsg @foxglove/rosmsg2-serialization)
+node_packages=(@mcap/core @foxglove/rosmsg @foxglove/rosmsg2-serialization @foxglove/ws-protocol ws)
 have_all=1
 for p in "${node_packages[@]}"; do
   [[ -f "$here/node_modules/$p/package.json" ]] || have_all=0

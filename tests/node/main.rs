@@ -1,9 +1,11 @@
 //! The live ROS 2 node over real DDS on loopback, each test on its own `ROS_DOMAIN_ID`: a bag
 //! played into it (`dds`), camera dropout (`dropout`), the binary under `use_sim_time` and
-//! SIGINT (`process`), Eclipse Cyclone DDS peers both ways (`cyclone`), and bad input seen on
-//! `/diagnostics` (`bad_input`), outputs built only while subscribed (`lazy`), QoS overrides and
-//! `publish_tf` (`qos`), the parameter services (`params`) and extrinsics from TF (`tf`), and the Foxglove live view (`foxglove`). The tests take [`common::live_node_lock`] so that one node
-//! runs at a time.
+//! SIGINT (`process`), Eclipse Cyclone DDS peers both ways (`cyclone`) and Fast DDS peers both
+//! ways (`fastdds`), bad input seen on `/diagnostics` (`bad_input`), outputs built only while
+//! subscribed (`lazy`), QoS overrides and `publish_tf` (`qos`), the parameter services
+//! (`params`), extrinsics from TF (`tf`) and the Foxglove live view read by Foxglove's own
+//! client (`foxglove`). The tests take [`common::live_node_lock`] so that one node runs at a
+//! time.
 
 #[path = "../common/mod.rs"]
 mod common;
