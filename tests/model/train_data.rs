@@ -124,3 +124,37 @@ fn training_mix_and_validation_split() {
     let s = render_sample(&c, &val[1]).unwrap();
     assert_eq!(s.images.len(), 4);
 }
+
+#[test]
+fn fisheye_samples_enter_the_network_as_panoramas() {
+    // With every sample on a fisheye rack: the rig's cameras are fisheyes, their images are
+    // panoramas of the ERP width (black where the lens sees nothing), depth is in rack_center.
+    let cfg = DataConfig {
+        fisheye_fraction: 1.0,
+        deep360_fraction: 0.0,
+        ..cfg(11)
+    };
+    let mut dark_share = Vec::new();
+    for index in 0..3 {
+        let spec = training_spec(&cfg, index);
+        assert!(matches!(spec.rig, RigChoice::Fisheye(_)), "{spec:?}");
+        let sample = render_sample(&cfg, &spec).unwrap();
+        assert_eq!(sample.rig.output_frame_id, "rack_center");
+        assert!(sample
+            .rig
+            .cameras
+            .iter()
+            .all(|c| !c.projection.is_equirectangular()));
+        assert_eq!(sample.range_m.width, TEST_WIDTH);
+        for t in &sample.images {
+            assert_eq!(t.dims(), &[1, TEST_WIDTH / 2, TEST_WIDTH, 3]);
+            let v: Vec<f32> = t.flatten_all().unwrap().to_vec1().unwrap();
+            let black = v.chunks(3).filter(|p| p.iter().all(|&x| x == 0.0)).count();
+            dark_share.push(black as f64 / (v.len() / 3) as f64);
+        }
+    }
+    // Single lenses of 190 to 230 degrees leave 20 to 45 % of their panorama unseen; dual
+    // fisheyes almost nothing: some panoramas must be partly black, none entirely.
+    assert!(dark_share.iter().any(|&d| d > 0.15), "{dark_share:?}");
+    assert!(dark_share.iter().all(|&d| d < 0.6), "{dark_share:?}");
+}

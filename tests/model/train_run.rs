@@ -27,6 +27,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         init_weights: None,
         objects_fraction: 0.5,
         street: mode360::synth::StreetStyle::Varied,
+        fisheye_fraction: 0.25,
         max_grad_norm: Some(5.0),
         show_progress: false,
     }
