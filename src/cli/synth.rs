@@ -110,6 +110,9 @@ pub fn run(a: SynthArgs) -> Result<()> {
         rig.scaled(a.fisheye_scale)
             .with_context(|| format!("--fisheye-scale {}", a.fisheye_scale))?
     };
+    if let Some(part) = crate::geometry::panorama::rig_coverage_warning(&rig) {
+        tracing::warn!("rig {}: {part}", a.rig.display());
+    }
     let config = SynthConfig {
         seed: a.seed,
         width: a.width,

@@ -324,6 +324,41 @@ mod tests {
     }
 
     #[test]
+    fn a_lens_that_looks_forward_leaves_the_back_unseen() {
+        // Two 180-degree Kannala-Brandt lenses side by side, both looking forward (+x):
+        // the unseen part lies behind the rig (|longitude| > 90 degrees); the image corners see
+        // up to 127 degrees off axis, so it is somewhat less than half the sphere.
+        let cam = |name: &str, y: f64| {
+            format!(
+                "  - name: {name}\n    topic: /{name}\n    frame_id: {name}\n    projection: kannala_brandt\n    \
+                 image_size: [64, 64]\n    intrinsics: {{fx: 20.0, fy: 20.0, cx: 31.5, cy: 31.5, k1: 0, k2: 0, k3: 0, k4: 0}}\n    \
+                 rig_from_cam: {{translation: [0, {y}, 1], rotation_rpy: [-1.5707963267948966, 0, -1.5707963267948966]}}\n"
+            )
+        };
+        let yaml = format!(
+            "output: {{frame_id: o, rig_from_output: {{translation: [0, 0, 1], rotation_xyzw: [0, 0, 0, 1]}}}}\ncameras:\n{}{}",
+            cam("a", 0.2),
+            cam("b", -0.2)
+        );
+        let rig = Rig::from_yaml_str(&yaml, "forward.yaml").unwrap();
+        let part = unseen_part(&rig, ErpGrid::new(128).unwrap(), 100.0).unwrap();
+        assert!(part.fraction > 0.3 && part.fraction < 0.5, "{part:?}");
+        let (from, to) = part.lon_deg.unwrap();
+        assert!(
+            (from - 90.0).abs() <= 5.0 && (to + 90.0).abs() <= 5.0,
+            "{part:?}"
+        );
+        assert!(part.to_string().contains("seen by no camera"));
+        // A rig of 360-degree cameras sees everything.
+        let erp = Rig::from_yaml_str(
+            "cameras:\n  - {name: a, topic: /a, frame_id: a, rig_from_cam: {translation: [0, 0, 1], rotation_xyzw: [0, 0, 0, 1]}}\n  - {name: b, topic: /b, frame_id: b, rig_from_cam: {translation: [0, 1, 1], rotation_xyzw: [0, 0, 0, 1]}}\n",
+            "erp.yaml",
+        )
+        .unwrap();
+        assert_eq!(unseen_part(&erp, ErpGrid::new(64).unwrap(), 100.0), None);
+    }
+
+    #[test]
     fn clamped_taps_stay_inside_and_sum_to_one() {
         for (u, v) in [(-0.4, -0.3), (9.4, 4.2), (3.25, 2.5)] {
             let t = clamped_taps(PixelCoord { u, v }, 10, 5);
@@ -334,4 +369,128 @@ mod tests {
         assert_eq!(t.index, [23, 24, 33, 34]);
         assert!((t.weight[1] - 0.125).abs() < 1e-6);
     }
+}
+
+/// The part of the output sphere no camera sees (at a range), for a warning that says where.
+#[derive(Clone, Debug, PartialEq)]
+pub struct UnseenPart {
+    /// Share of the sphere's area, 0 to 1.
+    pub fraction: f64,
+    /// Latitude band (degrees, output frame) that holds every unseen direction.
+    pub min_lat_deg: f64,
+    pub max_lat_deg: f64,
+    /// Longitude interval (degrees, `from` to `to` counter-clockwise, left of forward is
+    /// positive) holding them; `None` when they span every longitude.
+    pub lon_deg: Option<(f64, f64)>,
+    pub range_m: f64,
+}
+
+impl std::fmt::Display for UnseenPart {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:.1} % of the sphere at {} m is seen by no camera: latitudes {:.0} to {:.0} degrees",
+            100.0 * self.fraction,
+            self.range_m,
+            self.min_lat_deg,
+            self.max_lat_deg
+        )?;
+        match self.lon_deg {
+            None => write!(f, ", all longitudes"),
+            Some((from, to)) => write!(f, ", longitudes {from:.0} to {to:.0} degrees"),
+        }?;
+        write!(f, " (output frame: 0 forward, 90 left, latitude 90 up)")
+    }
+}
+
+/// Area share below which an unseen part is not worth a warning (a pixel or two of a coarse
+/// grid at the poles).
+pub const UNSEEN_WARNING_FRACTION: f64 = 0.002;
+/// Range and grid width of the coverage check that the node and `synth` run on a rig.
+pub const COVERAGE_CHECK_RANGE_M: f64 = 100.0;
+pub const COVERAGE_CHECK_WIDTH: usize = 128;
+
+/// [`unseen_part`] at [`COVERAGE_CHECK_RANGE_M`] on a [`COVERAGE_CHECK_WIDTH`] grid.
+pub fn rig_coverage_warning(rig: &Rig) -> Option<UnseenPart> {
+    let grid = ErpGrid::new(COVERAGE_CHECK_WIDTH).ok()?;
+    unseen_part(rig, grid, COVERAGE_CHECK_RANGE_M)
+}
+
+/// Longitude bins used to find the unseen part's longitude interval.
+const LON_BINS: usize = 72;
+
+/// Where no camera of `rig` sees directions of the output sphere at `range_m` (sampled on
+/// `grid`, pixels weighted by their solid angle `cos(lat)`); `None` when that is less than
+/// [`UNSEEN_WARNING_FRACTION`] of the sphere.
+pub fn unseen_part(rig: &Rig, grid: ErpGrid, range_m: f64) -> Option<UnseenPart> {
+    let panoramas = rig_panoramas(rig);
+    let panorama_from_output: Vec<Isometry3<f64>> = panoramas
+        .iter()
+        .map(|p| p.rig_from_panorama.inverse() * rig.rig_from_output)
+        .collect();
+    let w = grid.width();
+    let unseen: Vec<(f64, f64, f64)> = (0..grid.len())
+        .into_par_iter()
+        .filter_map(|k| {
+            let p = PixelCoord {
+                u: (k % w) as f64,
+                v: (k / w) as f64,
+            };
+            let point = nalgebra::Point3::from(grid.dir_from_pixel(p) * range_m);
+            let seen = panoramas
+                .iter()
+                .zip(&panorama_from_output)
+                .any(|(pano, from_out)| pano.sees(&(*from_out * point).coords));
+            let ll = grid.lonlat_from_pixel(p);
+            (!seen).then(|| {
+                (
+                    ll.lon_rad.to_degrees(),
+                    ll.lat_rad.to_degrees(),
+                    ll.lat_rad.cos(),
+                )
+            })
+        })
+        .collect();
+    let total: f64 = (0..grid.height())
+        .map(|v| {
+            let ll = grid.lonlat_from_pixel(PixelCoord {
+                u: 0.0,
+                v: v as f64,
+            });
+            ll.lat_rad.cos() * w as f64
+        })
+        .sum();
+    let fraction = unseen.iter().map(|u| u.2).sum::<f64>() / total;
+    if fraction < UNSEEN_WARNING_FRACTION {
+        return None;
+    }
+    let min_lat_deg = unseen.iter().map(|u| u.1).fold(f64::INFINITY, f64::min);
+    let max_lat_deg = unseen.iter().map(|u| u.1).fold(f64::NEG_INFINITY, f64::max);
+    // The longitude interval is the circle minus its largest run of empty bins.
+    let mut occupied = [false; LON_BINS];
+    let bin_deg = 360.0 / LON_BINS as f64;
+    for u in &unseen {
+        occupied[(((u.0 + 180.0) / bin_deg) as usize).min(LON_BINS - 1)] = true;
+    }
+    let (mut best_len, mut best_start) = (0, 0);
+    for start in 0..LON_BINS {
+        let len = (0..LON_BINS)
+            .take_while(|i| !occupied[(start + i) % LON_BINS])
+            .count();
+        if len > best_len {
+            (best_len, best_start) = (len, start);
+        }
+    }
+    let lon_deg = (best_len > 0).then(|| {
+        let from = ((best_start + best_len) % LON_BINS) as f64 * bin_deg - 180.0;
+        let to = best_start as f64 * bin_deg - 180.0;
+        (from, to)
+    });
+    Some(UnseenPart {
+        fraction,
+        min_lat_deg,
+        max_lat_deg,
+        lon_deg,
+        range_m,
+    })
 }

@@ -15,6 +15,7 @@ use super::shutdown::ShutdownSignals;
 use super::tf_extrinsics::wait_for_extrinsics;
 use super::worker::{lock, Mailbox, Shared};
 use super::NodeError;
+use crate::geometry::panorama::rig_coverage_warning;
 use crate::geometry::Rig;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Condvar, Mutex};
@@ -160,6 +161,9 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
             wait_for_extrinsics(&rig, &dds, Duration::from_secs_f64(params.tf_timeout_s))?
         }
     };
+    if let Some(part) = rig_coverage_warning(&rig) {
+        tracing::warn!("rig {}: {part}", params.rig_file.display());
+    }
     let estimator = params.estimator.build()?;
     let pipeline = Pipeline::new(
         rig.clone(),
