@@ -5,6 +5,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod fisheye_sweep;
 mod geometry_check;
 mod model_estimator;
 mod model_ssmode;
