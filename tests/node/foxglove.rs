@@ -12,7 +12,7 @@
 //! Needs `MODE360_NODE_DIR` (`tests/interop/setup.sh DIR`); skipped without it, unless `CI`
 //! is set, where it fails.
 
-use super::harness::{loopback, render, Cameras};
+use super::harness::{fnv1a64, json_at, json_str, json_u64, loopback, render, Cameras};
 use crate::common::{reliable_qos, tool_from_env, TestResult, NODE_DIR_ENV, RIG_PATH};
 use mode360::bag::rig_tf_static;
 use mode360::geometry::Rig;
@@ -51,31 +51,6 @@ const MIN_DELTA1_PCT: f64 = 55.0;
 const MAX_XYZ_ERROR_M: f64 = 1e-3;
 /// PointCloud2's FLOAT32 datatype.
 const FLOAT32: u64 = 7;
-
-fn fnv1a64(data: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in data {
-        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
-
-fn field<'a>(v: &'a Value, path: &str) -> Result<&'a Value, String> {
-    v.pointer(path).ok_or(format!("result has no {path}: {v}"))
-}
-
-fn u64_at(v: &Value, path: &str) -> Result<u64, String> {
-    let f = field(v, path)?;
-    f.as_u64()
-        .or_else(|| f.as_str().and_then(|s| s.parse().ok()))
-        .ok_or(format!("{path} is not an unsigned integer: {f}"))
-}
-
-fn str_at<'a>(v: &'a Value, path: &str) -> Result<&'a str, String> {
-    field(v, path)?
-        .as_str()
-        .ok_or(format!("{path} is not a string: {v}"))
-}
 
 /// A free TCP port on loopback (bound, read, released).
 fn free_port() -> std::io::Result<u16> {
@@ -159,8 +134,8 @@ fn foxglove_client_decodes_depth_points_and_a_camera() -> TestResult {
     };
     let status = client.wait()?;
     assert!(status.success(), "the Foxglove client exited with {status}");
-    let stamp = u64_at(&result, "/depth/stamp_ns")?;
-    assert_eq!(u64_at(&result, "/points/stamp_ns")?, stamp);
+    let stamp = json_u64(&result, "/depth/stamp_ns")?;
+    assert_eq!(json_u64(&result, "/points/stamp_ns")?, stamp);
     let t0 = Instant::now();
     while !depths.contains_key(&stamp) && t0.elapsed() < TEST_TIMEOUT {
         while let Some((m, _)) = depth_sub.take()? {
@@ -173,46 +148,46 @@ fn foxglove_client_decodes_depth_points_and_a_camera() -> TestResult {
         .ok_or("no DDS depth of the live view's stamp")?;
     let range = float_from_image_msg(depth)?;
     let m = depth_metrics(&range.data, &ground_truth.data, MAX_DEPTH_M)?;
-    let point_ranges = u64_at(&result, "/depth/point_ranges")?;
+    let point_ranges = json_u64(&result, "/depth/point_ranges")?;
     println!(
         "Foxglove client decoded {WIDTH}x{} depth (delta1 {:.1} %), {} points (max xyz error {} m), camera {}",
         WIDTH / 2,
         m.delta1_pct,
-        u64_at(&result, "/points/width")?,
-        field(&result, "/points/max_xyz_error_m")?,
-        str_at(&result, "/camera/topic")?,
+        json_u64(&result, "/points/width")?,
+        json_at(&result, "/points/max_xyz_error_m")?,
+        json_str(&result, "/camera/topic")?,
     );
 
     // Depth: the same bytes as on DDS, and good depth.
-    assert_eq!(str_at(&result, "/depth/fnv1a64")?, fnv1a64(&depth.data));
-    assert_eq!(str_at(&result, "/depth/encoding")?, "32FC1");
-    assert_eq!(str_at(&result, "/depth/frame_id")?, rig.output_frame_id);
-    assert_eq!(u64_at(&result, "/depth/width")?, WIDTH as u64);
-    assert_eq!(u64_at(&result, "/depth/height")?, WIDTH as u64 / 2);
+    assert_eq!(json_str(&result, "/depth/fnv1a64")?, fnv1a64(&depth.data));
+    assert_eq!(json_str(&result, "/depth/encoding")?, "32FC1");
+    assert_eq!(json_str(&result, "/depth/frame_id")?, rig.output_frame_id);
+    assert_eq!(json_u64(&result, "/depth/width")?, WIDTH as u64);
+    assert_eq!(json_u64(&result, "/depth/height")?, WIDTH as u64 / 2);
     let finite = range.data.iter().filter(|r| r.is_finite()).count() as u64;
-    assert_eq!(u64_at(&result, "/depth/finite_ranges")?, finite);
+    assert_eq!(json_u64(&result, "/depth/finite_ranges")?, finite);
     assert!(m.delta1_pct >= MIN_DELTA1_PCT, "{m:?}");
     // REP 117: the sky is +Inf.
-    assert!(u64_at(&result, "/depth/inf_ranges")? > 0);
+    assert!(json_u64(&result, "/depth/inf_ranges")? > 0);
 
     // Points: one per point range, at range x direction.
     assert!(point_ranges > (WIDTH * WIDTH / 8) as u64, "{point_ranges}");
-    assert_eq!(u64_at(&result, "/points/width")?, point_ranges);
-    assert_eq!(u64_at(&result, "/points/checked_points")?, point_ranges);
-    assert_eq!(u64_at(&result, "/points/height")?, 1);
+    assert_eq!(json_u64(&result, "/points/width")?, point_ranges);
+    assert_eq!(json_u64(&result, "/points/checked_points")?, point_ranges);
+    assert_eq!(json_u64(&result, "/points/height")?, 1);
     assert_eq!(
-        u64_at(&result, "/points/point_step")?,
+        json_u64(&result, "/points/point_step")?,
         u64::from(POINT_STEP_BYTES)
     );
     let fields: Vec<(String, u64, u64, u64)> =
-        serde_json::from_value(field(&result, "/points/fields")?.clone())?;
+        serde_json::from_value(json_at(&result, "/points/fields")?.clone())?;
     let expected: Vec<(String, u64, u64, u64)> = POINT_FIELD_NAMES
         .iter()
         .enumerate()
         .map(|(k, n)| (n.to_string(), 4 * k as u64, FLOAT32, 1))
         .collect();
     assert_eq!(fields, expected);
-    let max_err = field(&result, "/points/max_xyz_error_m")?
+    let max_err = json_at(&result, "/points/max_xyz_error_m")?
         .as_f64()
         .ok_or("max_xyz_error_m is not a number")?;
     assert!(max_err < MAX_XYZ_ERROR_M, "points off by {max_err} m");
@@ -221,25 +196,25 @@ fn foxglove_client_decodes_depth_points_and_a_camera() -> TestResult {
     assert!(h.clouds_skipped < h.groups_processed, "{h:?}");
 
     // The camera image as we sent it.
-    assert_eq!(str_at(&result, "/camera/topic")?, rig.cameras[0].topic);
-    assert_eq!(str_at(&result, "/camera/encoding")?, "rgb8");
-    assert_eq!(u64_at(&result, "/camera/width")?, WIDTH as u64);
+    assert_eq!(json_str(&result, "/camera/topic")?, rig.cameras[0].topic);
+    assert_eq!(json_str(&result, "/camera/encoding")?, "rgb8");
+    assert_eq!(json_u64(&result, "/camera/width")?, WIDTH as u64);
     assert_eq!(
-        str_at(&result, "/camera/fnv1a64")?,
+        json_str(&result, "/camera/fnv1a64")?,
         fnv1a64(camera_image.as_raw())
     );
 
     // The rig's transforms, as on DDS.
-    let tf = field(&result, "/tf_static")?
+    let tf = json_at(&result, "/tf_static")?
         .as_array()
         .ok_or("tf_static is not a list")?;
     let expected = rig_tf_static(&rig).transforms;
     assert_eq!(tf.len(), expected.len());
     assert!(tf.len() >= rig.cameras.len());
     for (t, e) in tf.iter().zip(&expected) {
-        assert_eq!(str_at(t, "/child")?, e.child_frame_id);
-        assert_eq!(str_at(t, "/parent")?, e.header.frame_id);
-        let translation: Vec<f64> = serde_json::from_value(field(t, "/translation")?.clone())?;
+        assert_eq!(json_str(t, "/child")?, e.child_frame_id);
+        assert_eq!(json_str(t, "/parent")?, e.header.frame_id);
+        let translation: Vec<f64> = serde_json::from_value(json_at(t, "/translation")?.clone())?;
         let want = &e.transform.translation;
         assert_eq!(translation, vec![want.x, want.y, want.z]);
     }
