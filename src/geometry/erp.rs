@@ -39,6 +39,23 @@ pub struct BilinearTaps {
     pub weight: [f32; 4],
 }
 
+impl BilinearTaps {
+    /// Taps at fractional offsets `(fu, fv)` from the top-left of four corners given as
+    /// `[top-left, top-right, bottom-left, bottom-right]` indices:
+    /// `w = [(1-fu)(1-fv), fu (1-fv), (1-fu) fv, fu fv]`.
+    pub fn from_corners(index: [u32; 4], fu: f32, fv: f32) -> Self {
+        Self {
+            index,
+            weight: [
+                (1.0 - fu) * (1.0 - fv),
+                fu * (1.0 - fv),
+                (1.0 - fu) * fv,
+                fu * fv,
+            ],
+        }
+    }
+}
+
 /// The pixel grid of an ERP image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ErpGrid {
@@ -120,15 +137,11 @@ impl ErpGrid {
         let v0 = v0 as i64;
         let v1 = (v0 + 1).min(h - 1);
         let idx = |u: i64, v: i64| (v * w + u) as u32;
-        BilinearTaps {
-            index: [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
-            weight: [
-                (1.0 - fu) * (1.0 - fv),
-                fu * (1.0 - fv),
-                (1.0 - fu) * fv,
-                fu * fv,
-            ],
-        }
+        BilinearTaps::from_corners(
+            [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
+            fu,
+            fv,
+        )
     }
 }
 
