@@ -137,11 +137,7 @@ impl ErpGrid {
         let v0 = v0 as i64;
         let v1 = (v0 + 1).min(h - 1);
         let idx = |u: i64, v: i64| (v * w + u) as u32;
-        BilinearTaps::from_corners(
-            [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
-            fu,
-            fv,
-        )
+        BilinearTaps::from_corners([idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)], fu, fv)
     }
 }
 

@@ -107,11 +107,7 @@ fn clamped_taps(p: PixelCoord, width: usize, height: usize) -> BilinearTaps {
     let (u0, v0) = (u0 as usize, v0 as usize);
     let (u1, v1) = ((u0 + 1).min(width - 1), (v0 + 1).min(height - 1));
     let idx = |u: usize, v: usize| (v * width + u) as u32;
-    BilinearTaps::from_corners(
-        [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
-        fu,
-        fv,
-    )
+    BilinearTaps::from_corners([idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)], fu, fv)
 }
 
 /// A fisheye camera's image resampled into an ERP panorama of its panorama frame.
