@@ -104,9 +104,15 @@ fn runs_on_two_three_and_four_cameras(cfg: &SsmodeConfig) {
         let c: Vec<f32> = out.confidence.flatten_all().unwrap().to_vec1().unwrap();
         assert_eq!(c.len(), cfg.height() * cfg.width);
         assert!(c.iter().all(|&x| (0.0..=1.0 + 1e-5).contains(&x)));
-        // at least 5 of N hypotheses' mass: never below a uniform distribution's share
-        let uniform_share = 5.0 / cfg.hypotheses as f32;
-        assert!(c.iter().all(|&x| x >= uniform_share * 0.5));
+        // The window holds the argmax, whose probability is at least 1/N. (A bound of half
+        // five hypotheses' uniform share failed now and then with random weights: the window
+        // is three hypotheses wide at the ends of the sweep and its neighbours can be near 0.)
+        let argmax_floor = 1.0 / cfg.hypotheses as f32;
+        assert!(
+            c.iter().all(|&x| x >= argmax_floor * (1.0 - 1e-4)),
+            "{cams} cameras: confidence below 1/N: {}",
+            c.iter().cloned().fold(f32::INFINITY, f32::min)
+        );
     }
 }
 
