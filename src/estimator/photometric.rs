@@ -179,8 +179,6 @@ struct CacheKey {
 #[derive(Debug)]
 struct RigCache {
     key: CacheKey,
-    /// Fisheye images into panoramas as wide as the output.
-    remap: RigRemap,
     /// Per camera, where its panorama holds content (`None`: everywhere).
     validity: Vec<Option<Vec<f32>>>,
     samplers: Vec<CameraSampler>,
@@ -194,6 +192,8 @@ pub struct PhotometricSweep {
     cfg: PhotometricConfig,
     hypotheses: InverseDepthHypotheses,
     cache: Option<RigCache>,
+    /// Fisheye images into panoramas as wide as the output, for the last rig seen.
+    remap: Option<RigRemap>,
 }
 
 impl PhotometricSweep {
@@ -204,6 +204,7 @@ impl PhotometricSweep {
             cfg,
             hypotheses,
             cache: None,
+            remap: None,
         })
     }
 
@@ -239,14 +240,14 @@ impl PhotometricSweep {
                 expected: rig.cameras.len(),
             });
         }
-        // Fisheye cameras are swept through panoramas of their own frame.
-        let remap = match self.cache.take() {
-            Some(c) if c.remap.serves(rig, output) => {
-                let remap = c.remap.clone();
-                self.cache = Some(c);
-                remap
+        // Fisheye cameras are swept through panoramas of their own frame; the remap is
+        // built once per rig and output grid (a new one invalidates the sampling cache).
+        let remap = match &mut self.remap {
+            Some(r) if r.serves(rig, output) => r,
+            slot => {
+                self.cache = None;
+                slot.insert(RigRemap::new(rig, output))
             }
-            _ => RigRemap::new(rig, output),
         };
         let panoramas =
             remap
@@ -286,8 +287,11 @@ impl PhotometricSweep {
             let pair_weights = pair_parallax_weights(&key, self.cfg.parallax_exponent);
             self.cache = Some(RigCache {
                 key,
-                validity: remap.validity(),
-                remap,
+                validity: self
+                    .remap
+                    .as_ref()
+                    .map(RigRemap::validity)
+                    .unwrap_or_default(),
                 samplers,
                 pair_weights,
             });

@@ -216,7 +216,7 @@ impl DepthEstimator for SsmodeEstimator {
         let mut conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
         // Where fewer than two cameras see a direction at any range, the estimate is a guess.
         if let Some(coverage) = sampling.coverage() {
-            let coverage = resample_erp(&coverage, 1, sampling.geometry().output(), output);
+            let coverage = resample_erp(coverage, 1, sampling.geometry().output(), output);
             for (c, k) in conf.iter_mut().zip(coverage) {
                 *c *= k.clamp(0.0, 1.0);
             }

@@ -275,31 +275,37 @@ impl RigRemap {
     }
 }
 
-/// Directions of the output sphere that fewer than two cameras see, as a fraction of the
-/// sphere, at `range_m` from the output frame's origin (sampled on `grid`).
-pub fn poorly_seen_fraction(rig: &Rig, grid: ErpGrid, range_m: f64) -> f64 {
+/// Per pixel of `grid` (row-major), how many cameras of `rig` see the output sphere's point at
+/// `range_m` in that pixel's direction.
+pub fn cameras_seeing(rig: &Rig, grid: ErpGrid, range_m: f64) -> Vec<usize> {
     let panoramas = rig_panoramas(rig);
     let panorama_from_output: Vec<Isometry3<f64>> = panoramas
         .iter()
         .map(|p| p.rig_from_panorama.inverse() * rig.rig_from_output)
         .collect();
-    let poor = (0..grid.len())
+    (0..grid.len())
         .into_par_iter()
-        .filter(|&k| {
+        .with_min_len(grid.width())
+        .map(|k| {
             let p = PixelCoord {
                 u: (k % grid.width()) as f64,
                 v: (k / grid.width()) as f64,
             };
             let point = nalgebra::Point3::from(grid.dir_from_pixel(p) * range_m);
-            let seen = panoramas
+            panoramas
                 .iter()
                 .zip(&panorama_from_output)
                 .filter(|(pano, from_out)| pano.sees(&(*from_out * point).coords))
-                .count();
-            seen < 2
+                .count()
         })
-        .count();
-    poor as f64 / grid.len() as f64
+        .collect()
+}
+
+/// Directions of the output sphere that fewer than two cameras see, as a fraction of the
+/// sphere's pixels, at `range_m` from the output frame's origin (sampled on `grid`).
+pub fn poorly_seen_fraction(rig: &Rig, grid: ErpGrid, range_m: f64) -> f64 {
+    let seen = cameras_seeing(rig, grid, range_m);
+    seen.iter().filter(|&&n| n < 2).count() as f64 / grid.len() as f64
 }
 
 #[cfg(test)]
@@ -415,32 +421,22 @@ const LON_BINS: usize = 72;
 /// `grid`, pixels weighted by their solid angle `cos(lat)`); `None` when that is less than
 /// [`UNSEEN_WARNING_FRACTION`] of the sphere.
 pub fn unseen_part(rig: &Rig, grid: ErpGrid, range_m: f64) -> Option<UnseenPart> {
-    let panoramas = rig_panoramas(rig);
-    let panorama_from_output: Vec<Isometry3<f64>> = panoramas
-        .iter()
-        .map(|p| p.rig_from_panorama.inverse() * rig.rig_from_output)
-        .collect();
     let w = grid.width();
-    let unseen: Vec<(f64, f64, f64)> = (0..grid.len())
-        .into_par_iter()
-        .filter_map(|k| {
-            let p = PixelCoord {
+    // (lon deg, lat deg, solid-angle weight) of every pixel no camera sees
+    let unseen: Vec<(f64, f64, f64)> = cameras_seeing(rig, grid, range_m)
+        .into_iter()
+        .enumerate()
+        .filter(|&(_, n)| n == 0)
+        .map(|(k, _)| {
+            let ll = grid.lonlat_from_pixel(PixelCoord {
                 u: (k % w) as f64,
                 v: (k / w) as f64,
-            };
-            let point = nalgebra::Point3::from(grid.dir_from_pixel(p) * range_m);
-            let seen = panoramas
-                .iter()
-                .zip(&panorama_from_output)
-                .any(|(pano, from_out)| pano.sees(&(*from_out * point).coords));
-            let ll = grid.lonlat_from_pixel(p);
-            (!seen).then(|| {
-                (
-                    ll.lon_rad.to_degrees(),
-                    ll.lat_rad.to_degrees(),
-                    ll.lat_rad.cos(),
-                )
-            })
+            });
+            (
+                ll.lon_rad.to_degrees(),
+                ll.lat_rad.to_degrees(),
+                ll.lat_rad.cos(),
+            )
         })
         .collect();
     let total: f64 = (0..grid.height())

@@ -483,6 +483,8 @@ pub struct SweepSampling {
     /// Per sweep sample `1 / views seeing it` (0 below two views); `None` when every camera
     /// sees everything (360° cameras).
     view_scale: Option<Arc<[f32]>>,
+    /// Per cell, the share of spheres two cameras see (built with `view_scale`).
+    coverage: Option<Vec<f32>>,
     sweep_tables: Vec<SampleTable>,
     sphere_conv: SphereConvTable,
 }
@@ -528,8 +530,19 @@ impl SweepSampling {
             })
             .collect::<Vec<_>>();
         let view_scale = (!geometry.all_see_everything()).then(|| view_scale(&sweep_tables));
+        let coverage = view_scale.as_ref().map(|scale| {
+            (0..pixels)
+                .map(|k| {
+                    (0..cfg.spheres)
+                        .filter(|d| scale[d * pixels + k] > 0.0)
+                        .count() as f32
+                        / cfg.spheres as f32
+                })
+                .collect()
+        });
         Ok(Self {
             view_scale,
+            coverage,
             sweep_tables,
             sphere_conv: SphereConvTable::new(trunk_grid),
             geometry,
@@ -563,17 +576,7 @@ impl SweepSampling {
 
     /// Per cost-volume cell (row-major): the fraction of spheres that at least two cameras
     /// see there; `None` when every camera sees everything (all 1).
-    pub fn coverage(&self) -> Option<Vec<f32>> {
-        let scale = self.view_scale.as_ref()?;
-        let pixels = self.geometry.output().len();
-        let spheres = self.geometry.hypotheses().count();
-        Some(
-            (0..pixels)
-                .map(|k| {
-                    (0..spheres).filter(|d| scale[d * pixels + k] > 0.0).count() as f32
-                        / spheres as f32
-                })
-                .collect(),
-        )
+    pub fn coverage(&self) -> Option<&[f32]> {
+        self.coverage.as_deref()
     }
 }

@@ -8,8 +8,8 @@ use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::ssmode::{default_weights_path, SsmodeEstimator};
 use mode360::estimator::DepthEstimator;
 use mode360::frame::RigFrame;
-use mode360::geometry::panorama::{rig_panoramas, unseen_part};
-use mode360::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360::geometry::panorama::{cameras_seeing, unseen_part};
+use mode360::geometry::{ErpGrid, Rig};
 use mode360::metrics::depth_metrics;
 use mode360::synth::{StreetStyle, SynthConfig, SynthRenderer};
 
@@ -72,22 +72,11 @@ fn ssmode_has_no_confidence_where_fewer_than_two_lenses_see() {
     let mut ssmode = SsmodeEstimator::load(default_weights_path()).unwrap();
     let estimate = ssmode.estimate(&front, &images, grid).unwrap();
     // Directions at 1000 m that both lenses see vs those at most one sees.
-    let panoramas = rig_panoramas(&front);
     let (mut both, mut poor) = (Vec::new(), Vec::new());
-    for k in 0..grid.len() {
-        let p = PixelCoord {
-            u: (k % WIDTH) as f64,
-            v: (k / WIDTH) as f64,
-        };
-        let seen = panoramas
-            .iter()
-            .filter(|pano| {
-                let point = nalgebra::Point3::from(grid.dir_from_pixel(p) * 1000.0);
-                let local = pano.rig_from_panorama.inverse() * front.rig_from_output * point;
-                pano.sees(&local.coords)
-            })
-            .count();
-        let c = estimate.confidence.data[k];
+    for (&seen, &c) in cameras_seeing(&front, grid, 1000.0)
+        .iter()
+        .zip(&estimate.confidence.data)
+    {
         if seen == 2 {
             both.push(c);
         } else {
