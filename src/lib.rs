@@ -13,6 +13,7 @@ pub mod deep360;
 pub mod estimator;
 pub mod frame;
 pub mod geometry;
+pub mod matching;
 pub mod memory;
 pub mod metrics;
 pub mod model;

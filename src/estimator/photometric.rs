@@ -28,7 +28,7 @@
 //! Measured on rendered 512x256 street frames (4 cameras, defaults): delta1 about 91 %, about
 //! 3.3 CPU-seconds per frame (under 2 s wall on two idle cores).
 
-mod cost;
+
 mod sampling;
 mod sgm;
 
@@ -36,7 +36,7 @@ use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::frame::RgbImage;
 use crate::geometry::panorama::{panorama_rig, RigRemap};
 use crate::geometry::{DepthRange, ErpGrid, InverseDepthHypotheses, Rig};
-use cost::{PairCostParams, ViewStats};
+use crate::matching::zncc::{self as cost, PairCostParams, ViewStats};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 use sampling::CameraSampler;
@@ -387,44 +387,14 @@ impl PhotometricSweep {
     }
 }
 
-/// Parallax weight of every camera pair and output pixel: `|dir x b_hat|^k` with `b_hat` the
-/// unit baseline between the two camera centres in the output frame. Empty when `k = 0`.
+/// Parallax weights of the cached rig's camera pairs ([`crate::matching::pair_parallax_weights`]).
 fn pair_parallax_weights(key: &CacheKey, exponent: f32) -> Vec<Vec<f32>> {
-    if exponent == 0.0 {
-        return Vec::new();
-    }
-    let output = key.output;
     let centres: Vec<_> = key
         .cam_from_output
         .iter()
         .map(|c| c.inverse().translation.vector)
         .collect();
-    let mut weights = Vec::new();
-    for a in 0..centres.len() {
-        for b in a + 1..centres.len() {
-            let baseline = centres[b] - centres[a];
-            let norm = baseline.norm();
-            if norm == 0.0 {
-                weights.push(vec![0.0; output.len()]);
-                continue;
-            }
-            let b_hat = baseline / norm;
-            let w = output.width();
-            weights.push(
-                (0..output.len())
-                    .into_par_iter()
-                    .map(|k| {
-                        let dir = output.dir_from_pixel(crate::geometry::PixelCoord {
-                            u: (k % w) as f64,
-                            v: (k / w) as f64,
-                        });
-                        (dir.cross(&b_hat).norm() as f32).powf(exponent)
-                    })
-                    .collect(),
-            );
-        }
-    }
-    weights
+    crate::matching::pair_parallax_weights(key.output, &centres, exponent)
 }
 
 impl PhotometricSweep {

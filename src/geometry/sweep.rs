@@ -15,7 +15,7 @@ use super::erp::{BilinearTaps, ErpGrid, PixelCoord};
 use super::panorama::{rig_panoramas, CameraPanorama};
 use super::rig::Rig;
 use super::GeometryError;
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 /// The paper's sweep range and count.
@@ -172,6 +172,11 @@ impl SweepGeometry {
         self.output
     }
 
+    /// Camera `cam`'s panorama centre in the output frame, metres: `output_from_cam * 0`.
+    pub fn camera_centre_in_output_m(&self, cam: usize) -> nalgebra::Vector3<f64> {
+        self.cam_from_output[cam].inverse().translation.vector
+    }
+
     pub fn hypotheses(&self) -> &InverseDepthHypotheses {
         &self.hypotheses
     }
@@ -196,6 +201,46 @@ impl SweepGeometry {
         self.sample_at_range(cam, p, self.hypotheses.depth_m(sphere as f64))
     }
 
+    /// Bilinear taps of camera `cam` for every sphere and output pixel, sphere-major then
+    /// row-major (sample index `(sphere H + v) W + u`); all-zero taps where the camera's lens
+    /// does not see the point. The same samples as [`Self::sample`] and [`Self::sees`], built
+    /// from the camera's rotated output rays: with `cam_from_output = (R, t)`, the point of
+    /// pixel `k` on sphere `rho` is `rho (R dir_k) + t`, so a sample costs a multiply-add and
+    /// the two arctangents of its longitude and latitude.
+    pub fn camera_taps(&self, cam: usize) -> Vec<BilinearTaps> {
+        let w = self.output.width();
+        let pixels = self.output.len();
+        let pose = self.cam_from_output[cam];
+        let rotated: Vec<Vector3<f64>> = (0..pixels)
+            .into_par_iter()
+            .with_min_len(w)
+            .map(|k| {
+                pose.rotation
+                    * self.output.dir_from_pixel(PixelCoord {
+                        u: (k % w) as f64,
+                        v: (k / w) as f64,
+                    })
+            })
+            .collect();
+        let t = pose.translation.vector;
+        let ranges_m = self.hypotheses.depths_m();
+        let grid = self.camera_grids[cam];
+        let panorama = &self.panoramas[cam];
+        let check_sight = panorama.needs_remap();
+        (0..ranges_m.len() * pixels)
+            .into_par_iter()
+            .with_min_len(w)
+            .map(|n| {
+                let point = ranges_m[n / pixels] * rotated[n % pixels] + t;
+                if check_sight && !panorama.sees(&point) {
+                    UNSEEN_TAPS
+                } else {
+                    grid.bilinear_taps(grid.pixel_from_dir(&point))
+                }
+            })
+            .collect()
+    }
+
     /// Sample positions of one camera on one sphere for every output pixel, row-major, as
     /// `[u, v]` pairs.
     pub fn sphere_coords(&self, cam: usize, sphere: usize) -> Vec<[f32; 2]> {
@@ -215,6 +260,12 @@ impl SweepGeometry {
             .collect()
     }
 }
+
+/// Taps of a sample the camera does not see: zero weights, so it contributes nothing.
+pub const UNSEEN_TAPS: BilinearTaps = BilinearTaps {
+    index: [0; 4],
+    weight: [0.0; 4],
+};
 
 /// Precomputed sample positions for every camera, sphere and output pixel
 /// (layout `[camera][sphere][v][u]`), built once per rig and resolution.
@@ -260,5 +311,49 @@ impl SweepTable {
     /// Bytes held by the table.
     pub fn memory_bytes(&self) -> usize {
         self.coords.len() * std::mem::size_of::<[f32; 2]>()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `camera_taps` against the per-sample `sees` and `sample` on the OmniMVS-like fisheye rig
+    /// (whose lenses leave parts of every sphere unseen).
+    #[test]
+    fn camera_taps_match_the_per_sample_sweep() -> Result<(), Box<dyn std::error::Error>> {
+        let rig = Rig::from_file(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/launch_configs/rig_omnimvs.yaml"
+        ))?;
+        let output = ErpGrid::new(32)?;
+        let hypotheses = InverseDepthHypotheses::new(DepthRange::paper(), 8)?;
+        let cameras = rig.cameras.len();
+        let geometry = SweepGeometry::new(&rig, output, vec![output; cameras], hypotheses)?;
+        let (mut unseen, mut worst) = (0usize, 0.0f32);
+        for cam in 0..cameras {
+            let taps = geometry.camera_taps(cam);
+            assert_eq!(taps.len(), 8 * output.len());
+            for (n, got) in taps.iter().enumerate() {
+                let (sphere, k) = (n / output.len(), n % output.len());
+                let p = PixelCoord {
+                    u: (k % 32) as f64,
+                    v: (k / 32) as f64,
+                };
+                if !geometry.sees(cam, sphere, p) {
+                    assert_eq!(got.weight, [0.0; 4], "camera {cam} sample {n}");
+                    unseen += 1;
+                    continue;
+                }
+                let want = output.bilinear_taps(geometry.sample(cam, sphere, p));
+                assert_eq!(got.index, want.index, "camera {cam} sample {n}");
+                for (a, b) in got.weight.iter().zip(&want.weight) {
+                    worst = worst.max((a - b).abs());
+                }
+            }
+        }
+        assert!(unseen > 0, "the fisheye rig should leave samples unseen");
+        assert!(worst < 1e-5, "largest tap weight difference {worst}");
+        Ok(())
     }
 }

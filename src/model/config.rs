@@ -1,22 +1,14 @@
 //! SSMODE hyper-parameters (presets) and the per-rig sweep sampling tables.
 
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::sphere_conv::SphereConvTable;
 use super::ModelError;
-use crate::geometry::BilinearTaps;
 use crate::geometry::{
-    DepthRange, ErpGrid, InverseDepthHypotheses, PixelCoord, Rig, SweepGeometry,
+    DepthRange, ErpGrid, InverseDepthHypotheses, Rig, SweepGeometry,
 };
 use crate::model::ops::{view_scale, SampleTable};
 use std::sync::Arc;
-
-/// Taps of a sample the camera does not see: zero weights, so it contributes nothing.
-const UNSEEN_TAPS: BilinearTaps = BilinearTaps {
-    index: [0; 4],
-    weight: [0.0; 4],
-};
 
 /// The feature extractor works at `1 / FEATURE_DOWNSAMPLE` of the input resolution.
 pub const FEATURE_DOWNSAMPLE: usize = 4;
@@ -78,6 +70,8 @@ pub enum Preset {
     /// The shipped multi-view network: variance-only cost volume, 256x128.
     #[default]
     Parallax,
+    /// `parallax` with the sweep's ZNCC matching cost as one more cost-volume channel.
+    ParallaxZncc,
     /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
     /// The paper's sizes.
@@ -86,36 +80,44 @@ pub enum Preset {
     Tiny,
     /// For tests: `tiny` with the parallax (variance-only) volume.
     TinyParallax,
+    /// For tests: `tiny_parallax` with the photometric cost channel.
+    TinyZncc,
 }
 
 impl Preset {
     /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
-    pub const ALL: [Self; 5] = [
+    pub const ALL: [Self; 7] = [
         Self::Parallax,
+        Self::ParallaxZncc,
         Self::Compact,
         Self::Paper,
         Self::Tiny,
         Self::TinyParallax,
+        Self::TinyZncc,
     ];
 
     /// The configuration's `name` and the preset's name on the command line.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Parallax => "parallax",
+            Self::ParallaxZncc => "parallax_zncc",
             Self::Compact => "compact",
             Self::Paper => "paper",
             Self::Tiny => "tiny",
             Self::TinyParallax => "tiny_parallax",
+            Self::TinyZncc => "tiny_zncc",
         }
     }
 
     pub fn config(self) -> SsmodeConfig {
         match self {
             Self::Parallax => SsmodeConfig::parallax(),
+            Self::ParallaxZncc => SsmodeConfig::parallax_zncc(),
             Self::Compact => SsmodeConfig::compact(),
             Self::Paper => SsmodeConfig::paper(),
             Self::Tiny => SsmodeConfig::tiny(),
             Self::TinyParallax => SsmodeConfig::tiny_parallax(),
+            Self::TinyZncc => SsmodeConfig::tiny_zncc(),
         }
     }
 }
@@ -183,6 +185,10 @@ pub struct SsmodeConfig {
     /// above 1 disables it. Chosen on the validation split; files without it get the default.
     #[serde(default = "default_far_plane_probability")]
     pub far_plane_probability: f64,
+    /// Append the learning-free sweep's windowed-ZNCC matching cost as one more cost-volume
+    /// channel ([`super::photometric_cost`]; files without it: no). Needs `cost_downsample` 1.
+    #[serde(default)]
+    pub photometric_cost: bool,
 }
 
 /// [`SsmodeConfig::far_plane_probability`] of the presets.
@@ -213,6 +219,7 @@ impl SsmodeConfig {
             fine_channels: 0,
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
         }
     }
 
@@ -237,6 +244,7 @@ impl SsmodeConfig {
             fine_channels: 0,
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
         }
     }
 
@@ -262,6 +270,7 @@ impl SsmodeConfig {
             fine_channels: 16,
             aggregation_stride: 2,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
         }
     }
 
@@ -284,6 +293,7 @@ impl SsmodeConfig {
             fine_channels: 0,
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
         }
     }
 
@@ -302,8 +312,30 @@ impl SsmodeConfig {
         }
     }
 
+    /// [`Self::parallax`] with the photometric cost channel: the cost volume holds the
+    /// variance of the learned features and the sweep's ZNCC matching cost
+    /// ([`super::photometric_cost`]), so the aggregation starts from evidence that needs no
+    /// training.
+    pub fn parallax_zncc() -> Self {
+        Self {
+            name: "parallax_zncc".to_string(),
+            photometric_cost: true,
+            ..Self::parallax()
+        }
+    }
+
+    /// [`Self::tiny_parallax`] with the photometric cost channel, for tests.
+    pub fn tiny_zncc() -> Self {
+        Self {
+            name: "tiny_zncc".to_string(),
+            photometric_cost: true,
+            ..Self::tiny_parallax()
+        }
+    }
+
     /// Names of the presets, for messages.
-    pub const PRESETS: &'static str = "parallax, compact, paper, tiny, tiny_parallax";
+    pub const PRESETS: &'static str =
+        "parallax, parallax_zncc, compact, paper, tiny, tiny_parallax, tiny_zncc";
 
     /// The preset called `name` (see [`Preset`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {
@@ -338,6 +370,12 @@ impl SsmodeConfig {
     /// Channels of the features the sweep samples.
     pub fn matching_channels(&self) -> usize {
         self.feature_out_channels
+    }
+
+    /// Channels of the cost volume the aggregation takes: the view aggregation of the matching
+    /// features, plus one with the photometric cost channel.
+    pub fn cost_volume_channels(&self) -> usize {
+        self.cost.channels(self.matching_channels()) + usize::from(self.photometric_cost)
     }
 
     /// Whether the matching features come from a fine branch (cost finer than the trunk).
@@ -399,6 +437,15 @@ impl SsmodeConfig {
                 "fine_channels",
                 format!(
                     "must be positive when cost_downsample ({}) is below {FEATURE_DOWNSAMPLE}",
+                    self.cost_downsample
+                ),
+            );
+        }
+        if self.photometric_cost && self.cost_downsample != 1 {
+            return bad(
+                "photometric_cost",
+                format!(
+                    "needs the cost volume at the input resolution (cost_downsample 1), not 1/{}",
                     self.cost_downsample
                 ),
             );
@@ -487,6 +534,9 @@ pub struct SweepSampling {
     coverage: Option<Vec<f32>>,
     sweep_tables: Vec<SampleTable>,
     sphere_conv: SphereConvTable,
+    /// Per camera pair `(a < b)` and cost cell, the parallax weight of the photometric cost
+    /// channel; `None` when the config has none.
+    pair_weights: Option<Vec<Vec<f32>>>,
 }
 
 impl SweepSampling {
@@ -504,30 +554,9 @@ impl SweepSampling {
         let trunk_grid = ErpGrid::new(cfg.feature_width())?;
         let geometry =
             SweepGeometry::new(rig, grid, vec![grid; cameras], cfg.sphere_hypotheses()?)?;
-        let w = grid.width();
         let pixels = grid.len();
         let sweep_tables = (0..cameras)
-            .map(|cam| {
-                let camera_grid = geometry.camera_grid(cam);
-                // sample index (sphere H + v) W + u
-                let taps: Vec<_> = (0..cfg.spheres * pixels)
-                    .into_par_iter()
-                    .with_min_len(w)
-                    .map(|n| {
-                        let (sphere, k) = (n / pixels, n % pixels);
-                        let p = PixelCoord {
-                            u: (k % w) as f64,
-                            v: (k / w) as f64,
-                        };
-                        if geometry.sees(cam, sphere, p) {
-                            camera_grid.bilinear_taps(geometry.sample(cam, sphere, p))
-                        } else {
-                            UNSEEN_TAPS
-                        }
-                    })
-                    .collect();
-                SampleTable::new(&taps)
-            })
+            .map(|cam| SampleTable::new(&geometry.camera_taps(cam)))
             .collect::<Vec<_>>();
         let view_scale = (!geometry.all_see_everything()).then(|| view_scale(&sweep_tables));
         let coverage = view_scale.as_ref().map(|scale| {
@@ -540,9 +569,20 @@ impl SweepSampling {
                 })
                 .collect()
         });
+        let pair_weights = cfg.photometric_cost.then(|| {
+            let centres: Vec<_> = (0..cameras)
+                .map(|cam| geometry.camera_centre_in_output_m(cam))
+                .collect();
+            crate::matching::pair_parallax_weights(
+                grid,
+                &centres,
+                super::photometric_cost::PARALLAX_EXPONENT,
+            )
+        });
         Ok(Self {
             view_scale,
             coverage,
+            pair_weights,
             sweep_tables,
             sphere_conv: SphereConvTable::new(trunk_grid),
             geometry,
@@ -572,6 +612,12 @@ impl SweepSampling {
     /// two cameras see it; `None` when every camera sees every sample.
     pub fn view_scale(&self) -> Option<&Arc<[f32]>> {
         self.view_scale.as_ref()
+    }
+
+    /// Per camera pair `(a < b)` and cost cell, the photometric cost channel's parallax weights;
+    /// `None` when the config has no photometric cost channel.
+    pub fn pair_weights(&self) -> Option<&[Vec<f32>]> {
+        self.pair_weights.as_deref()
     }
 
     /// Per cost-volume cell (row-major): the fraction of spheres that at least two cameras

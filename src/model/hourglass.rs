@@ -177,7 +177,7 @@ pub struct CostAggregation {
 impl CostAggregation {
     pub fn new(cfg: &SsmodeConfig, vb: VarBuilder) -> Result<Self> {
         let c = cfg.hourglass_channels;
-        let c_in = cfg.cost.channels(cfg.matching_channels());
+        let c_in = cfg.cost_volume_channels();
         Ok(Self {
             dres0: [
                 Conv3d::new(c_in, c, vb.pp("dres0.0"))?,

@@ -4,7 +4,8 @@
 //! [`sphere_conv`] (SphereNet kernel tables), [`cost_volume`] (spherical sweep with exact tables,
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
-//! network), [`weights`] (safetensors with the config in the header), [`config`] (presets and
+//! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
+//! [`weights`] (safetensors with the config in the header), [`config`] (presets and
 //! per-rig sampling tables).
 
 pub mod config;
@@ -13,6 +14,7 @@ pub mod feature;
 pub mod hourglass;
 pub mod input;
 pub mod ops;
+pub mod photometric_cost;
 pub mod regression;
 pub mod sphere_conv;
 pub mod ssmode;

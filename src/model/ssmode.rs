@@ -4,6 +4,7 @@
 //! images: N x (B, H, W, 3) -> stacked (N B, H, W, 3)
 //! feature                   -> (N B, h, w, Cf) -> N x (B, h, w, Cf)   h = H / cost_downsample
 //! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
+//! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
 //! aggregation               -> K x (B, D/s, h/s, w/s, Ch) stacked hourglasses, entry stride s
 //! classif{k}                -> K x (B, D/s, h/s, w/s)
 //! regression                -> K x (B, H, W) range, index; confidence of the last
@@ -18,6 +19,7 @@ use super::config::{SsmodeConfig, SweepSampling, MIN_CAMERAS};
 use super::cost_volume::cost_volume;
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
+use super::photometric_cost::photometric_cost;
 use super::regression::{confidence, regress, regress_inference, RegressionHead};
 use crate::geometry::InverseDepthHypotheses;
 use crate::model::ops::{flop_count, OpsError};
@@ -222,6 +224,13 @@ impl Ssmode {
         // (B, D, h, w, C')
         let volume = cost_volume(&features, sampling, self.cfg.cost)?;
         drop(features);
+        // (B, D, h, w, C' + 1) with the photometric cost channel
+        let volume = if self.cfg.photometric_cost {
+            let photometric = photometric_cost(images, sampling)?;
+            Tensor::cat(&[&volume, &photometric], 4)?
+        } else {
+            volume
+        };
         mark("cost_volume");
         // K x (B, D/s, h/s, w/s, Ch)
         let aggregated = self.aggregation.forward(&volume)?;

@@ -12,7 +12,7 @@ use std::path::Path;
 fn architecture(cfg: &SsmodeConfig) -> String {
     format!(
         "features {:?} x {:?} -> {}, fine branch {} at 1/{}, {:?} cost over {} spheres, \
-         entry stride {}, {} hourglasses of {} channels",
+         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}",
         cfg.feature_channels,
         cfg.feature_blocks,
         cfg.feature_out_channels,
@@ -22,8 +22,67 @@ fn architecture(cfg: &SsmodeConfig) -> String {
         cfg.spheres,
         cfg.aggregation_stride,
         cfg.hourglasses,
-        cfg.hourglass_channels
+        cfg.hourglass_channels,
+        cfg.photometric_cost
     )
+}
+
+/// The aggregation's entry convolution, the one layer the photometric cost channel widens.
+const ENTRY_CONV_WEIGHT: &str = "aggregation.dres0.0.weight";
+/// Input-channel axis of a 3-D convolution weight `(3, 3, 3, Cin, Cout)`.
+const CONV3D_INPUT_AXIS: usize = 3;
+
+/// Whether `file` is `cfg` without the photometric cost channel: its weights start a run of
+/// `cfg` with the entry convolution widened by zeros ([`load_widened`]).
+fn widens_to(file: &SsmodeConfig, cfg: &SsmodeConfig) -> bool {
+    cfg.photometric_cost
+        && !file.photometric_cost
+        && architecture(&SsmodeConfig {
+            photometric_cost: true,
+            ..file.clone()
+        }) == architecture(cfg)
+}
+
+/// Loads `path` into `varmap`, widening the entry convolution by zero weights for the
+/// photometric cost channel: at the start the network computes what the file's network did,
+/// and training brings the new channel in.
+fn load_widened(path: &Path, varmap: &mut VarMap) -> Result<(), TrainError> {
+    let weights_err = |problem: String| {
+        TrainError::Model(ModelError::Weights {
+            path: path.display().to_string(),
+            problem,
+        })
+    };
+    let file = candle_core::safetensors::load(path, &Device::Cpu)
+        .map_err(|e| weights_err(format!("loading the start weights: {e}")))?;
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| TrainError::Other("variable map lock poisoned".into()))?;
+    for (name, var) in data.iter() {
+        let t = file
+            .get(name)
+            .ok_or_else(|| weights_err(format!("no tensor '{name}'")))?;
+        let want = var.as_tensor().dims().to_vec();
+        let t = if name == ENTRY_CONV_WEIGHT && t.dims() != want.as_slice() {
+            let mut extra = want.clone();
+            extra[CONV3D_INPUT_AXIS] = want[CONV3D_INPUT_AXIS]
+                .checked_sub(t.dims().get(CONV3D_INPUT_AXIS).copied().unwrap_or(0))
+                .ok_or_else(|| weights_err(format!("'{name}' is wider than the network's")))?;
+            let zeros = Tensor::zeros(extra, t.dtype(), t.device())?;
+            Tensor::cat(&[t, &zeros], CONV3D_INPUT_AXIS)?
+        } else {
+            t.clone()
+        };
+        if t.dims() != want.as_slice() {
+            return Err(weights_err(format!(
+                "'{name}' is {:?}, the network needs {want:?}",
+                t.dims()
+            )));
+        }
+        var.set(&t)?;
+    }
+    Ok(())
 }
 
 /// Loads fine-tuning start weights into `varmap` after checking their architecture.
@@ -33,6 +92,9 @@ pub(super) fn load_init_weights(
     varmap: &mut VarMap,
 ) -> Result<(), TrainError> {
     let file_cfg = crate::model::read_config(path)?;
+    if widens_to(&file_cfg, cfg) {
+        return load_widened(path, varmap);
+    }
     if architecture(&file_cfg) != architecture(cfg) {
         return Err(TrainError::Option {
             option: "init_weights",
@@ -180,5 +242,89 @@ impl candle_nn::var_builder::SimpleBackend for SeededVarMap {
             .lock()
             .map(|d| d.contains_key(name))
             .unwrap_or(false)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Ssmode, SweepSampling};
+
+    /// Random images in [0, 1], one `(1, H, W, 3)` tensor per camera.
+    fn images(cfg: &SsmodeConfig, cameras: usize) -> Vec<Tensor> {
+        use crate::synth::noise::Rng;
+        let mut rng = Rng::new(&[7, 0x1417]);
+        let n = cfg.height() * cfg.width * 3;
+        (0..cameras)
+            .map(|_| {
+                let v: Vec<f32> = (0..n).map(|_| rng.unit() as f32).collect();
+                Tensor::from_vec(v, (1, cfg.height(), cfg.width, 3), &Device::Cpu).unwrap()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn widened_start_weights_compute_what_the_file_network_did() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tiny_parallax.safetensors");
+        let narrow_cfg = SsmodeConfig::tiny_parallax();
+        let narrow_map = VarMap::new();
+        let narrow = Ssmode::new(
+            &narrow_cfg,
+            seeded_var_builder(&narrow_map, 3, &Device::Cpu),
+        )
+        .unwrap();
+        crate::model::save_weights(&narrow_map, &narrow_cfg, &path).unwrap();
+
+        let wide_cfg = SsmodeConfig::tiny_zncc();
+        let mut wide_map = VarMap::new();
+        let wide = Ssmode::new(&wide_cfg, seeded_var_builder(&wide_map, 9, &Device::Cpu)).unwrap();
+        load_init_weights(&path, &wide_cfg, &mut wide_map).unwrap();
+        let entry = wide_map.data().lock().unwrap()[ENTRY_CONV_WEIGHT]
+            .as_tensor()
+            .clone();
+        let c = narrow_cfg.cost_volume_channels();
+        assert_eq!(entry.dims()[CONV3D_INPUT_AXIS], c + 1);
+        let new_channel: Vec<f32> = entry
+            .narrow(CONV3D_INPUT_AXIS, c, 1)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        assert!(new_channel.iter().all(|&w| w == 0.0));
+
+        let rig = crate::deep360::deep360_rig().unwrap();
+        let imgs = images(&narrow_cfg, rig.cameras.len());
+        let run = |model: &Ssmode, cfg: &SsmodeConfig| -> Vec<f32> {
+            let sampling = SweepSampling::new(&rig, cfg).unwrap();
+            let out = model.forward(&imgs, &sampling, false).unwrap();
+            out.stages[0].flatten_all().unwrap().to_vec1().unwrap()
+        };
+        let a = run(&narrow, &narrow_cfg);
+        let b = run(&wide, &wide_cfg);
+        let max_diff = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs() / x.abs().max(1.0))
+            .fold(0.0f32, f32::max);
+        assert!(max_diff < 1e-5, "relative difference {max_diff}");
+    }
+
+    #[test]
+    fn other_architectures_are_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tiny.safetensors");
+        let cfg = SsmodeConfig::tiny();
+        let map = VarMap::new();
+        Ssmode::new(&cfg, seeded_var_builder(&map, 3, &Device::Cpu)).unwrap();
+        crate::model::save_weights(&map, &cfg, &path).unwrap();
+        let mut wide_map = VarMap::new();
+        let wide_cfg = SsmodeConfig::tiny_zncc();
+        Ssmode::new(&wide_cfg, seeded_var_builder(&wide_map, 9, &Device::Cpu)).unwrap();
+        let err = load_init_weights(&path, &wide_cfg, &mut wide_map)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("'tiny'") && err.contains("tiny_zncc"), "{err}");
     }
 }

@@ -1,0 +1,158 @@
+//! SSMODE's photometric cost channel ([`SsmodeConfig::photometric_cost`], a departure from the
+//! paper): the learning-free sweep's matching evidence appended to the learned cost volume, so
+//! that the aggregation starts from evidence that needs no training and learns to regularize
+//! it and to distrust a view that disagrees (a soiled or blocked lens).
+//!
+//! For sphere `d` and cost cell `k`, every camera's grey image `g = 0.299 R + 0.587 G + 0.114 B`
+//! is sampled through its sweep table (the same taps as the learned features), then, with
+//! [`crate::matching::zncc`] and a `(2 r + 1)^2` window:
+//!
+//! ```text
+//! cost_ab  = (1 - w_mean) (1 - zncc_ab) / 2 + w_mean min(|E[a] - E[b]| / s_mean, 1)
+//! cost_ab' = s_ab cost_ab + (1 - s_ab) / 2      s_ab = |dir x b_hat_ab|: no parallax, undecided
+//! cost     = mean of the best ceil(P / 2) of the P pairs that both cameras see
+//! channel  = 1 - 2 cost                          in [-1, 1]: 1 a match, 0 undecided or unseen
+//! ```
+//!
+//! It is a function of the images alone (no gradient), computed per sphere in parallel on the
+//! CPU whatever the device, and returned on the images' device as `(B, D, H, W, 1)`.
+//!
+//! [`SsmodeConfig::photometric_cost`]: super::config::SsmodeConfig::photometric_cost
+
+use candle_core::{Result, Tensor};
+use rayon::prelude::*;
+
+use super::config::SweepSampling;
+use crate::matching::zncc::{sphere_cost, PairCostParams, ViewStats, UNDECIDED_COST};
+use crate::model::ops::{OpsError, SampleTable};
+
+/// ZNCC window radius in cost cells (a 5x5 window).
+pub const WINDOW_RADIUS_CELLS: usize = 2;
+/// Added to each window variance (intensity in [0, 1]) so flat windows score ZNCC 0.
+pub const VARIANCE_FLOOR: f32 = 1e-6;
+/// Weight of the window-mean difference term in the pair cost.
+pub const MEAN_WEIGHT: f32 = 0.3;
+/// Mean intensity difference at which the mean term saturates.
+pub const MEAN_SCALE: f32 = 0.03;
+/// Share of the camera pairs (the best ones) averaged per cell.
+pub const BEST_PAIR_FRACTION: f32 = 0.5;
+/// Exponent `k` of the pair parallax weight `|dir x b_hat|^k`.
+pub const PARALLAX_EXPONENT: f32 = 1.0;
+/// Rec. 601 luma weights.
+const LUMA_WEIGHTS: [f32; 3] = [0.299, 0.587, 0.114];
+/// Channels of an RGB image tensor.
+const IMAGE_CHANNELS: usize = 3;
+/// A sample whose taps weigh less than this is one the camera does not see.
+const SEEN_WEIGHT: f32 = 0.5;
+
+/// The pair-cost parameters for `cameras` cameras.
+fn pair_params(cameras: usize) -> PairCostParams {
+    let pairs = cameras * cameras.saturating_sub(1) / 2;
+    PairCostParams {
+        window_radius_px: WINDOW_RADIUS_CELLS,
+        variance_floor: VARIANCE_FLOOR,
+        mean_weight: MEAN_WEIGHT,
+        mean_scale: MEAN_SCALE,
+        best_pairs: ((pairs as f32 * BEST_PAIR_FRACTION).ceil() as usize).max(1),
+    }
+}
+
+/// Grey images of batch item `b`, one per camera, row-major at the images' resolution.
+fn grey_images(images: &[Tensor], b: usize) -> Result<Vec<Vec<f32>>> {
+    images
+        .iter()
+        .map(|img| {
+            let rgb: Vec<f32> = img.narrow(0, b, 1)?.flatten_all()?.to_vec1()?;
+            Ok(rgb
+                .chunks_exact(IMAGE_CHANNELS)
+                .map(|p| LUMA_WEIGHTS[0] * p[0] + LUMA_WEIGHTS[1] * p[1] + LUMA_WEIGHTS[2] * p[2])
+                .collect())
+        })
+        .collect()
+}
+
+/// Samples `grey` through `table` for the cells `first .. first + out.len()`; returns the
+/// per-cell tap weight (1 where the camera sees the sample, 0 where it does not).
+fn warp(grey: &[f32], table: &SampleTable, first: usize, out: &mut [f32], seen: &mut [f32]) {
+    let (index, weight) = (table.flat_indices(), table.flat_weights());
+    for (k, (o, s)) in out.iter_mut().zip(seen.iter_mut()).enumerate() {
+        let t = (first + k) * SampleTable::TAPS;
+        let mut value = 0.0;
+        let mut total = 0.0;
+        for j in t..t + SampleTable::TAPS {
+            value += weight[j] * grey[index[j] as usize];
+            total += weight[j];
+        }
+        *o = value;
+        *s = total;
+    }
+}
+
+/// The photometric cost channel `(B, D, H, W, 1)` of `images` (one `(B, H, W, 3)` tensor in
+/// `[0, 1]` per camera, at the cost volume's resolution) for the rig of `sampling`.
+pub fn photometric_cost(images: &[Tensor], sampling: &SweepSampling) -> Result<Tensor> {
+    const OP: &str = "photometric_cost";
+    let shape_err = |what: String| -> candle_core::Error { OpsError::Shape { op: OP, what }.into() };
+    let cameras = sampling.camera_count();
+    if images.len() != cameras {
+        return Err(shape_err(format!(
+            "{} images for a sweep of {cameras} cameras",
+            images.len()
+        )));
+    }
+    let pair_weights = sampling.pair_weights().ok_or_else(|| {
+        shape_err("the sweep sampling was built without pair weights".to_string())
+    })?;
+    let grid = sampling.geometry().output();
+    let (w, h) = (grid.width(), grid.height());
+    let cells = grid.len();
+    let spheres = sampling.geometry().hypotheses().count();
+    let (batch, ih, iw, ic) = images[0].dims4()?;
+    if (ih, iw, ic) != (h, w, IMAGE_CHANNELS) {
+        return Err(shape_err(format!(
+            "images are ({batch}, {ih}, {iw}, {ic}), the cost volume needs ({batch}, {h}, {w}, 3)"
+        )));
+    }
+    let tables = (0..cameras)
+        .map(|cam| {
+            sampling
+                .sweep_table(cam)
+                .ok_or_else(|| shape_err(format!("no sweep table for camera {cam}")))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let track_seen = sampling.view_scale().is_some();
+    let params = pair_params(cameras);
+    let mut out = Vec::with_capacity(batch * spheres * cells);
+    for b in 0..batch {
+        let grey = grey_images(images, b)?;
+        let slices: Vec<Vec<f32>> = (0..spheres)
+            .into_par_iter()
+            .map(|d| {
+                let mut tmp = vec![0.0f32; cells];
+                let mut views = Vec::with_capacity(cameras);
+                let mut seen = Vec::with_capacity(cameras);
+                for (g, table) in grey.iter().zip(&tables) {
+                    let mut warped = vec![0.0f32; cells];
+                    let mut weight = vec![0.0f32; cells];
+                    warp(g, table, d * cells, &mut warped, &mut weight);
+                    views.push(ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp));
+                    seen.push(track_seen.then(|| {
+                        weight
+                            .iter()
+                            .map(|&x| if x >= SEEN_WEIGHT { 1.0 } else { 0.0 })
+                            .collect()
+                    }));
+                }
+                let refs: Vec<&ViewStats> = views.iter().collect();
+                sphere_cost(&refs, &seen, pair_weights, w, h, &params)
+                    .into_iter()
+                    .map(|c| (UNDECIDED_COST - c) / UNDECIDED_COST)
+                    .collect()
+            })
+            .collect();
+        for s in slices {
+            out.extend(s);
+        }
+    }
+    Tensor::from_vec(out, (batch, spheres, h, w, 1), images[0].device())
+}

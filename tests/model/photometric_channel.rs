@@ -1,0 +1,81 @@
+//! SSMODE's photometric cost channel (`parallax_zncc`): the sweep's ZNCC evidence sampled
+//! through the network's own sweep tables must range a rendered street from parallax on its
+//! own (winner-take-all over its spheres), and collapse when every camera sees the same image.
+
+use crate::common::deep360_rig;
+use mode360::metrics::depth_metrics;
+use mode360::model::photometric_cost::photometric_cost;
+use mode360::model::{input_tensor, SsmodeConfig, SweepSampling};
+use mode360::synth::{StreetStyle, SynthConfig, SynthRenderer};
+use candle_core::Device;
+
+const WIDTH: usize = 256;
+const SEED: u64 = 77;
+const FRAME: usize = 12;
+/// Winner-take-all δ1 (%) of the channel on true views, and on same-image views (measured
+/// [see the assertion message]); the bounds leave margin.
+const MIN_TRUE_DELTA1_PCT: f64 = 60.0;
+const MAX_SAME_IMAGE_DELTA1_PCT: f64 = 40.0;
+
+/// Winner-take-all range over the channel's spheres, `(D, H, W)` sphere-major.
+fn winner_take_all(channel: &[f32], cfg: &SsmodeConfig, cells: usize) -> Vec<f32> {
+    let spheres = cfg.sphere_hypotheses().unwrap();
+    (0..cells)
+        .map(|k| {
+            let best = (0..cfg.spheres)
+                .max_by(|&a, &b| channel[a * cells + k].total_cmp(&channel[b * cells + k]))
+                .unwrap_or(0);
+            spheres.depth_m(best as f64) as f32
+        })
+        .collect()
+}
+
+#[test]
+fn the_photometric_channel_ranges_a_street_from_parallax_alone() {
+    let cfg = SsmodeConfig {
+        width: WIDTH,
+        ..SsmodeConfig::parallax_zncc()
+    };
+    let rig = deep360_rig();
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: SEED,
+        width: WIDTH,
+        max_depth_m: cfg.max_depth_m,
+        street: StreetStyle::Varied,
+        ..Default::default()
+    })
+    .unwrap()
+    .render_frame(&rig, FRAME);
+    let gt = frame.ground_truth.clone().unwrap();
+    let sampling = SweepSampling::new(&rig, &cfg).unwrap();
+    let cells = cfg.cost_width() * cfg.cost_height();
+    let score = |images: &[mode360::frame::RgbImage]| {
+        let tensors: Vec<_> = images
+            .iter()
+            .map(|img| input_tensor(img, WIDTH, &Device::Cpu).unwrap())
+            .collect();
+        let channel = photometric_cost(&tensors, &sampling).unwrap();
+        assert_eq!(
+            channel.dims(),
+            &[1, cfg.spheres, cfg.cost_height(), cfg.cost_width(), 1]
+        );
+        let v: Vec<f32> = channel.flatten_all().unwrap().to_vec1().unwrap();
+        assert!(v.iter().all(|x| (-1.0..=1.0).contains(x)));
+        let range = winner_take_all(&v, &cfg, cells);
+        depth_metrics(&range, &gt.data, cfg.max_depth_m).unwrap()
+    };
+    let truth = score(&frame.images);
+    let same: Vec<_> = frame
+        .images
+        .iter()
+        .map(|_| frame.images[rig.reference].clone())
+        .collect();
+    let same = score(&same);
+    let msg = format!(
+        "winner-take-all delta1 {:.2} % true views, {:.2} % same image",
+        truth.delta1_pct, same.delta1_pct
+    );
+    println!("{msg}");
+    assert!(truth.delta1_pct >= MIN_TRUE_DELTA1_PCT, "{msg}");
+    assert!(same.delta1_pct <= MAX_SAME_IMAGE_DELTA1_PCT, "{msg}");
+}
