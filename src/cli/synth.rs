@@ -5,7 +5,8 @@ use crate::bag::RigBagWriter;
 use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use crate::geometry::Rig;
 use crate::memory::BYTES_PER_MIB;
-use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthRenderer};
+use crate::synth::blockers::{parse_blocked_lens, validate_blockers};
+use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthRenderer, BLOCKED_FRACTION_KEY};
 use anyhow::{Context, Result};
 use clap::Args;
 use std::path::PathBuf;
@@ -41,6 +42,17 @@ pub fn record_synthetic_bag(opts: &RecordOptions) -> Result<RecordSummary> {
     info.insert(MAX_DEPTH_KEY.into(), opts.config.max_depth_m.to_string());
     info.insert("frames".into(), opts.frames.to_string());
     info.insert("first_frame".into(), opts.first_frame.to_string());
+    if !opts.config.blockers.is_empty() {
+        // Every frame blocks the same pixels: the measured fraction per camera, by name.
+        let fractions: Vec<String> = opts
+            .rig
+            .cameras
+            .iter()
+            .zip(renderer.blocked_fractions(&opts.rig))
+            .map(|(cam, f)| format!("{}={f:.4}", cam.name))
+            .collect();
+        info.insert(BLOCKED_FRACTION_KEY.into(), fractions.join(","));
+    }
     let mut writer = RigBagWriter::create(&opts.out, &opts.rig, &info)?;
     let progress = frames_bar("rendering", opts.frames, opts.show_progress);
     let t0 = Instant::now();
@@ -96,6 +108,11 @@ pub struct SynthArgs {
     /// bag records the scaled rig.
     #[arg(long, default_value_t = 1.0)]
     pub fisheye_scale: f64,
+    /// Block a lens in every frame: CAM:FRACTION[:KIND], CAM a camera name or 1-based index,
+    /// FRACTION of its view (solid angle; of the seen pixels for a fisheye) in (0, 0.6], KIND
+    /// mud (default), mount or vehicle. Repeat for several cameras.
+    #[arg(long = "blocked-lens", value_name = "CAM:FRACTION[:KIND]")]
+    pub blocked_lens: Vec<String>,
     /// Output bag.
     #[arg(long)]
     pub out: PathBuf,
@@ -113,6 +130,14 @@ pub fn run(a: SynthArgs) -> Result<()> {
     if let Some(part) = crate::geometry::panorama::rig_coverage_warning(&rig) {
         tracing::warn!("rig {}: {part}", a.rig.display());
     }
+    let names: Vec<&str> = rig.cameras.iter().map(|c| c.name.as_str()).collect();
+    let blockers = a
+        .blocked_lens
+        .iter()
+        .map(|spec| parse_blocked_lens(spec, &names))
+        .collect::<Result<Vec<_>, _>>()
+        .and_then(|b| validate_blockers(&b).map(|()| b))
+        .with_context(|| format!("--blocked-lens (rig {})", a.rig.display()))?;
     let config = SynthConfig {
         seed: a.seed,
         width: a.width,
@@ -120,6 +145,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
         max_depth_m: a.max_depth_m,
         scene: a.scene,
         street: a.street,
+        blockers,
         ..SynthConfig::default()
     };
     let summary = record_synthetic_bag(&RecordOptions {

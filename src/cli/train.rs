@@ -2,6 +2,7 @@
 
 use crate::model::Preset;
 use crate::synth::StreetStyle;
+use crate::train::rig_layouts::RigLayouts;
 use crate::train::{run_training, TrainOptions};
 use anyhow::Result;
 use clap::Args;
@@ -59,6 +60,19 @@ pub struct TrainArgs {
     /// Fraction of rendered samples on random fisheye and dual-fisheye rigs.
     #[arg(long, default_value_t = 0.0)]
     pub fisheye_fraction: f64,
+    /// Layouts of the random rigs: roof (horizontal roof racks, the stream of older runs) or
+    /// any (also vertical masts, turned cameras at mixed heights, cameras on the car body's
+    /// corners; 2 to 5 cameras).
+    #[arg(long, value_enum, default_value_t = RigLayouts::Roof)]
+    pub rig_layouts: RigLayouts,
+    /// Fraction of rendered samples where one random camera's lens is 5 to 40 % blocked (mud,
+    /// a mount or a vehicle part).
+    #[arg(long, default_value_t = 0.0)]
+    pub blocked_fraction: f64,
+    /// Draw random rigs from a pool of this many, renewed every 25 samples per rig, so that
+    /// their sweep tables are reused (0: a new rig every sample, the stream of older runs).
+    #[arg(long, default_value_t = 0)]
+    pub rig_pool: usize,
     /// Fraction of samples with lens soiling.
     #[arg(long, default_value_t = 0.3)]
     pub soiled_fraction: f64,
@@ -90,6 +104,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         objects_fraction: a.objects_fraction,
         street: a.street,
         fisheye_fraction: a.fisheye_fraction,
+        rig_layouts: a.rig_layouts,
+        blocked_fraction: a.blocked_fraction,
+        rig_pool: a.rig_pool,
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,

@@ -28,7 +28,6 @@
 //! Measured on rendered 512x256 street frames (4 cameras, defaults): delta1 about 91 %, about
 //! 3.3 CPU-seconds per frame (under 2 s wall on two idle cores).
 
-
 mod sampling;
 mod sgm;
 

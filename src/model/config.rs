@@ -4,9 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::sphere_conv::SphereConvTable;
 use super::ModelError;
-use crate::geometry::{
-    DepthRange, ErpGrid, InverseDepthHypotheses, Rig, SweepGeometry,
-};
+use crate::geometry::{DepthRange, ErpGrid, InverseDepthHypotheses, Rig, SweepGeometry};
 use crate::model::ops::{view_scale, SampleTable};
 use std::sync::Arc;
 

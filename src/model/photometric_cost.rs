@@ -92,7 +92,8 @@ fn warp(grey: &[f32], table: &SampleTable, first: usize, out: &mut [f32], seen: 
 /// `[0, 1]` per camera, at the cost volume's resolution) for the rig of `sampling`.
 pub fn photometric_cost(images: &[Tensor], sampling: &SweepSampling) -> Result<Tensor> {
     const OP: &str = "photometric_cost";
-    let shape_err = |what: String| -> candle_core::Error { OpsError::Shape { op: OP, what }.into() };
+    let shape_err =
+        |what: String| -> candle_core::Error { OpsError::Shape { op: OP, what }.into() };
     let cameras = sampling.camera_count();
     if images.len() != cameras {
         return Err(shape_err(format!(
@@ -135,7 +136,13 @@ pub fn photometric_cost(images: &[Tensor], sampling: &SweepSampling) -> Result<T
                     let mut warped = vec![0.0f32; cells];
                     let mut weight = vec![0.0f32; cells];
                     warp(g, table, d * cells, &mut warped, &mut weight);
-                    views.push(ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp));
+                    views.push(ViewStats::new(
+                        warped,
+                        w,
+                        h,
+                        params.window_radius_px,
+                        &mut tmp,
+                    ));
                     seen.push(track_seen.then(|| {
                         weight
                             .iter()

@@ -15,10 +15,15 @@
 //!   the world is `world_from_rig * rig_from_cam * (origin + t dir)`.
 //! * Ground truth: for every output-frame pixel the Euclidean range to the first surface,
 //!   `min(t, max_depth_m)`; sky pixels are `max_depth_m`.
+//! * Blocked lenses ([`blockers`], [`SynthConfig::blockers`]): after ray casting, a camera's
+//!   image may get an opaque blocker (mud, a mount, a vehicle part) over a set fraction of its
+//!   view, the same in every frame; lens soiling is applied after it. The ground truth is the
+//!   scene's range, blocked or not.
 //! * Shading: Lambertian sun with hard shadows (shadow rays), hemispherical sky ambient, fog
 //!   `f = 1 - exp(-t / FOG_DISTANCE_M)`, gamma 2.2. Textures live in world or object
 //!   coordinates, so every camera sees the same surface colour.
 
+pub mod blockers;
 pub mod bvh;
 pub mod camera_view;
 pub mod material;
@@ -44,10 +49,15 @@ use scene::{FrameScene, Ground};
 use std::collections::BTreeMap;
 use world::WorldParams;
 
+pub use blockers::{BlockedLens, BlockerError, BlockerKind};
 pub use scene::{FOG_DISTANCE_M, TEXTURE_WRAP_M};
 pub use soiling::{CameraSoiling, SoilingKind};
 pub use street::StreetStyle;
 
+/// Bag metadata key of the blocked lenses' specifications (`CAM:FRACTION:KIND`, 1-based).
+pub const BLOCKED_LENSES_KEY: &str = "blocked_lenses";
+/// Bag metadata key of the measured blocked fraction per camera (`name=fraction,...`).
+pub const BLOCKED_FRACTION_KEY: &str = "blocked_fraction";
 /// Scene content is generated this far ahead of and behind the rig along x, metres.
 pub const VIEW_RANGE_M: f64 = 480.0;
 /// First frame's stamp: 2023-11-14T22:13:20Z, in nanoseconds since the epoch.
@@ -68,6 +78,8 @@ pub enum SynthError {
         requirement: &'static str,
         value: f64,
     },
+    #[error("synth config: field 'blockers': {0}")]
+    Blocker(#[from] BlockerError),
 }
 
 /// What a synthetic frame shows.
@@ -119,6 +131,9 @@ pub struct SynthConfig {
     pub scene: SceneKind,
     /// Street layout variation (street scenes only).
     pub street: StreetStyle,
+    /// Lenses blocked in every frame (at most one blocker per camera; cameras the rig lacks
+    /// are skipped).
+    pub blockers: Vec<BlockedLens>,
 }
 
 impl Default for SynthConfig {
@@ -132,6 +147,7 @@ impl Default for SynthConfig {
             speed_mps: 8.0,
             scene: SceneKind::Street,
             street: StreetStyle::Regular,
+            blockers: Vec::new(),
         }
     }
 }
@@ -153,11 +169,16 @@ impl SynthConfig {
         m.insert("speed_mps".into(), self.speed_mps.to_string());
         m.insert("scene".into(), self.scene.as_str().into());
         m.insert("street".into(), self.street.as_str().into());
+        if !self.blockers.is_empty() {
+            let specs: Vec<String> = self.blockers.iter().map(BlockedLens::to_spec).collect();
+            m.insert(BLOCKED_LENSES_KEY.into(), specs.join(","));
+        }
         m
     }
 
     fn validate(&self) -> Result<(), SynthError> {
         ErpGrid::new(self.width)?;
+        blockers::validate_blockers(&self.blockers)?;
         let checks: [(&'static str, f64, bool, &'static str); 3] = [
             (
                 "max_depth_m",
@@ -201,6 +222,9 @@ pub struct FrameReport {
     pub world_from_rig: Isometry3<f64>,
     /// One entry per camera (rig order); default (zero coverage) for clean cameras.
     pub soiling: Vec<CameraSoiling>,
+    /// Blocked fraction of each camera's view (rig order; 0 without a blocker), measured on
+    /// the painted mask (see [`blockers`]).
+    pub blocked: Vec<f64>,
 }
 
 /// A single rendered view: the image (ERP, or a camera model's) and its range image (metres).
@@ -357,6 +381,15 @@ impl SynthRenderer {
             Some(g) => g,
             None => self.render_range(&scene, &(world_from_rig * rig.rig_from_output)),
         };
+        let mut blocked = vec![0.0; images.len()];
+        for lens in &self.cfg.blockers {
+            if let (Some(cam), Some(img)) =
+                (rig.cameras.get(lens.camera), images.get_mut(lens.camera))
+            {
+                blocked[lens.camera] =
+                    blockers::block_image(img, &cam.projection, lens, self.cfg.seed);
+            }
+        }
         let mut soiling = vec![CameraSoiling::default(); images.len()];
         if self.cfg.soiled && !images.is_empty() {
             let mut rng = Rng::new(&[self.cfg.seed, index as u64, 0x5011]);
@@ -392,6 +425,7 @@ impl SynthRenderer {
                 time_s: t_s,
                 world_from_rig,
                 soiling,
+                blocked,
             },
         )
     }
@@ -431,6 +465,20 @@ impl SynthRenderer {
             }
         };
         Some(CameraView { image, range_m })
+    }
+
+    /// The blocked fraction of each camera of `rig` (rig order, 0 without a blocker): what
+    /// every frame's [`FrameReport::blocked`] holds, without rendering.
+    pub fn blocked_fractions(&self, rig: &Rig) -> Vec<f64> {
+        let mut blocked = vec![0.0; rig.cameras.len()];
+        for lens in &self.cfg.blockers {
+            if let Some(cam) = rig.cameras.get(lens.camera) {
+                blocked[lens.camera] =
+                    blockers::lens_mask(lens, &cam.projection, self.grid.width(), self.cfg.seed)
+                        .fraction;
+            }
+        }
+        blocked
     }
 
     /// World-frame centres of the rig's cameras and of its output frame at `world_from_rig`.

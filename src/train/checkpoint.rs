@@ -8,6 +8,7 @@
 use super::data::Deep360Mix;
 use super::optim::AdamW;
 use super::options::{io_err, TrainError};
+use super::rig_layouts::RigLayouts;
 use crate::model::{save_weights, SsmodeConfig};
 use crate::synth::StreetStyle;
 use candle_core::Device;
@@ -54,6 +55,15 @@ pub struct CheckpointState {
     /// Fisheye-rig share of the stream (older checkpoints: none).
     #[serde(default)]
     pub fisheye_fraction: f64,
+    /// Layouts of the stream's random rigs (older checkpoints: roof).
+    #[serde(default)]
+    pub rig_layouts: RigLayouts,
+    /// Blocked-lens share of the stream (older checkpoints: none).
+    #[serde(default)]
+    pub blocked_fraction: f64,
+    /// Rig pool size of the stream (older checkpoints: 0, a new rig every sample).
+    #[serde(default)]
+    pub rig_pool: usize,
 }
 
 /// What a resume must find again to read the same Deep360 frames for the same samples.
@@ -188,6 +198,27 @@ pub(super) fn load_checkpoint(
             "fisheye_fraction",
             state.fisheye_fraction.to_string(),
             expected.fisheye_fraction.to_string(),
+        ));
+    }
+    if state.rig_layouts != expected.rig_layouts {
+        return Err(mismatch(
+            "rig_layouts",
+            state.rig_layouts.as_str().to_string(),
+            expected.rig_layouts.as_str().to_string(),
+        ));
+    }
+    if state.rig_pool != expected.rig_pool {
+        return Err(mismatch(
+            "rig_pool",
+            state.rig_pool.to_string(),
+            expected.rig_pool.to_string(),
+        ));
+    }
+    if state.blocked_fraction != expected.blocked_fraction {
+        return Err(mismatch(
+            "blocked_fraction",
+            state.blocked_fraction.to_string(),
+            expected.blocked_fraction.to_string(),
         ));
     }
     if state.street != expected.street {

@@ -13,6 +13,16 @@
 //! With probability [`DataConfig::fisheye_fraction`] (its own stream) the rig is a random
 //! fisheye or dual-fisheye rack instead ([`super::fisheye_rigs`]), whose images enter the
 //! network as panoramas of their own frames ([`RigRemap`]) and whose depth is in `rack_center`.
+//! With [`DataConfig::rig_layouts`] `any`, a random rig that is neither Deep360 nor fisheye
+//! takes a layout family drawn from its own stream `Rng::new(&[s, k, LAYOUT_TAG])` (roof rack,
+//! vertical mast, turned cameras at mixed heights, car body corners: [`super::rig_layouts`]);
+//! `roof` (the default) keeps every such rig a roof rack, exactly the stream of older runs.
+//!
+//! Blocked lenses: with probability [`DataConfig::blocked_fraction`] (its own stream
+//! `Rng::new(&[s, k, BLOCKER_TAG])`) one random camera of a rendered sample gets a blocker
+//! ([`crate::synth::blockers`]: mud, a mount or a vehicle part, kind uniform) over a fraction
+//! of its view drawn in `[MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION]`. The ground
+//! truth stays the scene's range: the network learns to range through the other cameras.
 //!
 //! Deep360 on disk (fine-tuning): with [`DataConfig::deep360_disk`] set, sample `k` is, with
 //! probability [`Deep360Mix::fraction`], a frame of the dataset's training split read from
@@ -31,6 +41,10 @@
 //! held-out set never shares a world with training.
 
 use super::fisheye_rigs::random_fisheye_rig;
+use super::rig_layouts::{
+    draw_family, layout_rig, rig_from_poses, roof_poses, LayoutFamily, RigLayouts,
+};
+use super::rig_pool::pooled_rig_index;
 use crate::deep360::{
     clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId,
     Deep360FrameVariant, Deep360Split,
@@ -40,7 +54,9 @@ use crate::geometry::panorama::RigRemap;
 use crate::geometry::{ErpGrid, Rig, RigError};
 use crate::model::{input_tensor, ModelError};
 use crate::synth::noise::{hash_words, Rng};
-use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer};
+use crate::synth::{
+    BlockedLens, BlockerKind, SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer,
+};
 use candle_core::{Device, Tensor};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
@@ -69,6 +85,12 @@ const VALIDATION_TAG: u64 = 0x7A41_0002;
 const DEEP360_DISK_TAG: u64 = 0x7A41_0003;
 const SCENE_TAG: u64 = 0x7A41_0004;
 const FISHEYE_TAG: u64 = 0x7A41_0005;
+const BLOCKER_TAG: u64 = 0x7A41_0007;
+/// The random rig seed of a pooled rig index.
+const RIG_SEED_TAG: u64 = 0x7A41_0008;
+/// Range of the view fraction a training blocker covers.
+pub const MIN_TRAIN_BLOCKED_FRACTION: f64 = 0.05;
+pub const MAX_TRAIN_BLOCKED_FRACTION: f64 = 0.40;
 /// Set in validation world seeds, clear in training world seeds.
 const VALIDATION_SEED_BIT: u64 = 1 << 63;
 
@@ -111,6 +133,15 @@ pub struct DataConfig {
     /// Fraction of rendered training samples on random fisheye and dual-fisheye rigs (drawn
     /// from its own stream, so a stream without them is unchanged).
     pub fisheye_fraction: f64,
+    /// Layouts of the random ERP rigs: roof racks only, or every family of
+    /// [`super::rig_layouts`] (drawn from its own stream).
+    pub rig_layouts: RigLayouts,
+    /// Fraction of rendered samples where one random camera's lens is partly blocked (drawn
+    /// from its own stream, so a stream without them is unchanged).
+    pub blocked_fraction: f64,
+    /// Random rigs come from a renewed pool of this many (0: a new rig every sample), so that
+    /// sweep tables are reused ([`super::rig_pool`]).
+    pub rig_pool: usize,
 }
 
 /// The paper's Deep360 dataset on disk as a source of training samples.
@@ -173,6 +204,7 @@ impl DataConfig {
             ("deep360_fraction", self.deep360_fraction),
             ("objects_fraction", self.objects_fraction),
             ("fisheye_fraction", self.fisheye_fraction),
+            ("blocked_fraction", self.blocked_fraction),
         ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(DataError::Config(format!(
@@ -190,8 +222,11 @@ impl DataConfig {
 #[derive(Clone, Debug, PartialEq)]
 pub enum RigChoice {
     Deep360,
-    /// A random rig, a function of this seed.
+    /// A random roof rack ([`random_rig`]), a function of this seed.
     Random(u64),
+    /// A random rig of this layout family ([`layout_rig`]; never the roof rack, which stays
+    /// [`RigChoice::Random`]), a function of the family and this seed.
+    Layout(LayoutFamily, u64),
     /// A random fisheye or dual-fisheye rig ([`random_fisheye_rig`]), a function of this seed
     /// and the ERP width.
     Fisheye(u64),
@@ -211,6 +246,28 @@ pub struct SampleSpec {
     pub scene: SceneKind,
     /// Street layout variation (street scenes).
     pub street: StreetStyle,
+    /// A blocked lens (rendered samples).
+    pub blocker: Option<SampleBlocker>,
+}
+
+/// A training sample's blocked lens; the camera is picked once the rig is known.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleBlocker {
+    /// The camera is `camera_pick % cameras`.
+    pub camera_pick: u64,
+    pub fraction: f64,
+    pub kind: BlockerKind,
+}
+
+impl SampleBlocker {
+    /// The blocker on a rig of `cameras` cameras.
+    pub fn on_rig(&self, cameras: usize) -> BlockedLens {
+        BlockedLens {
+            camera: (self.camera_pick % cameras.max(1) as u64) as usize,
+            fraction: self.fraction,
+            kind: self.kind,
+        }
+    }
 }
 
 /// One rendered sample.
@@ -253,28 +310,10 @@ pub(super) fn rack_positions(rng: &mut Rng, n: usize) -> Vec<[f64; 2]> {
     xy
 }
 
-/// A random roof-rack rig (see the module docs), validated by [`Rig::from_yaml_str`].
+/// A random roof-rack rig (see the module docs), built by [`rig_from_poses`].
 pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
     let mut rng = Rng::new(&[seed, 0x416]);
-    let n = MIN_RIG_CAMERAS + rng.index(MAX_RIG_CAMERAS - MIN_RIG_CAMERAS + 1);
-    let xy = rack_positions(&mut rng, n);
-    let mut yaml = String::from("rig_frame: base_link\nreference_camera: cam1\ncameras:\n");
-    for (k, p) in xy.iter().enumerate() {
-        let z = rng.range(MIN_HEIGHT_M, MAX_HEIGHT_M);
-        let rpy = [
-            rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
-            rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
-            rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
-        ];
-        let c = k + 1;
-        yaml.push_str(&format!(
-            "  - name: cam{c}\n    topic: /cam{c}/image_raw\n    frame_id: cam{c}_link\n    \
-             projection: equirectangular\n    rig_from_cam: {{translation: [{:.17e}, {:.17e}, {:.17e}], \
-             rotation_rpy: [{:.17e}, {:.17e}, {:.17e}]}}\n",
-            p[0], p[1], z, rpy[0], rpy[1], rpy[2]
-        ));
-    }
-    Rig::from_yaml_str(&yaml, &format!("<random rig {seed}>"))
+    rig_from_poses(&roof_poses(&mut rng), &format!("<random rig {seed}>"))
 }
 
 /// The spec of training sample `index` of the stream `cfg.seed`.
@@ -283,12 +322,28 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
     let world_seed = rng.next_u64() & !VALIDATION_SEED_BIT;
     let frame_index = rng.index(STREET_FRAMES);
     let soiled = rng.chance(cfg.soiled_fraction);
+    // With a rig pool, every rig draw is taken at the pooled rig's index (super::rig_pool).
+    let rig_index = match cfg.rig_pool {
+        0 => index,
+        rigs => pooled_rig_index(cfg.seed, index, rigs),
+    };
     let rig = if rng.chance(cfg.deep360_fraction) {
         RigChoice::Deep360
     } else {
-        RigChoice::Random(rng.next_u64())
+        let own = rng.next_u64();
+        RigChoice::Random(match cfg.rig_pool {
+            0 => own,
+            _ => Rng::new(&[cfg.seed, rig_index, RIG_SEED_TAG]).next_u64(),
+        })
     };
-    let mut fisheye = Rng::new(&[cfg.seed, index, FISHEYE_TAG]);
+    let rig = match (cfg.rig_layouts, rig) {
+        (RigLayouts::Any, RigChoice::Random(seed)) => match draw_family(cfg.seed, rig_index) {
+            LayoutFamily::RoofRack => RigChoice::Random(seed),
+            family => RigChoice::Layout(family, seed),
+        },
+        (_, rig) => rig,
+    };
+    let mut fisheye = Rng::new(&[cfg.seed, rig_index, FISHEYE_TAG]);
     let rig = if cfg.fisheye_fraction > 0.0 && fisheye.chance(cfg.fisheye_fraction) {
         RigChoice::Fisheye(fisheye.next_u64())
     } else {
@@ -299,6 +354,14 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
     } else {
         SceneKind::Street
     };
+    let mut blocker = Rng::new(&[cfg.seed, index, BLOCKER_TAG]);
+    let blocker = (cfg.blocked_fraction > 0.0 && blocker.chance(cfg.blocked_fraction)).then(|| {
+        SampleBlocker {
+            camera_pick: blocker.next_u64(),
+            fraction: blocker.range(MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION),
+            kind: BlockerKind::ALL[blocker.index(BlockerKind::ALL.len())],
+        }
+    });
     let spec = SampleSpec {
         world_seed,
         frame_index,
@@ -307,6 +370,7 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         deep360_frame: None,
         scene,
         street: cfg.street,
+        blocker,
     };
     match cfg
         .deep360_disk
@@ -317,6 +381,7 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
             soiled: v.soiled,
             rig: RigChoice::Deep360,
             deep360_frame: Some(v.id),
+            blocker: None,
             ..spec
         },
         None => spec,
@@ -337,6 +402,7 @@ pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
                 deep360_frame: None,
                 scene: SceneKind::Street,
                 street: StreetStyle::Regular,
+                blocker: None,
             }
         })
         .collect()
@@ -357,6 +423,7 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
     let rig = match spec.rig {
         RigChoice::Deep360 => deep360_rig()?,
         RigChoice::Random(seed) => random_rig(seed)?,
+        RigChoice::Layout(family, seed) => layout_rig(family, seed)?,
         RigChoice::Fisheye(seed) => random_fisheye_rig(seed, cfg.width)?,
     };
     let renderer = SynthRenderer::new(SynthConfig {
@@ -366,6 +433,11 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
         max_depth_m: cfg.max_depth_m,
         scene: spec.scene,
         street: spec.street,
+        blockers: spec
+            .blocker
+            .map(|b| b.on_rig(rig.cameras.len()))
+            .into_iter()
+            .collect(),
         ..SynthConfig::default()
     })?;
     let frame = renderer.render_frame(&rig, spec.frame_index);

@@ -13,29 +13,47 @@ use candle_core::backprop::GradStore;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-/// Sweep tables per rig; the Deep360 rig (validation and part of training) is cached.
-#[derive(Default)]
+/// Sweep tables of the most recently used rigs (the Deep360 rig of validation and part of
+/// training, and a pool of random rigs, see [`super::rig_pool`]), least recently used evicted.
 pub(super) struct SamplingCache {
     cached: Vec<(crate::geometry::Rig, SweepSampling)>,
+    capacity: usize,
 }
 
-/// Rigs kept in the sampling cache.
-const SAMPLING_CACHE_RIGS: usize = 2;
+/// Rigs kept in the sampling cache at least (the Deep360 rig and the current sample's).
+pub(super) const MIN_SAMPLING_CACHE_RIGS: usize = 2;
+
+impl Default for SamplingCache {
+    fn default() -> Self {
+        Self::with_capacity(MIN_SAMPLING_CACHE_RIGS)
+    }
+}
 
 impl SamplingCache {
+    /// A cache of `capacity` rigs (at least [`MIN_SAMPLING_CACHE_RIGS`]).
+    pub(super) fn with_capacity(capacity: usize) -> Self {
+        Self {
+            cached: Vec::new(),
+            capacity: capacity.max(MIN_SAMPLING_CACHE_RIGS),
+        }
+    }
+
     pub(super) fn get(
         &mut self,
         rig: &crate::geometry::Rig,
         cfg: &SsmodeConfig,
     ) -> Result<&SweepSampling, TrainError> {
         if let Some(pos) = self.cached.iter().position(|(r, _)| r == rig) {
-            return Ok(&self.cached[pos].1);
+            // Most recently used last.
+            let hit = self.cached.remove(pos);
+            self.cached.push(hit);
+        } else {
+            let s = SweepSampling::new(rig, cfg)?;
+            if self.cached.len() >= self.capacity {
+                self.cached.remove(0);
+            }
+            self.cached.push((rig.clone(), s));
         }
-        let s = SweepSampling::new(rig, cfg)?;
-        if self.cached.len() >= SAMPLING_CACHE_RIGS {
-            self.cached.remove(0);
-        }
-        self.cached.push((rig.clone(), s));
         let last = self.cached.len() - 1;
         Ok(&self.cached[last].1)
     }

@@ -4,7 +4,9 @@
 //!
 //! * Data ([`data`]): sample `k` is a pure function of `(seed, k)`, rendered in a background
 //!   thread. Step `s` uses samples `s B .. (s + 1) B` (`B = batch_size`). With
-//!   `deep360_disk`, a fraction of them are Deep360 training frames read from disk.
+//!   `deep360_disk`, a fraction of them are Deep360 training frames read from disk. Random
+//!   rigs are roof racks or, with `rig_layouts` `any`, of every layout family
+//!   ([`rig_layouts`]); `blocked_fraction` of the samples have one lens partly blocked.
 //! * Batching: random rigs differ per sample (camera count, sweep tables), so a batch is
 //!   gradient accumulation over `B` single-sample forward/backward passes, each loss scaled by
 //!   `1 / B`; memory stays that of one sample.
@@ -31,6 +33,8 @@ pub mod fisheye_rigs;
 pub mod log;
 pub mod loss;
 pub mod optim;
+pub mod rig_layouts;
+pub mod rig_pool;
 
 mod checkpoint;
 mod forward;

@@ -5,6 +5,7 @@
 use super::data::DataError;
 use super::log::ValRecord;
 use super::loss::LossError;
+use super::rig_layouts::RigLayouts;
 use crate::model::{ModelError, Preset, SsmodeConfig};
 use crate::synth::StreetStyle;
 use std::path::{Path, PathBuf};
@@ -84,6 +85,12 @@ pub struct TrainOptions {
     pub street: StreetStyle,
     /// Fraction of rendered samples on random fisheye and dual-fisheye rigs.
     pub fisheye_fraction: f64,
+    /// Layouts of the random ERP rigs (roof racks only, or every family).
+    pub rig_layouts: RigLayouts,
+    /// Fraction of rendered samples with one camera's lens partly blocked.
+    pub blocked_fraction: f64,
+    /// Random rigs from a renewed pool of this many (0: a new rig every sample).
+    pub rig_pool: usize,
     /// Clip the global gradient norm to this (`None`: no clipping).
     pub max_grad_norm: Option<f64>,
     /// Start a new run (not a resumed one) from these weights instead of the random
@@ -116,6 +123,9 @@ impl Default for TrainOptions {
             objects_fraction: 0.0,
             street: StreetStyle::Regular,
             fisheye_fraction: 0.0,
+            rig_layouts: RigLayouts::Roof,
+            blocked_fraction: 0.0,
+            rig_pool: 0,
             max_grad_norm: None,
             init_weights: None,
             show_progress: true,

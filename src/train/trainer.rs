@@ -11,7 +11,9 @@ use super::checkpoint::{
 use super::data::{
     render_sample, validation_specs, DataConfig, Deep360Mix, SampleStream, TrainSample,
 };
-use super::forward::{accumulate_grads, forward_sample, validation_pass, SamplingCache};
+use super::forward::{
+    accumulate_grads, forward_sample, validation_pass, SamplingCache, MIN_SAMPLING_CACHE_RIGS,
+};
 use super::init::{load_init_weights, named_vars, seeded_var_builder};
 use super::log::{TrainRecord, ValRecord};
 use super::loss::{LossConfig, PSMNET_STAGE_WEIGHTS};
@@ -100,6 +102,9 @@ impl Trainer {
             objects_fraction: opts.objects_fraction,
             street: opts.street,
             fisheye_fraction: opts.fisheye_fraction,
+            rig_layouts: opts.rig_layouts,
+            blocked_fraction: opts.blocked_fraction,
+            rig_pool: opts.rig_pool,
         };
         let mut resumed = false;
         if opts.resume {
@@ -136,6 +141,9 @@ impl Trainer {
             objects_fraction: opts.objects_fraction,
             street: opts.street,
             fisheye_fraction: opts.fisheye_fraction,
+            rig_layouts: opts.rig_layouts,
+            blocked_fraction: opts.blocked_fraction,
+            rig_pool: opts.rig_pool,
         };
         let loss_cfg = LossConfig {
             min_depth_m: cfg.min_depth_m,
@@ -172,6 +180,8 @@ impl Trainer {
         } else {
             None
         };
+        // The pool's rigs, the Deep360 rig and the current sample's.
+        let cache = SamplingCache::with_capacity(opts.rig_pool + MIN_SAMPLING_CACHE_RIGS);
         Ok(Self {
             opts,
             cfg,
@@ -184,7 +194,7 @@ impl Trainer {
             data_cfg,
             loss_cfg,
             schedule,
-            cache: SamplingCache::default(),
+            cache,
             stream,
             val_set: None,
             last_validation: None,

@@ -627,6 +627,9 @@ fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
         objects_fraction: 0.0,
         street: mode360::synth::StreetStyle::Regular,
         fisheye_fraction: 0.0,
+        rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
+        blocked_fraction: 0.0,
+        rig_pool: 0,
     }
 }
 

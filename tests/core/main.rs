@@ -11,6 +11,7 @@ mod msgs_cdr;
 mod ops_conv3d;
 mod ops_sample;
 mod rig_models;
+mod synth_blockers;
 mod synth_fisheye;
 mod synth_objects;
 mod synth_render;

@@ -20,6 +20,9 @@ fn cfg(seed: u64) -> DataConfig {
         objects_fraction: 0.0,
         street: mode360::synth::StreetStyle::Regular,
         fisheye_fraction: 0.0,
+        rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
+        blocked_fraction: 0.0,
+        rig_pool: 0,
     }
 }
 

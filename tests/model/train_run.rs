@@ -28,6 +28,9 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         objects_fraction: 0.5,
         street: mode360::synth::StreetStyle::Varied,
         fisheye_fraction: 0.25,
+        rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
+        blocked_fraction: 0.0,
+        rig_pool: 0,
         max_grad_norm: Some(5.0),
         show_progress: false,
     }

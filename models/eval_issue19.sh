@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# The held-out rows of issue 19, rendered from a world training never uses (seed 2^63 + 19:
+# training draws its worlds with the top bit clear), FRAMES frames from frame 60, at WIDTH:
+#   streets_clean     streets on the Deep360 rig
+#   streets_soiled    the same frames with lens soiling (--soiled)
+#   objects           random objects all around the Deep360 rig (--scene objects)
+#   vertical_pair     models/eval_rigs/rig_vertical_pair.yaml (two cameras 0.3 m apart vertically)
+#   turned3           models/eval_rigs/rig_turned3.yaml (three cameras turned, at two heights)
+#   omnimvs           launch_configs/rig_omnimvs.yaml (fisheyes scaled by WIDTH / 512)
+#   blocked_third     the Deep360 rig with camera 3's lens one third blocked by mud
+# then every estimator of ESTIMATORS with `mode360 eval --geometry-share` (true views, then the
+# reference image on every camera), and one markdown table in OUT/summary.md: row, estimator,
+# δ1 true, δ1 same image, geometry share (points), AbsRel. Bags are named after WIDTH and
+# FRAMES and rendered only when missing.
+#   models/eval_issue19.sh [BAGS_DIR]
+# env: WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
+# models/ssmode_parallax.safetensors, for ssmode), OUT (BAGS_DIR/out), MODE360_BIN
+# (target/release/mode360).
+set -euo pipefail
+bags="${1:-/tmp/mode360_issue19}"
+out="${OUT:-$bags/out}"
+width="${WIDTH:-512}"
+frames="${FRAMES:-4}"
+estimators="${ESTIMATORS:-ssmode photometric}"
+weights="${WEIGHTS:-models/ssmode_parallax.safetensors}"
+bin="${MODE360_BIN:-target/release/mode360}"
+seed=$(python3 -c "print(2**63 + 19)")
+fisheye_scale=$(python3 -c "print($width / 512)")
+deep360=launch_configs/rig_deep360.yaml
+mkdir -p "$bags" "$out"
+
+rows=(
+  "streets_clean|--rig $deep360"
+  "streets_soiled|--rig $deep360 --soiled"
+  "objects|--rig $deep360 --scene objects"
+  "vertical_pair|--rig models/eval_rigs/rig_vertical_pair.yaml"
+  "turned3|--rig models/eval_rigs/rig_turned3.yaml"
+  "omnimvs|--rig launch_configs/rig_omnimvs.yaml --fisheye-scale $fisheye_scale"
+  "blocked_third|--rig $deep360 --blocked-lens 3:0.3333:mud"
+)
+
+bag_of() { echo "$bags/${1}_w${width}_f${frames}.mcap"; }
+
+for row in "${rows[@]}"; do
+  name="${row%%|*}"
+  bag=$(bag_of "$name")
+  if [[ ! -f "$bag" ]]; then
+    # shellcheck disable=SC2086
+    "$bin" synth ${row#*|} --frames "$frames" --first-frame 60 --width "$width" \
+      --seed "$seed" --out "$bag"
+  fi
+done
+
+summary="$out/summary.md"
+{
+  echo "held-out seed $seed, $frames frame(s) per row at ${width}x$((width / 2)), frames 60.."
+  echo
+  echo "| row | estimator | δ1 true % | δ1 same image % | geometry share (points) | AbsRel |"
+  echo "|---|---|---|---|---|---|"
+} >"$summary"
+for est in $estimators; do
+  w=()
+  [[ $est == ssmode ]] && w=(--weights "$weights")
+  for row in "${rows[@]}"; do
+    name="${row%%|*}"
+    json="$out/${name}_${est}.json"
+    "$bin" eval --bag "$(bag_of "$name")" --estimator "$est" "${w[@]}" --geometry-share \
+      --json "$json" >"$out/${name}_${est}.txt"
+    python3 - "$json" "$name" "$est" >>"$summary" <<'EOF'
+import json, sys
+path, name, est = sys.argv[1:4]
+r = json.load(open(path))
+share = r["geometry_share"][0]
+abs_rel = r["true_views"]["rows"][0]["depth"]["abs_rel"]
+print(f"| {name} | {est} | {share['delta1_true_pct']:.2f} | {share['delta1_same_image_pct']:.2f} "
+      f"| {share['share_pts']:.2f} | {abs_rel:.4f} |")
+EOF
+  done
+done
+cat "$summary"
