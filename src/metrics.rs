@@ -78,6 +78,86 @@ fn check_sizes(pred: &[f32], gt: &[f32]) -> Result<(), MetricsError> {
     Ok(())
 }
 
+/// Upper ends of the ground-truth range bands of [`RangeBands`], metres; the last band runs
+/// from the last edge to below `max_depth_m`, and the sky (ground truth at `max_depth_m`) is a
+/// band of its own.
+pub const RANGE_BAND_EDGES_M: [f64; 4] = [5.0, 20.0, 80.0, 300.0];
+
+/// δ1 per ground-truth range band, counted over pixels (not averaged per frame), so that an
+/// estimator's losses can be placed: near objects, the street, the far field or the sky.
+/// Bands: `(0, 5]`, `(5, 20]`, `(20, 80]`, `(80, 300]`, `(300, max)`, and `max` (the sky).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RangeBands {
+    /// Scored pixels per band.
+    pub pixels: Vec<u64>,
+    /// Pixels within δ1 per band.
+    pub within_delta1: Vec<u64>,
+}
+
+impl RangeBands {
+    /// Number of bands: one per edge, the rest below the maximum, and the sky.
+    pub const COUNT: usize = RANGE_BAND_EDGES_M.len() + 2;
+
+    /// Band names for tables.
+    pub fn labels(max_depth_m: f64) -> Vec<String> {
+        let mut labels = Vec::with_capacity(Self::COUNT);
+        let mut lower = 0.0;
+        for edge in RANGE_BAND_EDGES_M {
+            labels.push(format!("{lower:.0}-{edge:.0} m"));
+            lower = edge;
+        }
+        labels.push(format!("{lower:.0}-{max_depth_m:.0} m"));
+        labels.push(format!("sky ({max_depth_m:.0} m)"));
+        labels
+    }
+
+    /// Adds one frame (same validity rules as [`depth_metrics`]; a pixel without a usable
+    /// prediction counts as a miss).
+    pub fn add_frame(&mut self, pred: &[f32], gt: &[f32], max_depth_m: f64) {
+        if self.pixels.len() != Self::COUNT {
+            self.pixels = vec![0; Self::COUNT];
+            self.within_delta1 = vec![0; Self::COUNT];
+        }
+        for (&p, &g) in pred.iter().zip(gt) {
+            let (p, g) = (p as f64, g as f64);
+            if !(g.is_finite() && g > 0.0 && g <= max_depth_m) {
+                continue;
+            }
+            let band = if g >= max_depth_m {
+                Self::COUNT - 1
+            } else {
+                RANGE_BAND_EDGES_M
+                    .iter()
+                    .position(|&edge| g <= edge)
+                    .unwrap_or(RANGE_BAND_EDGES_M.len())
+            };
+            self.pixels[band] += 1;
+            let p = if p == f64::INFINITY { max_depth_m } else { p };
+            if p.is_finite() && p > 0.0 && (p / g).max(g / p) < DELTA_THRESHOLD {
+                self.within_delta1[band] += 1;
+            }
+        }
+    }
+
+    /// δ1 (%) per band, `None` for a band without pixels.
+    pub fn delta1_pct(&self) -> Vec<Option<f64>> {
+        self.pixels
+            .iter()
+            .zip(&self.within_delta1)
+            .map(|(&n, &k)| (n > 0).then(|| 100.0 * k as f64 / n as f64))
+            .collect()
+    }
+
+    /// Share (%) of the scored pixels in each band.
+    pub fn share_pct(&self) -> Vec<f64> {
+        let total = self.pixels.iter().sum::<u64>().max(1) as f64;
+        self.pixels
+            .iter()
+            .map(|&n| 100.0 * n as f64 / total)
+            .collect()
+    }
+}
+
 /// Depth metrics of one frame (see the module docs).
 pub fn depth_metrics(
     pred: &[f32],
@@ -331,5 +411,24 @@ mod tests {
         assert_relative_eq!(avg.depth().mae_m, 0.5);
         assert_relative_eq!(avg.depth().delta1_pct, 50.0);
         assert!(avg.disparity().is_none());
+    }
+
+    #[test]
+    fn range_bands_place_each_pixel_and_count_misses() {
+        // gt 2 m: hit; 10 m: miss; 50 m: hit; 200 m predicted +Inf (scored as 1000 m): miss;
+        // 500 m: hit; the sky: hit; NaN ground truth: ignored.
+        let gt = [2.0, 10.0, 50.0, 200.0, 500.0, 1000.0, f32::NAN];
+        let pred = [2.1, 20.0, 45.0, f32::INFINITY, 450.0, f32::INFINITY, 3.0];
+        let mut bands = RangeBands::default();
+        bands.add_frame(&pred, &gt, 1000.0);
+        bands.add_frame(&pred, &gt, 1000.0);
+        assert_eq!(bands.pixels, vec![2, 2, 2, 2, 2, 2]);
+        assert_eq!(bands.within_delta1, vec![2, 0, 2, 0, 2, 2]);
+        let d = bands.delta1_pct();
+        assert_eq!(d[1], Some(0.0));
+        assert_eq!(d[5], Some(100.0));
+        assert_relative_eq!(bands.share_pct().iter().sum::<f64>(), 100.0);
+        assert_eq!(RangeBands::labels(1000.0).len(), RangeBands::COUNT);
+        assert_eq!(RangeBands::labels(1000.0)[4], "300-1000 m");
     }
 }

@@ -109,6 +109,16 @@ pub struct EvalRow {
     pub disparity: Option<DisparityMetrics>,
     #[serde(alias = "seconds_per_frame")]
     pub s_per_frame: f64,
+    /// δ1 per ground-truth range band over all pixels (reports written before it: empty).
+    #[serde(default)]
+    pub range_bands: metrics::RangeBands,
+    /// The range that scores as the sky.
+    #[serde(default = "default_max_depth_m")]
+    pub max_depth_m: f64,
+}
+
+fn default_max_depth_m() -> f64 {
+    DEFAULT_MAX_DEPTH_M
 }
 
 /// The whole report, printed as a table and written as JSON.
@@ -128,6 +138,8 @@ struct Group {
     bags: Vec<String>,
     cameras: Vec<String>,
     average: FrameAverage,
+    bands: metrics::RangeBands,
+    max_depth_m: f64,
     elapsed_s: f64,
 }
 
@@ -164,6 +176,8 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                 bags: Vec::new(),
                 cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
                 average: FrameAverage::default(),
+                bands: metrics::RangeBands::default(),
+                max_depth_m,
                 elapsed_s: 0.0,
             });
         group.bags.push(bag_name.clone());
@@ -212,6 +226,9 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             let disp_gt = disparity_image(&rig, output, &pair, gt);
             let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
             group.average.push(depth, disparity);
+            group
+                .bands
+                .add_frame(&est.range_m.data, &gt.data, max_depth_m);
             if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
                 let stem = path
                     .file_stem()
@@ -248,6 +265,8 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             depth: g.average.depth(),
             disparity: g.average.disparity(),
             s_per_frame: g.elapsed_s / g.average.frames() as f64,
+            range_bands: g.bands,
+            max_depth_m: g.max_depth_m,
             bags: g.bags,
             cameras: g.cameras,
         })
@@ -334,8 +353,37 @@ impl EvalReport {
                 r.s_per_frame
             ));
         }
+        s.push_str(&self.range_band_table());
         s.push_str(&super::drops::summary(&self.drops));
         s.push('\n');
+        s
+    }
+
+    /// δ1 per ground-truth range band (pixels pooled over frames), with each band's share of
+    /// the pixels: where the estimator loses.
+    pub fn range_band_table(&self) -> String {
+        let Some(first) = self.rows.iter().find(|r| !r.range_bands.pixels.is_empty()) else {
+            return String::new();
+        };
+        let labels = metrics::RangeBands::labels(first.max_depth_m);
+        let mut s = format!(
+            "δ1 % by ground-truth range (share of pixels %)\n| condition | {} |\n|---|{}\n",
+            labels.join(" | "),
+            "---|".repeat(labels.len())
+        );
+        for r in self.rows.iter().filter(|r| !r.range_bands.pixels.is_empty()) {
+            let cells: Vec<String> = r
+                .range_bands
+                .delta1_pct()
+                .iter()
+                .zip(r.range_bands.share_pct())
+                .map(|(d, share)| match d {
+                    Some(d) => format!("{d:.1} ({share:.1})"),
+                    None => "- (0)".to_string(),
+                })
+                .collect();
+            s.push_str(&format!("| {} | {} |\n", r.condition, cells.join(" | ")));
+        }
         s
     }
 }
