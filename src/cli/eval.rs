@@ -371,7 +371,11 @@ impl EvalReport {
             labels.join(" | "),
             "---|".repeat(labels.len())
         );
-        for r in self.rows.iter().filter(|r| !r.range_bands.pixels.is_empty()) {
+        for r in self
+            .rows
+            .iter()
+            .filter(|r| !r.range_bands.pixels.is_empty())
+        {
             let cells: Vec<String> = r
                 .range_bands
                 .delta1_pct()

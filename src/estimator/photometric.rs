@@ -34,7 +34,7 @@ mod sgm;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::frame::RgbImage;
 use crate::geometry::panorama::{panorama_rig, RigRemap};
-use crate::geometry::{DepthRange, ErpGrid, InverseDepthHypotheses, Rig};
+use crate::geometry::{DepthHypotheses, DepthRange, ErpGrid, Rig};
 use crate::matching::zncc::{self as cost, PairCostParams, ViewStats};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
@@ -127,13 +127,13 @@ impl Default for PhotometricConfig {
 }
 
 impl PhotometricConfig {
-    fn validate(&self) -> Result<InverseDepthHypotheses, EstimatorError> {
+    fn validate(&self) -> Result<DepthHypotheses, EstimatorError> {
         let bad = |field: &str, problem: String| EstimatorError::BadConfig {
             field: field.to_string(),
             problem,
         };
         let range = DepthRange::new(self.depth_range.min_depth_m, self.depth_range.max_depth_m)?;
-        let hypotheses = InverseDepthHypotheses::new(range, self.hypotheses)?;
+        let hypotheses = DepthHypotheses::new(range, self.hypotheses)?;
         let unit = |field: &str, x: f32, allow_zero: bool| {
             if x.is_finite() && x <= 1.0 && (x > 0.0 || (allow_zero && x == 0.0)) {
                 Ok(())
@@ -189,7 +189,7 @@ struct RigCache {
 #[derive(Debug)]
 pub struct PhotometricSweep {
     cfg: PhotometricConfig,
-    hypotheses: InverseDepthHypotheses,
+    hypotheses: DepthHypotheses,
     cache: Option<RigCache>,
     /// Fisheye images into panoramas as wide as the output, for the last rig seen.
     remap: Option<RigRemap>,
@@ -211,7 +211,7 @@ impl PhotometricSweep {
         &self.cfg
     }
 
-    pub fn hypotheses(&self) -> &InverseDepthHypotheses {
+    pub fn hypotheses(&self) -> &DepthHypotheses {
         &self.hypotheses
     }
 

@@ -25,7 +25,7 @@ pub use camera::{CameraModel, ImageSize, IntrinsicsError};
 pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
 pub use geer::{GeerAngles, GeerPair};
 pub use rig::{Projection, Rig, RigCamera, RigError};
-pub use sweep::{DepthRange, InverseDepthHypotheses, SweepGeometry, SweepTable};
+pub use sweep::{DepthHypotheses, DepthRange, HypothesisSpacing, SweepGeometry, SweepTable};
 
 /// Errors of the geometry constructors.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -55,24 +55,54 @@ impl DepthRange {
     }
 }
 
-/// Hypotheses uniform in inverse depth; index 0 is the farthest (`1 / max_depth`), the last
-/// the nearest (`1 / min_depth`):
-/// `inv_i = 1/max + i (1/min - 1/max) / (n - 1)`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct InverseDepthHypotheses {
-    range: DepthRange,
-    count: usize,
+/// How depth hypotheses are spread between the nearest and the farthest.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum HypothesisSpacing {
+    /// Uniform in inverse depth (the paper): equal parallax steps, so most hypotheses are
+    /// near (over 0.5 to 1000 m with 96 of them, 86 are nearer than 5 m).
+    #[default]
+    InverseDepth,
+    /// Uniform in log depth: equal relative steps (`(max/min)^(1/(n-1))`, 8.3 % over 0.5 to
+    /// 1000 m with 96), so every range gets the same relative resolution, as δ1 scores it.
+    LogDepth,
 }
 
-impl InverseDepthHypotheses {
+/// Depth hypotheses; index 0 is the farthest (`max_depth`), index `n - 1` the nearest
+/// (`min_depth`), with the normalized index `k = i / (n - 1)`:
+/// - [`HypothesisSpacing::InverseDepth`]: `1/rho = 1/max + k (1/min - 1/max)`;
+/// - [`HypothesisSpacing::LogDepth`]: `ln rho = ln max + k (ln min - ln max)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthHypotheses {
+    range: DepthRange,
+    count: usize,
+    spacing: HypothesisSpacing,
+}
+
+impl DepthHypotheses {
+    /// `count` hypotheses uniform in inverse depth.
     pub fn new(range: DepthRange, count: usize) -> Result<Self, GeometryError> {
+        Self::with_spacing(range, count, HypothesisSpacing::InverseDepth)
+    }
+
+    pub fn with_spacing(
+        range: DepthRange,
+        count: usize,
+        spacing: HypothesisSpacing,
+    ) -> Result<Self, GeometryError> {
         if count < MIN_HYPOTHESES {
             return Err(GeometryError::TooFewHypotheses {
                 count,
                 min: MIN_HYPOTHESES,
             });
         }
-        Ok(Self { range, count })
+        Ok(Self {
+            range,
+            count,
+            spacing,
+        })
     }
 
     pub fn count(&self) -> usize {
@@ -83,23 +113,43 @@ impl InverseDepthHypotheses {
         self.range
     }
 
-    fn inv_step(&self) -> f64 {
-        (1.0 / self.range.min_depth_m - 1.0 / self.range.max_depth_m) / (self.count - 1) as f64
+    pub fn spacing(&self) -> HypothesisSpacing {
+        self.spacing
+    }
+
+    /// Depth (m) at normalized index `k` (0 the farthest, 1 the nearest; any real `k`).
+    pub fn depth_at_normalized(&self, k: f64) -> f64 {
+        let (min, max) = (self.range.min_depth_m, self.range.max_depth_m);
+        match self.spacing {
+            HypothesisSpacing::InverseDepth => 1.0 / (1.0 / max + k * (1.0 / min - 1.0 / max)),
+            HypothesisSpacing::LogDepth => (max.ln() + k * (min.ln() - max.ln())).exp(),
+        }
+    }
+
+    /// Normalized index of a depth (inverse of [`Self::depth_at_normalized`]), unclamped.
+    pub fn normalized_of_depth(&self, depth_m: f64) -> f64 {
+        let (min, max) = (self.range.min_depth_m, self.range.max_depth_m);
+        match self.spacing {
+            HypothesisSpacing::InverseDepth => {
+                (1.0 / depth_m - 1.0 / max) / (1.0 / min - 1.0 / max)
+            }
+            HypothesisSpacing::LogDepth => (max.ln() - depth_m.ln()) / (max.ln() - min.ln()),
+        }
     }
 
     /// Inverse depth (1/m) of hypothesis `i`; `i` may be fractional.
     pub fn inverse_depth(&self, i: f64) -> f64 {
-        1.0 / self.range.max_depth_m + i * self.inv_step()
+        1.0 / self.depth_m(i)
     }
 
     /// Depth (m) of hypothesis `i`; `i` may be fractional.
     pub fn depth_m(&self, i: f64) -> f64 {
-        1.0 / self.inverse_depth(i)
+        self.depth_at_normalized(i / (self.count - 1) as f64)
     }
 
     /// Fractional hypothesis index of a depth (inverse of [`Self::depth_m`]).
     pub fn index_of_depth(&self, depth_m: f64) -> f64 {
-        (1.0 / depth_m - 1.0 / self.range.max_depth_m) / self.inv_step()
+        self.normalized_of_depth(depth_m) * (self.count - 1) as f64
     }
 
     /// All depths, farthest first.
@@ -117,7 +167,7 @@ impl InverseDepthHypotheses {
 #[derive(Clone, Debug)]
 pub struct SweepGeometry {
     output: ErpGrid,
-    hypotheses: InverseDepthHypotheses,
+    hypotheses: DepthHypotheses,
     /// `panorama_from_output` of every camera.
     cam_from_output: Vec<Isometry3<f64>>,
     camera_grids: Vec<ErpGrid>,
@@ -131,7 +181,7 @@ impl SweepGeometry {
         rig: &Rig,
         output: ErpGrid,
         camera_grids: Vec<ErpGrid>,
-        hypotheses: InverseDepthHypotheses,
+        hypotheses: DepthHypotheses,
     ) -> Result<Self, GeometryError> {
         if camera_grids.len() != rig.cameras.len() {
             return Err(GeometryError::NoSuchCamera {
@@ -177,7 +227,7 @@ impl SweepGeometry {
         self.cam_from_output[cam].inverse().translation.vector
     }
 
-    pub fn hypotheses(&self) -> &InverseDepthHypotheses {
+    pub fn hypotheses(&self) -> &DepthHypotheses {
         &self.hypotheses
     }
 
@@ -327,7 +377,7 @@ mod tests {
             "/launch_configs/rig_omnimvs.yaml"
         ))?;
         let output = ErpGrid::new(32)?;
-        let hypotheses = InverseDepthHypotheses::new(DepthRange::paper(), 8)?;
+        let hypotheses = DepthHypotheses::new(DepthRange::paper(), 8)?;
         let cameras = rig.cameras.len();
         let geometry = SweepGeometry::new(&rig, output, vec![output; cameras], hypotheses)?;
         let (mut unseen, mut worst) = (0usize, 0.0f32);
@@ -354,6 +404,30 @@ mod tests {
         }
         assert!(unseen > 0, "the fisheye rig should leave samples unseen");
         assert!(worst < 1e-5, "largest tap weight difference {worst}");
+        Ok(())
+    }
+
+    #[test]
+    fn hypotheses_round_trip_in_both_spacings() -> Result<(), GeometryError> {
+        let range = DepthRange::paper();
+        for spacing in [HypothesisSpacing::InverseDepth, HypothesisSpacing::LogDepth] {
+            let h = DepthHypotheses::with_spacing(range, 96, spacing)?;
+            assert!((h.depth_m(0.0) - 1000.0).abs() < 1e-9);
+            assert!((h.depth_m(95.0) - 0.5).abs() < 1e-12);
+            for depth_m in [0.7, 3.0, 40.0, 350.0] {
+                let i = h.index_of_depth(depth_m);
+                assert!((h.depth_m(i) / depth_m - 1.0).abs() < 1e-12, "{spacing:?} {depth_m}");
+            }
+        }
+        // Log spacing: equal ratios, (1000 / 0.5)^(1/95) = 1.0833 per step.
+        let log = DepthHypotheses::with_spacing(range, 96, HypothesisSpacing::LogDepth)?;
+        let ratio = log.depth_m(10.0) / log.depth_m(11.0);
+        assert!((ratio - 2000f64.powf(1.0 / 95.0)).abs() < 1e-12);
+        assert!((log.depth_m(40.0) / log.depth_m(41.0) - ratio).abs() < 1e-12);
+        // Uniform inverse depth leaves 10 of 96 hypotheses beyond 5 m; log spacing 67.
+        let beyond = |h: &DepthHypotheses| h.depths_m().iter().filter(|&&d| d > 5.0).count();
+        assert_eq!(beyond(&DepthHypotheses::new(range, 96)?), 10);
+        assert_eq!(beyond(&log), 67);
         Ok(())
     }
 }

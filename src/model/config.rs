@@ -4,7 +4,9 @@ use serde::{Deserialize, Serialize};
 
 use super::sphere_conv::SphereConvTable;
 use super::ModelError;
-use crate::geometry::{DepthRange, ErpGrid, InverseDepthHypotheses, Rig, SweepGeometry};
+use crate::geometry::{
+    DepthHypotheses, DepthRange, ErpGrid, HypothesisSpacing, Rig, SweepGeometry,
+};
 use crate::model::ops::{view_scale, SampleTable};
 use std::sync::Arc;
 
@@ -70,6 +72,8 @@ pub enum Preset {
     Parallax,
     /// `parallax` with the sweep's ZNCC matching cost as one more cost-volume channel.
     ParallaxZncc,
+    /// `parallax_zncc` with spheres and hypotheses uniform in log depth.
+    ParallaxZnccLog,
     /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
     /// The paper's sizes.
@@ -84,9 +88,10 @@ pub enum Preset {
 
 impl Preset {
     /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
-    pub const ALL: [Self; 7] = [
+    pub const ALL: [Self; 8] = [
         Self::Parallax,
         Self::ParallaxZncc,
+        Self::ParallaxZnccLog,
         Self::Compact,
         Self::Paper,
         Self::Tiny,
@@ -99,6 +104,7 @@ impl Preset {
         match self {
             Self::Parallax => "parallax",
             Self::ParallaxZncc => "parallax_zncc",
+            Self::ParallaxZnccLog => "parallax_zncc_log",
             Self::Compact => "compact",
             Self::Paper => "paper",
             Self::Tiny => "tiny",
@@ -111,6 +117,7 @@ impl Preset {
         match self {
             Self::Parallax => SsmodeConfig::parallax(),
             Self::ParallaxZncc => SsmodeConfig::parallax_zncc(),
+            Self::ParallaxZnccLog => SsmodeConfig::parallax_zncc_log(),
             Self::Compact => SsmodeConfig::compact(),
             Self::Paper => SsmodeConfig::paper(),
             Self::Tiny => SsmodeConfig::tiny(),
@@ -187,6 +194,10 @@ pub struct SsmodeConfig {
     /// channel ([`super::photometric_cost`]; files without it: no). Needs `cost_downsample` 1.
     #[serde(default)]
     pub photometric_cost: bool,
+    /// How spheres and output hypotheses are spread between `min_depth_m` and `max_depth_m`
+    /// (files without it: uniform in inverse depth, the paper's).
+    #[serde(default)]
+    pub hypothesis_spacing: HypothesisSpacing,
 }
 
 /// [`SsmodeConfig::far_plane_probability`] of the presets.
@@ -218,6 +229,7 @@ impl SsmodeConfig {
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
         }
     }
 
@@ -243,6 +255,7 @@ impl SsmodeConfig {
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
         }
     }
 
@@ -269,6 +282,7 @@ impl SsmodeConfig {
             aggregation_stride: 2,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
         }
     }
 
@@ -292,6 +306,7 @@ impl SsmodeConfig {
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
         }
     }
 
@@ -322,6 +337,17 @@ impl SsmodeConfig {
         }
     }
 
+    /// [`Self::parallax_zncc`] with spheres and hypotheses uniform in log depth: every range
+    /// gets the same relative resolution (8.3 % per hypothesis), where uniform inverse depth
+    /// leaves 10 of 96 spheres (5 of the 48 the aggregation decides on) beyond 5 m.
+    pub fn parallax_zncc_log() -> Self {
+        Self {
+            name: "parallax_zncc_log".to_string(),
+            hypothesis_spacing: HypothesisSpacing::LogDepth,
+            ..Self::parallax_zncc()
+        }
+    }
+
     /// [`Self::tiny_parallax`] with the photometric cost channel, for tests.
     pub fn tiny_zncc() -> Self {
         Self {
@@ -333,7 +359,7 @@ impl SsmodeConfig {
 
     /// Names of the presets, for messages.
     pub const PRESETS: &'static str =
-        "parallax, parallax_zncc, compact, paper, tiny, tiny_parallax, tiny_zncc";
+        "parallax, parallax_zncc, parallax_zncc_log, compact, paper, tiny, tiny_parallax, tiny_zncc";
 
     /// The preset called `name` (see [`Preset`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {
@@ -498,19 +524,21 @@ impl SsmodeConfig {
         Ok(DepthRange::new(self.min_depth_m, self.max_depth_m)?)
     }
 
-    /// The quarter-resolution sweep spheres, uniform in inverse depth.
-    pub fn sphere_hypotheses(&self) -> Result<InverseDepthHypotheses, ModelError> {
-        Ok(InverseDepthHypotheses::new(
+    /// The sweep spheres, spread by `hypothesis_spacing`.
+    pub fn sphere_hypotheses(&self) -> Result<DepthHypotheses, ModelError> {
+        Ok(DepthHypotheses::with_spacing(
             self.depth_range()?,
             self.spheres,
+            self.hypothesis_spacing,
         )?)
     }
 
-    /// The full-resolution output hypotheses, uniform in inverse depth.
-    pub fn output_hypotheses(&self) -> Result<InverseDepthHypotheses, ModelError> {
-        Ok(InverseDepthHypotheses::new(
+    /// The output hypotheses, spread by `hypothesis_spacing`.
+    pub fn output_hypotheses(&self) -> Result<DepthHypotheses, ModelError> {
+        Ok(DepthHypotheses::with_spacing(
             self.depth_range()?,
             self.hypotheses,
+            self.hypothesis_spacing,
         )?)
     }
 }

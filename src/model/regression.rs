@@ -3,6 +3,7 @@
 //!
 //! ```text
 //! p_i = softmax_i(cost_i),   k = sum_i p_i i / (N - 1),   range = 1 / (inv_far + k (inv_near - inv_far))
+//! (hypotheses uniform in log depth: range = exp(ln far + k (ln near - ln far)))
 //! ```
 //!
 //! with hypotheses uniform in inverse depth (index 0 the farthest). The paper's eq. 7 takes the
@@ -22,7 +23,7 @@ use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
 use super::hourglass::Conv3d;
-use crate::geometry::InverseDepthHypotheses;
+use crate::geometry::{DepthHypotheses, HypothesisSpacing};
 use crate::model::ops::{resample_linear_axis, upsample_trilinear, LinearAxisMap};
 
 /// Hypotheses either side of the argmax counted in the confidence.
@@ -68,7 +69,7 @@ pub struct Regression {
 /// with the far-plane readout at `far_plane_probability` (see the module docs).
 pub fn regress(
     cost: &Tensor,
-    hypotheses: &InverseDepthHypotheses,
+    hypotheses: &DepthHypotheses,
     height: usize,
     width: usize,
     far_plane_probability: f64,
@@ -86,11 +87,7 @@ pub fn regress(
     // Range from the expected inverse depth, `1 / (inv_far + k (inv_near - inv_far))`, not the
     // expected depth of eq. 7: with hypotheses from 0.5 m to 1000 m uniform in inverse depth,
     // 1 % of probability on the farthest sphere alone would add 10 m to every pixel's range.
-    let inv_far = hypotheses.inverse_depth(0.0);
-    let inv_near = hypotheses.inverse_depth((n - 1) as f64);
-    let soft_range_m = inverse_depth_index
-        .affine(inv_near - inv_far, inv_far)?
-        .recip()?;
+    let soft_range_m = range_of_index(&inverse_depth_index, hypotheses)?;
     // (B, H, W): probability of the far plane
     let far = probabilities
         .narrow(HYPOTHESIS_AXIS, 0, 1)?
@@ -104,6 +101,18 @@ pub fn regress(
         inverse_depth_index,
         probabilities,
     })
+}
+
+/// Range (m) of the expected normalized index `k` (`(B, H, W)`), differentiable: uniform in
+/// inverse depth `1 / (inv_far + k (inv_near - inv_far))`, uniform in log depth
+/// `exp(ln far + k (ln near - ln far))`.
+fn range_of_index(k: &Tensor, hypotheses: &DepthHypotheses) -> Result<Tensor> {
+    let n = hypotheses.count();
+    let (far, near) = (hypotheses.depth_m(0.0), hypotheses.depth_m((n - 1) as f64));
+    match hypotheses.spacing() {
+        HypothesisSpacing::InverseDepth => k.affine(1.0 / near - 1.0 / far, 1.0 / far)?.recip(),
+        HypothesisSpacing::LogDepth => k.affine(near.ln() - far.ln(), far.ln())?.exp(),
+    }
 }
 
 /// `(B, N, H, W)` probabilities -> `(B, H, W)` mass within [`CONFIDENCE_RADIUS`] hypotheses of
@@ -137,7 +146,7 @@ pub struct InferenceRegression {
 /// materialising the `(B, N, H, W)` volume. Same values as the unfused path (to rounding).
 pub fn regress_inference(
     cost: &Tensor,
-    hypotheses: &InverseDepthHypotheses,
+    hypotheses: &DepthHypotheses,
     height: usize,
     width: usize,
     far_plane_probability: f64,
@@ -152,8 +161,7 @@ pub fn regress_inference(
     let mut index = vec![0f32; b * pixels];
     let mut conf = vec![0f32; b * pixels];
     let mut range = vec![0f32; b * pixels];
-    let inv_far = hypotheses.inverse_depth(0.0);
-    let inv_near = hypotheses.inverse_depth((n - 1) as f64);
+    let far_m = hypotheses.depth_m(0.0) as f32;
     let radius = CONFIDENCE_RADIUS as usize;
     index
         .par_chunks_mut(width)
@@ -209,9 +217,9 @@ pub fn regress_inference(
                 index_row[u] = k;
                 conf_row[u] = near * inv_sum;
                 range_row[u] = if f64::from(p[0] * inv_sum) >= far_plane_probability {
-                    (1.0 / inv_far) as f32
+                    far_m
                 } else {
-                    (1.0 / (inv_far + f64::from(k) * (inv_near - inv_far))) as f32
+                    hypotheses.depth_at_normalized(f64::from(k)) as f32
                 };
             }
         });

@@ -21,7 +21,7 @@ use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
 use super::regression::{confidence, regress, regress_inference, RegressionHead};
-use crate::geometry::InverseDepthHypotheses;
+use crate::geometry::DepthHypotheses;
 use crate::model::ops::{flop_count, OpsError};
 
 /// Image channels (RGB).
@@ -111,7 +111,7 @@ impl StageProfiler {
 #[derive(Clone, Debug)]
 pub struct Ssmode {
     cfg: SsmodeConfig,
-    hypotheses: InverseDepthHypotheses,
+    hypotheses: DepthHypotheses,
     feature: FeatureExtractor,
     aggregation: CostAggregation,
     classif: Vec<RegressionHead>,
@@ -137,7 +137,7 @@ impl Ssmode {
     }
 
     /// The full-resolution hypotheses the range is regressed over.
-    pub fn hypotheses(&self) -> &InverseDepthHypotheses {
+    pub fn hypotheses(&self) -> &DepthHypotheses {
         &self.hypotheses
     }
 

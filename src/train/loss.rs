@@ -17,6 +17,7 @@
 //! Valid pixels have a finite ground truth in `(0, max_depth]` (sky counts, at max depth).
 
 use crate::frame::FloatImage;
+use crate::geometry::{DepthHypotheses, DepthRange, HypothesisSpacing};
 use candle_core::{DType, Device, Tensor};
 
 /// PSMNet's stage weights (coarse to fine).
@@ -40,8 +41,10 @@ pub enum LossError {
 pub struct LossConfig {
     pub min_depth_m: f64,
     pub max_depth_m: f64,
-    /// Number of inverse-depth hypotheses `D`.
+    /// Number of depth hypotheses `D`.
     pub hypotheses: usize,
+    /// How the hypotheses are spread (the target is the normalized index in that spacing).
+    pub spacing: HypothesisSpacing,
     /// One weight per output stage, coarse to fine; when the network returns fewer stages
     /// than weights, the last weights are used.
     pub stage_weights: Vec<f64>,
@@ -67,11 +70,15 @@ impl LossConfig {
         Ok(())
     }
 
-    /// `n(rho) = (1/rho - 1/max) / (1/min - 1/max)`, clamped to `[0, 1]`.
+    /// The normalized hypothesis index of a range, clamped to `[0, 1]`: uniform in inverse
+    /// depth `n(rho) = (1/rho - 1/max) / (1/min - 1/max)`, uniform in log depth
+    /// `n(rho) = (ln max - ln rho) / (ln max - ln min)`
+    /// ([`DepthHypotheses::normalized_of_depth`]).
     pub fn normalized_inverse_depth(&self, range_m: f64) -> f64 {
-        let inv_max = 1.0 / self.max_depth_m;
-        let inv_min = 1.0 / self.min_depth_m;
-        ((1.0 / range_m - inv_max) / (inv_min - inv_max)).clamp(0.0, 1.0)
+        let normalized = DepthRange::new(self.min_depth_m, self.max_depth_m)
+            .and_then(|r| DepthHypotheses::with_spacing(r, self.hypotheses.max(2), self.spacing))
+            .map(|h| h.normalized_of_depth(range_m));
+        normalized.unwrap_or(0.0).clamp(0.0, 1.0)
     }
 
     /// Builds the target and mask tensors from ground-truth range images (one per batch item).

@@ -149,6 +149,7 @@ impl Trainer {
             min_depth_m: cfg.min_depth_m,
             max_depth_m: cfg.max_depth_m,
             hypotheses: cfg.hypotheses,
+            spacing: cfg.hypothesis_spacing,
             stage_weights: PSMNET_STAGE_WEIGHTS.to_vec(),
         };
         let schedule = LrSchedule {

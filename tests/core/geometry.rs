@@ -3,7 +3,7 @@
 
 use mode360::geometry::erp::PixelCoord;
 use mode360::geometry::{
-    DepthRange, ErpGrid, GeerPair, InverseDepthHypotheses, Rig, SweepGeometry, SweepTable,
+    DepthHypotheses, DepthRange, ErpGrid, GeerPair, Rig, SweepGeometry, SweepTable,
 };
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::f64::consts::PI;
@@ -174,7 +174,7 @@ fn sweep_tables_put_known_points_on_the_right_pixels() {
         ErpGrid::new(48).unwrap(),
         ErpGrid::new(64).unwrap(),
     ];
-    let hyps = InverseDepthHypotheses::new(DepthRange::new(0.3, 100.0).unwrap(), 12).unwrap();
+    let hyps = DepthHypotheses::new(DepthRange::new(0.3, 100.0).unwrap(), 12).unwrap();
     let table = SweepTable::build(SweepGeometry::new(&rig, out, cam_grids.clone(), hyps).unwrap());
     let mut near_checked = 0;
     for sphere in 0..hyps.count() {
@@ -213,7 +213,7 @@ fn sweep_taps_read_back_a_painted_point() {
     let rig = test_rig();
     let out = ErpGrid::new(64).unwrap();
     let grid = ErpGrid::new(128).unwrap();
-    let hyps = InverseDepthHypotheses::new(DepthRange::new(0.4, 50.0).unwrap(), 16).unwrap();
+    let hyps = DepthHypotheses::new(DepthRange::new(0.4, 50.0).unwrap(), 16).unwrap();
     let geom = SweepGeometry::new(&rig, out, vec![grid; 3], hyps).unwrap();
     let table = SweepTable::build(geom);
     let k = 20 * out.width() + 5; // a pixel below the horizon
@@ -245,7 +245,7 @@ fn sweep_taps_read_back_a_painted_point() {
 
 #[test]
 fn hypotheses_are_uniform_in_inverse_depth() {
-    let h = InverseDepthHypotheses::new(DepthRange::paper(), 192).unwrap();
+    let h = DepthHypotheses::new(DepthRange::paper(), 192).unwrap();
     assert!((h.depth_m(0.0) - 1000.0).abs() < 1e-9);
     assert!((h.depth_m(191.0) - 0.5).abs() < 1e-9);
     let d = h.depths_m();
@@ -254,7 +254,7 @@ fn hypotheses_are_uniform_in_inverse_depth() {
         assert!((s - steps[0]).abs() < 1e-12);
     }
     assert!((h.index_of_depth(h.depth_m(57.3)) - 57.3).abs() < 1e-9);
-    assert!(InverseDepthHypotheses::new(DepthRange::paper(), 1).is_err());
+    assert!(DepthHypotheses::new(DepthRange::paper(), 1).is_err());
     assert!(DepthRange::new(2.0, 1.0).is_err());
 }
 

@@ -21,6 +21,7 @@ fn multi_stage_loss_by_hand() {
         min_depth_m: 1.0,
         max_depth_m: 100.0,
         hypotheses: 11,
+        spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
         stage_weights: vec![0.5, 0.7, 1.0],
     };
     // Ground truth (1 x 2 x 2): 1 m (n = 1), 100 m (n = 0), NaN (invalid), 200 m (invalid).

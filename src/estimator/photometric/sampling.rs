@@ -170,7 +170,7 @@ pub(crate) fn bilinear_wrapped(image: &[f32], w: usize, h: usize, u: f32, v: f32
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{DepthRange, InverseDepthHypotheses, PixelCoord, Rig, SweepGeometry};
+    use crate::geometry::{DepthHypotheses, DepthRange, PixelCoord, Rig, SweepGeometry};
 
     #[test]
     fn fast_atan2_matches_libm() {
@@ -195,7 +195,7 @@ mod tests {
             "/launch_configs/rig_deep360.yaml"
         ))?;
         let output = ErpGrid::new(64)?;
-        let hyp = InverseDepthHypotheses::new(DepthRange::paper(), 16)?;
+        let hyp = DepthHypotheses::new(DepthRange::paper(), 16)?;
         let geometry = SweepGeometry::new(&rig, output, vec![output; 4], hyp)?;
         let mut worst = 0.0f64;
         for cam in 0..4 {
