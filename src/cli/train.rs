@@ -31,6 +31,9 @@ pub struct TrainArgs {
     /// Peak learning rate (linear warmup, then cosine decay).
     #[arg(long, default_value_t = 1e-3)]
     pub lr: f64,
+    /// Steps of the linear learning-rate warmup.
+    #[arg(long, default_value_t = 200)]
+    pub warmup_steps: usize,
     /// Validate on the held-out set every this many steps.
     #[arg(long, default_value_t = 250)]
     pub val_every: usize,
@@ -95,6 +98,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         resume: a.resume,
         batch_size: a.batch_size,
         lr: a.lr,
+        warmup_steps: a.warmup_steps,
         val_every: a.val_every,
         checkpoint_every_steps: a.checkpoint_every,
         seed: a.seed,
