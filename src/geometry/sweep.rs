@@ -24,6 +24,8 @@ pub const PAPER_MAX_DEPTH_M: f64 = 1000.0;
 pub const PAPER_HYPOTHESES: usize = 192;
 /// At least two hypotheses are needed to define a step.
 pub const MIN_HYPOTHESES: usize = 2;
+/// Rotation angle (rad) and translation (m) below which a camera's pose is the output frame's.
+const IDENTITY_TOLERANCE: f64 = 1e-9;
 
 /// A range of depths (metres).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -222,6 +224,15 @@ impl SweepGeometry {
         self.output
     }
 
+    /// Whether camera `cam`'s panorama is the output frame on the output grid (the reference
+    /// camera of most rigs): its samples are the output pixels on every sphere.
+    pub fn is_output_camera(&self, cam: usize) -> bool {
+        let pose = self.cam_from_output[cam];
+        self.camera_grids[cam] == self.output
+            && pose.translation.vector.norm() < IDENTITY_TOLERANCE
+            && pose.rotation.angle() < IDENTITY_TOLERANCE
+    }
+
     /// Camera `cam`'s panorama centre in the output frame, metres: `output_from_cam * 0`.
     pub fn camera_centre_in_output_m(&self, cam: usize) -> nalgebra::Vector3<f64> {
         self.cam_from_output[cam].inverse().translation.vector
@@ -416,7 +427,10 @@ mod tests {
             assert!((h.depth_m(95.0) - 0.5).abs() < 1e-12);
             for depth_m in [0.7, 3.0, 40.0, 350.0] {
                 let i = h.index_of_depth(depth_m);
-                assert!((h.depth_m(i) / depth_m - 1.0).abs() < 1e-12, "{spacing:?} {depth_m}");
+                assert!(
+                    (h.depth_m(i) / depth_m - 1.0).abs() < 1e-12,
+                    "{spacing:?} {depth_m}"
+                );
             }
         }
         // Log spacing: equal ratios, (1000 / 0.5)^(1/95) = 1.0833 per step.

@@ -40,11 +40,14 @@ pub(crate) fn box_mean(
         for du in 0..=2 * r {
             sum += row_in[(du + w * (r / w + 1) - r) % w];
         }
-        for (u, t) in row_tmp.iter_mut().enumerate() {
+        // Column entering and leaving the window, wrapped without a division per pixel.
+        let mut add = (r + 1) % w;
+        let mut sub = (w * (r / w + 1) - r) % w;
+        for t in row_tmp.iter_mut() {
             *t = sum;
-            let add = (u + r + 1) % w;
-            let sub = (u + w * (r / w + 1) - r) % w;
             sum += row_in[add] - row_in[sub];
+            add = if add + 1 == w { 0 } else { add + 1 };
+            sub = if sub + 1 == w { 0 } else { sub + 1 };
         }
     }
     // Vertical running sums with clamped rows.
@@ -63,8 +66,12 @@ pub(crate) fn box_mean(
         }
         let add = row(v as isize + r as isize + 1) * w;
         let sub = row(v as isize - r as isize) * w;
-        for u in 0..w {
-            acc[u] += tmp[add + u] - tmp[sub + u];
+        for ((a, x), y) in acc
+            .iter_mut()
+            .zip(&tmp[add..add + w])
+            .zip(&tmp[sub..sub + w])
+        {
+            *a += x - y;
         }
     }
 }
@@ -134,15 +141,20 @@ pub(crate) fn sphere_cost(
             }
             box_mean(&product, w, h, p.window_radius_px, &mut tmp, &mut cross);
             let mut cost = vec![0.0f32; n];
-            for k in 0..n {
-                let (ma, mb) = (va.mean[k], vb.mean[k]);
-                let cov = cross[k] - ma * mb;
-                let denom = ((va.variance[k] + p.variance_floor)
-                    * (vb.variance[k] + p.variance_floor))
-                    .sqrt();
+            // Branch-free over zipped slices, so that it vectorizes.
+            let stats = va
+                .mean
+                .iter()
+                .zip(&vb.mean)
+                .zip(va.variance.iter().zip(&vb.variance));
+            for ((c, &cr), ((&ma, &mb), (&var_a, &var_b))) in
+                cost.iter_mut().zip(&cross[..n]).zip(stats)
+            {
+                let cov = cr - ma * mb;
+                let denom = ((var_a + p.variance_floor) * (var_b + p.variance_floor)).sqrt();
                 let zncc = (cov / denom).clamp(-1.0, 1.0);
                 let mean_term = ((ma - mb).abs() / p.mean_scale).min(1.0);
-                cost[k] = (1.0 - p.mean_weight) * 0.5 * (1.0 - zncc) + p.mean_weight * mean_term;
+                *c = (1.0 - p.mean_weight) * 0.5 * (1.0 - zncc) + p.mean_weight * mean_term;
             }
             if let Some(weights) = pair_weights.get(pair_costs.len()).filter(|x| !x.is_empty()) {
                 for (c, wt) in cost.iter_mut().zip(weights) {

@@ -124,34 +124,58 @@ pub fn photometric_cost(images: &[Tensor], sampling: &SweepSampling) -> Result<T
     let track_seen = sampling.view_scale().is_some();
     let params = pair_params(cameras);
     let mut out = Vec::with_capacity(batch * spheres * cells);
+    let seen_mask = |weight: &[f32]| -> Vec<f32> {
+        weight
+            .iter()
+            .map(|&x| if x >= SEEN_WEIGHT { 1.0 } else { 0.0 })
+            .collect()
+    };
     for b in 0..batch {
         let grey = grey_images(images, b)?;
+        // A camera that is the output frame looks the same on every sphere: its statistics
+        // are computed once.
+        let mut tmp = vec![0.0f32; cells];
+        let fixed: Vec<Option<(ViewStats, Option<Vec<f32>>)>> = grey
+            .iter()
+            .zip(&tables)
+            .enumerate()
+            .map(|(cam, (g, table))| {
+                sampling.geometry().is_output_camera(cam).then(|| {
+                    let (mut warped, mut weight) = (vec![0.0f32; cells], vec![0.0f32; cells]);
+                    warp(g, table, 0, &mut warped, &mut weight);
+                    let stats = ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp);
+                    (stats, track_seen.then(|| seen_mask(&weight)))
+                })
+            })
+            .collect();
         let slices: Vec<Vec<f32>> = (0..spheres)
             .into_par_iter()
             .map(|d| {
                 let mut tmp = vec![0.0f32; cells];
-                let mut views = Vec::with_capacity(cameras);
-                let mut seen = Vec::with_capacity(cameras);
-                for (g, table) in grey.iter().zip(&tables) {
-                    let mut warped = vec![0.0f32; cells];
-                    let mut weight = vec![0.0f32; cells];
-                    warp(g, table, d * cells, &mut warped, &mut weight);
-                    views.push(ViewStats::new(
-                        warped,
-                        w,
-                        h,
-                        params.window_radius_px,
-                        &mut tmp,
-                    ));
-                    seen.push(track_seen.then(|| {
-                        weight
-                            .iter()
-                            .map(|&x| if x >= SEEN_WEIGHT { 1.0 } else { 0.0 })
-                            .collect()
-                    }));
-                }
-                let refs: Vec<&ViewStats> = views.iter().collect();
-                sphere_cost(&refs, &seen, pair_weights, w, h, &params)
+                let owned: Vec<Option<(ViewStats, Option<Vec<f32>>)>> = grey
+                    .iter()
+                    .zip(&tables)
+                    .zip(&fixed)
+                    .map(|((g, table), fixed)| {
+                        fixed.is_none().then(|| {
+                            let mut warped = vec![0.0f32; cells];
+                            let mut weight = vec![0.0f32; cells];
+                            warp(g, table, d * cells, &mut warped, &mut weight);
+                            let stats =
+                                ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp);
+                            (stats, track_seen.then(|| seen_mask(&weight)))
+                        })
+                    })
+                    .collect();
+                let per_camera: Vec<&(ViewStats, Option<Vec<f32>>)> = owned
+                    .iter()
+                    .zip(&fixed)
+                    .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
+                    .collect();
+                let views: Vec<&ViewStats> = per_camera.iter().map(|(v, _)| v).collect();
+                let seen: Vec<Option<Vec<f32>>> =
+                    per_camera.iter().map(|(_, s)| s.clone()).collect();
+                sphere_cost(&views, &seen, pair_weights, w, h, &params)
                     .into_iter()
                     .map(|c| (UNDECIDED_COST - c) / UNDECIDED_COST)
                     .collect()
