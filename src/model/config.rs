@@ -147,8 +147,10 @@ impl std::str::FromStr for Preset {
     }
 }
 
-/// Hyper-parameters of the SSMODE network.
+/// Hyper-parameters of the SSMODE network. Unknown fields are refused: a weights file written
+/// by a newer mode360 with a feature this binary lacks is an error, not a silently wrong network.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SsmodeConfig {
     /// Preset name (`paper`, `compact`, or a custom one).
     pub name: String,

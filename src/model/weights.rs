@@ -53,9 +53,14 @@ fn config_from_bytes(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelErr
         .as_ref()
         .and_then(|m| m.get(CONFIG_METADATA_KEY))
         .ok_or_else(|| weights_err(format!("no '{CONFIG_METADATA_KEY}' header metadata")))?;
-    let cfg: SsmodeConfig = serde_json::from_str(json)
+    let cfg: SsmodeConfig = serde_json::from_str(json).map_err(|e| {
+        weights_err(format!(
+            "metadata '{CONFIG_METADATA_KEY}': {e} (a network configuration this mode360 \
+                 does not know)"
+        ))
+    })?;
+    cfg.validate()
         .map_err(|e| weights_err(format!("metadata '{CONFIG_METADATA_KEY}': {e}")))?;
-    cfg.validate()?;
     Ok(cfg)
 }
 
@@ -87,4 +92,44 @@ pub fn load_weights(
             problem: format!("reading tensors: {e}"),
         })?;
     Ok((cfg, VarBuilder::from_tensors(tensors, DType::F32, device)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A weights file whose config metadata is `config_json` (one dummy tensor).
+    fn file_with_config(dir: &Path, config_json: &str) -> std::path::PathBuf {
+        let path = dir.join("weights.safetensors");
+        let data = [0u8; 4];
+        let view = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![1], &data)
+            .expect("tensor view");
+        let metadata = HashMap::from([(CONFIG_METADATA_KEY.to_string(), config_json.to_string())]);
+        safetensors::serialize_to_file([("x", view)], Some(metadata), &path).expect("write");
+        path
+    }
+
+    #[test]
+    fn unknown_or_invalid_configurations_name_the_file_and_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut json: serde_json::Value =
+            serde_json::to_value(SsmodeConfig::parallax_zncc()).unwrap();
+        json["depth_refiner"] = serde_json::json!(true);
+        let path = file_with_config(dir.path(), &json.to_string());
+        let err = read_config(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("weights.safetensors") && err.contains("depth_refiner"),
+            "{err}"
+        );
+        let bad = SsmodeConfig {
+            cost_downsample: 4,
+            ..SsmodeConfig::parallax_zncc()
+        };
+        let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
+        let err = read_config(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("weights.safetensors") && err.contains("photometric_cost"),
+            "{err}"
+        );
+    }
 }
