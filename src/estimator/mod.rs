@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use crate::frame::{FloatImage, RgbImage};
 use crate::geometry::{ErpGrid, Rig};
 
+pub mod guided_upsample;
 pub mod photometric;
 pub mod ssmode;
 

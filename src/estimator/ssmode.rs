@@ -1,13 +1,16 @@
 //! The SSMODE network as a [`DepthEstimator`]: loads a weights file, resizes the panoramas to
 //! the network's width (bilinear, longitude wraps; fisheye images are first resampled into
 //! panoramas of their own frame, [`RigRemap`], and the sweep aggregates only the cameras that
-//! see each point; confidence is scaled by the share of spheres that two cameras see), runs the forward pass on the CPU and resizes
-//! the range back to the requested output grid. Sweep tables are cached per rig.
+//! see each point; confidence is scaled by the share of spheres that two cameras see), runs the
+//! forward pass on the CPU and resizes the range back to the requested output grid (guided by
+//! the reference image where the output is finer, [`super::guided_upsample`]). Sweep tables are
+//! cached per rig.
 
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
 
+use super::guided_upsample::{grey_on_grid, guided_upsample};
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::frame::RgbImage;
 use crate::geometry::panorama::RigRemap;
@@ -142,6 +145,30 @@ impl SsmodeEstimator {
     }
 }
 
+/// Rotation angle (rad) and translation (m) below which the output frame is the reference
+/// camera's.
+const SAME_FRAME_TOLERANCE: f64 = 1e-9;
+
+/// The guides of [`guided_upsample`] (the reference camera's grey image on the network's and on
+/// the output grid), when the output is finer than the network and the output frame is an ERP
+/// reference camera's own; `None` otherwise (plain bilinear upsampling).
+fn guide_images(
+    rig: &Rig,
+    images: &[RgbImage],
+    net: ErpGrid,
+    output: ErpGrid,
+) -> Option<(Vec<f32>, Vec<f32>)> {
+    let reference = rig.cameras.get(rig.reference)?;
+    let offset = reference.rig_from_cam.inverse() * rig.rig_from_output;
+    let same_frame = offset.translation.vector.norm() < SAME_FRAME_TOLERANCE
+        && offset.rotation.angle() < SAME_FRAME_TOLERANCE;
+    if output.width() <= net.width() || !same_frame || !reference.projection.is_equirectangular() {
+        return None;
+    }
+    let image = images.get(rig.reference)?;
+    Some((grey_on_grid(image, net)?, grey_on_grid(image, output)?))
+}
+
 impl DepthEstimator for SsmodeEstimator {
     fn name(&self) -> &str {
         SSMODE_NAME
@@ -212,7 +239,13 @@ impl DepthEstimator for SsmodeEstimator {
                 .and_then(|f| f.to_vec1::<f32>())
                 .map_err(model_err)
         };
-        let range = resample_erp(&to_vec(final_range)?, 1, net_grid, output);
+        let range = to_vec(final_range)?;
+        let range = match guide_images(rig, images, net_grid, output) {
+            Some((guide_net, guide_out)) => {
+                guided_upsample(&range, &guide_net, net_grid, &guide_out, output)
+            }
+            None => resample_erp(&range, 1, net_grid, output),
+        };
         let mut conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
         // Where fewer than two cameras see a direction at any range, the estimate is a guess.
         if let Some(coverage) = sampling.coverage() {
