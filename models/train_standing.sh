@@ -18,7 +18,8 @@
 # script needs them at INIT).
 #
 # With a second argument `fine-tune`, it instead fine-tunes the latest standing weights at
-# width 256 for W256_STEPS steps into runs/standing_w256/ (fresh each time): the weights to
+# width 256 for W256_STEPS steps into runs/standing_w256/ (fresh each time; a rig pool of 6, as
+# sweep tables at 256 take about 0.8 GiB per rig with their transposes): the weights to
 # evaluate and ship (training at 128 alone costs accuracy at 256, models/README.md).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of a fresh run),
@@ -28,13 +29,13 @@ bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-runs/ablation/parallax_zncc_log/ssmode_parallax_zncc_log_step500.safetensors}"
 steps="${STEPS:-115000}"
 mix=(--objects-fraction 0.25 --street varied --soiled-fraction 0.3 --fisheye-fraction 0.2
-  --rig-layouts any --blocked-fraction 0.2 --rig-pool 16 --max-grad-norm 50)
+  --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50)
 if [[ "${1:-}" == fine-tune ]]; then
   rm -rf runs/standing_w256
   exec "$bin" train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-300}" --lr 1e-4 \
-    --warmup-steps 50 "${mix[@]}" --val-every 100 --checkpoint-every 50 \
+    --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 100 --checkpoint-every 50 \
     --init-weights runs/standing/checkpoint/model.safetensors --out runs/standing_w256
 fi
 exec "$bin" train --preset parallax_zncc_log --width 128 --steps "$steps" --lr 2e-4 \
-  --warmup-steps 100 "${mix[@]}" --val-every 500 --checkpoint-every 250 --resume \
+  --warmup-steps 100 "${mix[@]}" --rig-pool 16 --val-every 500 --checkpoint-every 250 --resume \
   --init-weights "$init" --out runs/standing
