@@ -6,7 +6,7 @@
 #   models/eval_fisheye.sh [WEIGHTS] [OUT_DIR]
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
-weights="${1:-models/ssmode_parallax.safetensors}"
+weights="${1:-models/ssmode_parallax_zncc_log.safetensors}"
 out="${2:-eval_fisheye}"
 mkdir -p "$out"
 for rig in deep360 omnimvs dual_fisheye; do

@@ -14,7 +14,7 @@
 # FRAMES and rendered only when missing.
 #   models/eval_issue19.sh [BAGS_DIR]
 # env: WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
-# models/ssmode_parallax.safetensors, for ssmode), OUT (BAGS_DIR/out), MODE360_BIN
+# models/ssmode_parallax_zncc_log.safetensors, for ssmode), OUT (BAGS_DIR/out), MODE360_BIN
 # (target/release/mode360).
 set -euo pipefail
 bags="${1:-/tmp/mode360_issue19}"
@@ -22,7 +22,7 @@ out="${OUT:-$bags/out}"
 width="${WIDTH:-512}"
 frames="${FRAMES:-4}"
 estimators="${ESTIMATORS:-ssmode photometric}"
-weights="${WEIGHTS:-models/ssmode_parallax.safetensors}"
+weights="${WEIGHTS:-models/ssmode_parallax_zncc_log.safetensors}"
 bin="${MODE360_BIN:-target/release/mode360}"
 seed=$(python3 -c "print(2**63 + 19)")
 fisheye_scale=$(python3 -c "print($width / 512)")

@@ -10,7 +10,7 @@
 set -euo pipefail
 bags="${1:-/tmp/mode360_eval}"
 out="${2:-/tmp/mode360_eval_out}"
-weights="${3:-models/ssmode_parallax.safetensors}"
+weights="${3:-models/ssmode_parallax_zncc_log.safetensors}"
 bin="${MODE360_BIN:-target/release/mode360}"
 estimators="${ESTIMATORS:-ssmode photometric}"
 share=(--geometry-share); [[ ${GEOMETRY_SHARE:-1} == 0 ]] && share=()

@@ -22,9 +22,13 @@ use crate::model::{input_tensor, load_weights, ModelError, Ssmode, SsmodeConfig,
 pub const SSMODE_NAME: &str = "ssmode";
 
 /// Weights loaded by `by_name("ssmode")`, relative to the working directory or, failing that,
-/// to the source tree the binary was built from (see [`default_weights_path`]): the multi-view
-/// `parallax` preset.
-pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_parallax.safetensors";
+/// to the source tree the binary was built from (see [`default_weights_path`]): the
+/// `parallax_zncc_log` preset (the ZNCC channel and log-depth hypotheses, models/README.md).
+pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_parallax_zncc_log.safetensors";
+
+/// The earlier `parallax` weights (variance-only volume, hypotheses uniform in inverse depth),
+/// still shipped for comparison.
+pub const PARALLAX_WEIGHTS_PATH: &str = "models/ssmode_parallax.safetensors";
 
 /// The earlier `compact` weights, still shipped for comparison: accurate on the procedural
 /// streets, but read from one panorama's look (geometry share about 3 points, models/README.md).
@@ -38,10 +42,14 @@ pub fn default_weights_path() -> PathBuf {
 
 /// Every shipped weights file, default first, resolved like [`default_weights_path`].
 pub fn shipped_weights_paths() -> Vec<PathBuf> {
-    [DEFAULT_WEIGHTS_PATH, COMPACT_WEIGHTS_PATH]
-        .into_iter()
-        .map(shipped_path)
-        .collect()
+    [
+        DEFAULT_WEIGHTS_PATH,
+        PARALLAX_WEIGHTS_PATH,
+        COMPACT_WEIGHTS_PATH,
+    ]
+    .into_iter()
+    .map(shipped_path)
+    .collect()
 }
 
 fn shipped_path(relative: &str) -> PathBuf {
