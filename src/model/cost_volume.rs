@@ -2,7 +2,7 @@
 //!
 //! For camera `c`, sphere `d` and output pixel `(v, u)` at quarter resolution,
 //! `f_c(d, v, u) = table_sample(features_c, sweep_table_c)` samples camera `c`'s features where
-//! it sees the point `rho_d dir(u, v)` (see [`super::config::SweepSampling`]). The views are
+//! it sees the point `rho_d dir(u, v)` (see [`super::sweep_sampling::SweepSampling`]). The views are
 //! aggregated independently of their number `N` and order:
 //!
 //! ```text
@@ -18,7 +18,8 @@
 
 use candle_core::{Result, Tensor};
 
-use super::config::{CostKind, SweepSampling};
+use super::config::CostKind;
+use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{
     has_custom_kernels, sweep_variance, sweep_variance_visible, table_sample, OpsError,
 };

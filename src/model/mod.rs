@@ -5,8 +5,8 @@
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
-//! [`weights`] (safetensors with the config in the header), [`config`] (presets and
-//! per-rig sampling tables).
+//! [`weights`] (safetensors with the config in the header), [`config`] (presets),
+//! [`sweep_sampling`] (per-rig sampling tables).
 
 pub mod config;
 pub mod cost_volume;
@@ -18,11 +18,13 @@ pub mod photometric_cost;
 pub mod regression;
 pub mod sphere_conv;
 pub mod ssmode;
+pub mod sweep_sampling;
 pub mod weights;
 
-pub use config::{Preset, SsmodeConfig, SweepSampling};
+pub use config::{Preset, SsmodeConfig};
 pub use input::input_tensor;
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
+pub use sweep_sampling::SweepSampling;
 pub use weights::{load_weights, read_config, save_weights};
 
 /// Errors of the model code (configs, sampling tables, weight files).

@@ -22,7 +22,7 @@
 use candle_core::{Result, Tensor};
 use rayon::prelude::*;
 
-use super::config::SweepSampling;
+use super::sweep_sampling::SweepSampling;
 use crate::matching::zncc::{sphere_cost, PairCostParams, ViewStats, UNDECIDED_COST};
 use crate::model::ops::{OpsError, SampleTable};
 

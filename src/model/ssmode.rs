@@ -15,12 +15,13 @@ use std::time::{Duration, Instant};
 use candle_core::{Result, Tensor};
 use candle_nn::VarBuilder;
 
-use super::config::{SsmodeConfig, SweepSampling, MIN_CAMERAS};
+use super::config::{SsmodeConfig, MIN_CAMERAS};
 use super::cost_volume::cost_volume;
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
 use super::regression::{confidence, regress, regress_inference, RegressionHead};
+use super::sweep_sampling::SweepSampling;
 use crate::geometry::DepthHypotheses;
 use crate::model::ops::{flop_count, OpsError};
 
