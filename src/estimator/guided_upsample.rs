@@ -18,6 +18,7 @@
 
 use crate::frame::RgbImage;
 use crate::geometry::{resample_erp, ErpGrid, PixelCoord};
+use crate::matching::{luma, INTENSITY_SCALE};
 use rayon::prelude::*;
 
 /// Colour scale of the guide weight (grey levels in [0, 1]).
@@ -26,10 +27,6 @@ pub const GUIDE_SIGMA: f32 = 0.05;
 pub const SMOOTH_RANGE_RATIO: f32 = 1.1;
 /// Keeps a pixel whose colour matches no neighbour on its bilinear weights.
 const MIN_WEIGHT: f32 = 1e-6;
-/// Rec. 601 luma weights.
-const LUMA_WEIGHTS: [f32; 3] = [0.299, 0.587, 0.114];
-/// 8-bit intensity to [0, 1].
-const INTENSITY_SCALE: f32 = 1.0 / 255.0;
 
 /// Grey levels in [0, 1] of an ERP image resampled (bilinear) to `grid`.
 pub fn grey_on_grid(image: &RgbImage, grid: ErpGrid) -> Option<Vec<f32>> {
@@ -41,10 +38,7 @@ pub fn grey_on_grid(image: &RgbImage, grid: ErpGrid) -> Option<Vec<f32>> {
     let rgb = resample_erp(&rgb, 3, src, grid);
     Some(
         rgb.chunks_exact(3)
-            .map(|p| {
-                (LUMA_WEIGHTS[0] * p[0] + LUMA_WEIGHTS[1] * p[1] + LUMA_WEIGHTS[2] * p[2])
-                    * INTENSITY_SCALE
-            })
+            .map(|p| luma([p[0], p[1], p[2]]) * INTENSITY_SCALE)
             .collect(),
     )
 }

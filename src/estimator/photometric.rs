@@ -36,6 +36,7 @@ use crate::frame::RgbImage;
 use crate::geometry::panorama::{panorama_rig, RigRemap};
 use crate::geometry::{DepthHypotheses, DepthRange, ErpGrid, Rig};
 use crate::matching::zncc::{self as cost, PairCostParams, ViewStats};
+use crate::matching::{luma, INTENSITY_SCALE};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 use sampling::CameraSampler;
@@ -46,10 +47,6 @@ pub const PHOTOMETRIC_NAME: &str = "photometric";
 /// Hypotheses within this many indices of the winner are ignored when looking for the
 /// runner-up cost of the confidence margin.
 pub const CONFIDENCE_EXCLUSION: usize = 2;
-/// Rec. 601 luma weights.
-const LUMA_WEIGHTS: [f32; 3] = [0.299, 0.587, 0.114];
-/// 8-bit intensity to [0, 1].
-const INTENSITY_SCALE: f32 = 1.0 / 255.0;
 
 /// Semi-global aggregation settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -428,12 +425,7 @@ impl PhotometricSweep {
 /// Grey image in [0, 1], row-major.
 fn grey_image(img: &RgbImage) -> Vec<f32> {
     img.pixels()
-        .map(|p| {
-            (LUMA_WEIGHTS[0] * p[0] as f32
-                + LUMA_WEIGHTS[1] * p[1] as f32
-                + LUMA_WEIGHTS[2] * p[2] as f32)
-                * INTENSITY_SCALE
-        })
+        .map(|p| luma([f32::from(p[0]), f32::from(p[1]), f32::from(p[2])]) * INTENSITY_SCALE)
         .collect()
 }
 

@@ -8,6 +8,17 @@
 pub(crate) mod zncc;
 
 use crate::geometry::{ErpGrid, PixelCoord};
+
+/// Rec. 601 luma weights of the grey images every matcher compares.
+pub const LUMA_WEIGHTS: [f32; 3] = [0.299, 0.587, 0.114];
+/// 8-bit intensity to [0, 1].
+pub const INTENSITY_SCALE: f32 = 1.0 / 255.0;
+
+/// Grey level `0.299 R + 0.587 G + 0.114 B` of one pixel (in the pixel's own scale).
+#[inline]
+pub fn luma(rgb: [f32; 3]) -> f32 {
+    LUMA_WEIGHTS[0] * rgb[0] + LUMA_WEIGHTS[1] * rgb[1] + LUMA_WEIGHTS[2] * rgb[2]
+}
 use nalgebra::Vector3;
 use rayon::prelude::*;
 

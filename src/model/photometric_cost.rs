@@ -23,6 +23,7 @@ use candle_core::{Result, Tensor};
 use rayon::prelude::*;
 
 use super::sweep_sampling::SweepSampling;
+use crate::matching::luma;
 use crate::matching::zncc::{sphere_cost, PairCostParams, ViewStats, UNDECIDED_COST};
 use crate::model::ops::{OpsError, SampleTable};
 
@@ -38,8 +39,6 @@ pub const MEAN_SCALE: f32 = 0.03;
 pub const BEST_PAIR_FRACTION: f32 = 0.5;
 /// Exponent `k` of the pair parallax weight `|dir x b_hat|^k`.
 pub const PARALLAX_EXPONENT: f32 = 1.0;
-/// Rec. 601 luma weights.
-const LUMA_WEIGHTS: [f32; 3] = [0.299, 0.587, 0.114];
 /// Channels of an RGB image tensor.
 const IMAGE_CHANNELS: usize = 3;
 /// A sample whose taps weigh less than this is one the camera does not see.
@@ -65,7 +64,7 @@ fn grey_images(images: &[Tensor], b: usize) -> Result<Vec<Vec<f32>>> {
             let rgb: Vec<f32> = img.narrow(0, b, 1)?.flatten_all()?.to_vec1()?;
             Ok(rgb
                 .chunks_exact(IMAGE_CHANNELS)
-                .map(|p| LUMA_WEIGHTS[0] * p[0] + LUMA_WEIGHTS[1] * p[1] + LUMA_WEIGHTS[2] * p[2])
+                .map(|p| luma([p[0], p[1], p[2]]))
                 .collect())
         })
         .collect()

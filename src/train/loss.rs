@@ -75,15 +75,26 @@ impl LossConfig {
     /// `n(rho) = (ln max - ln rho) / (ln max - ln min)`
     /// ([`DepthHypotheses::normalized_of_depth`]).
     pub fn normalized_inverse_depth(&self, range_m: f64) -> f64 {
-        let normalized = DepthRange::new(self.min_depth_m, self.max_depth_m)
+        Self::normalized_in(self.depth_hypotheses().as_ref(), range_m)
+    }
+
+    /// The hypotheses the target is indexed in (`None` for an invalid range).
+    fn depth_hypotheses(&self) -> Option<DepthHypotheses> {
+        DepthRange::new(self.min_depth_m, self.max_depth_m)
             .and_then(|r| DepthHypotheses::with_spacing(r, self.hypotheses.max(2), self.spacing))
-            .map(|h| h.normalized_of_depth(range_m));
-        normalized.unwrap_or(0.0).clamp(0.0, 1.0)
+            .ok()
+    }
+
+    fn normalized_in(hypotheses: Option<&DepthHypotheses>, range_m: f64) -> f64 {
+        hypotheses
+            .map_or(0.0, |h| h.normalized_of_depth(range_m))
+            .clamp(0.0, 1.0)
     }
 
     /// Builds the target and mask tensors from ground-truth range images (one per batch item).
     pub fn target(&self, gts: &[&FloatImage], device: &Device) -> Result<LossTarget, LossError> {
         self.check()?;
+        let hypotheses = self.depth_hypotheses();
         let (w, h) = gts.first().map(|g| (g.width, g.height)).unwrap_or((0, 0));
         let mut target = Vec::with_capacity(gts.len() * w * h);
         let mut mask = Vec::with_capacity(gts.len() * w * h);
@@ -91,7 +102,7 @@ impl LossConfig {
             for &r in &g.data {
                 let r = f64::from(r);
                 if r.is_finite() && r > 0.0 && r <= self.max_depth_m {
-                    target.push(self.normalized_inverse_depth(r) as f32);
+                    target.push(Self::normalized_in(hypotheses.as_ref(), r) as f32);
                     mask.push(1.0f32);
                 } else {
                     target.push(0.0);
