@@ -1,25 +1,23 @@
 //! mode360: multi-camera 360° depth perception.
 //!
-//! The domain library: rig calibration and projections ([`geometry`]), frames ([`frame`]),
-//! ROS 2 messages ([`msgs`]) and MCAP rig bags ([`bag`], [`deep360`] for the paper's
-//! dataset), synthetic scenes ([`synth`]), depth estimators ([`estimator`]: the photometric
-//! sweep and SSMODE, whose network is [`model`] and whose training is [`train`]), metrics
-//! ([`metrics`]), camera synchronization ([`sync`]), the ROS 2 node ([`node`]), pictures
-//! ([`viz`]) and process memory ([`memory`]). The `mode360` commands sit on top in [`cli`].
+//! The top of the workspace: the `mode360` commands ([`cli`]) and the pictures they write
+//! ([`viz`]). The domain lives in the layer crates below, re-exported here under their module
+//! names so that `mode360::geometry::rig::Rig` reads the same from every test and example
+//! (ARCHITECTURE.md has the picture):
+//!
+//! - `mode360-core`: [`geometry`], [`frame`], [`metrics`], [`sync`], [`memory`];
+//! - `mode360-io`: [`msgs`], [`bag`], [`deep360`];
+//! - `mode360-synth`: [`synth`];
+//! - `mode360-estimator`: [`matching`], [`model`], [`estimator`];
+//! - `mode360-train`: [`train`];
+//! - `mode360-node`: [`node`].
 
-pub mod bag;
 pub mod cli;
-pub mod deep360;
-pub mod estimator;
-pub mod frame;
-pub mod geometry;
-pub mod matching;
-pub mod memory;
-pub mod metrics;
-pub mod model;
-pub mod msgs;
-pub mod node;
-pub mod sync;
-pub mod synth;
-pub mod train;
 pub mod viz;
+
+pub use mode360_core::{frame, geometry, memory, metrics, sync};
+pub use mode360_estimator::{estimator, matching, model};
+pub use mode360_io::{bag, deep360, msgs};
+pub use mode360_node::node;
+pub use mode360_synth::synth;
+pub use mode360_train::train;

@@ -1,7 +1,7 @@
 //! Pictures for people: colour-mapped depth and panorama stacks.
 
-use crate::frame::{FloatImage, RgbImage};
 use image::Rgb;
+use mode360_core::frame::{FloatImage, RgbImage};
 
 /// Turbo colour map (Google's polynomial approximation), `t` in [0, 1] from blue to red.
 pub fn turbo(t: f32) -> Rgb<u8> {

@@ -17,15 +17,15 @@ use serde::{Deserialize, Serialize};
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 
-use crate::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
-use crate::estimator::DepthEstimator;
-use crate::geometry::{ErpGrid, Rig};
-use crate::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
-use crate::model::{
+use mode360_core::geometry::{ErpGrid, Rig};
+use mode360_core::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
+use mode360_estimator::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
+use mode360_estimator::estimator::DepthEstimator;
+use mode360_estimator::model::{
     load_weights, read_config, Preset, Ssmode, SsmodeConfig, StageProfiler, SweepSampling,
 };
-use crate::synth::{SynthConfig, SynthRenderer};
-use crate::train::data::image_tensor;
+use mode360_synth::synth::{SynthConfig, SynthRenderer};
+use mode360_train::train::data::image_tensor;
 
 /// What one case measures.
 #[derive(Clone, Debug)]

@@ -10,16 +10,16 @@
 //! `max_depth_m` (read by `eval`) and where the frames came from.
 
 use super::progress::frames_bar;
-use crate::bag::RigBagWriter;
-use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
-use crate::deep360::{
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use mode360_core::geometry::ErpGrid;
+use mode360_core::memory::BYTES_PER_MIB;
+use mode360_io::bag::RigBagWriter;
+use mode360_io::bag::{MAX_DEPTH_KEY, SOILED_KEY};
+use mode360_io::deep360::{
     clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360FrameId, Deep360Split,
     DEEP360_MAX_DEPTH_M, EPISODES, EPISODE_FRAME_SLOTS,
 };
-use crate::geometry::ErpGrid;
-use crate::memory::BYTES_PER_MIB;
-use anyhow::{bail, Context, Result};
-use clap::Args;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;

@@ -6,22 +6,22 @@
 //! received depth against the bag's ground truth.
 
 use super::play::{play_bag, play_bag_until, PlayOptions};
-use crate::bag::{BagWriter, RigBagReader};
-use crate::estimator::{EstimatorKind, EstimatorSpec};
-use crate::frame::{FloatImage, RgbImage};
-use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
-use crate::msgs::image::{float_from_image_msg, image_msg_from_rgb};
-use crate::msgs::{Header, Image, PointCloud2};
-use crate::node::live_view::{DEFAULT_FOXGLOVE_PORT, FOXGLOVE_OFF};
-use crate::node::pipeline::decode_points;
-use crate::node::{
-    create_subscription, dds_context, runtime, spawn_node, stop_flag_on_signals, DdsOptions,
-    NodeHandle, NodeParams, SpunNode,
-};
 use crate::viz::{colorize_range, stack_vertical};
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
 use image::Rgb;
+use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
+use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_io::bag::{BagWriter, RigBagReader};
+use mode360_io::msgs::image::{float_from_image_msg, image_msg_from_rgb};
+use mode360_io::msgs::{Header, Image, PointCloud2};
+use mode360_node::node::live_view::{DEFAULT_FOXGLOVE_PORT, FOXGLOVE_OFF};
+use mode360_node::node::pipeline::decode_points;
+use mode360_node::node::{
+    create_subscription, dds_context, runtime, spawn_node, stop_flag_on_signals, DdsOptions,
+    NodeHandle, NodeParams, SpunNode,
+};
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
 use std::collections::BTreeMap;
@@ -85,9 +85,9 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
     let rig = reader.rig().clone();
     let max_depth_m = reader
         .info()
-        .get(crate::bag::MAX_DEPTH_KEY)
+        .get(mode360_io::bag::MAX_DEPTH_KEY)
         .and_then(|v| v.parse::<f64>().ok())
-        .unwrap_or(crate::bag::DEFAULT_MAX_DEPTH_M);
+        .unwrap_or(mode360_io::bag::DEFAULT_MAX_DEPTH_M);
     let frames: Vec<_> = reader.frames().collect::<Result<_, _>>()?;
     let width = frames
         .first()
@@ -161,8 +161,8 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
     // Output bag: inputs, then what the node published.
     let mut out = BagWriter::create(&opts.out_bag)?;
     out.write_metadata(
-        crate::bag::RIG_METADATA,
-        BTreeMap::from([(crate::bag::RIG_YAML_KEY.to_string(), rig.to_yaml())]),
+        mode360_io::bag::RIG_METADATA,
+        BTreeMap::from([(mode360_io::bag::RIG_YAML_KEY.to_string(), rig.to_yaml())]),
     )?;
     for f in &frames {
         for (cam, img) in rig.cameras.iter().zip(&f.images) {
@@ -266,7 +266,7 @@ fn serve_live_view(opts: &DemoOptions, port: u16) -> Result<()> {
 
 /// Top-down view of a cloud (x forward = up in the image, y left = left), coloured by the
 /// points' own colours, the highest point winning each pixel.
-fn top_view(points: &[crate::node::pipeline::DecodedPoint]) -> RgbImage {
+fn top_view(points: &[mode360_node::node::pipeline::DecodedPoint]) -> RgbImage {
     let mut img = RgbImage::from_pixel(TOP_VIEW_PX, TOP_VIEW_PX, Rgb([20, 20, 20]));
     let mut height = FloatImage::filled(
         TOP_VIEW_PX as usize,

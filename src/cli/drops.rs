@@ -2,7 +2,7 @@
 //! counted per file, topic and reason, like the live node counts them, and every good frame
 //! is still processed.
 
-use crate::bag::BagError;
+use mode360_io::bag::BagError;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 

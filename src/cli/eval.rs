@@ -16,15 +16,15 @@ pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
 use super::drops::{DropCount, DropTally};
 use super::progress::frames_bar;
-use crate::bag::{
-    RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
-};
-use crate::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
-use crate::frame::{FloatImage, RgbImage};
-use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
-use crate::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
+use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
+use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
+use mode360_estimator::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
+use mode360_io::bag::{
+    RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
+};
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

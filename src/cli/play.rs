@@ -12,19 +12,19 @@
 //! same offset, so time keeps increasing by one frame period across the seam and a node's
 //! synchronizer never sees a stamp go backwards. `/tf_static` is sent once, unchanged.
 
-use crate::bag::{BagMessage, BagReader};
-use crate::msgs::{
-    Clock, CompressedImage, DiagnosticArray, Header, Image, PointCloud2, RosMessage, TFMessage,
-    Time,
-};
-use crate::node::{
-    create_publisher, dds_context, latched_qos, output_qos, runtime, sensor_qos, DdsOptions,
-    SpunNode, CLOCK_TOPIC, TF_STATIC_TOPIC,
-};
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use futures::future::BoxFuture;
 use futures::FutureExt;
+use mode360_io::bag::{BagMessage, BagReader};
+use mode360_io::msgs::{
+    Clock, CompressedImage, DiagnosticArray, Header, Image, PointCloud2, RosMessage, TFMessage,
+    Time,
+};
+use mode360_node::node::{
+    create_publisher, dds_context, latched_qos, output_qos, runtime, sensor_qos, DdsOptions,
+    SpunNode, CLOCK_TOPIC, TF_STATIC_TOPIC,
+};
 use ros2_client::Publisher;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -445,7 +445,7 @@ pub struct PlayArgs {
 
 /// `mode360 play`: publishes a bag (looping as asked) and prints what went out.
 pub fn run(a: PlayArgs) -> Result<()> {
-    let stop = crate::node::stop_flag_on_signals()?;
+    let stop = mode360_node::node::stop_flag_on_signals()?;
     let summary = play_bag_until(
         &PlayOptions {
             input: a.input,

@@ -8,20 +8,20 @@
 //! frame's stamp.
 
 use super::drops::DropTally;
-use crate::bag::{RigBagReader, RigBagWriter};
-use crate::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
-use crate::estimator::{EstimatorKind, EstimatorSpec};
-use crate::metrics::{depth_metrics, DepthMetrics, FrameAverage};
-use crate::msgs::image::float_from_image_msg;
-use crate::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
-use crate::node::pipeline::{Pipeline, PipelineParams};
-use crate::node::{
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
+use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
+use mode360_core::sync::SyncStats;
+use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_io::bag::{RigBagReader, RigBagWriter};
+use mode360_io::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
+use mode360_io::msgs::image::float_from_image_msg;
+use mode360_node::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
+use mode360_node::node::pipeline::{Pipeline, PipelineParams};
+use mode360_node::node::{
     resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
     POINTS_TOPIC,
 };
-use crate::sync::SyncStats;
-use anyhow::{anyhow, bail, Context, Result};
-use clap::Args;
 use std::path::PathBuf;
 use std::time::Duration;
 

@@ -1,11 +1,13 @@
 //! `mode360 rig import`: a Kalibr camchain or a Basalt `calibration.json` into the project's
-//! rig YAML ([`crate::geometry::import`] does the work; this is the command around it).
+//! rig YAML ([`mode360_core::geometry::import`] does the work; this is the command around it).
 
-use crate::geometry::import::{rig_from_basalt_json, rig_from_kalibr_camchain, ImportOptions};
-use crate::geometry::rig::DEFAULT_RIG_FRAME;
-use crate::geometry::Rig;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
+use mode360_core::geometry::import::{
+    rig_from_basalt_json, rig_from_kalibr_camchain, ImportOptions,
+};
+use mode360_core::geometry::rig::DEFAULT_RIG_FRAME;
+use mode360_core::geometry::Rig;
 use std::path::{Path, PathBuf};
 
 #[derive(Args)]

@@ -1,9 +1,9 @@
 //! `mode360 same-image-bag`: a copy of a rig bag with the reference camera's image on every
 //! camera topic, for the geometry check on the node's path (replay, play, demo).
 
-use crate::bag::write_same_image_bag;
 use anyhow::{Context, Result};
 use clap::Args;
+use mode360_io::bag::write_same_image_bag;
 use std::path::PathBuf;
 
 #[derive(Args)]

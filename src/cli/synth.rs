@@ -1,14 +1,16 @@
 //! `mode360 synth`: render synthetic rig frames into a ROS 2 MCAP bag.
 
 use super::progress::frames_bar;
-use crate::bag::RigBagWriter;
-use crate::bag::{MAX_DEPTH_KEY, SOILED_KEY};
-use crate::geometry::Rig;
-use crate::memory::BYTES_PER_MIB;
-use crate::synth::blockers::{parse_blocked_lens, validate_blockers};
-use crate::synth::{SceneKind, StreetStyle, SynthConfig, SynthRenderer, BLOCKED_FRACTION_KEY};
 use anyhow::{Context, Result};
 use clap::Args;
+use mode360_core::geometry::Rig;
+use mode360_core::memory::BYTES_PER_MIB;
+use mode360_io::bag::RigBagWriter;
+use mode360_io::bag::{MAX_DEPTH_KEY, SOILED_KEY};
+use mode360_synth::synth::blockers::{parse_blocked_lens, validate_blockers};
+use mode360_synth::synth::{
+    SceneKind, StreetStyle, SynthConfig, SynthRenderer, BLOCKED_FRACTION_KEY,
+};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -127,7 +129,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
         rig.scaled(a.fisheye_scale)
             .with_context(|| format!("--fisheye-scale {}", a.fisheye_scale))?
     };
-    if let Some(part) = crate::geometry::panorama::rig_coverage_warning(&rig) {
+    if let Some(part) = mode360_core::geometry::panorama::rig_coverage_warning(&rig) {
         tracing::warn!("rig {}: {part}", a.rig.display());
     }
     let names: Vec<&str> = rig.cameras.iter().map(|c| c.name.as_str()).collect();

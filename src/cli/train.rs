@@ -1,11 +1,11 @@
-//! `mode360 train`: the training command over [`crate::train`].
+//! `mode360 train`: the training command over [`mode360_train::train`].
 
-use crate::model::Preset;
-use crate::synth::StreetStyle;
-use crate::train::rig_layouts::RigLayouts;
-use crate::train::{run_training, TrainOptions};
 use anyhow::Result;
 use clap::Args;
+use mode360_estimator::model::Preset;
+use mode360_synth::synth::StreetStyle;
+use mode360_train::train::rig_layouts::RigLayouts;
+use mode360_train::train::{run_training, TrainOptions};
 use std::path::PathBuf;
 
 #[derive(Args)]

@@ -18,17 +18,17 @@
 
 use super::play::{play_bag_until, PlayOptions, Published};
 use super::synth::{record_synthetic_bag, RecordOptions};
-use crate::bag::RigBagReader;
-use crate::estimator::{EstimatorKind, EstimatorSpec};
-use crate::memory::resident_mib;
-use crate::msgs::{CompressedImage, Image, RosMessage};
-use crate::node::params::DEFAULT_RIG_FILE;
-use crate::node::{
+use anyhow::{anyhow, bail, Context, Result};
+use mode360_core::memory::resident_mib;
+use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_io::bag::RigBagReader;
+use mode360_io::msgs::{CompressedImage, Image, RosMessage};
+use mode360_node::node::params::DEFAULT_RIG_FILE;
+use mode360_node::node::{
     create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHealth, NodeParams,
     ShutdownSignals, SpunNode,
 };
-use crate::synth::SynthConfig;
-use anyhow::{anyhow, bail, Context, Result};
+use mode360_synth::synth::SynthConfig;
 
 mod report;
 use clap::Args;
@@ -153,7 +153,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
                 temps.push(TempFile(out.clone()));
                 tracing::info!("rendering {RENDERED_FRAMES} frames at {width} px");
                 record_synthetic_bag(&RecordOptions {
-                    rig: crate::geometry::Rig::from_file(&opts.rig_file)?,
+                    rig: mode360_core::geometry::Rig::from_file(&opts.rig_file)?,
                     config: SynthConfig {
                         width,
                         seed: 1,

@@ -5,8 +5,8 @@
 //! panorama shows.
 
 use super::{evaluate, EvalOptions, EvalReport, ViewMode};
-use crate::estimator::DepthEstimator;
 use anyhow::Result;
+use mode360_estimator::estimator::DepthEstimator;
 use serde::{Deserialize, Serialize};
 
 /// One condition (clean, soiled) of the geometry check.

@@ -1,0 +1,11 @@
+//! mode360's geometry layer: everything the other crates agree on, free of tensors and ROS.
+//!
+//! Rig calibration, camera models and projections ([`geometry`]), images with their frames
+//! ([`frame`]), depth metrics ([`metrics`]), camera synchronization ([`sync`]) and process
+//! memory ([`memory`]).
+
+pub mod frame;
+pub mod geometry;
+pub mod memory;
+pub mod metrics;
+pub mod sync;

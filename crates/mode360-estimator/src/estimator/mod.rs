@@ -1,0 +1,228 @@
+//! Depth estimators: N synchronized panoramas in, one ERP range image of the rig's output
+//! frame out.
+
+use std::path::PathBuf;
+
+use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::geometry::{ErpGrid, Rig};
+
+pub mod guided_upsample;
+pub mod photometric;
+pub mod ssmode;
+
+/// What an estimator returns for one frame.
+#[derive(Clone, Debug)]
+pub struct DepthEstimate {
+    /// Range in metres along each output pixel's ray (NaN where invalid).
+    pub range_m: FloatImage,
+    /// Per-pixel confidence in [0, 1].
+    pub confidence: FloatImage,
+}
+
+impl DepthEstimate {
+    /// An estimate on `output` from row-major range and confidence values.
+    pub fn on_grid(output: ErpGrid, range_m: Vec<f32>, confidence: Vec<f32>) -> Self {
+        let image = |data| FloatImage {
+            width: output.width(),
+            height: output.height(),
+            data,
+        };
+        Self {
+            range_m: image(range_m),
+            confidence: image(confidence),
+        }
+    }
+}
+
+/// Why an estimator could not produce depth for a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum EstimatorError {
+    #[error("estimator got {got} images for a rig of {expected} cameras")]
+    ImageCount { got: usize, expected: usize },
+    #[error("camera '{camera}': image is {width}x{height}; ERP images must be twice as wide as tall and of even width")]
+    BadImageSize {
+        camera: String,
+        width: u32,
+        height: u32,
+    },
+    #[error("camera '{camera}': {problem}")]
+    BadImage { camera: String, problem: String },
+    #[error("estimator config field '{field}': {problem}")]
+    BadConfig { field: String, problem: String },
+    #[error("unknown estimator '{name}' (known: {known})")]
+    UnknownEstimator { name: String, known: String },
+    #[error("{0}")]
+    Geometry(#[from] mode360_core::geometry::GeometryError),
+    #[error("{0}")]
+    Model(#[from] crate::model::ModelError),
+}
+
+/// A depth estimator. Implementations may cache per-rig work (sampling tables) between calls.
+pub trait DepthEstimator: Send {
+    /// Short name used on the command line and in reports (`photometric`, `ssmode`).
+    fn name(&self) -> &str;
+
+    /// Range of every pixel of `output` (an ERP grid in the rig's output frame) from `images`,
+    /// one per camera of `rig`, in rig order.
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError>;
+}
+
+/// The depth estimators the node and the tools can run (`--estimator`, the node's `estimator`
+/// parameter).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorKind {
+    /// Learning-free photometric plane sweep over the rig's views.
+    #[default]
+    Photometric,
+    /// The SSMODE network with trained weights (default: the shipped ones).
+    Ssmode,
+}
+
+impl EstimatorKind {
+    /// Every kind, in the order help texts list them.
+    pub const ALL: [Self; 2] = [Self::Photometric, Self::Ssmode];
+
+    /// The name on the command line and in reports.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Photometric => photometric::PHOTOMETRIC_NAME,
+            Self::Ssmode => ssmode::SSMODE_NAME,
+        }
+    }
+
+    /// Whether this estimator loads a weights file.
+    pub fn has_weights(self) -> bool {
+        self == Self::Ssmode
+    }
+}
+
+impl std::fmt::Display for EstimatorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for EstimatorKind {
+    type Err = EstimatorError;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.as_str() == name)
+            .ok_or_else(|| EstimatorError::UnknownEstimator {
+                name: name.to_string(),
+                known: Self::ALL.map(Self::as_str).join(", "),
+            })
+    }
+}
+
+/// An estimator and, for SSMODE, its weights file (`None`: the shipped weights).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct EstimatorSpec {
+    pub kind: EstimatorKind,
+    pub weights: Option<PathBuf>,
+}
+
+impl EstimatorSpec {
+    /// `kind` with its default settings.
+    pub fn new(kind: EstimatorKind) -> Self {
+        Self {
+            kind,
+            weights: None,
+        }
+    }
+
+    /// `kind` with `weights` (an error at [`Self::build`] for an estimator without weights, so
+    /// that weights given to the wrong estimator are not silently ignored).
+    pub fn with_weights(kind: EstimatorKind, weights: Option<PathBuf>) -> Self {
+        Self { kind, weights }
+    }
+
+    /// The weights file SSMODE will load (the shipped one when none was given); `None` for
+    /// estimators without weights.
+    pub fn weights_path(&self) -> Option<PathBuf> {
+        self.kind.has_weights().then(|| {
+            self.weights
+                .clone()
+                .unwrap_or_else(ssmode::default_weights_path)
+        })
+    }
+
+    /// Builds the estimator.
+    pub fn build(&self) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+        match (self.kind, &self.weights) {
+            (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
+                photometric::PhotometricConfig::default(),
+            )?)),
+            (EstimatorKind::Photometric, Some(path)) => Err(EstimatorError::BadConfig {
+                field: "weights".to_string(),
+                problem: format!(
+                    "the photometric estimator has no weights (got {})",
+                    path.display()
+                ),
+            }),
+            (EstimatorKind::Ssmode, weights) => Ok(Box::new(ssmode::SsmodeEstimator::load(
+                weights.clone().unwrap_or_else(ssmode::default_weights_path),
+            )?)),
+        }
+    }
+}
+
+/// The estimator called `name`, with its default settings (SSMODE: the shipped weights).
+pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+    by_name_with_weights(name, None)
+}
+
+/// Like [`by_name`]; `weights` replaces SSMODE's shipped weights (an error for estimators
+/// without weights, so that a mistyped estimator name does not silently ignore them).
+pub fn by_name_with_weights(
+    name: &str,
+    weights: Option<&std::path::Path>,
+) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+    EstimatorSpec::with_weights(name.parse()?, weights.map(PathBuf::from)).build()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kinds_round_trip_through_their_names() {
+        for kind in EstimatorKind::ALL {
+            assert_eq!(kind.to_string().parse::<EstimatorKind>().unwrap(), kind);
+            let yaml = serde_yaml::to_string(&kind).unwrap();
+            assert_eq!(yaml.trim(), kind.as_str());
+        }
+        let e = "sgbm".parse::<EstimatorKind>().unwrap_err().to_string();
+        assert!(
+            e.contains("sgbm") && e.contains("photometric, ssmode"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn weights_belong_to_ssmode_only() {
+        let spec = EstimatorSpec::with_weights(EstimatorKind::Photometric, Some("w.st".into()));
+        assert_eq!(spec.weights_path(), None);
+        let e = spec
+            .build()
+            .err()
+            .expect("photometric with weights")
+            .to_string();
+        assert!(e.contains("weights") && e.contains("w.st"), "{e}");
+        let ssmode = EstimatorSpec::new(EstimatorKind::Ssmode);
+        assert_eq!(ssmode.weights_path(), Some(ssmode::default_weights_path()));
+        let missing = EstimatorSpec::with_weights(EstimatorKind::Ssmode, Some("/no/w.st".into()));
+        let e = missing.build().err().expect("missing weights").to_string();
+        assert!(e.contains("/no/w.st"), "{e}");
+    }
+}

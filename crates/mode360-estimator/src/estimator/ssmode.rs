@@ -1,0 +1,269 @@
+//! The SSMODE network as a [`DepthEstimator`]: loads a weights file, resizes the panoramas to
+//! the network's width (bilinear, longitude wraps; fisheye images are first resampled into
+//! panoramas of their own frame, [`RigRemap`], and the sweep aggregates only the cameras that
+//! see each point; confidence is scaled by the share of spheres that two cameras see), runs the
+//! forward pass on the CPU and resizes the range back to the requested output grid (guided by
+//! the reference image where the output is finer, [`super::guided_upsample`]). Sweep tables are
+//! cached per rig.
+
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+
+use super::guided_upsample::{grey_on_grid, guided_upsample};
+use super::{DepthEstimate, DepthEstimator, EstimatorError};
+use crate::model::{input_tensor, load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
+use mode360_core::frame::RgbImage;
+use mode360_core::geometry::panorama::RigRemap;
+pub use mode360_core::geometry::resample_erp;
+use mode360_core::geometry::{ErpGrid, Rig};
+
+/// The estimator's name on the command line and in reports.
+pub const SSMODE_NAME: &str = "ssmode";
+
+/// Weights loaded by `by_name("ssmode")`, relative to the working directory or, failing that,
+/// to the source tree the binary was built from (see [`default_weights_path`]): the
+/// `parallax_zncc_log` preset (the ZNCC channel and log-depth hypotheses, models/README.md).
+pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_parallax_zncc_log.safetensors";
+
+/// The earlier `parallax` weights (variance-only volume, hypotheses uniform in inverse depth),
+/// still shipped for comparison.
+pub const PARALLAX_WEIGHTS_PATH: &str = "models/ssmode_parallax.safetensors";
+
+/// The earlier `compact` weights, still shipped for comparison: accurate on the procedural
+/// streets, but read from one panorama's look (geometry share about 3 points, models/README.md).
+pub const COMPACT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
+
+/// [`DEFAULT_WEIGHTS_PATH`] under the working directory when it exists there, else under the
+/// crate's source tree (so `mode360` finds the shipped weights when run from elsewhere).
+pub fn default_weights_path() -> PathBuf {
+    shipped_path(DEFAULT_WEIGHTS_PATH)
+}
+
+/// Every shipped weights file, default first, resolved like [`default_weights_path`].
+pub fn shipped_weights_paths() -> Vec<PathBuf> {
+    [
+        DEFAULT_WEIGHTS_PATH,
+        PARALLAX_WEIGHTS_PATH,
+        COMPACT_WEIGHTS_PATH,
+    ]
+    .into_iter()
+    .map(shipped_path)
+    .collect()
+}
+
+fn shipped_path(relative: &str) -> PathBuf {
+    let local = PathBuf::from(relative);
+    if local.exists() {
+        return local;
+    }
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(relative);
+    if shipped.exists() {
+        shipped
+    } else {
+        local
+    }
+}
+
+/// SSMODE inference on the CPU.
+pub struct SsmodeEstimator {
+    weights_path: PathBuf,
+    model: Ssmode,
+    device: Device,
+    /// Sampling tables of the last rig seen.
+    cached: Option<(Rig, SweepSampling)>,
+    /// Fisheye images into panoramas at the network's width, for the last rig seen.
+    remap: Option<RigRemap>,
+}
+
+fn model_err(e: impl Into<ModelError>) -> EstimatorError {
+    EstimatorError::Model(e.into())
+}
+
+impl SsmodeEstimator {
+    /// Loads weights (with their config) from `path`.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, EstimatorError> {
+        let path = path.as_ref();
+        if !path.exists() {
+            return Err(EstimatorError::BadConfig {
+                field: "weights".to_string(),
+                problem: format!(
+                    "SSMODE weights file {} not found (train one with the training command or pass another path)",
+                    path.display()
+                ),
+            });
+        }
+        let device = Device::Cpu;
+        let (cfg, vb) = load_weights(path, &device).map_err(model_err)?;
+        let model = Ssmode::new(&cfg, vb).map_err(|e| {
+            model_err(ModelError::Weights {
+                path: path.display().to_string(),
+                problem: format!("building the network: {e}"),
+            })
+        })?;
+        Ok(Self {
+            weights_path: path.to_path_buf(),
+            model,
+            device,
+            cached: None,
+            remap: None,
+        })
+    }
+
+    /// Wraps an already built network; `label` names its weights in messages.
+    pub fn from_model(model: Ssmode, label: impl Into<PathBuf>) -> Self {
+        Self {
+            weights_path: label.into(),
+            model,
+            device: Device::Cpu,
+            cached: None,
+            remap: None,
+        }
+    }
+
+    pub fn config(&self) -> &SsmodeConfig {
+        self.model.config()
+    }
+
+    pub fn weights_path(&self) -> &Path {
+        &self.weights_path
+    }
+
+    /// Rebuilds the cached sampling tables when the rig changed; returns them.
+    fn refresh_sampling(&mut self, rig: &Rig) -> Result<(), EstimatorError> {
+        let stale = self.cached.as_ref().is_none_or(|(r, _)| r != rig);
+        if stale {
+            let sampling = SweepSampling::new(rig, self.model.config()).map_err(|e| {
+                model_err(ModelError::Weights {
+                    path: self.weights_path.display().to_string(),
+                    problem: format!(
+                        "the '{}' network cannot serve the rig of cameras [{}]: {e}",
+                        self.model.config().name,
+                        rig.cameras
+                            .iter()
+                            .map(|c| c.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                })
+            })?;
+            self.cached = Some((rig.clone(), sampling));
+        }
+        Ok(())
+    }
+}
+
+/// Rotation angle (rad) and translation (m) below which the output frame is the reference
+/// camera's.
+const SAME_FRAME_TOLERANCE: f64 = 1e-9;
+
+/// The guides of [`guided_upsample`] (the reference camera's grey image on the network's and on
+/// the output grid), when the output is finer than the network and the output frame is an ERP
+/// reference camera's own; `None` otherwise (plain bilinear upsampling).
+fn guide_images(
+    rig: &Rig,
+    images: &[RgbImage],
+    net: ErpGrid,
+    output: ErpGrid,
+) -> Option<(Vec<f32>, Vec<f32>)> {
+    let reference = rig.cameras.get(rig.reference)?;
+    let offset = reference.rig_from_cam.inverse() * rig.rig_from_output;
+    let same_frame = offset.translation.vector.norm() < SAME_FRAME_TOLERANCE
+        && offset.rotation.angle() < SAME_FRAME_TOLERANCE;
+    if output.width() <= net.width() || !same_frame || !reference.projection.is_equirectangular() {
+        return None;
+    }
+    let image = images.get(rig.reference)?;
+    Some((grey_on_grid(image, net)?, grey_on_grid(image, output)?))
+}
+
+impl DepthEstimator for SsmodeEstimator {
+    fn name(&self) -> &str {
+        SSMODE_NAME
+    }
+
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        if images.len() != rig.cameras.len() {
+            return Err(EstimatorError::ImageCount {
+                got: images.len(),
+                expected: rig.cameras.len(),
+            });
+        }
+        let cfg = self.model.config().clone();
+        let net_grid = ErpGrid::new(cfg.width)?;
+        if !self.remap.as_ref().is_some_and(|r| r.serves(rig, net_grid)) {
+            self.remap = Some(RigRemap::new(rig, net_grid));
+        }
+        let panoramas = match &self.remap {
+            Some(remap) => {
+                remap
+                    .panoramas(images)
+                    .map_err(|(camera, e)| EstimatorError::BadImage {
+                        camera,
+                        problem: e.to_string(),
+                    })?
+            }
+            None => images.iter().map(std::borrow::Cow::Borrowed).collect(),
+        };
+        let mut tensors = Vec::with_capacity(images.len());
+        for (cam, img) in panoramas.iter().enumerate() {
+            let t = input_tensor(img, cfg.width, &self.device).map_err(|e| match e {
+                ModelError::BadImage { width, height } => EstimatorError::BadImageSize {
+                    camera: rig.cameras[cam].name.clone(),
+                    width,
+                    height,
+                },
+                other => model_err(other),
+            })?;
+            tensors.push(t);
+        }
+        self.refresh_sampling(rig)?;
+        let sampling = match &self.cached {
+            Some((_, s)) => s,
+            None => {
+                return Err(model_err(ModelError::BadConfig {
+                    field: "rig".to_string(),
+                    problem: "sweep sampling cache is empty".to_string(),
+                }))
+            }
+        };
+        let out = self
+            .model
+            .forward(&tensors, sampling, false)
+            .map_err(model_err)?;
+        let final_range = out.stages.last().ok_or_else(|| {
+            model_err(ModelError::BadConfig {
+                field: "hourglasses".to_string(),
+                problem: "the network produced no stage".to_string(),
+            })
+        })?;
+        let to_vec = |t: &Tensor| -> Result<Vec<f32>, EstimatorError> {
+            t.flatten_all()
+                .and_then(|f| f.to_vec1::<f32>())
+                .map_err(model_err)
+        };
+        let range = to_vec(final_range)?;
+        let range = match guide_images(rig, images, net_grid, output) {
+            Some((guide_net, guide_out)) => {
+                guided_upsample(&range, &guide_net, net_grid, &guide_out, output)
+            }
+            None => resample_erp(&range, 1, net_grid, output),
+        };
+        let mut conf = resample_erp(&to_vec(&out.confidence)?, 1, net_grid, output);
+        // Where fewer than two cameras see a direction at any range, the estimate is a guess.
+        if let Some(coverage) = sampling.coverage() {
+            let coverage = resample_erp(coverage, 1, sampling.geometry().output(), output);
+            for (c, k) in conf.iter_mut().zip(coverage) {
+                *c *= k.clamp(0.0, 1.0);
+            }
+        }
+        Ok(DepthEstimate::on_grid(output, range, conf))
+    }
+}

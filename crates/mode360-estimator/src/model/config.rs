@@ -1,0 +1,541 @@
+//! SSMODE hyper-parameters (presets); the per-rig sweep tables are in
+//! [`super::sweep_sampling`].
+
+use serde::{Deserialize, Serialize};
+
+use super::ModelError;
+use mode360_core::geometry::{DepthHypotheses, DepthRange, HypothesisSpacing};
+
+/// The feature extractor works at `1 / FEATURE_DOWNSAMPLE` of the input resolution.
+pub const FEATURE_DOWNSAMPLE: usize = 4;
+/// The hourglass halves D, H and W twice, so they must be multiples of this.
+pub const HOURGLASS_DIVISOR: usize = 4;
+/// Fewest cameras the sweep can aggregate (mean and variance over views).
+pub const MIN_CAMERAS: usize = 2;
+/// Cost-volume scales a config may use (input pixels per cost cell along each axis): full,
+/// half, or the feature trunk's quarter resolution.
+pub const COST_DOWNSAMPLES: [usize; 3] = [1, 2, FEATURE_DOWNSAMPLE];
+/// Strides the cost aggregation may enter with.
+pub const AGGREGATION_STRIDES: [usize; 2] = [1, 2];
+/// A config resolves a baseline at a range when the parallax there spans at least this many
+/// cost-volume cells (see [`SsmodeConfig::resolved_range_m`]).
+pub const RESOLVED_PARALLAX_CELLS: f64 = 1.0;
+
+/// How the sweep aggregates the cameras' sampled features into the cost volume.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CostKind {
+    /// `concat(mean, variance)` over views (`2 C` channels). The mean is close to the
+    /// reference view's own appearance, so the aggregation can regress depth from one image.
+    #[default]
+    MeanVariance,
+    /// Variance over views only (`C` channels, as MVSNet): zero wherever the views agree, so
+    /// the volume carries matching evidence and nothing of a single view's appearance.
+    Variance,
+}
+
+impl CostKind {
+    /// Cost-volume channels for `c` feature channels.
+    pub fn channels(self, c: usize) -> usize {
+        match self {
+            Self::MeanVariance => 2 * c,
+            Self::Variance => c,
+        }
+    }
+}
+
+fn default_cost_downsample() -> usize {
+    FEATURE_DOWNSAMPLE
+}
+
+fn default_aggregation_stride() -> usize {
+    1
+}
+
+/// The named network configurations (`train --preset`, `bench-model --presets`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "cli", value(rename_all = "snake_case"))]
+///
+/// Each variant's text is its `--help` line; the configs are [`SsmodeConfig::parallax`],
+/// [`SsmodeConfig::compact`], [`SsmodeConfig::paper`], [`SsmodeConfig::tiny`] and
+/// [`SsmodeConfig::tiny_parallax`].
+pub enum Preset {
+    /// The shipped multi-view network: variance-only cost volume, 256x128.
+    #[default]
+    Parallax,
+    /// `parallax` with the sweep's ZNCC matching cost as one more cost-volume channel.
+    ParallaxZncc,
+    /// `parallax_zncc` with spheres and hypotheses uniform in log depth.
+    ParallaxZnccLog,
+    /// The earlier small network with a mean + variance volume, 256x128.
+    Compact,
+    /// The paper's sizes.
+    Paper,
+    /// For tests: a few channels and spheres.
+    Tiny,
+    /// For tests: `tiny` with the parallax (variance-only) volume.
+    TinyParallax,
+    /// For tests: `tiny_parallax` with the photometric cost channel.
+    TinyZncc,
+}
+
+impl Preset {
+    /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
+    pub const ALL: [Self; 8] = [
+        Self::Parallax,
+        Self::ParallaxZncc,
+        Self::ParallaxZnccLog,
+        Self::Compact,
+        Self::Paper,
+        Self::Tiny,
+        Self::TinyParallax,
+        Self::TinyZncc,
+    ];
+
+    /// The configuration's `name` and the preset's name on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Parallax => "parallax",
+            Self::ParallaxZncc => "parallax_zncc",
+            Self::ParallaxZnccLog => "parallax_zncc_log",
+            Self::Compact => "compact",
+            Self::Paper => "paper",
+            Self::Tiny => "tiny",
+            Self::TinyParallax => "tiny_parallax",
+            Self::TinyZncc => "tiny_zncc",
+        }
+    }
+
+    pub fn config(self) -> SsmodeConfig {
+        match self {
+            Self::Parallax => SsmodeConfig::parallax(),
+            Self::ParallaxZncc => SsmodeConfig::parallax_zncc(),
+            Self::ParallaxZnccLog => SsmodeConfig::parallax_zncc_log(),
+            Self::Compact => SsmodeConfig::compact(),
+            Self::Paper => SsmodeConfig::paper(),
+            Self::Tiny => SsmodeConfig::tiny(),
+            Self::TinyParallax => SsmodeConfig::tiny_parallax(),
+            Self::TinyZncc => SsmodeConfig::tiny_zncc(),
+        }
+    }
+}
+
+impl std::fmt::Display for Preset {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for Preset {
+    type Err = ModelError;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|p| p.as_str() == name)
+            .ok_or_else(|| ModelError::UnknownPreset {
+                name: name.to_string(),
+                known: SsmodeConfig::PRESETS.to_string(),
+            })
+    }
+}
+
+/// Hyper-parameters of the SSMODE network. Unknown fields are refused: a weights file written
+/// by a newer mode360 with a feature this binary lacks is an error, not a silently wrong network.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SsmodeConfig {
+    /// Preset name (`paper`, `compact`, or a custom one).
+    pub name: String,
+    /// Input ERP width; the height is `width / 2`.
+    pub width: usize,
+    /// Channels of the four feature stages (stage 1 at half, stages 2 to 4 at quarter resolution).
+    pub feature_channels: [usize; 4],
+    /// Residual blocks per feature stage.
+    pub feature_blocks: [usize; 4],
+    /// Channels of the fused per-camera feature map.
+    pub feature_out_channels: usize,
+    /// Sweep spheres at quarter resolution (cost volume depth D).
+    pub spheres: usize,
+    /// Full-resolution hypotheses after trilinear upsampling of the cost volume.
+    pub hypotheses: usize,
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+    /// Channels of the 3-D cost aggregation.
+    pub hourglass_channels: usize,
+    /// Stacked hourglasses (one regression head each).
+    pub hourglasses: usize,
+    /// View aggregation of the cost volume (files without it: mean and variance).
+    #[serde(default)]
+    pub cost: CostKind,
+    /// Input pixels per cost-volume cell along each axis (1, 2 or 4; files without it: 4, the
+    /// feature trunk's resolution). Below 4, a fine branch computes matching features at this
+    /// scale from the image and the upsampled trunk features.
+    #[serde(default = "default_cost_downsample")]
+    pub cost_downsample: usize,
+    /// Channels of the fine branch's convolutions (used when `cost_downsample` < 4).
+    #[serde(default)]
+    pub fine_channels: usize,
+    /// Stride of the first 3-D convolution over the cost volume (1 or 2 along D, H and W): a
+    /// fine cost volume is matched at full detail and aggregated at half its size.
+    #[serde(default = "default_aggregation_stride")]
+    pub aggregation_stride: usize,
+    /// Far-plane readout: a pixel whose probability on the farthest hypothesis is at least
+    /// this is given `max_depth_m` instead of the soft-argmin (see [`crate::model::regression`]);
+    /// above 1 disables it. Chosen on the validation split; files without it get the default.
+    #[serde(default = "default_far_plane_probability")]
+    pub far_plane_probability: f64,
+    /// Append the learning-free sweep's windowed-ZNCC matching cost as one more cost-volume
+    /// channel ([`super::photometric_cost`]; files without it: no). Needs `cost_downsample` 1.
+    #[serde(default)]
+    pub photometric_cost: bool,
+    /// How spheres and output hypotheses are spread between `min_depth_m` and `max_depth_m`
+    /// (files without it: uniform in inverse depth, the paper's).
+    #[serde(default)]
+    pub hypothesis_spacing: HypothesisSpacing,
+}
+
+/// [`SsmodeConfig::far_plane_probability`] of the presets.
+pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.8;
+
+fn default_far_plane_probability() -> f64 {
+    DEFAULT_FAR_PLANE_PROBABILITY
+}
+
+impl SsmodeConfig {
+    /// The paper's SSMODE: 1024x512, 48 spheres, 192 hypotheses, features 32/64/64/128 -> 32,
+    /// three hourglasses on 32 channels.
+    pub fn paper() -> Self {
+        Self {
+            name: "paper".to_string(),
+            width: 1024,
+            feature_channels: [32, 64, 64, 128],
+            feature_blocks: [3, 16, 3, 7],
+            feature_out_channels: 32,
+            spheres: 48,
+            hypotheses: 192,
+            min_depth_m: mode360_core::geometry::sweep::PAPER_MIN_DEPTH_M,
+            max_depth_m: mode360_core::geometry::sweep::PAPER_MAX_DEPTH_M,
+            hourglass_channels: 32,
+            hourglasses: 3,
+            cost: CostKind::MeanVariance,
+            cost_downsample: FEATURE_DOWNSAMPLE,
+            fine_channels: 0,
+            aggregation_stride: 1,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
+        }
+    }
+
+    /// The shipped CPU default: 256x128 input, 32 spheres, 64 hypotheses, two hourglasses on
+    /// 16 channels, about 0.4M parameters (measured on 2 shared cores: about 0.34 s per 4-camera
+    /// forward, 1.1 s per training step).
+    pub fn compact() -> Self {
+        Self {
+            name: "compact".to_string(),
+            width: 256,
+            feature_channels: [16, 24, 24, 32],
+            feature_blocks: [1, 2, 1, 1],
+            feature_out_channels: 16,
+            spheres: 32,
+            hypotheses: 64,
+            min_depth_m: mode360_core::geometry::sweep::PAPER_MIN_DEPTH_M,
+            max_depth_m: mode360_core::geometry::sweep::PAPER_MAX_DEPTH_M,
+            hourglass_channels: 16,
+            hourglasses: 2,
+            cost: CostKind::MeanVariance,
+            cost_downsample: FEATURE_DOWNSAMPLE,
+            fine_channels: 0,
+            aggregation_stride: 1,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
+        }
+    }
+
+    /// The multi-view default: 256x128 input matched at full resolution. Its cost volume has
+    /// 256x128 cells (1.4 degrees, so a 1 m baseline's parallax spans a cell out to 40 m) and
+    /// 96 spheres (sphere 1 at 45 m), holds only the variance over views (no monocular path),
+    /// and is aggregated at half size (48 x 64 x 128) by two hourglasses of 8 channels.
+    pub fn parallax() -> Self {
+        Self {
+            name: "parallax".to_string(),
+            width: 256,
+            feature_channels: [16, 24, 24, 32],
+            feature_blocks: [1, 2, 1, 1],
+            feature_out_channels: 8,
+            spheres: 96,
+            hypotheses: 96,
+            min_depth_m: mode360_core::geometry::sweep::PAPER_MIN_DEPTH_M,
+            max_depth_m: mode360_core::geometry::sweep::PAPER_MAX_DEPTH_M,
+            hourglass_channels: 8,
+            hourglasses: 2,
+            cost: CostKind::Variance,
+            cost_downsample: 1,
+            fine_channels: 16,
+            aggregation_stride: 2,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
+        }
+    }
+
+    /// A tiny configuration for tests: 64x32 input, 8 spheres.
+    pub fn tiny() -> Self {
+        Self {
+            name: "tiny".to_string(),
+            width: 64,
+            feature_channels: [8, 8, 8, 8],
+            feature_blocks: [1, 1, 1, 1],
+            feature_out_channels: 8,
+            spheres: 8,
+            hypotheses: 16,
+            min_depth_m: 1.0,
+            max_depth_m: 100.0,
+            hourglass_channels: 8,
+            hourglasses: 2,
+            cost: CostKind::MeanVariance,
+            cost_downsample: FEATURE_DOWNSAMPLE,
+            fine_channels: 0,
+            aggregation_stride: 1,
+            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            photometric_cost: false,
+            hypothesis_spacing: HypothesisSpacing::InverseDepth,
+        }
+    }
+
+    /// [`Self::tiny`] with the parallax preset's layout (variance-only, fine cost volume,
+    /// strided aggregation), for tests.
+    pub fn tiny_parallax() -> Self {
+        Self {
+            name: "tiny_parallax".to_string(),
+            feature_out_channels: 4,
+            spheres: 16,
+            cost: CostKind::Variance,
+            cost_downsample: 1,
+            fine_channels: 4,
+            aggregation_stride: 2,
+            ..Self::tiny()
+        }
+    }
+
+    /// [`Self::parallax`] with the photometric cost channel: the cost volume holds the
+    /// variance of the learned features and the sweep's ZNCC matching cost
+    /// ([`super::photometric_cost`]), so the aggregation starts from evidence that needs no
+    /// training.
+    pub fn parallax_zncc() -> Self {
+        Self {
+            name: "parallax_zncc".to_string(),
+            photometric_cost: true,
+            ..Self::parallax()
+        }
+    }
+
+    /// [`Self::parallax_zncc`] with spheres and hypotheses uniform in log depth: every range
+    /// gets the same relative resolution (8.3 % per hypothesis), where uniform inverse depth
+    /// leaves 10 of 96 spheres (5 of the 48 the aggregation decides on) beyond 5 m.
+    pub fn parallax_zncc_log() -> Self {
+        Self {
+            name: "parallax_zncc_log".to_string(),
+            hypothesis_spacing: HypothesisSpacing::LogDepth,
+            ..Self::parallax_zncc()
+        }
+    }
+
+    /// [`Self::tiny_parallax`] with the photometric cost channel, for tests.
+    pub fn tiny_zncc() -> Self {
+        Self {
+            name: "tiny_zncc".to_string(),
+            photometric_cost: true,
+            ..Self::tiny_parallax()
+        }
+    }
+
+    /// Names of the presets, for messages.
+    pub const PRESETS: &'static str =
+        "parallax, parallax_zncc, parallax_zncc_log, compact, paper, tiny, tiny_parallax, tiny_zncc";
+
+    /// The preset called `name` (see [`Preset`]).
+    pub fn preset(name: &str) -> Result<Self, ModelError> {
+        Ok(name.parse::<Preset>()?.config())
+    }
+
+    /// Input height, `width / 2`.
+    pub fn height(&self) -> usize {
+        self.width / 2
+    }
+
+    /// Width of the quarter-resolution feature maps and cost volume.
+    pub fn feature_width(&self) -> usize {
+        self.width / FEATURE_DOWNSAMPLE
+    }
+
+    /// Height of the quarter-resolution feature maps and cost volume.
+    pub fn feature_height(&self) -> usize {
+        self.feature_width() / 2
+    }
+
+    /// Width of the cost volume (input width / `cost_downsample`).
+    pub fn cost_width(&self) -> usize {
+        self.width / self.cost_downsample.max(1)
+    }
+
+    /// Height of the cost volume.
+    pub fn cost_height(&self) -> usize {
+        self.cost_width() / 2
+    }
+
+    /// Channels of the features the sweep samples.
+    pub fn matching_channels(&self) -> usize {
+        self.feature_out_channels
+    }
+
+    /// Channels of the cost volume the aggregation takes: the view aggregation of the matching
+    /// features, plus one with the photometric cost channel.
+    pub fn cost_volume_channels(&self) -> usize {
+        self.cost.channels(self.matching_channels()) + usize::from(self.photometric_cost)
+    }
+
+    /// Whether the matching features come from a fine branch (cost finer than the trunk).
+    pub fn has_fine_branch(&self) -> bool {
+        self.cost_downsample < FEATURE_DOWNSAMPLE
+    }
+
+    /// The farthest range at which a baseline of `baseline_m` (seen side-on) is resolved by
+    /// the cost volume, metres: its parallax `baseline / rho` must span
+    /// [`RESOLVED_PARALLAX_CELLS`] cells of `2 pi / cost_width` radians, and a sphere other
+    /// than the far plane must lie at or beyond it, so
+    /// `min(baseline cost_width / (2 pi cells), rho(sphere 1))`.
+    pub fn resolved_range_m(&self, baseline_m: f64) -> Result<f64, ModelError> {
+        let cell_rad = 2.0 * std::f64::consts::PI / self.cost_width() as f64;
+        let by_cells = baseline_m / (RESOLVED_PARALLAX_CELLS * cell_rad);
+        let sphere1_m = self.sphere_hypotheses()?.depth_m(1.0);
+        Ok(by_cells.min(sphere1_m))
+    }
+
+    /// Checks the sizes the network needs.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let bad = |field: &str, problem: String| {
+            Err(ModelError::BadConfig {
+                field: field.to_string(),
+                problem,
+            })
+        };
+        // The quarter-res ERP must be even-width and its height divisible by HOURGLASS_DIVISOR.
+        let width_multiple = FEATURE_DOWNSAMPLE * 2 * HOURGLASS_DIVISOR;
+        if self.width == 0 || !self.width.is_multiple_of(width_multiple) {
+            return bad(
+                "width",
+                format!(
+                    "{} must be a positive multiple of {width_multiple}",
+                    self.width
+                ),
+            );
+        }
+        if !COST_DOWNSAMPLES.contains(&self.cost_downsample) {
+            return bad(
+                "cost_downsample",
+                format!(
+                    "{} must be one of {COST_DOWNSAMPLES:?}",
+                    self.cost_downsample
+                ),
+            );
+        }
+        if !AGGREGATION_STRIDES.contains(&self.aggregation_stride) {
+            return bad(
+                "aggregation_stride",
+                format!(
+                    "{} must be one of {AGGREGATION_STRIDES:?}",
+                    self.aggregation_stride
+                ),
+            );
+        }
+        if self.has_fine_branch() && self.fine_channels == 0 {
+            return bad(
+                "fine_channels",
+                format!(
+                    "must be positive when cost_downsample ({}) is below {FEATURE_DOWNSAMPLE}",
+                    self.cost_downsample
+                ),
+            );
+        }
+        if self.photometric_cost && self.cost_downsample != 1 {
+            return bad(
+                "photometric_cost",
+                format!(
+                    "needs the cost volume at the input resolution (cost_downsample 1), not 1/{}",
+                    self.cost_downsample
+                ),
+            );
+        }
+        // The aggregation halves D, H and W twice after its entry stride.
+        let divisor = HOURGLASS_DIVISOR * self.aggregation_stride;
+        if self.spheres == 0 || !self.spheres.is_multiple_of(divisor) {
+            return bad(
+                "spheres",
+                format!("{} must be a positive multiple of {divisor}", self.spheres),
+            );
+        }
+        if !self.cost_height().is_multiple_of(divisor) {
+            return bad(
+                "width",
+                format!(
+                    "{}: the cost volume's height {} must be a multiple of {divisor}",
+                    self.width,
+                    self.cost_height()
+                ),
+            );
+        }
+        if self.hypotheses < mode360_core::geometry::sweep::MIN_HYPOTHESES {
+            return bad("hypotheses", format!("{} is fewer than 2", self.hypotheses));
+        }
+        if self.feature_channels.contains(&0)
+            || self.feature_out_channels == 0
+            || self.hourglass_channels == 0
+        {
+            return bad(
+                "channels",
+                "every channel count must be positive".to_string(),
+            );
+        }
+        if self.far_plane_probability.is_nan() || self.far_plane_probability <= 0.0 {
+            return bad(
+                "far_plane_probability",
+                format!("{} must be positive", self.far_plane_probability),
+            );
+        }
+        if self.hourglasses == 0 {
+            return bad(
+                "hourglasses",
+                "at least one hourglass is needed".to_string(),
+            );
+        }
+        self.depth_range().map(|_| ())
+    }
+
+    /// The sweep's depth range.
+    pub fn depth_range(&self) -> Result<DepthRange, ModelError> {
+        Ok(DepthRange::new(self.min_depth_m, self.max_depth_m)?)
+    }
+
+    /// The sweep spheres, spread by `hypothesis_spacing`.
+    pub fn sphere_hypotheses(&self) -> Result<DepthHypotheses, ModelError> {
+        Ok(DepthHypotheses::with_spacing(
+            self.depth_range()?,
+            self.spheres,
+            self.hypothesis_spacing,
+        )?)
+    }
+
+    /// The output hypotheses, spread by `hypothesis_spacing`.
+    pub fn output_hypotheses(&self) -> Result<DepthHypotheses, ModelError> {
+        Ok(DepthHypotheses::with_spacing(
+            self.depth_range()?,
+            self.hypotheses,
+            self.hypothesis_spacing,
+        )?)
+    }
+}

@@ -1,0 +1,506 @@
+//! The types and helpers every op shares: errors, argument checks, the FLOP counter, the
+//! convolution geometry, and the precomputed maps of the sampling ops ([`SampleTable`],
+//! [`LinearAxisMap`]). Kernels and composites import from here and from nowhere above them,
+//! so `ops` has no import cycles: `mod.rs` -> kernels -> `composite` -> `types`.
+
+use std::borrow::Cow;
+use std::cell::Cell;
+use std::sync::{Arc, OnceLock};
+
+use candle_core::backend::BackendStorage;
+use candle_core::{CpuStorage, Device, Layout, Result, Shape, Tensor};
+use thiserror::Error;
+
+use mode360_core::geometry::BilinearTaps;
+
+/// Number of spatial axes of a 3-D convolution (D, H, W).
+pub const SPATIAL_AXES_3D: usize = 3;
+
+/// Bad arguments to one of the ops (shapes, strides, table indices).
+#[derive(Debug, Error)]
+pub enum OpsError {
+    #[error("{op}: `{arg}` must have rank {expected}, got shape {shape:?}")]
+    Rank {
+        op: &'static str,
+        arg: &'static str,
+        expected: usize,
+        shape: Vec<usize>,
+    },
+    #[error("{op}: {what}")]
+    Shape { op: &'static str, what: String },
+    #[error("{op}: `{arg}` must be f32, got {dtype}")]
+    DType {
+        op: &'static str,
+        arg: &'static str,
+        dtype: String,
+    },
+    #[error("{op}: sample table index {index} out of range for {pixels} feature pixels")]
+    TableIndex {
+        op: &'static str,
+        index: u32,
+        pixels: usize,
+    },
+}
+
+impl From<OpsError> for candle_core::Error {
+    fn from(e: OpsError) -> Self {
+        candle_core::Error::wrap(e)
+    }
+}
+
+thread_local! {
+    /// Floating-point operations issued from this thread by the convolutions and matrix
+    /// products of the model (multiply-adds count two), for the benchmark's GFLOP/s. Per
+    /// thread, so that concurrent passes on other threads do not count.
+    static FLOPS: Cell<u64> = const { Cell::new(0) };
+}
+
+/// Floating-point operations this thread issued so far (see [`count_flops`]); take differences.
+pub fn flop_count() -> u64 {
+    FLOPS.with(Cell::get)
+}
+
+/// Adds `flops` to this thread's counter read by [`flop_count`].
+pub fn count_flops(flops: f64) {
+    FLOPS.with(|f| f.set(f.get().wrapping_add(flops as u64)));
+}
+
+/// Whether the fast custom CPU kernels can run on tensors on `device`.
+pub fn has_custom_kernels(device: &Device) -> bool {
+    matches!(device, Device::Cpu)
+}
+
+/// Checks that `t` has rank `rank` and is f32; returns its dims.
+pub(super) fn dims_of(
+    t: &Tensor,
+    op: &'static str,
+    arg: &'static str,
+    rank: usize,
+) -> std::result::Result<Vec<usize>, OpsError> {
+    if t.dtype() != candle_core::DType::F32 {
+        return Err(OpsError::DType {
+            op,
+            arg,
+            dtype: format!("{:?}", t.dtype()),
+        });
+    }
+    let dims = t.dims().to_vec();
+    if dims.len() != rank {
+        return Err(OpsError::Rank {
+            op,
+            arg,
+            expected: rank,
+            shape: dims,
+        });
+    }
+    Ok(dims)
+}
+
+/// Rank of a channels-last volume `(B, D, H, W, C)` and of a 3-D kernel `(kD, kH, kW, Cin, Cout)`.
+pub(super) const VOLUME_RANK: usize = 5;
+
+/// Sizes of one 3-D convolution `x (B, D, H, W, Cin) * w (kD, kH, kW, Cin, Cout) -> (B, Do, Ho, Wo, Cout)`,
+/// with `Do = ⌊(D + 2 pD − kD) / sD⌋ + 1` (likewise for H and W).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Conv3dGeometry {
+    pub batch: usize,
+    /// `[D, H, W]` of the convolution's input.
+    pub in_dims: [usize; 3],
+    /// `[Do, Ho, Wo]` of the convolution's output.
+    pub out_dims: [usize; 3],
+    /// `[kD, kH, kW]`.
+    pub kernel: [usize; 3],
+    pub stride: [usize; 3],
+    /// Zeros added on both sides of each spatial axis of the input.
+    pub padding: [usize; 3],
+    pub c_in: usize,
+    pub c_out: usize,
+}
+
+impl Conv3dGeometry {
+    /// Validates the sizes and computes the output dims.
+    pub fn new(
+        batch: usize,
+        in_dims: [usize; 3],
+        kernel: [usize; 3],
+        stride: [usize; 3],
+        padding: [usize; 3],
+        c_in: usize,
+        c_out: usize,
+    ) -> std::result::Result<Self, OpsError> {
+        const OP: &str = "conv3d";
+        let mut out_dims = [0; SPATIAL_AXES_3D];
+        for axis in 0..SPATIAL_AXES_3D {
+            if stride[axis] == 0 || kernel[axis] == 0 || in_dims[axis] == 0 {
+                return Err(OpsError::Shape {
+                    op: OP,
+                    what: format!(
+                        "axis {axis}: stride {}, kernel {} and input size {} must all be positive",
+                        stride[axis], kernel[axis], in_dims[axis]
+                    ),
+                });
+            }
+            let padded = in_dims[axis] + 2 * padding[axis];
+            if padded < kernel[axis] {
+                return Err(OpsError::Shape {
+                    op: OP,
+                    what: format!(
+                        "axis {axis}: padded input {padded} is smaller than the kernel {}",
+                        kernel[axis]
+                    ),
+                });
+            }
+            out_dims[axis] = (padded - kernel[axis]) / stride[axis] + 1;
+        }
+        if batch == 0 || c_in == 0 || c_out == 0 {
+            return Err(OpsError::Shape {
+                op: OP,
+                what: format!("batch {batch}, Cin {c_in} and Cout {c_out} must all be positive"),
+            });
+        }
+        Ok(Self {
+            batch,
+            in_dims,
+            out_dims,
+            kernel,
+            stride,
+            padding,
+            c_in,
+            c_out,
+        })
+    }
+
+    /// `[D + 2 pD, H + 2 pH, W + 2 pW]`.
+    pub fn padded_dims(&self) -> [usize; 3] {
+        std::array::from_fn(|axis| self.in_dims[axis] + 2 * self.padding[axis])
+    }
+
+    /// The output padding a transposed convolution needs to give back `in_dims` from `out_dims`:
+    /// `(D + 2 pD − kD) mod sD` per axis.
+    pub fn output_padding(&self) -> [usize; 3] {
+        let padded = self.padded_dims();
+        std::array::from_fn(|axis| (padded[axis] - self.kernel[axis]) % self.stride[axis])
+    }
+
+    /// Multiply-adds of the forward pass times two: `2 B Do Ho Wo kD kH kW Cin Cout`.
+    pub fn flops(&self) -> f64 {
+        2.0 * (self.batch
+            * self.out_dims.iter().product::<usize>()
+            * self.kernel.iter().product::<usize>()
+            * self.c_in
+            * self.c_out) as f64
+    }
+
+    pub(super) fn input_shape(&self) -> Shape {
+        let [d, h, w] = self.in_dims;
+        Shape::from((self.batch, d, h, w, self.c_in))
+    }
+
+    pub(super) fn output_shape(&self) -> Shape {
+        let [d, h, w] = self.out_dims;
+        Shape::from((self.batch, d, h, w, self.c_out))
+    }
+
+    pub(super) fn weight_shape(&self) -> Shape {
+        let [kd, kh, kw] = self.kernel;
+        Shape::from((kd, kh, kw, self.c_in, self.c_out))
+    }
+}
+
+pub(super) fn conv_geometry_from(
+    x: &Tensor,
+    w: &Tensor,
+    stride: [usize; 3],
+    padding: [usize; 3],
+    op: &'static str,
+) -> std::result::Result<Conv3dGeometry, OpsError> {
+    let x_dims = dims_of(x, op, "x", VOLUME_RANK)?;
+    let w_dims = dims_of(w, op, "w", VOLUME_RANK)?;
+    if x_dims[4] != w_dims[3] {
+        return Err(OpsError::Shape {
+            op,
+            what: format!(
+                "x {x_dims:?} has {} channels, w {w_dims:?} expects {}",
+                x_dims[4], w_dims[3]
+            ),
+        });
+    }
+    Conv3dGeometry::new(
+        x_dims[0],
+        [x_dims[1], x_dims[2], x_dims[3]],
+        [w_dims[0], w_dims[1], w_dims[2]],
+        stride,
+        padding,
+        w_dims[3],
+        w_dims[4],
+    )
+}
+
+/// The contiguous f32 data of a custom op argument.
+pub(super) fn cpu_slice<'a>(
+    storage: &'a CpuStorage,
+    layout: &Layout,
+    op: &'static str,
+) -> Result<&'a [f32]> {
+    let CpuStorage::F32(data) = storage else {
+        return Err(OpsError::DType {
+            op,
+            arg: "input",
+            dtype: format!("{:?}", storage.dtype()),
+        }
+        .into());
+    };
+    let Some((start, end)) = layout.contiguous_offsets() else {
+        return Err(OpsError::Shape {
+            op,
+            what: "argument is not contiguous".to_string(),
+        }
+        .into());
+    };
+    Ok(&data[start..end])
+}
+
+/// For every source pixel `p`, the samples that read it: `entries[start[p]..start[p + 1]]`.
+#[derive(Clone, Debug)]
+pub(super) struct TransposedTable {
+    pub(super) pixels: usize,
+    /// `pixels + 1` offsets into `sample` and `weight`.
+    pub(super) start: Vec<usize>,
+    pub(super) sample: Vec<u32>,
+    pub(super) weight: Vec<f32>,
+}
+
+#[derive(Debug)]
+struct TableData {
+    /// `4 N` pixel indices into `H·W`, row-major per sample.
+    index: Vec<u32>,
+    /// `4 N` bilinear weights.
+    weight: Vec<f32>,
+    /// Largest index + 1 (0 for an empty table): the fewest pixels the features must have.
+    min_pixels: usize,
+    /// Built on first backward, for the pixel count seen then.
+    transposed: OnceLock<TransposedTable>,
+}
+
+/// A precomputed bilinear sampling table: 4 pixel indices and 4 weights per output sample.
+/// Cheap to clone (shared).
+#[derive(Clone, Debug)]
+pub struct SampleTable {
+    data: Arc<TableData>,
+}
+
+impl From<Vec<BilinearTaps>> for SampleTable {
+    fn from(taps: Vec<BilinearTaps>) -> Self {
+        Self::new(&taps)
+    }
+}
+
+impl SampleTable {
+    /// Taps per output sample.
+    pub const TAPS: usize = 4;
+
+    /// A table with one output sample per element of `taps`, in order.
+    pub fn new(taps: &[BilinearTaps]) -> Self {
+        let index: Vec<u32> = taps.iter().flat_map(|t| t.index).collect();
+        let weight: Vec<f32> = taps.iter().flat_map(|t| t.weight).collect();
+        let min_pixels = index.iter().max().map_or(0, |&m| m as usize + 1);
+        Self {
+            data: Arc::new(TableData {
+                index,
+                weight,
+                min_pixels,
+                transposed: OnceLock::new(),
+            }),
+        }
+    }
+
+    /// Number of output samples N.
+    pub fn len(&self) -> usize {
+        self.data.index.len() / Self::TAPS
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.data.index.is_empty()
+    }
+
+    /// All indices, `4 N`, sample-major.
+    pub fn flat_indices(&self) -> &[u32] {
+        &self.data.index
+    }
+
+    /// All weights, `4 N`, sample-major.
+    pub fn flat_weights(&self) -> &[f32] {
+        &self.data.weight
+    }
+
+    /// Errors unless every index is below `pixels`.
+    pub(super) fn check_pixels(&self, pixels: usize, op: &'static str) -> Result<()> {
+        if self.data.min_pixels > pixels {
+            return Err(OpsError::TableIndex {
+                op,
+                index: (self.data.min_pixels - 1) as u32,
+                pixels,
+            }
+            .into());
+        }
+        Ok(())
+    }
+
+    /// The transposed table for features of `pixels` pixels; cached for the first size seen.
+    pub(super) fn transposed(&self, pixels: usize) -> Cow<'_, TransposedTable> {
+        let cached = self
+            .data
+            .transposed
+            .get_or_init(|| build_transposed(&self.data.index, &self.data.weight, pixels));
+        if cached.pixels == pixels {
+            Cow::Borrowed(cached)
+        } else {
+            Cow::Owned(build_transposed(
+                &self.data.index,
+                &self.data.weight,
+                pixels,
+            ))
+        }
+    }
+}
+
+/// Counting sort of the `(sample, weight)` pairs by pixel.
+fn build_transposed(index: &[u32], weight: &[f32], pixels: usize) -> TransposedTable {
+    let mut start = vec![0usize; pixels + 1];
+    for &p in index {
+        start[p as usize + 1] += 1;
+    }
+    for p in 0..pixels {
+        start[p + 1] += start[p];
+    }
+    let mut fill = start.clone();
+    let mut sample = vec![0u32; index.len()];
+    let mut w = vec![0f32; index.len()];
+    for (k, (&p, &wk)) in index.iter().zip(weight).enumerate() {
+        let slot = &mut fill[p as usize];
+        sample[*slot] = (k / SampleTable::TAPS) as u32;
+        w[*slot] = wk;
+        *slot += 1;
+    }
+    TransposedTable {
+        pixels,
+        start,
+        sample,
+        weight: w,
+    }
+}
+
+/// A sparse `(n_out × n_in)` matrix stored as rows of `(source index, weight)`.
+#[derive(Debug)]
+pub(super) struct AxisRows {
+    /// `n_out + 1` offsets into `src` and `weight`.
+    pub(super) start: Vec<usize>,
+    pub(super) src: Vec<u32>,
+    pub(super) weight: Vec<f32>,
+}
+
+impl AxisRows {
+    pub(super) fn out_len(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    /// The transposed matrix, `(n_in × n_out)`.
+    fn transpose(&self, in_len: usize) -> Self {
+        let mut start = vec![0usize; in_len + 1];
+        for &i in &self.src {
+            start[i as usize + 1] += 1;
+        }
+        for i in 0..in_len {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut src = vec![0u32; self.src.len()];
+        let mut weight = vec![0f32; self.src.len()];
+        for j in 0..self.out_len() {
+            for e in self.start[j]..self.start[j + 1] {
+                let slot = &mut fill[self.src[e] as usize];
+                src[*slot] = j as u32;
+                weight[*slot] = self.weight[e];
+                *slot += 1;
+            }
+        }
+        Self { start, src, weight }
+    }
+}
+
+/// The linear interpolation weights mapping an axis of `n_in` samples to `n_out`
+/// (`align_corners = false`), and their transpose for the backward pass.
+#[derive(Debug)]
+pub struct LinearAxisMap {
+    in_len: usize,
+    lower: Vec<u32>,
+    upper: Vec<u32>,
+    upper_weight: Vec<f32>,
+    pub(super) forward: AxisRows,
+    pub(super) backward: AxisRows,
+}
+
+impl LinearAxisMap {
+    /// The map from `in_len` samples to `out_len`; both must be positive.
+    pub fn new(in_len: usize, out_len: usize) -> std::result::Result<Self, OpsError> {
+        if in_len == 0 || out_len == 0 || in_len > u32::MAX as usize {
+            return Err(OpsError::Shape {
+                op: "resample_linear_axis",
+                what: format!("cannot resample an axis of {in_len} samples to {out_len}"),
+            });
+        }
+        let scale = in_len as f64 / out_len as f64;
+        let mut lower = Vec::with_capacity(out_len);
+        let mut upper = Vec::with_capacity(out_len);
+        let mut upper_weight = Vec::with_capacity(out_len);
+        for j in 0..out_len {
+            let src = ((j as f64 + 0.5) * scale - 0.5).max(0.0);
+            let i0 = (src.floor() as usize).min(in_len - 1);
+            let i1 = (i0 + 1).min(in_len - 1);
+            lower.push(i0 as u32);
+            upper.push(i1 as u32);
+            upper_weight.push((src - i0 as f64) as f32);
+        }
+        let forward = AxisRows {
+            start: (0..=out_len).map(|j| 2 * j).collect(),
+            src: lower
+                .iter()
+                .zip(&upper)
+                .flat_map(|(&a, &b)| [a, b])
+                .collect(),
+            weight: upper_weight.iter().flat_map(|&l| [1.0 - l, l]).collect(),
+        };
+        let backward = forward.transpose(in_len);
+        Ok(Self {
+            in_len,
+            lower,
+            upper,
+            upper_weight,
+            forward,
+            backward,
+        })
+    }
+
+    pub fn in_len(&self) -> usize {
+        self.in_len
+    }
+
+    pub fn out_len(&self) -> usize {
+        self.lower.len()
+    }
+
+    /// `i0` per output index.
+    pub fn lower_indices(&self) -> &[u32] {
+        &self.lower
+    }
+
+    /// `i1` per output index.
+    pub fn upper_indices(&self) -> &[u32] {
+        &self.upper
+    }
+
+    /// `λ` (the weight of `i1`) per output index.
+    pub fn upper_weights(&self) -> &[f32] {
+        &self.upper_weight
+    }
+}

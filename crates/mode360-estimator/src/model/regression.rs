@@ -1,0 +1,235 @@
+//! Regression heads: cost `(B, D, H/4, W/4)` -> trilinear upsampling to `(B, N, H, W)` ->
+//! softmax over the `N` hypotheses -> soft-argmin in inverse depth:
+//!
+//! ```text
+//! p_i = softmax_i(cost_i),   k = sum_i p_i i / (N - 1),   range = 1 / (inv_far + k (inv_near - inv_far))
+//! (hypotheses uniform in log depth: range = exp(ln far + k (ln near - ln far)))
+//! ```
+//!
+//! with hypotheses uniform in inverse depth (index 0 the farthest). The paper's eq. 7 takes the
+//! expected depth `sum_i p_i rho_i` instead; over 0.5 m to 1000 m that is dominated by the far
+//! spheres, so the expectation is taken where the hypotheses are uniform. The confidence is the
+//! probability mass within `CONFIDENCE_RADIUS` hypotheses of the argmax (PSMODE).
+//!
+//! Far-plane readout: the mean of a distribution piled against the end of the hypothesis
+//! range is biased inwards, and at the far end a bias of a hundredth of a hypothesis step is
+//! hundreds of metres (with 64 hypotheses over 0.5 to 1000 m, index 1 is already 31 m). So a
+//! pixel with `p_0 >= far_plane_probability` (the far plane holds most of the mass, as for
+//! the sky) is read out as the far plane itself, `max_depth_m`, like the ground truth encodes
+//! the sky. Only the range is affected; the index the loss trains is the plain expectation.
+
+use candle_core::{DType, Result, Tensor};
+use candle_nn::VarBuilder;
+use rayon::prelude::*;
+
+use super::hourglass::Conv3d;
+use crate::model::ops::{resample_linear_axis, upsample_trilinear, LinearAxisMap};
+use mode360_core::geometry::{DepthHypotheses, HypothesisSpacing};
+
+/// Hypotheses either side of the argmax counted in the confidence.
+pub const CONFIDENCE_RADIUS: f64 = 2.0;
+/// Hypothesis axis of `(B, N, H, W)`.
+const HYPOTHESIS_AXIS: usize = 1;
+
+/// `classif`: conv `Ch -> Ch`, ReLU, conv `Ch -> 1` (no bias: the softmax ignores a constant).
+#[derive(Clone, Debug)]
+pub struct RegressionHead {
+    conv0: Conv3d,
+    conv1: Conv3d,
+}
+
+impl RegressionHead {
+    pub fn new(c: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Self {
+            conv0: Conv3d::new(c, c, vb.pp("conv0"))?,
+            conv1: Conv3d::new_no_bias(c, 1, vb.pp("conv1"))?,
+        })
+    }
+
+    /// `(B, D, H, W, Ch)` -> cost `(B, D, H, W)`.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        const UNIT: [usize; 3] = [1, 1, 1];
+        let y = self.conv0.forward_then(x, UNIT, None, true)?;
+        self.conv1.forward_then(&y, UNIT, None, false)?.squeeze(4)
+    }
+}
+
+/// One stage's regression result.
+#[derive(Clone, Debug)]
+pub struct Regression {
+    /// `(B, H, W)` range in metres.
+    pub range_m: Tensor,
+    /// `(B, H, W)` expected normalized hypothesis index in [0, 1].
+    pub inverse_depth_index: Tensor,
+    /// `(B, N, H, W)` softmax over hypotheses.
+    pub probabilities: Tensor,
+}
+
+/// Upsamples `cost (B, D, h, w)` to `(B, N, height, width)` and regresses range and index,
+/// with the far-plane readout at `far_plane_probability` (see the module docs).
+pub fn regress(
+    cost: &Tensor,
+    hypotheses: &DepthHypotheses,
+    height: usize,
+    width: usize,
+    far_plane_probability: f64,
+) -> Result<Regression> {
+    let n = hypotheses.count();
+    let device = cost.device();
+    // (B, N, H, W)
+    let up = upsample_trilinear(cost, n, height, width)?;
+    let probabilities = candle_nn::ops::softmax(&up, HYPOTHESIS_AXIS)?;
+    let index: Vec<f32> = (0..n).map(|i| i as f32 / (n - 1) as f32).collect();
+    // (1, N, 1, 1)
+    let index = Tensor::from_vec(index, (1, n, 1, 1), device)?;
+    // (B, H, W)
+    let inverse_depth_index = probabilities.broadcast_mul(&index)?.sum(HYPOTHESIS_AXIS)?;
+    // Range from the expected inverse depth, `1 / (inv_far + k (inv_near - inv_far))`, not the
+    // expected depth of eq. 7: with hypotheses from 0.5 m to 1000 m uniform in inverse depth,
+    // 1 % of probability on the farthest sphere alone would add 10 m to every pixel's range.
+    let soft_range_m = range_of_index(&inverse_depth_index, hypotheses)?;
+    // (B, H, W): probability of the far plane
+    let far = probabilities
+        .narrow(HYPOTHESIS_AXIS, 0, 1)?
+        .squeeze(HYPOTHESIS_AXIS)?;
+    let max_depth = Tensor::full(hypotheses.depth_m(0.0) as f32, far.shape(), device)?;
+    let range_m = far
+        .ge(far_plane_probability)?
+        .where_cond(&max_depth, &soft_range_m)?;
+    Ok(Regression {
+        range_m,
+        inverse_depth_index,
+        probabilities,
+    })
+}
+
+/// Range (m) of the expected normalized index `k` (`(B, H, W)`), differentiable: uniform in
+/// inverse depth `1 / (inv_far + k (inv_near - inv_far))`, uniform in log depth
+/// `exp(ln far + k (ln near - ln far))`.
+fn range_of_index(k: &Tensor, hypotheses: &DepthHypotheses) -> Result<Tensor> {
+    let n = hypotheses.count();
+    let (far, near) = (hypotheses.depth_m(0.0), hypotheses.depth_m((n - 1) as f64));
+    match hypotheses.spacing() {
+        HypothesisSpacing::InverseDepth => k.affine(1.0 / near - 1.0 / far, 1.0 / far)?.recip(),
+        HypothesisSpacing::LogDepth => k.affine(near.ln() - far.ln(), far.ln())?.exp(),
+    }
+}
+
+/// `(B, N, H, W)` probabilities -> `(B, H, W)` mass within [`CONFIDENCE_RADIUS`] hypotheses of
+/// the argmax (no gradient).
+pub fn confidence(probabilities: &Tensor) -> Result<Tensor> {
+    let p = probabilities.detach();
+    let n = p.dim(HYPOTHESIS_AXIS)?;
+    // (B, 1, H, W)
+    let argmax = p.argmax_keepdim(HYPOTHESIS_AXIS)?.to_dtype(DType::F32)?;
+    // (1, N, 1, 1)
+    let index = Tensor::arange(0f32, n as f32, p.device())?.reshape((1, n, 1, 1))?;
+    let near = index
+        .broadcast_sub(&argmax)?
+        .abs()?
+        .le(CONFIDENCE_RADIUS)?
+        .to_dtype(DType::F32)?;
+    (p * near)?.sum(HYPOTHESIS_AXIS)
+}
+
+/// What [`regress_inference`] returns, each `(B, H, W)`.
+#[derive(Clone, Debug)]
+pub struct InferenceRegression {
+    pub range_m: Tensor,
+    pub inverse_depth_index: Tensor,
+    pub confidence: Tensor,
+}
+
+/// [`regress`] and [`confidence`] fused for inference (no gradient): the cost is upsampled in
+/// `H` and `W` as a tensor, then one pass per pixel interpolates its `N` hypotheses from the `D`
+/// spheres, takes the softmax, the expected index, the argmax and the mass near it, without
+/// materialising the `(B, N, H, W)` volume. Same values as the unfused path (to rounding).
+pub fn regress_inference(
+    cost: &Tensor,
+    hypotheses: &DepthHypotheses,
+    height: usize,
+    width: usize,
+    far_plane_probability: f64,
+) -> Result<InferenceRegression> {
+    let n = hypotheses.count();
+    let (b, d, _, _) = cost.dims4()?;
+    // (B, D, h, w) -> (B, D, h, W) -> (B, D, H, W)
+    let spatial = resample_linear_axis(&resample_linear_axis(cost, 3, width)?, 2, height)?;
+    let data = spatial.flatten_all()?.to_vec1::<f32>()?;
+    let axis = LinearAxisMap::new(d, n)?;
+    let pixels = height * width;
+    let mut index = vec![0f32; b * pixels];
+    let mut conf = vec![0f32; b * pixels];
+    let mut range = vec![0f32; b * pixels];
+    let far_m = hypotheses.depth_m(0.0) as f32;
+    let radius = CONFIDENCE_RADIUS as usize;
+    index
+        .par_chunks_mut(width)
+        .zip(conf.par_chunks_mut(width))
+        .zip(range.par_chunks_mut(width))
+        .enumerate()
+        .for_each(|(row, ((index_row, conf_row), range_row))| {
+            let (bi, v) = (row / height, row % height);
+            // (W, D): this row's sphere costs, pixel-major
+            let mut spheres = vec![0f32; width * d];
+            for k in 0..d {
+                let src = &data[(bi * d + k) * pixels + v * width..][..width];
+                for (u, &c) in src.iter().enumerate() {
+                    spheres[u * d + k] = c;
+                }
+            }
+            let mut p = vec![0f32; n];
+            for u in 0..width {
+                let s = &spheres[u * d..(u + 1) * d];
+                let (lo, hi, lam) = (
+                    axis.lower_indices(),
+                    axis.upper_indices(),
+                    axis.upper_weights(),
+                );
+                let mut max = f32::NEG_INFINITY;
+                for i in 0..n {
+                    let c = (1.0 - lam[i]) * s[lo[i] as usize] + lam[i] * s[hi[i] as usize];
+                    p[i] = c;
+                    max = max.max(c);
+                }
+                let mut sum = 0f32;
+                for x in p.iter_mut() {
+                    *x = (*x - max).exp();
+                    sum += *x;
+                }
+                let inv_sum = 1.0 / sum;
+                // Argmax of the probabilities, first of equals (as the unfused path): costs a
+                // rounding error apart can have equal probabilities.
+                let mut arg = 0;
+                for i in 1..n {
+                    if p[i] * inv_sum > p[arg] * inv_sum {
+                        arg = i;
+                    }
+                }
+                let mut expected = 0f32;
+                for (i, &x) in p.iter().enumerate() {
+                    expected += x * i as f32;
+                }
+                let near: f32 = p[arg.saturating_sub(radius)..(arg + radius + 1).min(n)]
+                    .iter()
+                    .sum();
+                let k = expected * inv_sum / (n - 1) as f32;
+                index_row[u] = k;
+                conf_row[u] = near * inv_sum;
+                range_row[u] = if f64::from(p[0] * inv_sum) >= far_plane_probability {
+                    far_m
+                } else {
+                    hypotheses.depth_at_normalized(f64::from(k)) as f32
+                };
+            }
+        });
+    let device = cost.device();
+    let range_m = Tensor::from_vec(range, (b, height, width), device)?;
+    let inverse_depth_index = Tensor::from_vec(index, (b, height, width), device)?;
+    let confidence = Tensor::from_vec(conf, (b, height, width), device)?;
+    Ok(InferenceRegression {
+        range_m,
+        inverse_depth_index,
+        confidence,
+    })
+}

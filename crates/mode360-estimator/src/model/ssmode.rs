@@ -1,0 +1,300 @@
+//! The SSMODE network (paper section 4.3, with count-invariant view aggregation).
+//!
+//! ```text
+//! images: N x (B, H, W, 3) -> stacked (N B, H, W, 3)
+//! feature                   -> (N B, h, w, Cf) -> N x (B, h, w, Cf)   h = H / cost_downsample
+//! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
+//! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
+//! aggregation               -> K x (B, D/s, h/s, w/s, Ch) stacked hourglasses, entry stride s
+//! classif{k}                -> K x (B, D/s, h/s, w/s)
+//! regression                -> K x (B, H, W) range, index; confidence of the last
+//! ```
+
+use std::time::{Duration, Instant};
+
+use candle_core::{Result, Tensor};
+use candle_nn::VarBuilder;
+
+use super::config::{SsmodeConfig, MIN_CAMERAS};
+use super::cost_volume::cost_volume;
+use super::feature::FeatureExtractor;
+use super::hourglass::CostAggregation;
+use super::photometric_cost::photometric_cost;
+use super::regression::{confidence, regress, regress_inference, RegressionHead};
+use super::sweep_sampling::SweepSampling;
+use crate::model::ops::{flop_count, OpsError};
+use mode360_core::geometry::DepthHypotheses;
+
+/// Image channels (RGB).
+const IMAGE_CHANNELS: usize = 3;
+
+/// What [`Ssmode::forward`] returns.
+#[derive(Clone, Debug)]
+pub struct SsmodeOutput {
+    /// Per hourglass, `(B, H, W)` range in metres; the last is the final estimate (only the
+    /// final one when `forward` runs with `train = false`).
+    pub stages: Vec<Tensor>,
+    /// Like `stages`: `(B, H, W)` expected normalized inverse-depth index in [0, 1]
+    /// (0 = `max_depth_m`, 1 = `min_depth_m`).
+    pub inverse_depth_stages: Vec<Tensor>,
+    /// `(B, H, W)` probability mass within 2 hypotheses of the final argmax.
+    pub confidence: Tensor,
+    /// `(B, N, H, W)` softmax over the hypotheses of the final stage; only with `train` (the
+    /// inference path never materialises it).
+    pub probabilities: Option<Tensor>,
+}
+
+/// Wall time and floating-point work of one stage of a forward pass.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageTiming {
+    /// `feature`, `cost_volume`, `aggregation` or `regression`.
+    pub stage: &'static str,
+    pub elapsed: Duration,
+    /// Convolution and matrix-product FLOPs issued by the stage (multiply-add = 2).
+    pub flops: u64,
+}
+
+impl StageTiming {
+    /// `flops / elapsed` in GFLOP/s (0 for an instantaneous stage).
+    pub fn gflops_per_s(&self) -> f64 {
+        let secs = self.elapsed.as_secs_f64();
+        if secs > 0.0 {
+            self.flops as f64 / secs / 1e9
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Collects [`StageTiming`]s during [`Ssmode::forward_profiled`]. Candle's CPU ops run
+/// eagerly, so a stage's time is the time between two marks.
+#[derive(Clone, Debug)]
+pub struct StageProfiler {
+    last: Instant,
+    flops_at_last: u64,
+    stages: Vec<StageTiming>,
+}
+
+impl Default for StageProfiler {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl StageProfiler {
+    pub fn new() -> Self {
+        Self {
+            last: Instant::now(),
+            flops_at_last: flop_count(),
+            stages: Vec::new(),
+        }
+    }
+
+    /// Ends the stage `stage` (started at the previous mark) and starts the next one.
+    fn mark(&mut self, stage: &'static str) {
+        let now = Instant::now();
+        let flops = flop_count();
+        self.stages.push(StageTiming {
+            stage,
+            elapsed: now - self.last,
+            flops: flops.saturating_sub(self.flops_at_last),
+        });
+        self.last = now;
+        self.flops_at_last = flops;
+    }
+
+    pub fn stages(&self) -> &[StageTiming] {
+        &self.stages
+    }
+}
+
+/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`.
+#[derive(Clone, Debug)]
+pub struct Ssmode {
+    cfg: SsmodeConfig,
+    hypotheses: DepthHypotheses,
+    feature: FeatureExtractor,
+    aggregation: CostAggregation,
+    classif: Vec<RegressionHead>,
+}
+
+impl Ssmode {
+    pub fn new(cfg: &SsmodeConfig, vb: VarBuilder) -> Result<Self> {
+        cfg.validate().map_err(candle_core::Error::wrap)?;
+        let hypotheses = cfg.output_hypotheses().map_err(candle_core::Error::wrap)?;
+        Ok(Self {
+            cfg: cfg.clone(),
+            hypotheses,
+            feature: FeatureExtractor::new(cfg, vb.pp("feature"))?,
+            aggregation: CostAggregation::new(cfg, vb.pp("aggregation"))?,
+            classif: (0..cfg.hourglasses)
+                .map(|k| RegressionHead::new(cfg.hourglass_channels, vb.pp(format!("classif{k}"))))
+                .collect::<Result<_>>()?,
+        })
+    }
+
+    pub fn config(&self) -> &SsmodeConfig {
+        &self.cfg
+    }
+
+    /// The full-resolution hypotheses the range is regressed over.
+    pub fn hypotheses(&self) -> &DepthHypotheses {
+        &self.hypotheses
+    }
+
+    fn check_images(&self, images: &[Tensor], sampling: &SweepSampling) -> Result<()> {
+        const OP: &str = "Ssmode::forward";
+        if images.len() < MIN_CAMERAS || images.len() != sampling.camera_count() {
+            return Err(OpsError::Shape {
+                op: OP,
+                what: format!(
+                    "{} images for a sweep of {} cameras (at least {MIN_CAMERAS})",
+                    images.len(),
+                    sampling.camera_count()
+                ),
+            }
+            .into());
+        }
+        let expected = sampling.geometry().output();
+        if expected.width() != self.cfg.cost_width() {
+            return Err(OpsError::Shape {
+                op: OP,
+                what: format!(
+                    "sweep sampling built for cost width {}, the config needs {}",
+                    expected.width(),
+                    self.cfg.cost_width()
+                ),
+            }
+            .into());
+        }
+        let first = images[0].dims().to_vec();
+        for (cam, img) in images.iter().enumerate() {
+            let dims = img.dims();
+            let ok = dims.len() == 4
+                && dims[1] == self.cfg.height()
+                && dims[2] == self.cfg.width
+                && dims[3] == IMAGE_CHANNELS
+                && dims == first.as_slice();
+            if !ok {
+                return Err(OpsError::Shape {
+                    op: OP,
+                    what: format!(
+                        "camera {cam}: image shape {dims:?}, expected (B, {}, {}, 3) like camera 0 {first:?}",
+                        self.cfg.height(),
+                        self.cfg.width
+                    ),
+                }
+                .into());
+            }
+        }
+        Ok(())
+    }
+
+    /// images: one `(B, H, W, 3)` f32 tensor in [0, 1] per camera, rig order (any count >= 2).
+    /// With `train` every hourglass is regressed (for the stacked loss); without it only the
+    /// last one, so `stages` and `inverse_depth_stages` then hold just the final estimate.
+    /// The network has no train-only layers: the final stage is identical either way.
+    pub fn forward(
+        &self,
+        images: &[Tensor],
+        sampling: &SweepSampling,
+        train: bool,
+    ) -> Result<SsmodeOutput> {
+        self.forward_profiled(images, sampling, train, None)
+    }
+
+    /// [`Ssmode::forward`], recording per-stage timings into `profiler` when given.
+    pub fn forward_profiled(
+        &self,
+        images: &[Tensor],
+        sampling: &SweepSampling,
+        train: bool,
+        mut profiler: Option<&mut StageProfiler>,
+    ) -> Result<SsmodeOutput> {
+        let mut mark = |stage: &'static str| {
+            if let Some(p) = profiler.as_deref_mut() {
+                p.mark(stage);
+            }
+        };
+        self.check_images(images, sampling)?;
+        // (N B, H, W, 3)
+        let stacked = Tensor::cat(images, 0)?;
+        // (N B, h, w, Cf)
+        let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
+        mark("feature");
+        // (B, D, h, w, C')
+        let volume = cost_volume(&features, sampling, self.cfg.cost)?;
+        drop(features);
+        // (B, D, h, w, C' + 1) with the photometric cost channel
+        let volume = if self.cfg.photometric_cost {
+            let photometric = photometric_cost(images, sampling)?;
+            Tensor::cat(&[&volume, &photometric], 4)?
+        } else {
+            volume
+        };
+        mark("cost_volume");
+        // K x (B, D/s, h/s, w/s, Ch)
+        let aggregated = self.aggregation.forward(&volume)?;
+        drop(volume);
+        mark("aggregation");
+        if !train {
+            // Inference: only the last hourglass, regressed by the fused kernel.
+            let (head, x) = self
+                .classif
+                .last()
+                .zip(aggregated.last())
+                .ok_or(OpsError::Shape {
+                    op: "Ssmode::forward",
+                    what: "no hourglass stages".to_string(),
+                })?;
+            // (B, D/s, h/s, w/s)
+            let cost = head.forward(x)?;
+            drop(aggregated);
+            // (B, H, W) each
+            let r = regress_inference(
+                &cost,
+                &self.hypotheses,
+                self.cfg.height(),
+                self.cfg.width,
+                self.cfg.far_plane_probability,
+            )?;
+            mark("regression");
+            return Ok(SsmodeOutput {
+                stages: vec![r.range_m],
+                inverse_depth_stages: vec![r.inverse_depth_index],
+                confidence: r.confidence,
+                probabilities: None,
+            });
+        }
+        let mut stages = Vec::with_capacity(aggregated.len());
+        let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
+        let mut last_probabilities = None;
+        for (head, x) in self.classif.iter().zip(&aggregated) {
+            // (B, D/s, h/s, w/s)
+            let cost = head.forward(x)?;
+            // (B, H, W)
+            let r = regress(
+                &cost,
+                &self.hypotheses,
+                self.cfg.height(),
+                self.cfg.width,
+                self.cfg.far_plane_probability,
+            )?;
+            stages.push(r.range_m);
+            inverse_depth_stages.push(r.inverse_depth_index);
+            last_probabilities = Some(r.probabilities);
+        }
+        let probabilities = last_probabilities.ok_or(OpsError::Shape {
+            op: "Ssmode::forward",
+            what: "no hourglass stages".to_string(),
+        })?;
+        let confidence = confidence(&probabilities)?;
+        mark("regression");
+        Ok(SsmodeOutput {
+            stages,
+            inverse_depth_stages,
+            confidence,
+            probabilities: Some(probabilities),
+        })
+    }
+}

@@ -1,0 +1,120 @@
+//! Per-rig sweep sampling tables of an SSMODE configuration ([`SweepSampling`]), built once
+//! per rig and resolution.
+
+use std::sync::Arc;
+
+use super::config::{SsmodeConfig, MIN_CAMERAS};
+use super::sphere_conv::SphereConvTable;
+use super::ModelError;
+use crate::model::ops::{view_scale, SampleTable};
+use mode360_core::geometry::{ErpGrid, Rig, SweepGeometry};
+
+/// Sampling tables for one rig at one configuration's resolution, built once:
+/// - one sweep table per camera: for every sphere `d` and cost-volume cell `(v, u)` (sample
+///   index `(d H + v) W + u`, at [`SsmodeConfig::cost_width`]), the bilinear taps of
+///   `erp_c(cam_from_output * (rho_d * dir(u, v)))` in that camera's matching features (at the
+///   same resolution; a fisheye camera's features are those of its panorama, and its taps
+///   are all zero where its lens does not see the point);
+/// - the SphereNet kernel table of the stage-4 spherical convolution (quarter resolution).
+#[derive(Clone, Debug)]
+pub struct SweepSampling {
+    geometry: SweepGeometry,
+    /// Per sweep sample `1 / views seeing it` (0 below two views); `None` when every camera
+    /// sees everything (360° cameras).
+    view_scale: Option<Arc<[f32]>>,
+    /// Per cell, the share of spheres two cameras see (built with `view_scale`).
+    coverage: Option<Vec<f32>>,
+    sweep_tables: Vec<SampleTable>,
+    sphere_conv: SphereConvTable,
+    /// Per camera pair `(a < b)` and cost cell, the parallax weight of the photometric cost
+    /// channel; `None` when the config has none.
+    pair_weights: Option<Vec<Vec<f32>>>,
+}
+
+impl SweepSampling {
+    /// Builds the tables for `rig` at `cfg`'s quarter resolution.
+    pub fn new(rig: &Rig, cfg: &SsmodeConfig) -> Result<Self, ModelError> {
+        cfg.validate()?;
+        let cameras = rig.cameras.len();
+        if cameras < MIN_CAMERAS {
+            return Err(ModelError::TooFewCameras {
+                got: cameras,
+                min: MIN_CAMERAS,
+            });
+        }
+        let grid = ErpGrid::new(cfg.cost_width())?;
+        let trunk_grid = ErpGrid::new(cfg.feature_width())?;
+        let geometry =
+            SweepGeometry::new(rig, grid, vec![grid; cameras], cfg.sphere_hypotheses()?)?;
+        let pixels = grid.len();
+        let sweep_tables = (0..cameras)
+            .map(|cam| SampleTable::new(&geometry.camera_taps(cam)))
+            .collect::<Vec<_>>();
+        let view_scale = (!geometry.all_see_everything()).then(|| view_scale(&sweep_tables));
+        let coverage = view_scale.as_ref().map(|scale| {
+            (0..pixels)
+                .map(|k| {
+                    (0..cfg.spheres)
+                        .filter(|d| scale[d * pixels + k] > 0.0)
+                        .count() as f32
+                        / cfg.spheres as f32
+                })
+                .collect()
+        });
+        let pair_weights = cfg.photometric_cost.then(|| {
+            let centres: Vec<_> = (0..cameras)
+                .map(|cam| geometry.camera_centre_in_output_m(cam))
+                .collect();
+            crate::matching::pair_parallax_weights(
+                grid,
+                &centres,
+                super::photometric_cost::PARALLAX_EXPONENT,
+            )
+        });
+        Ok(Self {
+            view_scale,
+            coverage,
+            pair_weights,
+            sweep_tables,
+            sphere_conv: SphereConvTable::new(trunk_grid),
+            geometry,
+        })
+    }
+
+    /// The sweep geometry at the cost volume's resolution.
+    pub fn geometry(&self) -> &SweepGeometry {
+        &self.geometry
+    }
+
+    pub fn camera_count(&self) -> usize {
+        self.sweep_tables.len()
+    }
+
+    /// Camera `cam`'s sweep table, `spheres * H * W` samples, sphere-major then row-major.
+    pub fn sweep_table(&self, cam: usize) -> Option<&SampleTable> {
+        self.sweep_tables.get(cam)
+    }
+
+    /// The SphereNet kernel table of the stage-4 spherical convolution.
+    pub fn sphere_conv(&self) -> &SphereConvTable {
+        &self.sphere_conv
+    }
+
+    /// Per sweep sample (sphere-major, row-major) `1 / views seeing it`, 0 where fewer than
+    /// two cameras see it; `None` when every camera sees every sample.
+    pub fn view_scale(&self) -> Option<&Arc<[f32]>> {
+        self.view_scale.as_ref()
+    }
+
+    /// Per camera pair `(a < b)` and cost cell, the photometric cost channel's parallax weights;
+    /// `None` when the config has no photometric cost channel.
+    pub fn pair_weights(&self) -> Option<&[Vec<f32>]> {
+        self.pair_weights.as_deref()
+    }
+
+    /// Per cost-volume cell (row-major): the fraction of spheres that at least two cameras
+    /// see there; `None` when every camera sees everything (all 1).
+    pub fn coverage(&self) -> Option<&[f32]> {
+        self.coverage.as_deref()
+    }
+}

@@ -1,0 +1,177 @@
+//! MCAP `ros2msg` schema text, built from the `.msg` files under `msg/` (embedded at compile
+//! time, so they are the one source of truth).
+//!
+//! Layout (rosbag2 style): the type's own `.msg` text, then for each dependency, depth first
+//! in order of first use, each once:
+//! ```text
+//! ================================================================================
+//! MSG: pkg/Type
+//! <that type's .msg text>
+//! ```
+//! Every text block ends with exactly one newline.
+
+use std::collections::BTreeSet;
+
+use super::MsgError;
+
+/// The line that separates definitions: exactly 80 `=`.
+pub const SCHEMA_SEPARATOR: &str =
+    "================================================================================";
+
+/// One embedded `.msg` definition.
+#[derive(Clone, Copy, Debug)]
+pub struct MsgDefinition {
+    /// Package name, e.g. `sensor_msgs`.
+    pub package: &'static str,
+    /// Type name inside the package, e.g. `Image`.
+    pub name: &'static str,
+    /// The `.msg` file text.
+    pub text: &'static str,
+}
+
+impl MsgDefinition {
+    /// `pkg/msg/Type`, the MCAP schema name.
+    pub fn full_name(&self) -> String {
+        format!("{}/msg/{}", self.package, self.name)
+    }
+
+    /// `pkg/Type`, the form used after `MSG:`.
+    pub fn short_name(&self) -> String {
+        format!("{}/{}", self.package, self.name)
+    }
+}
+
+macro_rules! definitions {
+    ($($pkg:literal / $name:literal),* $(,)?) => {
+        &[$(MsgDefinition {
+            package: $pkg,
+            name: $name,
+            text: include_str!(concat!("../../../../msg/", $pkg, "/", $name, ".msg")),
+        }),*]
+    };
+}
+
+/// Every message definition mode360 ships.
+pub const DEFINITIONS: &[MsgDefinition] = definitions![
+    "builtin_interfaces" / "Time",
+    "std_msgs" / "Header",
+    "sensor_msgs" / "Image",
+    "sensor_msgs" / "CompressedImage",
+    "sensor_msgs" / "PointCloud2",
+    "sensor_msgs" / "PointField",
+    "geometry_msgs" / "TransformStamped",
+    "geometry_msgs" / "Transform",
+    "geometry_msgs" / "Vector3",
+    "geometry_msgs" / "Quaternion",
+    "tf2_msgs" / "TFMessage",
+    "diagnostic_msgs" / "DiagnosticArray",
+    "diagnostic_msgs" / "DiagnosticStatus",
+    "diagnostic_msgs" / "KeyValue",
+    "rosgraph_msgs" / "Clock",
+];
+
+/// Field types that are not messages.
+const PRIMITIVE_TYPES: &[&str] = &[
+    "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
+    "uint32", "int64", "uint64", "string", "wstring",
+];
+
+/// The `(package, type)` of `type_name`, which may be `pkg/msg/Type` or `pkg/Type`.
+fn split_type_name(type_name: &str) -> Option<(&str, &str)> {
+    let mut parts = type_name.split('/');
+    match (parts.next(), parts.next(), parts.next(), parts.next()) {
+        (Some(pkg), Some("msg"), Some(name), None) | (Some(pkg), Some(name), None, None)
+            if !pkg.is_empty() && !name.is_empty() =>
+        {
+            Some((pkg, name))
+        }
+        _ => None,
+    }
+}
+
+/// The embedded definition of `type_name` (`pkg/msg/Type` or `pkg/Type`).
+pub fn definition(type_name: &str) -> Result<&'static MsgDefinition, MsgError> {
+    split_type_name(type_name)
+        .and_then(|(pkg, name)| {
+            DEFINITIONS
+                .iter()
+                .find(|d| d.package == pkg && d.name == name)
+        })
+        .ok_or_else(|| MsgError::UnknownType {
+            type_name: type_name.to_string(),
+        })
+}
+
+/// The message types a definition's fields use, as `pkg/Type`, in order of first use
+/// (a type without a package is in the definition's own package; array suffixes, string
+/// bounds, comments and constants are stripped).
+pub fn field_dependencies(def: &MsgDefinition) -> Vec<String> {
+    let mut deps: Vec<String> = Vec::new();
+    for line in def.text.lines() {
+        let code = line.split('#').next().unwrap_or("").trim();
+        let Some(field_type) = code.split_whitespace().next() else {
+            continue;
+        };
+        let base = field_type
+            .split('[')
+            .next()
+            .unwrap_or(field_type)
+            .split("<=")
+            .next()
+            .unwrap_or(field_type);
+        if PRIMITIVE_TYPES.contains(&base) {
+            continue;
+        }
+        let dep = match split_type_name(base) {
+            Some((pkg, name)) => format!("{pkg}/{name}"),
+            None => format!("{}/{}", def.package, base),
+        };
+        if !deps.contains(&dep) {
+            deps.push(dep);
+        }
+    }
+    deps
+}
+
+/// `text` with trailing newlines replaced by exactly one.
+fn with_single_newline(text: &str) -> String {
+    let mut out = text.trim_end_matches(['\n', '\r']).to_string();
+    out.push('\n');
+    out
+}
+
+fn append_dependencies(
+    def: &MsgDefinition,
+    root_type: &str,
+    seen: &mut BTreeSet<String>,
+    out: &mut String,
+) -> Result<(), MsgError> {
+    for dep in field_dependencies(def) {
+        if !seen.insert(dep.clone()) {
+            continue;
+        }
+        let dep_def = definition(&dep).map_err(|_| MsgError::MissingDependency {
+            type_name: root_type.to_string(),
+            dependency: dep.clone(),
+        })?;
+        out.push_str(SCHEMA_SEPARATOR);
+        out.push('\n');
+        out.push_str("MSG: ");
+        out.push_str(&dep);
+        out.push('\n');
+        out.push_str(&with_single_newline(dep_def.text));
+        append_dependencies(dep_def, root_type, seen, out)?;
+    }
+    Ok(())
+}
+
+/// The complete `ros2msg` schema text of `type_name` (`pkg/msg/Type` or `pkg/Type`):
+/// see the module docs for the layout.
+pub fn schema_text(type_name: &str) -> Result<String, MsgError> {
+    let def = definition(type_name)?;
+    let mut out = with_single_newline(def.text);
+    let mut seen = BTreeSet::new();
+    seen.insert(def.short_name());
+    append_dependencies(def, type_name, &mut seen, &mut out)?;
+    Ok(out)
+}

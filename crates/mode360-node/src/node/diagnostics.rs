@@ -1,0 +1,368 @@
+//! `/diagnostics` content of the node and of replay: one status per camera (rate, age of the
+//! newest image, bad messages with the last reason, whether it is waited for) and one for the
+//! pipeline (sync counters, dropped groups, inference latency, degraded cameras).
+
+use mode360_core::sync::{SyncError, SyncStats};
+use mode360_io::msgs::image::ImageMsgError;
+use mode360_io::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
+use std::collections::BTreeMap;
+
+/// Prefix of every status name.
+pub const DIAGNOSTIC_PREFIX: &str = "mode360";
+
+/// Why a camera message was dropped; one `/diagnostics` counter each (`bad_<key>`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum BadImageReason {
+    /// An image encoding the node does not read.
+    Encoding,
+    /// Width, height and step do not describe the data.
+    Layout,
+    /// Fewer data bytes than height x step.
+    Truncated,
+    /// Too large, or a compressed image that does not decode.
+    Undecodable,
+    /// Not the size the camera's model takes: an equirectangular camera's image must be 2:1,
+    /// a fisheye or dual-fisheye camera's exactly its `image_size`.
+    WrongSize,
+    /// A stamp older than the camera's previous message.
+    OutOfOrder,
+    /// The middleware could not deliver the message (deserialization).
+    Transport,
+}
+
+impl BadImageReason {
+    /// Every reason, in the order of the diagnostics keys.
+    pub const ALL: [Self; 7] = [
+        Self::Encoding,
+        Self::Layout,
+        Self::Truncated,
+        Self::Undecodable,
+        Self::WrongSize,
+        Self::OutOfOrder,
+        Self::Transport,
+    ];
+
+    /// The counter's key in `/diagnostics`, without the `bad_` prefix.
+    pub fn key(self) -> &'static str {
+        match self {
+            Self::Encoding => "encoding",
+            Self::Layout => "layout",
+            Self::Truncated => "truncated",
+            Self::Undecodable => "undecodable",
+            Self::WrongSize => "wrong_size",
+            Self::OutOfOrder => "out_of_order",
+            Self::Transport => "transport",
+        }
+    }
+}
+
+impl From<&ImageMsgError> for BadImageReason {
+    fn from(e: &ImageMsgError) -> Self {
+        match e {
+            ImageMsgError::UnsupportedEncoding { .. } | ImageMsgError::UnsupportedFormat { .. } => {
+                Self::Encoding
+            }
+            ImageMsgError::StepTooSmall { .. } | ImageMsgError::DataTooLong { .. } => Self::Layout,
+            ImageMsgError::DataTooShort { .. } => Self::Truncated,
+            _ => Self::Undecodable,
+        }
+    }
+}
+
+impl From<&SyncError> for BadImageReason {
+    fn from(e: &SyncError) -> Self {
+        match e {
+            SyncError::OutOfOrder { .. } => Self::OutOfOrder,
+            SyncError::NoSuchStream { .. } => Self::Transport,
+        }
+    }
+}
+
+/// Health of one camera stream.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CameraHealth {
+    pub name: String,
+    pub topic: String,
+    /// Good messages received in total.
+    pub received: u64,
+    /// Good messages a second over the last reporting period.
+    pub rate_hz: f64,
+    /// Seconds since the newest good message (`None` before the first).
+    pub age_s: Option<f64>,
+    /// False while the camera is timed out and not waited for.
+    pub active: bool,
+    /// Messages dropped as malformed (encoding, size, truncation, out-of-order stamps).
+    pub bad_messages: u64,
+    /// Reason of the newest bad message.
+    pub last_bad_reason: Option<String>,
+    /// Messages dropped, by reason.
+    pub bad_by_reason: BTreeMap<BadImageReason, u64>,
+    /// Bad messages since the newest good one (0 after a good message).
+    pub bad_since_good: u64,
+}
+
+impl CameraHealth {
+    /// Counts a dropped message.
+    pub fn record_bad(&mut self, reason: BadImageReason, detail: String) {
+        self.bad_messages += 1;
+        self.bad_since_good += 1;
+        *self.bad_by_reason.entry(reason).or_insert(0) += 1;
+        self.last_bad_reason = Some(detail);
+    }
+
+    /// Counts a good message.
+    pub fn record_good(&mut self) {
+        self.received += 1;
+        self.bad_since_good = 0;
+    }
+
+    /// True when everything the camera sent lately was dropped: it is not silent, its
+    /// images are malformed.
+    pub fn only_malformed(&self) -> bool {
+        self.bad_since_good > 0 && (!self.active || self.received == 0)
+    }
+}
+
+/// Health of the whole node.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NodeHealth {
+    pub cameras: Vec<CameraHealth>,
+    pub sync: SyncStats,
+    /// Groups run through the pipeline.
+    pub groups_processed: u64,
+    /// Complete groups replaced in the 1-slot mailbox by a newer one before inference.
+    pub groups_dropped: u64,
+    /// Processed groups whose point cloud was not built: `points` had no subscriber.
+    pub clouds_skipped: u64,
+    /// Groups the pipeline failed on.
+    pub pipeline_errors: u64,
+    pub last_pipeline_error: Option<String>,
+    /// Latency of the newest processed group, milliseconds.
+    pub last_latency_ms: Option<f64>,
+    /// Mean latency over all processed groups, milliseconds.
+    pub mean_latency_ms: Option<f64>,
+}
+
+fn kv(key: &str, value: impl ToString) -> KeyValue {
+    KeyValue {
+        key: key.to_string(),
+        value: value.to_string(),
+    }
+}
+
+fn opt_ms(v: Option<f64>) -> String {
+    v.map_or_else(|| "n/a".to_string(), |x| format!("{x:.1}"))
+}
+
+/// The `/diagnostics` message of `health` stamped `stamp_ns`.
+pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -> DiagnosticArray {
+    let mut status = Vec::with_capacity(health.cameras.len() + 1);
+    for cam in &health.cameras {
+        let (level, message) = if cam.only_malformed() {
+            (
+                DiagnosticStatus::ERROR,
+                format!(
+                    "sending only malformed images: {}",
+                    cam.last_bad_reason.as_deref().unwrap_or("")
+                ),
+            )
+        } else if !cam.active {
+            (DiagnosticStatus::WARN, "timed out, not waited for".into())
+        } else if cam.received == 0 {
+            (DiagnosticStatus::WARN, "no images yet".into())
+        } else if cam.bad_messages > 0 {
+            (
+                DiagnosticStatus::WARN,
+                "receiving, some messages dropped".into(),
+            )
+        } else {
+            (DiagnosticStatus::OK, "receiving".into())
+        };
+        let mut values = vec![
+            kv("topic", &cam.topic),
+            kv("received", cam.received),
+            kv("rate_hz", format!("{:.2}", cam.rate_hz)),
+            kv(
+                "age_s",
+                cam.age_s
+                    .map_or_else(|| "n/a".into(), |a| format!("{a:.3}")),
+            ),
+            kv("active", cam.active),
+            kv("bad_messages", cam.bad_messages),
+            kv(
+                "last_bad_reason",
+                cam.last_bad_reason.as_deref().unwrap_or(""),
+            ),
+        ];
+        values.extend(BadImageReason::ALL.iter().map(|r| {
+            kv(
+                &format!("bad_{}", r.key()),
+                cam.bad_by_reason.get(r).copied().unwrap_or(0),
+            )
+        }));
+        status.push(DiagnosticStatus {
+            level,
+            name: format!("{DIAGNOSTIC_PREFIX}: camera {}", cam.name),
+            message,
+            hardware_id: hardware_id.to_string(),
+            values,
+        });
+    }
+    let degraded: Vec<&str> = health
+        .cameras
+        .iter()
+        .filter(|c| !c.active)
+        .map(|c| c.name.as_str())
+        .collect();
+    let level = if health.pipeline_errors > 0 || !degraded.is_empty() {
+        DiagnosticStatus::WARN
+    } else {
+        DiagnosticStatus::OK
+    };
+    status.push(DiagnosticStatus {
+        level,
+        name: format!("{DIAGNOSTIC_PREFIX}: pipeline"),
+        message: if degraded.is_empty() {
+            "all cameras in use".into()
+        } else {
+            format!("degraded: without {}", degraded.join(", "))
+        },
+        hardware_id: hardware_id.to_string(),
+        values: vec![
+            kv("groups_processed", health.groups_processed),
+            kv("groups_dropped_mailbox", health.groups_dropped),
+            kv("points_skipped_no_subscriber", health.clouds_skipped),
+            kv("sync_groups", health.sync.groups),
+            kv("sync_unmatched", health.sync.unmatched),
+            kv("sync_overflow", health.sync.overflow),
+            kv("sync_out_of_order", health.sync.out_of_order),
+            kv("pipeline_errors", health.pipeline_errors),
+            kv(
+                "last_pipeline_error",
+                health.last_pipeline_error.as_deref().unwrap_or(""),
+            ),
+            kv("last_latency_ms", opt_ms(health.last_latency_ms)),
+            kv("mean_latency_ms", opt_ms(health.mean_latency_ms)),
+            kv("degraded_cameras", degraded.join(",")),
+        ],
+    });
+    DiagnosticArray {
+        header: Header::new(stamp_ns, ""),
+        status,
+    }
+}
+
+/// The value of `key` in the status named `name` (for tests and tools).
+pub fn diagnostic_value<'a>(array: &'a DiagnosticArray, name: &str, key: &str) -> Option<&'a str> {
+    array
+        .status
+        .iter()
+        .find(|s| s.name == name)?
+        .values
+        .iter()
+        .find(|kv| kv.key == key)
+        .map(|kv| kv.value.as_str())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_camera_sending_only_malformed_images_is_malformed_not_silent() {
+        let mut cam = CameraHealth {
+            name: "cam3".into(),
+            active: true,
+            ..Default::default()
+        };
+        cam.record_good();
+        cam.record_bad(
+            BadImageReason::Encoding,
+            "unsupported encoding 'yuv422'".into(),
+        );
+        assert!(
+            !cam.only_malformed(),
+            "active with a good image: some dropped"
+        );
+        cam.active = false;
+        cam.record_bad(
+            BadImageReason::Encoding,
+            "unsupported encoding 'yuv422'".into(),
+        );
+        cam.record_bad(BadImageReason::Truncated, "truncated".into());
+        assert!(cam.only_malformed());
+        let health = NodeHealth {
+            cameras: vec![cam.clone()],
+            ..Default::default()
+        };
+        let array = diagnostic_array(1, "test", &health);
+        let status = &array.status[0];
+        assert_eq!(status.level, DiagnosticStatus::ERROR);
+        assert_eq!(status.message, "sending only malformed images: truncated");
+        assert_eq!(
+            diagnostic_value(&array, "mode360: camera cam3", "bad_encoding"),
+            Some("2")
+        );
+        assert_eq!(
+            diagnostic_value(&array, "mode360: camera cam3", "bad_truncated"),
+            Some("1")
+        );
+        assert_eq!(
+            diagnostic_value(&array, "mode360: camera cam3", "bad_layout"),
+            Some("0")
+        );
+        cam.record_good();
+        assert_eq!(
+            (cam.bad_since_good, cam.bad_messages, cam.received),
+            (0, 3, 2)
+        );
+        assert!(!cam.only_malformed());
+    }
+
+    #[test]
+    fn statuses_carry_counters_and_levels() {
+        let health = NodeHealth {
+            cameras: vec![
+                CameraHealth {
+                    name: "cam1".into(),
+                    received: 10,
+                    rate_hz: 9.5,
+                    active: true,
+                    ..Default::default()
+                },
+                CameraHealth {
+                    name: "cam2".into(),
+                    received: 3,
+                    active: false,
+                    bad_messages: 2,
+                    last_bad_reason: Some("unsupported encoding '16UC1'".into()),
+                    ..Default::default()
+                },
+            ],
+            groups_dropped: 4,
+            last_latency_ms: Some(12.34),
+            ..Default::default()
+        };
+        let a = diagnostic_array(7, "rig", &health);
+        assert_eq!(a.status.len(), 3);
+        assert_eq!(a.status[0].level, DiagnosticStatus::OK);
+        assert_eq!(a.status[1].level, DiagnosticStatus::WARN);
+        assert_eq!(a.status[2].level, DiagnosticStatus::WARN);
+        assert_eq!(
+            diagnostic_value(&a, "mode360: camera cam2", "bad_messages"),
+            Some("2")
+        );
+        assert_eq!(
+            diagnostic_value(&a, "mode360: pipeline", "degraded_cameras"),
+            Some("cam2")
+        );
+        assert_eq!(
+            diagnostic_value(&a, "mode360: pipeline", "groups_dropped_mailbox"),
+            Some("4")
+        );
+        assert_eq!(
+            diagnostic_value(&a, "mode360: pipeline", "last_latency_ms"),
+            Some("12.3")
+        );
+    }
+}

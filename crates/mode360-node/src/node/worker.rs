@@ -1,0 +1,175 @@
+//! The inference worker and its mailbox. The receive loop posts complete camera groups to a
+//! 1-slot mailbox ([`post_groups`]): a newer group replaces an unprocessed older one (counted
+//! as dropped), so no queue grows without bound and inference never blocks DDS. The worker
+//! thread ([`worker_main`]) takes the newest group, runs the [`Pipeline`] and publishes
+//! `depth`, `points` and `confidence`. The point cloud is built only while `points` has a
+//! subscriber (the DDS thread checks the match count every tick, [`Shared::points_wanted`]).
+
+use super::diagnostics::NodeHealth;
+use super::live_view::LiveView;
+use super::pipeline::{OutputRequest, Pipeline};
+use super::ros_params::RuntimeParams;
+use mode360_core::frame::RgbImage;
+use mode360_core::sync::SyncGroup;
+use mode360_io::msgs::{CompressedImage, Image, PointCloud2};
+use ros2_client::Publisher;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+
+/// The 1-slot "latest group" mailbox between the DDS thread and the inference worker.
+#[derive(Default)]
+pub(super) struct Mailbox {
+    pub(super) slot: Option<SyncGroup<RgbImage>>,
+    pub(super) shutdown: bool,
+}
+
+/// What the DDS thread, the inference worker and the node handle share.
+pub(super) struct Shared {
+    pub(super) mailbox: Mutex<Mailbox>,
+    pub(super) wake: Condvar,
+    pub(super) health: Mutex<NodeHealth>,
+    /// Whether `points` has a matched subscriber (set by the DDS thread every tick).
+    pub(super) points_wanted: AtomicBool,
+    /// Whether `depth/compressedDepth` has a matched subscriber.
+    pub(super) compressed_depth_wanted: AtomicBool,
+    /// Pipeline settings as the parameter services last set them (read before each group).
+    pub(super) runtime: RuntimeParams,
+    /// The Foxglove live view (`foxglove_port` set).
+    pub(super) live: Option<LiveView>,
+}
+
+/// Locks `m`, also after a thread panicked while holding it.
+pub(super) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Posts complete groups to the mailbox; each one replacing an unprocessed group counts as
+/// dropped.
+pub(super) fn post_groups(shared: &Shared, groups: Vec<SyncGroup<RgbImage>>) {
+    if groups.is_empty() {
+        return;
+    }
+    let mut replaced = 0u64;
+    {
+        let mut mb = lock(&shared.mailbox);
+        for g in groups {
+            if mb.slot.replace(g).is_some() {
+                replaced += 1;
+            }
+        }
+    }
+    shared.wake.notify_one();
+    if replaced > 0 {
+        lock(&shared.health).groups_dropped += replaced;
+    }
+}
+
+/// The publishers of the worker's outputs.
+pub(super) struct OutputPublishers {
+    pub(super) depth: Publisher<Image>,
+    /// Shared with the DDS thread, which counts its matched subscribers.
+    pub(super) points: Arc<Publisher<PointCloud2>>,
+    /// Shared with the DDS thread, which counts its matched subscribers.
+    pub(super) compressed_depth: Arc<Publisher<CompressedImage>>,
+    pub(super) confidence: Publisher<Image>,
+}
+
+/// The inference thread: takes the newest group until shutdown, runs the pipeline, publishes
+/// and updates the health counters.
+pub(super) fn worker_main(
+    mut pipeline: Pipeline,
+    publishers: OutputPublishers,
+    shared: Arc<Shared>,
+) {
+    let mut total_ms = 0.0;
+    loop {
+        let group = {
+            let mut mb = lock(&shared.mailbox);
+            loop {
+                if mb.shutdown {
+                    return;
+                }
+                if let Some(g) = mb.slot.take() {
+                    break g;
+                }
+                mb = shared
+                    .wake
+                    .wait(mb)
+                    .unwrap_or_else(|poisoned| poisoned.into_inner());
+            }
+        };
+        let images = group
+            .messages
+            .into_iter()
+            .map(|m| m.map(|(_, img)| img))
+            .collect();
+        let current = lock(&shared.runtime).clone();
+        if pipeline.params() != &current.pipeline {
+            pipeline.set_params(current.pipeline);
+        }
+        let outputs = current.outputs;
+        let live = shared.live.as_ref();
+        let want = OutputRequest {
+            points: outputs.points
+                && (shared.points_wanted.load(Ordering::Relaxed)
+                    || live.is_some_and(|l| l.points.wanted())),
+            compressed_depth: outputs.compressed_depth
+                && (shared.compressed_depth_wanted.load(Ordering::Relaxed)
+                    || live.is_some_and(|l| l.compressed_depth.wanted())),
+        };
+        match pipeline.process_with(images, group.stamp_ns, want) {
+            Ok(out) => {
+                if let Some(live) = live {
+                    live.depth.log(&out.depth);
+                    if let Some(m) = &out.compressed_depth {
+                        live.compressed_depth.log(m);
+                    }
+                    if let Some(m) = &out.points {
+                        live.points.log(m);
+                    }
+                    if outputs.confidence {
+                        live.confidence.log(&out.confidence);
+                    }
+                }
+                let mut errors = Vec::new();
+                if let Err(e) = publishers.depth.publish(out.depth) {
+                    errors.push(format!("publishing depth: {e:?}"));
+                }
+                if let Some(compressed) = out.compressed_depth {
+                    if let Err(e) = publishers.compressed_depth.publish(compressed) {
+                        errors.push(format!("publishing depth/compressedDepth: {e:?}"));
+                    }
+                }
+                let skipped_points = out.points.is_none();
+                if let Some(points) = out.points {
+                    if let Err(e) = publishers.points.publish(points) {
+                        errors.push(format!("publishing points: {e:?}"));
+                    }
+                }
+                if outputs.confidence {
+                    if let Err(e) = publishers.confidence.publish(out.confidence) {
+                        errors.push(format!("publishing confidence: {e:?}"));
+                    }
+                }
+                let ms = out.latency.as_secs_f64() * 1e3;
+                let mut h = lock(&shared.health);
+                h.groups_processed += 1;
+                if skipped_points {
+                    h.clouds_skipped += 1;
+                }
+                total_ms += ms;
+                h.last_latency_ms = Some(ms);
+                h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);
+                if let Some(e) = errors.pop() {
+                    h.pipeline_errors += 1;
+                    h.last_pipeline_error = Some(e);
+                }
+            }
+            Err(e) => {
+                let mut h = lock(&shared.health);
+                h.pipeline_errors += 1;
+                h.last_pipeline_error = Some(e.to_string());
+            }
+        }
+    }
+}

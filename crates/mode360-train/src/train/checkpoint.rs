@@ -1,0 +1,257 @@
+//! Exact checkpoint/resume: `out_dir/checkpoint/` holds `model.safetensors` (the model's
+//! `save_weights`, config in the header), `optimizer.safetensors` (AdamW moments) and
+//! `state.json` ([`CheckpointState`]: step, next sample index = the data RNG position, options
+//! that must match on resume). [`write_checkpoint`] writes into `checkpoint.tmp/` and renames
+//! it into place, so a crash never leaves a torn checkpoint; [`find_checkpoint`] also accepts
+//! the `checkpoint.old/` a crash between the two renames can leave.
+
+use super::data::Deep360Mix;
+use super::optim::AdamW;
+use super::options::{io_err, TrainError};
+use super::rig_layouts::RigLayouts;
+use candle_core::Device;
+use candle_nn::VarMap;
+use mode360_estimator::model::{save_weights, SsmodeConfig};
+use mode360_synth::synth::StreetStyle;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Checkpoint directory name inside `out_dir`.
+pub const CHECKPOINT_DIR: &str = "checkpoint";
+/// Files inside a checkpoint directory.
+pub const MODEL_FILE: &str = "model.safetensors";
+pub const OPTIMIZER_FILE: &str = "optimizer.safetensors";
+pub const STATE_FILE: &str = "state.json";
+/// Version of the `state.json` layout.
+pub(super) const STATE_VERSION: u32 = 1;
+/// Suffixes of the temporary and previous checkpoint directories.
+const TMP_SUFFIX: &str = "tmp";
+const OLD_SUFFIX: &str = "old";
+
+/// Bookkeeping saved with a checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointState {
+    pub version: u32,
+    /// Steps completed.
+    pub step: usize,
+    /// Index of the next training sample (the data RNG position).
+    pub next_sample_index: u64,
+    pub preset: String,
+    pub width: usize,
+    pub seed: u64,
+    pub batch_size: usize,
+    /// Training wall time so far, seconds.
+    #[serde(alias = "train_secs")]
+    pub train_s: f64,
+    /// The Deep360-on-disk part of the stream (absent in older checkpoints: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deep360_disk: Option<Deep360DiskState>,
+    /// Random-objects share of the stream (older checkpoints: none).
+    #[serde(default)]
+    pub objects_fraction: f64,
+    /// Street style of the stream (older checkpoints: regular).
+    #[serde(default)]
+    pub street: StreetStyle,
+    /// Fisheye-rig share of the stream (older checkpoints: none).
+    #[serde(default)]
+    pub fisheye_fraction: f64,
+    /// Layouts of the stream's random rigs (older checkpoints: roof).
+    #[serde(default)]
+    pub rig_layouts: RigLayouts,
+    /// Blocked-lens share of the stream (older checkpoints: none).
+    #[serde(default)]
+    pub blocked_fraction: f64,
+    /// Rig pool size of the stream (older checkpoints: 0, a new rig every sample).
+    #[serde(default)]
+    pub rig_pool: usize,
+}
+
+/// What a resume must find again to read the same Deep360 frames for the same samples.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Deep360DiskState {
+    pub root: String,
+    pub fraction: f64,
+    /// Frame and image-set count of the training split (the picks are indices into it).
+    pub frames: usize,
+}
+
+impl Deep360DiskState {
+    pub(super) fn of(mix: &Deep360Mix) -> Self {
+        Self {
+            root: mix.root.display().to_string(),
+            fraction: mix.fraction,
+            frames: mix.frames.len(),
+        }
+    }
+}
+
+/// Writes a checkpoint atomically (temp directory, then rename).
+pub(super) fn write_checkpoint(
+    out_dir: &Path,
+    varmap: &VarMap,
+    cfg: &SsmodeConfig,
+    opt: &AdamW,
+    state: &CheckpointState,
+) -> Result<(), TrainError> {
+    let final_dir = out_dir.join(CHECKPOINT_DIR);
+    let tmp = out_dir.join(format!("{CHECKPOINT_DIR}.{TMP_SUFFIX}"));
+    let old = out_dir.join(format!("{CHECKPOINT_DIR}.{OLD_SUFFIX}"));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
+    }
+    std::fs::create_dir_all(&tmp).map_err(io_err(&tmp))?;
+    save_weights(varmap, cfg, tmp.join(MODEL_FILE))?;
+    let opt_path = tmp.join(OPTIMIZER_FILE);
+    candle_core::safetensors::save(&opt.state_tensors(), &opt_path)?;
+    let state_path = tmp.join(STATE_FILE);
+    let json = serde_json::to_string_pretty(state)
+        .map_err(|e| TrainError::Other(format!("serializing checkpoint state: {e}")))?;
+    std::fs::write(&state_path, json).map_err(io_err(&state_path))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(io_err(&old))?;
+    }
+    if final_dir.exists() {
+        std::fs::rename(&final_dir, &old).map_err(io_err(&final_dir))?;
+    }
+    std::fs::rename(&tmp, &final_dir).map_err(io_err(&tmp))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(io_err(&old))?;
+    }
+    Ok(())
+}
+
+/// The newest complete checkpoint directory, if any (`checkpoint/`, else `checkpoint.old/`
+/// left by a crash between the two renames).
+pub(super) fn find_checkpoint(out_dir: &Path) -> Option<PathBuf> {
+    [
+        out_dir.join(CHECKPOINT_DIR),
+        out_dir.join(format!("{CHECKPOINT_DIR}.{OLD_SUFFIX}")),
+    ]
+    .into_iter()
+    .find(|d| d.join(STATE_FILE).is_file())
+}
+
+/// Restores weights, optimizer moments and bookkeeping from `dir`, checking that the run's
+/// options match.
+pub(super) fn load_checkpoint(
+    dir: &Path,
+    varmap: &mut VarMap,
+    opt: &mut AdamW,
+    expected: &CheckpointState,
+    device: &Device,
+) -> Result<CheckpointState, TrainError> {
+    let state_path = dir.join(STATE_FILE);
+    let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
+    let state: CheckpointState =
+        serde_json::from_str(&text).map_err(|e| TrainError::Checkpoint {
+            path: state_path.display().to_string(),
+            problem: format!("malformed: {e}"),
+        })?;
+    let mismatch = |field: &str, saved: String, now: String| TrainError::Checkpoint {
+        path: state_path.display().to_string(),
+        problem: format!("'{field}' was {saved} but this run uses {now}; use a new out_dir"),
+    };
+    if state.version != STATE_VERSION {
+        return Err(mismatch(
+            "version",
+            state.version.to_string(),
+            STATE_VERSION.to_string(),
+        ));
+    }
+    if state.preset != expected.preset {
+        return Err(mismatch(
+            "preset",
+            state.preset.clone(),
+            expected.preset.clone(),
+        ));
+    }
+    if state.width != expected.width {
+        return Err(mismatch(
+            "width",
+            state.width.to_string(),
+            expected.width.to_string(),
+        ));
+    }
+    if state.seed != expected.seed {
+        return Err(mismatch(
+            "seed",
+            state.seed.to_string(),
+            expected.seed.to_string(),
+        ));
+    }
+    if state.batch_size != expected.batch_size {
+        return Err(mismatch(
+            "batch_size",
+            state.batch_size.to_string(),
+            expected.batch_size.to_string(),
+        ));
+    }
+    if state.objects_fraction != expected.objects_fraction {
+        return Err(mismatch(
+            "objects_fraction",
+            state.objects_fraction.to_string(),
+            expected.objects_fraction.to_string(),
+        ));
+    }
+    if state.fisheye_fraction != expected.fisheye_fraction {
+        return Err(mismatch(
+            "fisheye_fraction",
+            state.fisheye_fraction.to_string(),
+            expected.fisheye_fraction.to_string(),
+        ));
+    }
+    if state.rig_layouts != expected.rig_layouts {
+        return Err(mismatch(
+            "rig_layouts",
+            state.rig_layouts.as_str().to_string(),
+            expected.rig_layouts.as_str().to_string(),
+        ));
+    }
+    if state.rig_pool != expected.rig_pool {
+        return Err(mismatch(
+            "rig_pool",
+            state.rig_pool.to_string(),
+            expected.rig_pool.to_string(),
+        ));
+    }
+    if state.blocked_fraction != expected.blocked_fraction {
+        return Err(mismatch(
+            "blocked_fraction",
+            state.blocked_fraction.to_string(),
+            expected.blocked_fraction.to_string(),
+        ));
+    }
+    if state.street != expected.street {
+        return Err(mismatch(
+            "street",
+            state.street.as_str().to_string(),
+            expected.street.as_str().to_string(),
+        ));
+    }
+    if state.deep360_disk != expected.deep360_disk {
+        return Err(mismatch(
+            "deep360_disk",
+            format!("{:?}", state.deep360_disk),
+            format!("{:?}", expected.deep360_disk),
+        ));
+    }
+    let model_path = dir.join(MODEL_FILE);
+    varmap
+        .load(&model_path)
+        .map_err(|e| TrainError::Checkpoint {
+            path: model_path.display().to_string(),
+            problem: e.to_string(),
+        })?;
+    let opt_path = dir.join(OPTIMIZER_FILE);
+    let tensors =
+        candle_core::safetensors::load(&opt_path, device).map_err(|e| TrainError::Checkpoint {
+            path: opt_path.display().to_string(),
+            problem: e.to_string(),
+        })?;
+    opt.load_state_tensors(tensors, state.step, device)
+        .map_err(|problem| TrainError::Checkpoint {
+            path: opt_path.display().to_string(),
+            problem,
+        })?;
+    Ok(state)
+}

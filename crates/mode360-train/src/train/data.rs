@@ -1,0 +1,576 @@
+//! On-the-fly training data: synthetic street frames rendered for randomized rigs.
+//!
+//! Sample `k` of a stream with seed `s` is a pure function of `(s, k)`: the world seed, the
+//! frame index along the street, the rig and the soiling all come from
+//! `Rng::new(&[s, k, SAMPLE_TAG])`. The data "RNG position" of a training run is therefore
+//! just the index of the next sample, which makes resuming exact.
+//!
+//! Rigs (flexibility goal): with probability `deep360_fraction` the paper's Deep360 rig,
+//! otherwise a random roof rack: `2..=5` cameras placed uniformly in a
+//! `RACK_HALF_SIZE_M`-square around the rig origin (at least `MIN_CAMERA_SEPARATION_M`
+//! apart), heights in `[MIN_HEIGHT_M, MAX_HEIGHT_M]`, small random roll/pitch/yaw per camera.
+//! Camera 1 is the reference and output frame, so the ground truth is camera 1's range.
+//! With probability [`DataConfig::fisheye_fraction`] (its own stream) the rig is a random
+//! fisheye or dual-fisheye rack instead ([`super::fisheye_rigs`]), whose images enter the
+//! network as panoramas of their own frames ([`RigRemap`]) and whose depth is in `rack_center`.
+//! With [`DataConfig::rig_layouts`] `any`, a random rig that is neither Deep360 nor fisheye
+//! takes a layout family drawn from its own stream `Rng::new(&[s, k, LAYOUT_TAG])` (roof rack,
+//! vertical mast, turned cameras at mixed heights, car body corners: [`super::rig_layouts`]);
+//! `roof` (the default) keeps every such rig a roof rack, exactly the stream of older runs.
+//!
+//! Blocked lenses: with probability [`DataConfig::blocked_fraction`] (its own stream
+//! `Rng::new(&[s, k, BLOCKER_TAG])`) one random camera of a rendered sample gets a blocker
+//! ([`mode360_synth::synth::blockers`]: mud, a mount or a vehicle part, kind uniform) over a fraction
+//! of its view drawn in `[MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION]`. The ground
+//! truth stays the scene's range: the network learns to range through the other cameras.
+//!
+//! Deep360 on disk (fine-tuning): with [`DataConfig::deep360_disk`] set, sample `k` is, with
+//! probability [`Deep360Mix::fraction`], a frame of the dataset's training split read from
+//! disk instead of a rendered one. That choice and the frame (an index into the sorted list of
+//! frames and image sets, clean and soiled) come from a separate stream
+//! `Rng::new(&[s, k, DEEP360_DISK_TAG])`, so samples stay a pure function of `(s, k)` and the
+//! synthetic samples of a stream do not change when a dataset is added.
+//!
+//! Scenes: with probability [`DataConfig::objects_fraction`] a sample is a random-objects scene
+//! (textured primitives at random distances all around the rig, which no single panorama can
+//! range: pretraining for matching), otherwise a street in [`DataConfig::street`]'s style. The
+//! choice comes from its own stream `Rng::new(&[s, k, SCENE_TAG])`, so a stream's street
+//! samples do not depend on it.
+//!
+//! Training world seeds have the top bit clear, validation world seeds have it set, so the
+//! held-out set never shares a world with training.
+
+use super::fisheye_rigs::random_fisheye_rig;
+use super::rig_layouts::{
+    draw_family, layout_rig, rig_from_poses, roof_poses, LayoutFamily, RigLayouts,
+};
+use super::rig_pool::pooled_rig_index;
+use candle_core::{Device, Tensor};
+use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::geometry::panorama::RigRemap;
+use mode360_core::geometry::{ErpGrid, Rig, RigError};
+use mode360_estimator::model::{input_tensor, ModelError};
+use mode360_io::deep360::{
+    clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId,
+    Deep360FrameVariant, Deep360Split,
+};
+use mode360_synth::synth::noise::{hash_words, Rng};
+use mode360_synth::synth::{
+    BlockedLens, BlockerKind, SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer,
+};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::thread::JoinHandle;
+
+/// Fewest cameras of a random rig.
+pub const MIN_RIG_CAMERAS: usize = 2;
+/// Most cameras of a random rig.
+pub const MAX_RIG_CAMERAS: usize = 5;
+/// Cameras are placed in `[-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M]^2` (a 1.5 m roof rack).
+pub const RACK_HALF_SIZE_M: f64 = 0.75;
+/// Two cameras of a random rig are at least this far apart horizontally.
+pub const MIN_CAMERA_SEPARATION_M: f64 = 0.3;
+/// Camera heights above the road, metres.
+pub const MIN_HEIGHT_M: f64 = 1.5;
+pub const MAX_HEIGHT_M: f64 = 2.2;
+/// Largest random roll, pitch and yaw of a camera, radians (5 degrees).
+pub const MAX_TILT_RAD: f64 = 0.087;
+/// Placement attempts per camera before the separation constraint is relaxed.
+const PLACEMENT_ATTEMPTS: usize = 64;
+/// Frames along the street a sample may be taken from.
+pub const STREET_FRAMES: usize = 400;
+/// Domain-separation words for the sample and world seeds.
+const SAMPLE_TAG: u64 = 0x7A41_0001;
+const VALIDATION_TAG: u64 = 0x7A41_0002;
+const DEEP360_DISK_TAG: u64 = 0x7A41_0003;
+const SCENE_TAG: u64 = 0x7A41_0004;
+const FISHEYE_TAG: u64 = 0x7A41_0005;
+const BLOCKER_TAG: u64 = 0x7A41_0007;
+/// The random rig seed of a pooled rig index.
+const RIG_SEED_TAG: u64 = 0x7A41_0008;
+/// Range of the view fraction a training blocker covers.
+pub const MIN_TRAIN_BLOCKED_FRACTION: f64 = 0.05;
+pub const MAX_TRAIN_BLOCKED_FRACTION: f64 = 0.40;
+/// Set in validation world seeds, clear in training world seeds.
+const VALIDATION_SEED_BIT: u64 = 1 << 63;
+
+/// Errors producing training data.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("training data: renderer: {0}")]
+    Synth(#[from] SynthError),
+    #[error("training data: rig: {0}")]
+    Rig(#[from] RigError),
+    #[error("training data: tensor: {0}")]
+    Tensor(#[from] candle_core::Error),
+    #[error("training data: network input: {0}")]
+    Input(#[from] ModelError),
+    #[error("training data: {0}")]
+    Config(String),
+    #[error("training data: {0}")]
+    Deep360(#[from] Deep360Error),
+}
+
+/// How samples are drawn.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DataConfig {
+    /// Stream seed.
+    pub seed: u64,
+    /// ERP width of the images and ground truth; height is `width / 2`.
+    pub width: usize,
+    /// Sky / clamp range of the ground truth, metres.
+    pub max_depth_m: f64,
+    /// Fraction of training samples with lens soiling.
+    pub soiled_fraction: f64,
+    /// Fraction of rendered training samples on the Deep360 rig (the rest use random rigs).
+    pub deep360_fraction: f64,
+    /// Deep360 training frames from disk mixed into the stream (fine-tuning).
+    pub deep360_disk: Option<Deep360Mix>,
+    /// Fraction of rendered training samples that are random-objects scenes.
+    pub objects_fraction: f64,
+    /// Layout variation of the training streets.
+    pub street: StreetStyle,
+    /// Fraction of rendered training samples on random fisheye and dual-fisheye rigs (drawn
+    /// from its own stream, so a stream without them is unchanged).
+    pub fisheye_fraction: f64,
+    /// Layouts of the random ERP rigs: roof racks only, or every family of
+    /// [`super::rig_layouts`] (drawn from its own stream).
+    pub rig_layouts: RigLayouts,
+    /// Fraction of rendered samples where one random camera's lens is partly blocked (drawn
+    /// from its own stream, so a stream without them is unchanged).
+    pub blocked_fraction: f64,
+    /// Random rigs come from a renewed pool of this many (0: a new rig every sample), so that
+    /// sweep tables are reused ([`super::rig_pool`]).
+    pub rig_pool: usize,
+}
+
+/// The paper's Deep360 dataset on disk as a source of training samples.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Deep360Mix {
+    /// Directory holding the `ep*_500frames` folders.
+    pub root: PathBuf,
+    /// Probability that a training sample is a Deep360 frame.
+    pub fraction: f64,
+    /// The training split's frames with each image set on disk (clean, soiled), sorted,
+    /// listed once so that a sample picks by index.
+    pub frames: Vec<Deep360FrameVariant>,
+}
+
+impl Deep360Mix {
+    /// Lists the training split under `root`; an error if it holds no frames.
+    pub fn open(root: impl AsRef<Path>, fraction: f64) -> Result<Self, DataError> {
+        let ds = Deep360Dataset::open(root.as_ref())?;
+        let frames = ds.frame_variants(Deep360Split::Training)?;
+        let mix = Self {
+            root: ds.root().to_path_buf(),
+            fraction,
+            frames,
+        };
+        mix.validate()?;
+        Ok(mix)
+    }
+
+    fn validate(&self) -> Result<(), DataError> {
+        if !(0.0..=1.0).contains(&self.fraction) {
+            return Err(DataError::Config(format!(
+                "Deep360 fraction must be in [0, 1], got {}",
+                self.fraction
+            )));
+        }
+        if self.frames.is_empty() {
+            return Err(DataError::Config(format!(
+                "no Deep360 training frames under {} (looked for \
+                 ep*_500frames/training/depth/*_depth.npz with rgb/ or rgb_soiled/)",
+                self.root.display()
+            )));
+        }
+        Ok(())
+    }
+
+    /// The frame training sample `index` of stream `seed` reads, or `None` for a rendered one.
+    pub fn pick(&self, seed: u64, index: u64) -> Option<Deep360FrameVariant> {
+        let mut rng = Rng::new(&[seed, index, DEEP360_DISK_TAG]);
+        if self.frames.is_empty() || !rng.chance(self.fraction) {
+            return None;
+        }
+        Some(self.frames[rng.index(self.frames.len())])
+    }
+}
+
+impl DataConfig {
+    fn validate(&self) -> Result<(), DataError> {
+        for (name, v) in [
+            ("soiled_fraction", self.soiled_fraction),
+            ("deep360_fraction", self.deep360_fraction),
+            ("objects_fraction", self.objects_fraction),
+            ("fisheye_fraction", self.fisheye_fraction),
+            ("blocked_fraction", self.blocked_fraction),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(DataError::Config(format!(
+                    "field '{name}' must be in [0, 1], got {v}"
+                )));
+            }
+        }
+        self.deep360_disk
+            .as_ref()
+            .map_or(Ok(()), Deep360Mix::validate)
+    }
+}
+
+/// Which rig a sample uses.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RigChoice {
+    Deep360,
+    /// A random roof rack ([`random_rig`]), a function of this seed.
+    Random(u64),
+    /// A random rig of this layout family ([`layout_rig`]; never the roof rack, which stays
+    /// [`RigChoice::Random`]), a function of the family and this seed.
+    Layout(LayoutFamily, u64),
+    /// A random fisheye or dual-fisheye rig ([`random_fisheye_rig`]), a function of this seed
+    /// and the ERP width.
+    Fisheye(u64),
+}
+
+/// Everything that determines one sample.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SampleSpec {
+    pub world_seed: u64,
+    pub frame_index: usize,
+    pub soiled: bool,
+    pub rig: RigChoice,
+    /// `Some`: the sample is this Deep360 training frame read from disk (rig Deep360,
+    /// `soiled` picks `rgb_soiled/`); `world_seed` and `frame_index` are then unused.
+    pub deep360_frame: Option<Deep360FrameId>,
+    /// What is rendered (ignored for Deep360 frames from disk).
+    pub scene: SceneKind,
+    /// Street layout variation (street scenes).
+    pub street: StreetStyle,
+    /// A blocked lens (rendered samples).
+    pub blocker: Option<SampleBlocker>,
+}
+
+/// A training sample's blocked lens; the camera is picked once the rig is known.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleBlocker {
+    /// The camera is `camera_pick % cameras`.
+    pub camera_pick: u64,
+    pub fraction: f64,
+    pub kind: BlockerKind,
+}
+
+impl SampleBlocker {
+    /// The blocker on a rig of `cameras` cameras.
+    pub fn on_rig(&self, cameras: usize) -> BlockedLens {
+        BlockedLens {
+            camera: (self.camera_pick % cameras.max(1) as u64) as usize,
+            fraction: self.fraction,
+            kind: self.kind,
+        }
+    }
+}
+
+/// One rendered sample.
+#[derive(Clone, Debug)]
+pub struct TrainSample {
+    pub spec: SampleSpec,
+    pub rig: Rig,
+    /// Per camera (rig order): `(1, H, W, 3)` f32 in `[0, 1]` on the CPU.
+    pub images: Vec<Tensor>,
+    /// Ground-truth range of the output frame (camera 1), metres; sky = `max_depth_m`.
+    pub range_m: FloatImage,
+}
+
+/// `n` camera positions on the roof rack (`[x, y]`, metres), at least
+/// `MIN_CAMERA_SEPARATION_M` apart where `PLACEMENT_ATTEMPTS` draws allow.
+pub(super) fn rack_positions(rng: &mut Rng, n: usize) -> Vec<[f64; 2]> {
+    let mut xy: Vec<[f64; 2]> = Vec::with_capacity(n);
+    for _ in 0..n {
+        let mut best = [0.0, 0.0];
+        let mut best_sep = f64::NEG_INFINITY;
+        for _ in 0..PLACEMENT_ATTEMPTS {
+            let p = [
+                rng.range(-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M),
+                rng.range(-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M),
+            ];
+            let sep = xy
+                .iter()
+                .map(|q| (p[0] - q[0]).hypot(p[1] - q[1]))
+                .fold(f64::INFINITY, f64::min);
+            if sep > best_sep {
+                best = p;
+                best_sep = sep;
+            }
+            if sep >= MIN_CAMERA_SEPARATION_M {
+                break;
+            }
+        }
+        xy.push(best);
+    }
+    xy
+}
+
+/// A random roof-rack rig (see the module docs), built by [`rig_from_poses`].
+pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
+    let mut rng = Rng::new(&[seed, 0x416]);
+    rig_from_poses(&roof_poses(&mut rng), &format!("<random rig {seed}>"))
+}
+
+/// The spec of training sample `index` of the stream `cfg.seed`.
+pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
+    let mut rng = Rng::new(&[cfg.seed, index, SAMPLE_TAG]);
+    let world_seed = rng.next_u64() & !VALIDATION_SEED_BIT;
+    let frame_index = rng.index(STREET_FRAMES);
+    let soiled = rng.chance(cfg.soiled_fraction);
+    // With a rig pool, every rig draw is taken at the pooled rig's index (super::rig_pool).
+    let rig_index = match cfg.rig_pool {
+        0 => index,
+        rigs => pooled_rig_index(cfg.seed, index, rigs),
+    };
+    let rig = if rng.chance(cfg.deep360_fraction) {
+        RigChoice::Deep360
+    } else {
+        let own = rng.next_u64();
+        RigChoice::Random(match cfg.rig_pool {
+            0 => own,
+            _ => Rng::new(&[cfg.seed, rig_index, RIG_SEED_TAG]).next_u64(),
+        })
+    };
+    let rig = match (cfg.rig_layouts, rig) {
+        (RigLayouts::Any, RigChoice::Random(seed)) => match draw_family(cfg.seed, rig_index) {
+            LayoutFamily::RoofRack => RigChoice::Random(seed),
+            family => RigChoice::Layout(family, seed),
+        },
+        (_, rig) => rig,
+    };
+    let mut fisheye = Rng::new(&[cfg.seed, rig_index, FISHEYE_TAG]);
+    let rig = if cfg.fisheye_fraction > 0.0 && fisheye.chance(cfg.fisheye_fraction) {
+        RigChoice::Fisheye(fisheye.next_u64())
+    } else {
+        rig
+    };
+    let scene = if Rng::new(&[cfg.seed, index, SCENE_TAG]).chance(cfg.objects_fraction) {
+        SceneKind::Objects
+    } else {
+        SceneKind::Street
+    };
+    let mut blocker = Rng::new(&[cfg.seed, index, BLOCKER_TAG]);
+    let blocker = (cfg.blocked_fraction > 0.0 && blocker.chance(cfg.blocked_fraction)).then(|| {
+        SampleBlocker {
+            camera_pick: blocker.next_u64(),
+            fraction: blocker.range(MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION),
+            kind: BlockerKind::ALL[blocker.index(BlockerKind::ALL.len())],
+        }
+    });
+    let spec = SampleSpec {
+        world_seed,
+        frame_index,
+        soiled,
+        rig,
+        deep360_frame: None,
+        scene,
+        street: cfg.street,
+        blocker,
+    };
+    match cfg
+        .deep360_disk
+        .as_ref()
+        .and_then(|m| m.pick(cfg.seed, index))
+    {
+        Some(v) => SampleSpec {
+            soiled: v.soiled,
+            rig: RigChoice::Deep360,
+            deep360_frame: Some(v.id),
+            blocker: None,
+            ..spec
+        },
+        None => spec,
+    }
+}
+
+/// The held-out validation set: `count` frames on the Deep360 rig from worlds training never
+/// uses, alternating clean and soiled. Independent of the training seed.
+pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
+    (0..count as u64)
+        .map(|k| {
+            let mut rng = Rng::new(&[k, VALIDATION_TAG]);
+            SampleSpec {
+                world_seed: rng.next_u64() | VALIDATION_SEED_BIT,
+                frame_index: rng.index(STREET_FRAMES),
+                soiled: k % 2 == 1,
+                rig: RigChoice::Deep360,
+                deep360_frame: None,
+                scene: SceneKind::Street,
+                street: StreetStyle::Regular,
+                blocker: None,
+            }
+        })
+        .collect()
+}
+
+/// `(1, H, W, 3)` f32 tensor in `[0, 1]` from an 8-bit image at its own width (see
+/// [`input_tensor`], which every path into the network shares).
+pub fn image_tensor(img: &RgbImage) -> Result<Tensor, ModelError> {
+    input_tensor(img, img.width() as usize, &Device::Cpu)
+}
+
+/// Renders the sample `spec` at `cfg.width` (or reads it from disk, see
+/// [`SampleSpec::deep360_frame`]).
+pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample, DataError> {
+    if let Some(id) = spec.deep360_frame {
+        return load_deep360_sample(cfg, spec, id);
+    }
+    let rig = match spec.rig {
+        RigChoice::Deep360 => deep360_rig()?,
+        RigChoice::Random(seed) => random_rig(seed)?,
+        RigChoice::Layout(family, seed) => layout_rig(family, seed)?,
+        RigChoice::Fisheye(seed) => random_fisheye_rig(seed, cfg.width)?,
+    };
+    let renderer = SynthRenderer::new(SynthConfig {
+        seed: spec.world_seed,
+        width: cfg.width,
+        soiled: spec.soiled,
+        max_depth_m: cfg.max_depth_m,
+        scene: spec.scene,
+        street: spec.street,
+        blockers: spec
+            .blocker
+            .map(|b| b.on_rig(rig.cameras.len()))
+            .into_iter()
+            .collect(),
+        ..SynthConfig::default()
+    })?;
+    let frame = renderer.render_frame(&rig, spec.frame_index);
+    // Fisheye images enter the network as panoramas of their own frame, as at inference.
+    let remap = RigRemap::new(
+        &rig,
+        ErpGrid::new(cfg.width).map_err(|e| DataError::Config(e.to_string()))?,
+    );
+    let panoramas = remap
+        .panoramas(&frame.images)
+        .map_err(|(camera, e)| DataError::Config(format!("camera {camera}: {e}")))?;
+    let images = panoramas
+        .iter()
+        .map(|p| image_tensor(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let range_m = frame.ground_truth.ok_or_else(|| {
+        DataError::Config("renderer returned no ground truth for the output frame".into())
+    })?;
+    Ok(TrainSample {
+        spec: spec.clone(),
+        rig,
+        images,
+        range_m,
+    })
+}
+
+/// Reads Deep360 training frame `id` at `cfg.width`, sky and far range clamped to
+/// `cfg.max_depth_m` like rendered ground truth.
+fn load_deep360_sample(
+    cfg: &DataConfig,
+    spec: &SampleSpec,
+    id: Deep360FrameId,
+) -> Result<TrainSample, DataError> {
+    let mix = cfg.deep360_disk.as_ref().ok_or_else(|| {
+        DataError::Config(format!(
+            "sample names Deep360 {id} but no Deep360 root is configured"
+        ))
+    })?;
+    let ds = Deep360Dataset::open(&mix.root)?;
+    let frame = ds.load_frame(id, Deep360Split::Training, spec.soiled, cfg.width)?;
+    let mut range_m = frame
+        .ground_truth
+        .ok_or_else(|| DataError::Config(format!("Deep360 {id} has no ground-truth range")))?;
+    clamp_range_to_max(&mut range_m, cfg.max_depth_m);
+    let images = frame
+        .images
+        .iter()
+        .map(image_tensor)
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(TrainSample {
+        spec: spec.clone(),
+        rig: ds.rig().clone(),
+        images,
+        range_m,
+    })
+}
+
+/// Training sample `index` of the stream.
+pub fn training_sample(cfg: &DataConfig, index: u64) -> Result<TrainSample, DataError> {
+    cfg.validate()?;
+    render_sample(cfg, &training_spec(cfg, index))
+}
+
+/// A sample and its index in the stream.
+pub struct IndexedSample {
+    pub index: u64,
+    pub sample: Result<TrainSample, DataError>,
+}
+
+/// Samples `start, start + 1, ...` rendered in a background thread, at most `capacity` ahead
+/// of the consumer (a bounded channel), so rendering overlaps training.
+pub struct SampleStream {
+    rx: Option<Receiver<IndexedSample>>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl SampleStream {
+    pub fn start(cfg: DataConfig, start: u64, capacity: usize) -> Result<Self, DataError> {
+        cfg.validate()?;
+        let (tx, rx) = sync_channel(capacity.max(1));
+        let handle = std::thread::Builder::new()
+            .name("mode360-train-data".into())
+            .spawn(move || {
+                for index in start.. {
+                    let sample = training_sample(&cfg, index);
+                    if tx.send(IndexedSample { index, sample }).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| DataError::Config(format!("cannot start data thread: {e}")))?;
+        Ok(Self {
+            rx: Some(rx),
+            handle: Some(handle),
+        })
+    }
+
+    /// The next sample (blocks until rendered).
+    pub fn next_sample(&mut self) -> Result<IndexedSample, DataError> {
+        self.rx
+            .as_ref()
+            .and_then(|rx| rx.recv().ok())
+            .ok_or_else(|| DataError::Config("data thread stopped".into()))
+    }
+}
+
+impl Drop for SampleStream {
+    fn drop(&mut self) {
+        // Closing the receiver makes the producer's next send fail, ending its loop.
+        self.rx = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// A stable 64-bit fingerprint of a sample's content (images and ground truth), for tests
+/// and logs.
+pub fn sample_fingerprint(sample: &TrainSample) -> Result<u64, candle_core::Error> {
+    let mut words = vec![sample.images.len() as u64];
+    for t in &sample.images {
+        let v: Vec<f32> = t.flatten_all()?.to_vec1()?;
+        words.push(hash_words(
+            &v.iter().map(|x| u64::from(x.to_bits())).collect::<Vec<_>>(),
+        ));
+    }
+    words.push(hash_words(
+        &sample
+            .range_m
+            .data
+            .iter()
+            .map(|x| u64::from(x.to_bits()))
+            .collect::<Vec<_>>(),
+    ));
+    Ok(hash_words(&words))
+}

@@ -1,0 +1,159 @@
+//! The training loss: multi-stage SmoothL1 on the inverse-depth index, masked to valid
+//! ground truth.
+//!
+//! Range spans 0.5 m to 1000 m, three and a half orders of magnitude; an L1 on metres would be
+//! dominated by the sky and far facades. SSMODE's hypotheses are uniform in inverse depth, so
+//! the natural regression target is the (continuous) hypothesis index
+//!
+//! `idx(rho) = (D - 1) (1/rho - 1/max_depth) / (1/min_depth - 1/max_depth)`,
+//!
+//! i.e. the network's normalized inverse depth `n = idx / (D - 1)` in `[0, 1]`, scaled to
+//! hypothesis units so SmoothL1's `beta = 1` switches from L2 to L1 at one hypothesis step,
+//! exactly as PSMNet's disparity loss does at one pixel. With stage predictions `n_s`:
+//!
+//! `L = sum_s w_s * mean_{valid} SmoothL1((D - 1) n_s - idx)`,
+//! `SmoothL1(x) = 0.5 x^2 / beta if |x| < beta else |x| - 0.5 beta`.
+//!
+//! Valid pixels have a finite ground truth in `(0, max_depth]` (sky counts, at max depth).
+
+use candle_core::{DType, Device, Tensor};
+use mode360_core::frame::FloatImage;
+use mode360_core::geometry::{DepthHypotheses, DepthRange, HypothesisSpacing};
+
+/// PSMNet's stage weights (coarse to fine).
+pub const PSMNET_STAGE_WEIGHTS: [f64; 3] = [0.5, 0.7, 1.0];
+/// SmoothL1 transition point, in hypothesis steps.
+pub const SMOOTH_L1_BETA: f64 = 1.0;
+
+/// Errors computing the loss.
+#[derive(Debug, thiserror::Error)]
+pub enum LossError {
+    #[error("loss: {0}")]
+    Tensor(#[from] candle_core::Error),
+    #[error("loss: {stages} prediction stages but {weights} stage weights")]
+    StageCount { stages: usize, weights: usize },
+    #[error("loss: depth range must satisfy 0 < min_depth_m < max_depth_m, got {min} and {max}")]
+    DepthRange { min: f64, max: f64 },
+}
+
+/// Parameters of the loss.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LossConfig {
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+    /// Number of depth hypotheses `D`.
+    pub hypotheses: usize,
+    /// How the hypotheses are spread (the target is the normalized index in that spacing).
+    pub spacing: HypothesisSpacing,
+    /// One weight per output stage, coarse to fine; when the network returns fewer stages
+    /// than weights, the last weights are used.
+    pub stage_weights: Vec<f64>,
+}
+
+/// Regression target and validity mask of one or more ground-truth images.
+#[derive(Clone, Debug)]
+pub struct LossTarget {
+    /// `(B, H, W)` normalized inverse depth in `[0, 1]` (0 where invalid).
+    pub normalized_inverse_depth: Tensor,
+    /// `(B, H, W)` 1 for valid pixels, 0 elsewhere.
+    pub mask: Tensor,
+}
+
+impl LossConfig {
+    fn check(&self) -> Result<(), LossError> {
+        if !(self.min_depth_m > 0.0 && self.min_depth_m < self.max_depth_m) {
+            return Err(LossError::DepthRange {
+                min: self.min_depth_m,
+                max: self.max_depth_m,
+            });
+        }
+        Ok(())
+    }
+
+    /// The normalized hypothesis index of a range, clamped to `[0, 1]`: uniform in inverse
+    /// depth `n(rho) = (1/rho - 1/max) / (1/min - 1/max)`, uniform in log depth
+    /// `n(rho) = (ln max - ln rho) / (ln max - ln min)`
+    /// ([`DepthHypotheses::normalized_of_depth`]).
+    pub fn normalized_inverse_depth(&self, range_m: f64) -> f64 {
+        Self::normalized_in(self.depth_hypotheses().as_ref(), range_m)
+    }
+
+    /// The hypotheses the target is indexed in (`None` for an invalid range).
+    fn depth_hypotheses(&self) -> Option<DepthHypotheses> {
+        DepthRange::new(self.min_depth_m, self.max_depth_m)
+            .and_then(|r| DepthHypotheses::with_spacing(r, self.hypotheses.max(2), self.spacing))
+            .ok()
+    }
+
+    fn normalized_in(hypotheses: Option<&DepthHypotheses>, range_m: f64) -> f64 {
+        hypotheses
+            .map_or(0.0, |h| h.normalized_of_depth(range_m))
+            .clamp(0.0, 1.0)
+    }
+
+    /// Builds the target and mask tensors from ground-truth range images (one per batch item).
+    pub fn target(&self, gts: &[&FloatImage], device: &Device) -> Result<LossTarget, LossError> {
+        self.check()?;
+        let hypotheses = self.depth_hypotheses();
+        let (w, h) = gts.first().map(|g| (g.width, g.height)).unwrap_or((0, 0));
+        let mut target = Vec::with_capacity(gts.len() * w * h);
+        let mut mask = Vec::with_capacity(gts.len() * w * h);
+        for g in gts {
+            for &r in &g.data {
+                let r = f64::from(r);
+                if r.is_finite() && r > 0.0 && r <= self.max_depth_m {
+                    target.push(Self::normalized_in(hypotheses.as_ref(), r) as f32);
+                    mask.push(1.0f32);
+                } else {
+                    target.push(0.0);
+                    mask.push(0.0);
+                }
+            }
+        }
+        let shape = (gts.len(), h, w);
+        Ok(LossTarget {
+            normalized_inverse_depth: Tensor::from_vec(target, shape, device)?,
+            mask: Tensor::from_vec(mask, shape, device)?,
+        })
+    }
+
+    /// The multi-stage loss (a scalar tensor) of `stages` (each `(B, H, W)` normalized
+    /// inverse depth, coarse to fine) against `target`.
+    pub fn loss(&self, stages: &[Tensor], target: &LossTarget) -> Result<Tensor, LossError> {
+        self.check()?;
+        if stages.is_empty() || stages.len() > self.stage_weights.len() {
+            return Err(LossError::StageCount {
+                stages: stages.len(),
+                weights: self.stage_weights.len(),
+            });
+        }
+        let weights = &self.stage_weights[self.stage_weights.len() - stages.len()..];
+        let scale = self.hypotheses.saturating_sub(1).max(1) as f64;
+        let valid = target.mask.sum_all()?.to_dtype(DType::F32)?;
+        let denom = valid.maximum(1.0)?;
+        let mut total: Option<Tensor> = None;
+        for (pred, &w) in stages.iter().zip(weights) {
+            let diff = ((pred - &target.normalized_inverse_depth)? * scale)?;
+            let per_pixel = smooth_l1(&diff, SMOOTH_L1_BETA)?;
+            let term = ((per_pixel * &target.mask)?.sum_all()? / &denom)?;
+            let term = (term * w)?;
+            total = Some(match total {
+                Some(t) => (t + term)?,
+                None => term,
+            });
+        }
+        total.ok_or(LossError::StageCount {
+            stages: 0,
+            weights: self.stage_weights.len(),
+        })
+    }
+}
+
+/// Elementwise `0.5 x^2 / beta` where `|x| < beta`, else `|x| - 0.5 beta`.
+pub fn smooth_l1(x: &Tensor, beta: f64) -> Result<Tensor, candle_core::Error> {
+    let abs = x.abs()?;
+    let quadratic = (x.sqr()? * (0.5 / beta))?;
+    let linear = (&abs - 0.5 * beta)?;
+    let small = abs.lt(beta)?;
+    small.where_cond(&quadratic, &linear)
+}
