@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Trains the multi-view `parallax` SSMODE in three stages, resuming whichever stage is unfinished
+# Trains the multi-view `parallax` SSMODE in four stages, resuming whichever stage is unfinished
 # (run it in the background at the start of every session; it picks up where the last one
 # stopped, and each stage checks its own options on resume):
 #   1. runs/parallax_objects_w128: random objects only, at width 128 (matching, coarse and cheap)

@@ -4,6 +4,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use mode360::cli;
+use mode360_node::node::ros_args;
 
 /// jemalloc keeps freed pages for reuse: the network's tensors are tens of megabytes, and the
 /// system allocator returns each one to the kernel on free, so the next pass page-faults its
@@ -69,15 +70,30 @@ enum Command {
     Rig(cli::rig::RigArgs),
 }
 
+/// The log filter: `RUST_LOG` when set; else, for the node, the level of its
+/// `--ros-args --log-level LEVEL` (as `ros2 launch` passes it) with the DDS stacks kept quiet;
+/// else [`DEFAULT_LOG_FILTER`].
+fn log_filter(command: &Command) -> tracing_subscriber::EnvFilter {
+    if let Ok(filter) = tracing_subscriber::EnvFilter::try_from_default_env() {
+        return filter;
+    }
+    let level = match command {
+        Command::Node { args } => ros_args::log_level_arg(args).and_then(ros_args::tracing_level),
+        _ => None,
+    };
+    match level {
+        Some(level) => format!("{level},rustdds=off,ros2_client=warn").into(),
+        None => DEFAULT_LOG_FILTER.into(),
+    }
+}
+
 fn main() -> Result<()> {
+    let cli = Cli::parse();
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| DEFAULT_LOG_FILTER.into()),
-        )
+        .with_env_filter(log_filter(&cli.command))
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {
+    match cli.command {
         Command::Synth(a) => cli::synth::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Train(a) => cli::train::run(a),

@@ -5,14 +5,15 @@
 //! (colour-mapped depth under the panorama; a top-down view of the point cloud) and scores the
 //! received depth against the bag's ground truth.
 
+use super::estimator_args::EstimatorArgs;
 use super::play::{play_bag, play_bag_until, PlayOptions};
-use crate::viz::{colorize_range, stack_vertical};
+use crate::viz::{colorize_range, depth_legend, stack_vertical};
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
 use image::Rgb;
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
-use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader};
 use mode360_io::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360_io::msgs::{Header, Image, PointCloud2};
@@ -209,6 +210,11 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
         if let Some(gt) = &f.ground_truth {
             rows.push(colorize_range(gt, PREVIEW_MIN_DEPTH_M, max_depth_m as f32));
         }
+        rows.push(depth_legend(
+            pred.width as u32,
+            PREVIEW_MIN_DEPTH_M,
+            max_depth_m as f32,
+        ));
         let png = opts.png_dir.join(format!("demo_depth_{n:03}.png"));
         stack_vertical(&rows)
             .save(&png)
@@ -298,12 +304,8 @@ pub struct DemoArgs {
     /// Rig calibration YAML.
     #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
     pub rig: PathBuf,
-    /// Depth estimator.
-    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
-    pub estimator: EstimatorKind,
-    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
-    #[arg(long)]
-    pub weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub estimator: EstimatorArgs,
     /// Output bag: inputs plus what the node published.
     #[arg(long, default_value = "demo_out.mcap")]
     pub out: PathBuf,
@@ -328,7 +330,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let opts = DemoOptions {
         bag: a.bag,
         rig_file: a.rig,
-        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
+        estimator: a.estimator.spec(),
         out_bag: a.out.clone(),
         png_dir: a.png_dir.clone(),
         rate: a.rate,

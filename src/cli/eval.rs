@@ -15,13 +15,14 @@ mod geometry_share;
 pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
 use super::drops::{DropCount, DropTally};
+use super::estimator_args::EstimatorArgs;
 use super::progress::frames_bar;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
-use mode360_estimator::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
+use mode360_estimator::estimator::DepthEstimator;
 use mode360_io::bag::{
     RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
 };
@@ -244,6 +245,11 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                     images[rig.reference].clone(),
                     crate::viz::colorize_range(&est.range_m, min_depth_m, max_depth_m as f32),
                     crate::viz::colorize_range(gt, min_depth_m, max_depth_m as f32),
+                    crate::viz::depth_legend(
+                        est.range_m.width as u32,
+                        min_depth_m,
+                        max_depth_m as f32,
+                    ),
                 ]);
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("creating {}", dir.display()))?;
@@ -397,9 +403,8 @@ pub struct EvalArgs {
     /// Bag(s) to evaluate (repeat for clean and soiled bags).
     #[arg(long = "bag", required = true)]
     pub bags: Vec<PathBuf>,
-    /// Depth estimator.
-    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
-    pub estimator: EstimatorKind,
+    #[command(flatten)]
+    pub estimator: EstimatorArgs,
     /// Cameras to use, 1-based in rig order, e.g. 1,2,3 (default: all).
     #[arg(long, value_delimiter = ',')]
     pub cameras: Option<Vec<usize>>,
@@ -412,9 +417,6 @@ pub struct EvalArgs {
     /// Write preview PNGs (panorama, predicted and true range) of the first frames here.
     #[arg(long)]
     pub png_dir: Option<PathBuf>,
-    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
-    #[arg(long)]
-    pub weights: Option<PathBuf>,
     /// Feed every camera the reference camera's image (no parallax; the geometry check).
     #[arg(long, conflicts_with = "geometry_share")]
     pub same_image: bool,
@@ -434,8 +436,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             Some(list.iter().map(|c| c - 1).collect())
         }
     };
-    let mut est: Box<dyn DepthEstimator> =
-        EstimatorSpec::with_weights(a.estimator, a.weights).build()?;
+    let mut est: Box<dyn DepthEstimator> = a.estimator.spec().build()?;
     let opts = EvalOptions {
         bags: a.bags,
         cameras,

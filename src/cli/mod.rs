@@ -29,6 +29,7 @@ pub mod bench_node;
 pub mod deep360_bag;
 pub mod demo;
 pub mod drops;
+pub mod estimator_args;
 pub mod eval;
 pub mod node;
 pub mod play;

@@ -8,11 +8,12 @@
 //! frame's stamp.
 
 use super::drops::DropTally;
+use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use mode360_core::sync::SyncStats;
-use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{RigBagReader, RigBagWriter};
 use mode360_io::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use mode360_io::msgs::image::float_from_image_msg;
@@ -208,12 +209,8 @@ pub struct ReplayArgs {
     /// Output bag: inputs plus depth, points, confidence, /tf_static, /diagnostics.
     #[arg(long)]
     pub out: PathBuf,
-    /// Depth estimator.
-    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
-    pub estimator: EstimatorKind,
-    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
-    #[arg(long)]
-    pub weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub estimator: EstimatorArgs,
     /// Output panorama width (default: the input width).
     #[arg(long)]
     pub output_width: Option<usize>,
@@ -227,7 +224,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
     let summary = replay_bag(&ReplayOptions {
         input: a.input,
         output: a.out.clone(),
-        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
+        estimator: a.estimator.spec(),
         output_width: a.output_width,
         max_depth_m: None,
         max_frames: a.max_frames,

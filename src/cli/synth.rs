@@ -95,7 +95,7 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Sky and far-field ground-truth range, metres.
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = mode360_core::geometry::DEFAULT_MAX_DEPTH_M)]
     pub max_depth_m: f64,
     /// Scene kind: a procedural street, or random textured objects all around the rig (new
     /// per frame; defeats monocular depth guessing).

@@ -252,10 +252,10 @@ struct OptionTable {
     rows: Vec<(Vec<String>, String)>,
 }
 
-/// The README's option tables, each announced by `<!-- options: COMMAND -->`.
+/// The option tables of docs/commands.md, each announced by `<!-- options: COMMAND -->`.
 fn readme_option_tables() -> Vec<OptionTable> {
-    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md"))
-        .expect("README.md");
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/commands.md"))
+        .expect("docs/commands.md");
     let mut tables = Vec::new();
     let mut lines = readme.lines();
     while let Some(line) = lines.next() {

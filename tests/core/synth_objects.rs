@@ -12,6 +12,9 @@ use nalgebra::Vector3;
 use std::time::Instant;
 
 const MAX_DEPTH_M: f32 = 1000.0;
+/// Objects frames render at most this many times slower than street frames (measured about
+/// 1x, both timed in the same test so machine load cancels).
+const OBJECTS_VS_STREETS_MAX_RATIO: f64 = 2.0;
 
 fn objects(seed: u64, width: usize, soiled: bool) -> SynthRenderer {
     SynthRenderer::new(SynthConfig {
@@ -79,7 +82,7 @@ fn objects_frames_are_a_function_of_seed_and_index() {
 #[test]
 fn objects_ground_truth_spans_near_and_far_and_respects_the_keep_out() {
     let rig = deep360_rig();
-    let random_rig = mode360::train::data::random_rig(17).expect("random rig");
+    let random_rig = mode360::train::rack::random_rig(17).expect("random rig");
     let (mut near, mut far, mut sky, mut total) = (0usize, 0usize, 0usize, 0usize);
     let mut min_range = f32::INFINITY;
     let mut frames_with_near = 0;
@@ -240,31 +243,12 @@ fn objects_render_about_as_fast_as_streets() {
     println!(
         "256x128, 4 cameras + GT, {threads} threads: objects {o:.3} s/frame, street {s:.3} s/frame, varied street {v:.3} s/frame"
     );
-    // Generous for a loaded 2-core machine; unloaded it is well under 1 s.
-    assert!(o < 3.0, "objects frame took {o:.3} s");
-    if std::env::var_os("SYNTH_PREVIEW").is_some() {
-        for (name, r) in [
-            ("objects", objects(1, 512, true)),
-            ("varied", varied(2, 512)),
-        ] {
-            for index in 0..3 {
-                let f = r.render_frame(&rig, index);
-                let _ = f.images[0].save(format!("/tmp/synth_{name}_f{index}_cam1.png"));
-                if let Some(gt) = f.ground_truth {
-                    let px: Vec<u8> = gt
-                        .data
-                        .iter()
-                        .map(|d| {
-                            (255.0 * (1.0 - (d.ln() / MAX_DEPTH_M.ln()).clamp(0.0, 1.0))) as u8
-                        })
-                        .collect();
-                    if let Some(img) = image::GrayImage::from_raw(512, 256, px) {
-                        let _ = img.save(format!("/tmp/synth_{name}_f{index}_gt.png"));
-                    }
-                }
-            }
-        }
-    }
+    // Objects frames trace more primitives per ray than streets but must stay in the same
+    // class: at most this factor slower than the slower of the two street styles.
+    assert!(
+        o <= OBJECTS_VS_STREETS_MAX_RATIO * s.max(v),
+        "objects {o:.3} s/frame against streets {s:.3} / varied {v:.3} s/frame"
+    );
 }
 
 #[test]

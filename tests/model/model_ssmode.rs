@@ -13,6 +13,11 @@ use mode360::synth::{SynthConfig, SynthRenderer};
 /// The paper's SSMODE has about 5.5M parameters.
 const PAPER_PARAMS: f64 = 5.5e6;
 const PAPER_PARAMS_TOLERANCE: f64 = 0.15;
+/// Exact parameter counts of the shipped presets, as models/README.md's Presets table states.
+const COMPACT_PARAMS: usize = 404_104;
+const PARALLAX_PARAMS: usize = 152_520;
+/// `parallax_zncc` and `parallax_zncc_log`: the ZNCC channel widens the entry convolution.
+const PARALLAX_ZNCC_PARAMS: usize = 152_736;
 
 fn model(cfg: &SsmodeConfig) -> (VarMap, Ssmode) {
     let varmap = VarMap::new();
@@ -129,7 +134,10 @@ fn paper_preset_has_about_5_5m_parameters() {
                 "paper preset has {n} parameters"
             );
         } else {
-            assert!(n < 1_000_000, "compact preset has {n} parameters");
+            assert_eq!(
+                n, COMPACT_PARAMS,
+                "compact preset (models/README.md, Presets)"
+            );
         }
     }
 }
@@ -530,8 +538,22 @@ fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
     assert!((10.0..10.5).contains(&r), "compact resolves 1 m to {r} m");
     let (varmap, _net) = model(&parallax);
     let n = param_count(&varmap);
-    println!("parallax preset: {n} parameters");
-    assert!(n < 1_000_000, "parallax preset has {n} parameters");
+    assert_eq!(
+        n, PARALLAX_PARAMS,
+        "parallax preset (models/README.md, Presets)"
+    );
+    for cfg in [
+        SsmodeConfig::parallax_zncc(),
+        SsmodeConfig::parallax_zncc_log(),
+    ] {
+        let (varmap, _net) = model(&cfg);
+        assert_eq!(
+            param_count(&varmap),
+            PARALLAX_ZNCC_PARAMS,
+            "{} preset (models/README.md, Presets)",
+            cfg.name
+        );
+    }
 }
 
 #[test]

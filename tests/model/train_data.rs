@@ -2,9 +2,12 @@
 
 use mode360::geometry::Rig;
 use mode360::train::data::{
-    random_rig, render_sample, sample_fingerprint, training_sample, training_spec,
-    validation_specs, DataConfig, RigChoice, SampleStream, MAX_HEIGHT_M, MAX_RIG_CAMERAS,
-    MAX_TILT_RAD, MIN_HEIGHT_M, MIN_RIG_CAMERAS, RACK_HALF_SIZE_M,
+    render_sample, sample_fingerprint, training_sample, training_spec, validation_specs,
+    DataConfig, RigChoice, SampleStream,
+};
+use mode360::train::rack::{
+    random_rig, MAX_HEIGHT_M, MAX_RIG_CAMERAS, MAX_TILT_RAD, MIN_HEIGHT_M, MIN_RIG_CAMERAS,
+    RACK_HALF_SIZE_M,
 };
 
 const TEST_WIDTH: usize = 64;

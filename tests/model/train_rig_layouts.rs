@@ -7,9 +7,10 @@ use mode360::geometry::Rig;
 use mode360::synth::noise::Rng;
 use mode360::synth::BlockerKind;
 use mode360::train::data::{
-    random_rig, render_sample, training_spec, DataConfig, RigChoice, SampleSpec,
-    MAX_TRAIN_BLOCKED_FRACTION, MIN_TRAIN_BLOCKED_FRACTION,
+    render_sample, training_spec, DataConfig, RigChoice, SampleSpec, MAX_TRAIN_BLOCKED_FRACTION,
+    MIN_TRAIN_BLOCKED_FRACTION,
 };
+use mode360::train::rack::random_rig;
 use mode360::train::rig_layouts::{
     layout_rig, LayoutFamily, RigLayouts, BUMPER_MIN_HEIGHT_M, MAST_MAX_CAMERAS, MAST_MIN_GAP_M,
     MIRROR_MAX_HEIGHT_M, TURNED_MAX_ROLL_PITCH_RAD,

@@ -16,11 +16,12 @@
 //!   (allocator arenas and DDS buffers fill up during the first half; growth after that
 //!   means a leak).
 
+use super::estimator_args::EstimatorArgs;
 use super::play::{play_bag_until, PlayOptions, Published};
 use super::synth::{record_synthetic_bag, RecordOptions};
 use anyhow::{anyhow, bail, Context, Result};
 use mode360_core::memory::resident_mib;
-use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::RigBagReader;
 use mode360_io::msgs::{CompressedImage, Image, RosMessage};
 use mode360_node::node::params::DEFAULT_RIG_FILE;
@@ -382,12 +383,8 @@ fn lock_published(p: &Mutex<PlayerState>) -> std::sync::MutexGuard<'_, PlayerSta
 
 #[derive(Args)]
 pub struct BenchNodeArgs {
-    /// Depth estimator.
-    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
-    pub estimator: EstimatorKind,
-    /// SSMODE weights file (default: the shipped weights).
-    #[arg(long)]
-    pub weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub estimator: EstimatorArgs,
     /// Output width (and width of rendered input); default: the bag's, or 512 without --bag.
     #[arg(long)]
     pub width: Option<usize>,
@@ -417,7 +414,7 @@ pub fn run(a: BenchNodeArgs) -> Result<()> {
         bail!("--duration-s must be a positive number of seconds");
     }
     let report = run_bench(&BenchOptions {
-        estimator: EstimatorSpec::with_weights(a.estimator, a.weights),
+        estimator: a.estimator.spec(),
         width: a.width,
         duration: std::time::Duration::from_secs_f64(a.duration_s),
         bag: a.bag,

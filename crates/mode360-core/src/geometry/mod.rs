@@ -6,7 +6,7 @@
 //!   pair, in which epipolar lines are image rows.
 //! * [`camera`]: camera models (double sphere, Kannala-Brandt, EUCM, dual fisheye, and the
 //!   ERP grid) behind one `project` / `unproject` interface.
-//! * [`rig`]: the rig calibration read from YAML, validated.
+//! * [`rig`]: the rig calibration, validated by `Rig::new`; [`rig_yaml`] reads and writes it.
 //! * [`import`]: a Kalibr camchain or a Basalt `calibration.json` into a rig.
 //! * [`panorama`]: every camera as a panorama (its REP 103 frame, which directions it sees,
 //!   a fisheye image resampled into an ERP panorama with a validity mask).
@@ -18,14 +18,18 @@ pub mod geer;
 pub mod import;
 pub mod panorama;
 pub mod rig;
-mod rig_projection;
+pub mod rig_yaml;
 pub mod sweep;
 
 pub use camera::{CameraModel, ImageSize, IntrinsicsError};
 pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
 pub use geer::{GeerAngles, GeerPair};
-pub use rig::{Projection, Rig, RigCamera, RigError};
+pub use rig::{ImageSizeError, Projection, Rig, RigCamera, RigError, RigOutput};
 pub use sweep::{DepthHypotheses, DepthRange, HypothesisSpacing, SweepGeometry, SweepTable};
+
+/// The far range, metres: the sky's range and the clamp of depth images unless configured
+/// otherwise (the paper's maximum depth and Deep360's).
+pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
 
 /// Errors of the geometry constructors.
 #[derive(Debug, thiserror::Error, PartialEq)]

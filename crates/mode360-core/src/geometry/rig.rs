@@ -1,39 +1,17 @@
-//! Rig calibration: which 360° cameras a rig carries and where, read from YAML.
-//!
-//! ```yaml
-//! rig_frame: base_link            # optional, default base_link
-//! reference_camera: cam1          # optional, default: the first camera
-//! output:                         # optional: the frame depth is published in
-//!   frame_id: cam1_link           #   default: the reference camera's frame_id
-//!   rig_from_output: {...}        #   default: the reference camera's pose
-//! cameras:
-//!   - name: cam1
-//!     topic: /cam1/image_raw
-//!     frame_id: cam1_link
-//!     projection: equirectangular     # or double_sphere, kannala_brandt, eucm, dual_fisheye
-//!     rig_from_cam:
-//!       translation: [0.5, 0.5, 1.8]     # metres
-//!       rotation_xyzw: [0, 0, 0, 1]      # or rotation_rpy: [roll, pitch, yaw] in radians
-//! ```
+//! Rig calibration: which 360° cameras a rig carries and where ([`Rig`], built and validated
+//! by [`Rig::new`]; read from and written to YAML by [`super::rig_yaml`]).
 //!
 //! `rig_from_cam` maps a point in the camera frame to the rig frame: `p_rig = R p_cam + t`.
 //! The camera frame depends on the projection: an equirectangular camera's frame is REP 103
 //! (x at the panorama's centre column, y left, z up); a fisheye camera's frame is its lens's
 //! optical frame (z along the optical axis, x right, y down in the image), as Kalibr and Basalt
 //! calibrate it; a dual-fisheye camera's frame is the body frame its lenses' `cam_from_lens`
-//! are given in. The fisheye fields (`image_size`, `intrinsics`, `lenses`) are described in
-//! [`super::rig_projection`].
+//! are given in.
 
-use super::camera::{CameraModel, DualFisheye, FisheyeCamera};
-pub use super::rig_projection::ImageSizeError;
-use super::rig_projection::{
-    parse_projection, projection_to_raw, RawIntrinsics, RawLens, RawProjection,
-};
+use super::camera::{CameraModel, DualFisheye, FisheyeCamera, ImageSize};
 use super::GeometryError;
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
-use serde::{Deserialize, Serialize};
+use nalgebra::{Isometry3, Vector3};
 use std::collections::HashSet;
-use std::path::Path;
 
 /// A quaternion whose norm differs from one by more than this is rejected.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
@@ -41,6 +19,8 @@ pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 pub const MIN_CAMERAS: usize = 2;
 /// The rig frame when the YAML names none.
 pub const DEFAULT_RIG_FRAME: &str = "base_link";
+/// The source an error of [`Rig::new`] names until relabelled ([`RigError::in_source`]).
+pub const UNNAMED_SOURCE: &str = "<rig>";
 
 /// An invalid rig calibration: names the file, the camera and the field.
 #[derive(Debug, thiserror::Error)]
@@ -115,7 +95,8 @@ pub struct RigCamera {
     pub rig_from_cam: Isometry3<f64>,
 }
 
-/// A validated rig calibration.
+/// A validated rig calibration (build it with [`Rig::new`], which checks the invariants the
+/// fields document).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rig {
     pub rig_frame: String,
@@ -127,300 +108,155 @@ pub struct Rig {
     pub rig_from_output: Isometry3<f64>,
 }
 
-// ---- raw YAML layout -------------------------------------------------------------------
-
-#[derive(Debug, Deserialize, Serialize, Default)]
-#[serde(deny_unknown_fields)]
-struct RawRig {
-    rig_frame: Option<String>,
-    reference_camera: Option<String>,
-    output: Option<RawOutput>,
-    cameras: Option<Vec<RawCamera>>,
-}
-
-#[derive(Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-struct RawOutput {
-    frame_id: Option<String>,
-    rig_from_output: Option<RawPose>,
-}
-
-#[derive(Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-struct RawCamera {
-    name: Option<String>,
-    topic: Option<String>,
-    frame_id: Option<String>,
-    projection: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    image_size: Option<Vec<f64>>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    intrinsics: Option<RawIntrinsics>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    lenses: Option<Vec<RawLens>>,
-    rig_from_cam: Option<RawPose>,
-}
-
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub(super) struct RawPose {
-    translation: Option<Vec<f64>>,
-    rotation_xyzw: Option<Vec<f64>>,
-    rotation_rpy: Option<Vec<f64>>,
-}
-
-/// Where a problem was found, for error messages.
-pub(super) struct Ctx<'a> {
-    file: &'a str,
-    camera: Option<&'a str>,
-}
-
-impl Ctx<'_> {
-    pub(super) fn err(&self, field: &str, problem: impl Into<String>) -> RigError {
-        match self.camera {
-            Some(c) => RigError::Camera {
-                file: self.file.to_string(),
-                camera: c.to_string(),
-                field: field.to_string(),
-                problem: problem.into(),
+impl RigError {
+    /// The same error, naming `source` (a file, or a description such as
+    /// `<random rig 7>`) as where it was found.
+    pub fn in_source(self, source: &str) -> Self {
+        let file = source.to_string();
+        match self {
+            Self::Io { source, .. } => Self::Io { file, source },
+            Self::Yaml { message, .. } => Self::Yaml { file, message },
+            Self::Camera {
+                camera,
+                field,
+                problem,
+                ..
+            } => Self::Camera {
+                file,
+                camera,
+                field,
+                problem,
             },
-            None => RigError::Rig {
-                file: self.file.to_string(),
-                field: field.to_string(),
-                problem: problem.into(),
+            Self::Rig { field, problem, .. } => Self::Rig {
+                file,
+                field,
+                problem,
             },
         }
     }
 }
 
-fn finite_vec<const N: usize>(
-    ctx: &Ctx,
-    field: &str,
-    values: &[f64],
-) -> Result<[f64; N], RigError> {
-    if values.len() != N {
-        return Err(ctx.err(field, format!("expected {N} numbers, got {}", values.len())));
-    }
-    if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
-        return Err(ctx.err(field, format!("value {bad} is not finite")));
-    }
-    let mut out = [0.0; N];
-    out.copy_from_slice(values);
-    Ok(out)
+/// Where a rig publishes depth: its frame and pose ([`Rig::new`] defaults both to the
+/// reference camera's).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigOutput {
+    pub frame_id: String,
+    pub rig_from_output: Isometry3<f64>,
 }
 
-pub(super) fn parse_pose(
-    ctx: &Ctx,
-    prefix: &str,
-    raw: &RawPose,
-) -> Result<Isometry3<f64>, RigError> {
-    let field = |f: &str| format!("{prefix}.{f}");
-    let t = raw
-        .translation
-        .as_deref()
-        .ok_or_else(|| ctx.err(&field("translation"), "missing"))?;
-    let [tx, ty, tz] = finite_vec::<3>(ctx, &field("translation"), t)?;
-    let rotation = match (&raw.rotation_xyzw, &raw.rotation_rpy) {
-        (Some(_), Some(_)) => {
-            return Err(ctx.err(
-                prefix,
-                "give either rotation_xyzw or rotation_rpy, not both",
-            ))
-        }
-        (None, None) => return Err(ctx.err(&field("rotation_xyzw"), "missing")),
-        (Some(q), None) => {
-            let [x, y, z, w] = finite_vec::<4>(ctx, &field("rotation_xyzw"), q)?;
-            let q = Quaternion::new(w, x, y, z);
-            let n = q.norm();
-            if (n - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
-                return Err(ctx.err(
-                    &field("rotation_xyzw"),
-                    format!("quaternion norm is {n:.6}, expected 1 (tolerance {QUATERNION_NORM_TOLERANCE})"),
-                ));
-            }
-            UnitQuaternion::from_quaternion(q)
-        }
-        (None, Some(rpy)) => {
-            let [r, p, y] = finite_vec::<3>(ctx, &field("rotation_rpy"), rpy)?;
-            UnitQuaternion::from_euler_angles(r, p, y)
-        }
-    };
-    Ok(Isometry3::from_parts(
-        Translation3::new(tx, ty, tz),
-        rotation,
-    ))
-}
-
-/// The YAML form of a pose: translation and quaternion xyzw.
-pub(super) fn pose_to_raw(iso: &Isometry3<f64>) -> RawPose {
-    let q = iso.rotation.quaternion();
-    RawPose {
-        translation: Some(iso.translation.vector.iter().copied().collect()),
-        rotation_xyzw: Some(vec![q.i, q.j, q.k, q.w]),
-        rotation_rpy: None,
-    }
-}
-
-fn non_empty(ctx: &Ctx, field: &str, v: &Option<String>) -> Result<String, RigError> {
-    match v.as_deref().map(str::trim) {
-        None => Err(ctx.err(field, "missing")),
-        Some("") => Err(ctx.err(field, "empty")),
-        Some(s) => Ok(s.to_string()),
-    }
+/// A pose is usable when every translation component and quaternion coefficient is finite.
+fn is_finite_pose(pose: &Isometry3<f64>) -> bool {
+    pose.translation.vector.iter().all(|v| v.is_finite())
+        && pose.rotation.coords.iter().all(|v| v.is_finite())
 }
 
 impl Rig {
-    /// Reads and validates a rig YAML file.
-    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, RigError> {
-        let path = path.as_ref();
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io {
-            file: file.clone(),
-            source,
-        })?;
-        Self::from_yaml_str(&text, &file)
-    }
-
-    /// Parses and validates rig YAML; `source_name` names the text in errors.
-    pub fn from_yaml_str(text: &str, source_name: &str) -> Result<Self, RigError> {
-        let raw: RawRig = serde_yaml::from_str(text).map_err(|e| RigError::Yaml {
-            file: source_name.to_string(),
-            message: e.to_string(),
-        })?;
-        let top = Ctx {
-            file: source_name,
-            camera: None,
+    /// A validated rig: at least [`MIN_CAMERAS`] cameras with non-empty, unique names, topics
+    /// and frame ids and finite poses; `reference` indexes `cameras`; the rig frame and the
+    /// output frame are non-empty and the output pose is finite. `output` defaults to the
+    /// reference camera's frame and pose. Errors name the camera and the field, with the
+    /// source [`UNNAMED_SOURCE`] (relabel with [`RigError::in_source`]).
+    pub fn new(
+        rig_frame: impl Into<String>,
+        cameras: Vec<RigCamera>,
+        reference: usize,
+        output: Option<RigOutput>,
+    ) -> Result<Self, RigError> {
+        let rig_err = |field: &str, problem: String| RigError::Rig {
+            file: UNNAMED_SOURCE.into(),
+            field: field.into(),
+            problem,
         };
-        let raw_cams = raw
-            .cameras
-            .as_ref()
-            .ok_or_else(|| top.err("cameras", "missing"))?;
-        if raw_cams.len() < MIN_CAMERAS {
-            return Err(top.err(
+        let cam_err = |camera: &str, field: &str, problem: String| RigError::Camera {
+            file: UNNAMED_SOURCE.into(),
+            camera: camera.into(),
+            field: field.into(),
+            problem,
+        };
+        if cameras.len() < MIN_CAMERAS {
+            return Err(rig_err(
                 "cameras",
                 format!(
                     "a rig needs at least {MIN_CAMERAS} cameras, found {}",
-                    raw_cams.len()
+                    cameras.len()
                 ),
             ));
         }
-        let mut cameras = Vec::with_capacity(raw_cams.len());
         let mut names = HashSet::new();
         let mut topics = HashSet::new();
         let mut frames = HashSet::new();
-        for (i, rc) in raw_cams.iter().enumerate() {
-            let label = rc.name.clone().unwrap_or_else(|| format!("#{}", i + 1));
-            let ctx = Ctx {
-                file: source_name,
-                camera: Some(&label),
+        for (i, cam) in cameras.iter().enumerate() {
+            let label = if cam.name.trim().is_empty() {
+                format!("#{}", i + 1)
+            } else {
+                cam.name.clone()
             };
-            let name = non_empty(&ctx, "name", &rc.name)?;
-            if !names.insert(name.clone()) {
-                return Err(ctx.err("name", "duplicate camera name"));
+            for (field, value) in [
+                ("name", &cam.name),
+                ("topic", &cam.topic),
+                ("frame_id", &cam.frame_id),
+            ] {
+                if value.trim().is_empty() {
+                    return Err(cam_err(&label, field, "empty".into()));
+                }
             }
-            let topic = non_empty(&ctx, "topic", &rc.topic)?;
-            if !topics.insert(topic.clone()) {
-                return Err(ctx.err(
-                    "topic",
-                    format!("topic '{topic}' is used by another camera"),
-                ));
+            if !names.insert(cam.name.as_str()) {
+                return Err(cam_err(&label, "name", "duplicate camera name".into()));
             }
-            let frame_id = non_empty(&ctx, "frame_id", &rc.frame_id)?;
-            if !frames.insert(frame_id.clone()) {
-                return Err(ctx.err(
-                    "frame_id",
-                    format!("frame_id '{frame_id}' is used by another camera"),
-                ));
+            if !topics.insert(cam.topic.as_str()) {
+                let problem = format!("topic '{}' is used by another camera", cam.topic);
+                return Err(cam_err(&label, "topic", problem));
             }
-            let projection = parse_projection(
-                &ctx,
-                &RawProjection {
-                    projection: rc.projection.as_deref(),
-                    image_size: rc.image_size.as_deref(),
-                    intrinsics: rc.intrinsics.as_ref(),
-                    lenses: rc.lenses.as_deref(),
-                },
-            )?;
-            let pose = rc
-                .rig_from_cam
-                .as_ref()
-                .ok_or_else(|| ctx.err("rig_from_cam", "missing"))?;
-            let rig_from_cam = parse_pose(&ctx, "rig_from_cam", pose)?;
-            cameras.push(RigCamera {
-                name,
-                topic,
-                frame_id,
-                projection,
-                rig_from_cam,
-            });
+            if !frames.insert(cam.frame_id.as_str()) {
+                let problem = format!("frame_id '{}' is used by another camera", cam.frame_id);
+                return Err(cam_err(&label, "frame_id", problem));
+            }
+            if !is_finite_pose(&cam.rig_from_cam) {
+                return Err(cam_err(&label, "rig_from_cam", "pose is not finite".into()));
+            }
         }
-        let reference = match &raw.reference_camera {
-            None => 0,
-            Some(r) => cameras
-                .iter()
-                .position(|c| &c.name == r)
-                .ok_or_else(|| top.err("reference_camera", format!("no camera named '{r}'")))?,
-        };
-        let rig_frame = match &raw.rig_frame {
-            None => DEFAULT_RIG_FRAME.to_string(),
-            some => non_empty(&top, "rig_frame", some)?,
-        };
-        let (output_frame_id, rig_from_output) = match &raw.output {
-            None => (
-                cameras[reference].frame_id.clone(),
-                cameras[reference].rig_from_cam,
-            ),
-            Some(o) => {
-                let frame = match &o.frame_id {
-                    None => cameras[reference].frame_id.clone(),
-                    some => non_empty(&top, "output.frame_id", some)?,
-                };
-                let pose = match &o.rig_from_output {
-                    None => cameras[reference].rig_from_cam,
-                    Some(p) => parse_pose(&top, "output.rig_from_output", p)?,
-                };
-                (frame, pose)
-            }
-        };
+        if reference >= cameras.len() {
+            return Err(rig_err(
+                "reference_camera",
+                format!(
+                    "camera {} does not exist (rig has {})",
+                    reference + 1,
+                    cameras.len()
+                ),
+            ));
+        }
+        let rig_frame = rig_frame.into();
+        if rig_frame.trim().is_empty() {
+            return Err(rig_err("rig_frame", "empty".into()));
+        }
+        let output = output.unwrap_or_else(|| RigOutput {
+            frame_id: cameras[reference].frame_id.clone(),
+            rig_from_output: cameras[reference].rig_from_cam,
+        });
+        if output.frame_id.trim().is_empty() {
+            return Err(rig_err("output.frame_id", "empty".into()));
+        }
+        if !is_finite_pose(&output.rig_from_output) {
+            return Err(rig_err(
+                "output.rig_from_output",
+                "pose is not finite".into(),
+            ));
+        }
         Ok(Self {
             rig_frame,
             cameras,
             reference,
-            output_frame_id,
-            rig_from_output,
+            output_frame_id: output.frame_id,
+            rig_from_output: output.rig_from_output,
         })
     }
 
-    /// Serializes the rig back to YAML (the form [`Self::from_yaml_str`] reads).
-    pub fn to_yaml(&self) -> String {
-        let pose = pose_to_raw;
-        let raw = RawRig {
-            rig_frame: Some(self.rig_frame.clone()),
-            reference_camera: Some(self.cameras[self.reference].name.clone()),
-            output: Some(RawOutput {
-                frame_id: Some(self.output_frame_id.clone()),
-                rig_from_output: Some(pose(&self.rig_from_output)),
-            }),
-            cameras: Some(
-                self.cameras
-                    .iter()
-                    .map(|c| {
-                        let p = projection_to_raw(&c.projection);
-                        RawCamera {
-                            name: Some(c.name.clone()),
-                            topic: Some(c.topic.clone()),
-                            frame_id: Some(c.frame_id.clone()),
-                            projection: Some(p.projection),
-                            image_size: p.image_size,
-                            intrinsics: p.intrinsics,
-                            lenses: p.lenses,
-                            rig_from_cam: Some(pose(&c.rig_from_cam)),
-                        }
-                    })
-                    .collect(),
-            ),
-        };
-        serde_yaml::to_string(&raw).unwrap_or_default()
+    /// The rig's output frame and pose.
+    pub fn output(&self) -> RigOutput {
+        RigOutput {
+            frame_id: self.output_frame_id.clone(),
+            rig_from_output: self.rig_from_output,
+        }
     }
 
     /// The rig restricted to the cameras at `indices` (0-based, in that order). The output
@@ -455,13 +291,13 @@ impl Rig {
             .iter()
             .position(|&i| i == self.reference)
             .unwrap_or(0);
-        Ok(Self {
-            rig_frame: self.rig_frame.clone(),
+        Self::new(
+            self.rig_frame.clone(),
             cameras,
             reference,
-            output_frame_id: self.output_frame_id.clone(),
-            rig_from_output: self.rig_from_output,
-        })
+            Some(self.output()),
+        )
+        .map_err(|e| e.in_source("<subset>"))
     }
 
     /// The rig with every fisheye and dual-fisheye camera at `factor` times its resolution
@@ -514,9 +350,58 @@ impl Rig {
     }
 }
 
+/// An image whose size does not fit its camera's projection.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ImageSizeError {
+    #[error("expected a 2:1 equirectangular panorama (width = 2 x height), got {width}x{height}")]
+    NotPanorama { width: u32, height: u32 },
+    #[error("expected {expected_width}x{expected_height} (its {projection} image_size), got {width}x{height}")]
+    NotImageSize {
+        projection: &'static str,
+        expected_width: u32,
+        expected_height: u32,
+        width: u32,
+        height: u32,
+    },
+}
+
+impl Projection {
+    /// The image size the projection is calibrated for; `None` for equirectangular (any 2:1
+    /// size).
+    pub fn image_size(&self) -> Option<ImageSize> {
+        match self {
+            Projection::Equirectangular => None,
+            Projection::Fisheye(c) => Some(c.image_size()),
+            Projection::DualFisheye(d) => Some(d.image_size()),
+        }
+    }
+
+    /// Whether a `width x height` image can be this camera's: an equirectangular camera's must
+    /// be 2:1 (and not empty), a fisheye or dual-fisheye camera's exactly its `image_size`.
+    pub fn check_image_size(&self, width: u32, height: u32) -> Result<(), ImageSizeError> {
+        match self.image_size() {
+            None if width == 0 || width != 2 * height => {
+                Err(ImageSizeError::NotPanorama { width, height })
+            }
+            None => Ok(()),
+            Some(s) if (s.width, s.height) != (width, height) => {
+                Err(ImageSizeError::NotImageSize {
+                    projection: self.name(),
+                    expected_width: s.width,
+                    expected_height: s.height,
+                    width,
+                    height,
+                })
+            }
+            Some(_) => Ok(()),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector3;
 
     const GOOD: &str = r#"
 cameras:

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 /// The paper's sweep range and count.
 pub const PAPER_MIN_DEPTH_M: f64 = 0.5;
-pub const PAPER_MAX_DEPTH_M: f64 = 1000.0;
+pub const PAPER_MAX_DEPTH_M: f64 = super::DEFAULT_MAX_DEPTH_M;
 pub const PAPER_HYPOTHESES: usize = 192;
 /// At least two hypotheses are needed to define a step.
 pub const MIN_HYPOTHESES: usize = 2;

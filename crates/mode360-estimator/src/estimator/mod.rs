@@ -179,16 +179,7 @@ impl EstimatorSpec {
 
 /// The estimator called `name`, with its default settings (SSMODE: the shipped weights).
 pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
-    by_name_with_weights(name, None)
-}
-
-/// Like [`by_name`]; `weights` replaces SSMODE's shipped weights (an error for estimators
-/// without weights, so that a mistyped estimator name does not silently ignore them).
-pub fn by_name_with_weights(
-    name: &str,
-    weights: Option<&std::path::Path>,
-) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
-    EstimatorSpec::with_weights(name.parse()?, weights.map(PathBuf::from)).build()
+    EstimatorSpec::with_weights(name.parse()?, None).build()
 }
 
 #[cfg(test)]

@@ -21,7 +21,7 @@ use mode360_core::geometry::{ErpGrid, Rig};
 /// The estimator's name on the command line and in reports.
 pub const SSMODE_NAME: &str = "ssmode";
 
-/// Weights loaded by `by_name("ssmode")`, relative to the working directory or, failing that,
+/// Weights loaded by `by_name("ssmode")` and by an `EstimatorSpec` without weights, relative to the working directory or, failing that,
 /// to the source tree the binary was built from (see [`default_weights_path`]): the
 /// `parallax_zncc_log` preset (the ZNCC channel and log-depth hypotheses, models/README.md).
 pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_parallax_zncc_log.safetensors";

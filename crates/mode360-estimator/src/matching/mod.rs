@@ -8,6 +8,8 @@
 pub(crate) mod zncc;
 
 use mode360_core::geometry::{ErpGrid, PixelCoord};
+use nalgebra::Vector3;
+use rayon::prelude::*;
 
 /// Rec. 601 luma weights of the grey images every matcher compares.
 pub const LUMA_WEIGHTS: [f32; 3] = [0.299, 0.587, 0.114];
@@ -19,8 +21,6 @@ pub const INTENSITY_SCALE: f32 = 1.0 / 255.0;
 pub fn luma(rgb: [f32; 3]) -> f32 {
     LUMA_WEIGHTS[0] * rgb[0] + LUMA_WEIGHTS[1] * rgb[1] + LUMA_WEIGHTS[2] * rgb[2]
 }
-use nalgebra::Vector3;
-use rayon::prelude::*;
 
 /// Parallax weight of every camera pair `(a < b)` and pixel of `output`: `|dir x b_hat|^k`, with
 /// `b_hat` the unit baseline between the two camera centres (given in the output frame) and

@@ -37,8 +37,6 @@ pub const MEAN_WEIGHT: f32 = 0.3;
 pub const MEAN_SCALE: f32 = 0.03;
 /// Share of the camera pairs (the best ones) averaged per cell.
 pub const BEST_PAIR_FRACTION: f32 = 0.5;
-/// Exponent `k` of the pair parallax weight `|dir x b_hat|^k`.
-pub const PARALLAX_EXPONENT: f32 = 1.0;
 /// Channels of an RGB image tensor.
 const IMAGE_CHANNELS: usize = 3;
 /// A sample whose taps weigh less than this is one the camera does not see.

@@ -7,7 +7,11 @@ use super::config::{SsmodeConfig, MIN_CAMERAS};
 use super::sphere_conv::SphereConvTable;
 use super::ModelError;
 use crate::model::ops::{view_scale, SampleTable};
+
 use mode360_core::geometry::{ErpGrid, Rig, SweepGeometry};
+
+/// Exponent `k` of the pair parallax weight `|dir x b_hat|^k` of the photometric cost channel.
+pub const PARALLAX_EXPONENT: f32 = 1.0;
 
 /// Sampling tables for one rig at one configuration's resolution, built once:
 /// - one sweep table per camera: for every sphere `d` and cost-volume cell `(v, u)` (sample
@@ -65,11 +69,7 @@ impl SweepSampling {
             let centres: Vec<_> = (0..cameras)
                 .map(|cam| geometry.camera_centre_in_output_m(cam))
                 .collect();
-            crate::matching::pair_parallax_weights(
-                grid,
-                &centres,
-                super::photometric_cost::PARALLAX_EXPONENT,
-            )
+            crate::matching::pair_parallax_weights(grid, &centres, PARALLAX_EXPONENT)
         });
         Ok(Self {
             view_scale,

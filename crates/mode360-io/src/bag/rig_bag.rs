@@ -33,7 +33,7 @@ pub const SOILED_KEY: &str = "soiled";
 /// Key in [`SYNTH_METADATA`] holding the scene's maximum depth (the sky's range), metres.
 pub const MAX_DEPTH_KEY: &str = "max_depth_m";
 /// Maximum depth assumed when a bag does not record [`MAX_DEPTH_KEY`], metres.
-pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
+pub use mode360_core::geometry::DEFAULT_MAX_DEPTH_M;
 /// Topic of the ground-truth range image.
 pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/depth";
 pub use super::format::TF_STATIC_TOPIC;

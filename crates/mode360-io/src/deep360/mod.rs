@@ -53,7 +53,7 @@ pub const FRAME_PERIOD_NS: u64 = 100_000_000;
 /// `(e * EPISODE_FRAME_SLOTS + k) * FRAME_PERIOD_NS` (episodes hold 500 frames).
 pub const EPISODE_FRAME_SLOTS: u64 = 1000;
 /// Largest range of the dataset's ground truth (the paper's maximum depth), metres.
-pub const DEEP360_MAX_DEPTH_M: f64 = 1000.0;
+pub const DEEP360_MAX_DEPTH_M: f64 = mode360_core::geometry::DEFAULT_MAX_DEPTH_M;
 /// Number of episodes in the dataset.
 pub const EPISODES: u32 = 6;
 

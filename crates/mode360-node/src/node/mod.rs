@@ -28,9 +28,12 @@
 pub mod clock;
 pub mod diagnostics;
 pub mod live_view;
+pub mod param_table;
 pub mod params;
+mod params_file;
 pub mod pipeline;
 pub mod qos_overrides;
+pub mod ros_args;
 pub mod ros_params;
 pub mod tf_extrinsics;
 
@@ -47,8 +50,8 @@ pub const COMPRESSED_DEPTH_TOPIC: &str = "depth/compressedDepth";
 pub const POINTS_TOPIC: &str = "points";
 /// Relative topic of the confidence image.
 pub const CONFIDENCE_TOPIC: &str = "confidence";
-/// Absolute topic of the static transforms.
-pub const TF_STATIC_TOPIC: &str = "/tf_static";
+/// Absolute topic of the static transforms (the bags' topic too).
+pub use mode360_io::bag::TF_STATIC_TOPIC;
 /// Absolute topic of the diagnostics.
 pub const DIAGNOSTICS_TOPIC: &str = "/diagnostics";
 /// Absolute topic of the simulated clock.

@@ -97,7 +97,7 @@ impl Default for PipelineParams {
     fn default() -> Self {
         Self {
             output_width: 512,
-            max_depth_m: 1000.0,
+            max_depth_m: mode360_core::geometry::DEFAULT_MAX_DEPTH_M as f32,
             far_value: FarValue::Inf,
             min_confidence: 0.0,
             depth_quantization: DEFAULT_DEPTH_QUANTIZATION,
@@ -337,7 +337,10 @@ mod tests {
     use mode360_estimator::estimator::DepthEstimate;
     use mode360_io::msgs::image::float_from_image_msg;
 
-    const RIG_YAML: &str = "launch_configs/rig_deep360.yaml";
+    const RIG_YAML: &str = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../launch_configs/rig_deep360.yaml"
+    );
 
     /// A fake estimator: range grows with the row, the top rows are sky, one pixel NaN.
     struct FakeEstimator {
@@ -543,9 +546,12 @@ mod tests {
 
     #[test]
     fn fisheye_points_take_colour_from_a_camera_that_sees_them() {
-        let rig = Rig::from_file("launch_configs/rig_omnimvs.yaml")
-            .and_then(|r| r.scaled(0.125))
-            .unwrap();
+        let rig = Rig::from_file(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../launch_configs/rig_omnimvs.yaml"
+        ))
+        .and_then(|r| r.scaled(0.125))
+        .unwrap();
         let max_depth_m = 100.0;
         let params = PipelineParams {
             output_width: 32,

@@ -1,27 +1,17 @@
 //! The node's parameters as ROS 2 parameters: declared with ros2-client, so that
 //! `ros2 param list/get/set/dump` work on the node.
 //!
-//! Every parameter of [`NodeParams`] that has one value is declared with its current value.
-//! The ones in [`RUNTIME_PARAMS`] take effect at once when set ([`RuntimeParams`], read by the
+//! Every parameter of [`PARAMETERS`] is declared with its current value. The ones marked
+//! `runtime` there take effect at once when set ([`RuntimeParams`], read by the
 //! inference worker before each group); setting any other one is refused with the reason
 //! (restart the node with the new value). A value the node would refuse at start is refused
 //! at run time with the same reason, and the node keeps running.
 
+use super::param_table::{parameter, runtime_parameter_names, ParamValue, PARAMETERS};
 use super::params::NodeParams;
 use super::pipeline::PipelineParams;
 use ros2_client::{NodeOptions, ParameterValue};
 use std::sync::{Arc, Mutex};
-
-/// Parameters that may change while the node runs.
-pub const RUNTIME_PARAMS: [&str; 7] = [
-    "max_depth_m",
-    "min_confidence",
-    "depth_far_value",
-    "depth_quantization",
-    "publish_points",
-    "publish_confidence",
-    "publish_compressed_depth",
-];
 
 /// Which optional outputs are switched on (each is also built only while subscribed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -52,49 +42,20 @@ pub struct RuntimeSettings {
 /// The run-time settings, shared between the parameter services and the worker.
 pub type RuntimeParams = Arc<Mutex<RuntimeSettings>>;
 
-/// Every single-valued parameter of `p` with its ROS 2 value.
+/// Every parameter of [`PARAMETERS`] with its ROS 2 value in `p`.
 pub fn declared_parameters(p: &NodeParams) -> Vec<(&'static str, ParameterValue)> {
-    use ParameterValue::{Boolean, Double, Integer, String as Text};
-    vec![
-        ("rig_file", Text(p.rig_file.display().to_string())),
-        ("estimator", Text(p.estimator.kind.to_string())),
-        (
-            "weights",
-            Text(
-                p.estimator
-                    .weights
-                    .as_ref()
-                    .map(|w| w.display().to_string())
-                    .unwrap_or_default(),
-            ),
-        ),
-        ("output_width", Integer(p.output_width as i64)),
-        ("sync.tolerance_s", Double(p.sync_tolerance_s)),
-        ("sync.queue_size", Integer(p.sync_queue_size as i64)),
-        ("camera_timeout_s", Double(p.camera_timeout_s)),
-        ("max_depth_m", Double(p.max_depth_m)),
-        ("depth_far_value", Text(p.far_value.as_str().into())),
-        ("min_confidence", Double(p.min_confidence)),
-        ("depth_quantization", Double(p.depth_quantization)),
-        ("publish_tf", Boolean(p.publish_tf)),
-        ("publish_points", Boolean(p.publish_points)),
-        ("publish_confidence", Boolean(p.publish_confidence)),
-        (
-            "publish_compressed_depth",
-            Boolean(p.publish_compressed_depth),
-        ),
-        (
-            "image_transport",
-            Text(p.image_transport_default.as_str().into()),
-        ),
-        (
-            "extrinsics_source",
-            Text(p.extrinsics_source.as_str().into()),
-        ),
-        ("tf_timeout_s", Double(p.tf_timeout_s)),
-        ("foxglove_port", Integer(i64::from(p.foxglove_port))),
-        ("foxglove_address", Text(p.foxglove_address.to_string())),
-    ]
+    PARAMETERS
+        .iter()
+        .map(|spec| {
+            let value = match (spec.get)(p) {
+                ParamValue::String(s) => ParameterValue::String(s),
+                ParamValue::Double(d) => ParameterValue::Double(d),
+                ParamValue::Integer(i) => ParameterValue::Integer(i),
+                ParamValue::Bool(b) => ParameterValue::Boolean(b),
+            };
+            (spec.name, value)
+        })
+        .collect()
 }
 
 /// A ROS 2 value as the text [`NodeParams::set`] parses (`None` for arrays and unset).
@@ -110,7 +71,7 @@ fn as_text(value: &ParameterValue) -> Option<String> {
 
 /// Checks that `name = value` may be set now: a run-time parameter with a valid value.
 fn validate(base: &NodeParams, name: &str, value: &ParameterValue) -> Result<NodeParams, String> {
-    if !RUNTIME_PARAMS.contains(&name) {
+    if !parameter(name).is_some_and(|spec| spec.runtime) {
         // Declaring sets each parameter to its value once; only a change is refused.
         let unchanged = declared_parameters(base)
             .into_iter()
@@ -121,7 +82,7 @@ fn validate(base: &NodeParams, name: &str, value: &ParameterValue) -> Result<Nod
         return Err(format!(
             "'{name}' cannot change while the node runs (restart it with the new value); \
              these can: {}",
-            RUNTIME_PARAMS.join(", ")
+            runtime_parameter_names().collect::<Vec<_>>().join(", ")
         ));
     }
     let text = as_text(value).ok_or_else(|| format!("'{name}': expected a single value"))?;
@@ -173,7 +134,7 @@ mod tests {
     fn runtime_parameters_validate_like_the_params_file() {
         let p = NodeParams::default();
         let names: Vec<&str> = declared_parameters(&p).iter().map(|(n, _)| *n).collect();
-        for r in RUNTIME_PARAMS {
+        for r in runtime_parameter_names() {
             assert!(names.contains(&r), "{r} is not declared");
         }
         let next = validate(&p, "min_confidence", &ParameterValue::Double(0.4)).unwrap();

@@ -1,20 +1,19 @@
 //! Procedural materials: albedo as a function of position (world or object coordinates),
-//! surface normal and pixel footprint, and the sky at infinity.
+//! surface normal and pixel footprint (the sky at infinity is [`super::sky`]).
 //!
 //! Band limiting: every fractal octave is faded out when its frequency times the pixel
 //! footprint nears Nyquist ([`super::noise::octave_weight`]), and periodic stripes (lane
 //! markings, windows, paving joints) are box-filtered over the footprint
-//! ([`periodic_coverage`]), so distant detail averages instead of aliasing.
+//! ([`super::colour::periodic_coverage`]), so distant detail averages instead of aliasing.
 
 use super::bvh::Prim;
+use super::colour::{mix, periodic_coverage, scale, stripe_coverage, Rgb};
 use super::noise::{fbm2, fbm3, lattice_unit, octave_weight, value2};
+use super::street::CROSS_STREET_HALF_WIDTH_M;
 use nalgebra::Vector3;
 
 /// A primitive of the rendered scenes: a shape with its material.
 pub type SurfacePrim = Prim<Material>;
-
-/// Linear RGB.
-pub type Rgb = [f32; 3];
 
 /// Width of painted lines, metres.
 const LINE_WIDTH_M: f64 = 0.15;
@@ -68,42 +67,6 @@ pub enum Material {
     Skin(Rgb),
     /// A high-contrast procedural pattern in object coordinates (random-objects scenes).
     Pattern(super::pattern::Pattern),
-}
-
-/// Fraction of the footprint interval `[x - fp/2, x + fp/2]` covered by the stripe
-/// `[lo, hi]` repeated with `period` (a box filter of the stripe indicator).
-pub fn periodic_coverage(x: f64, period: f64, lo: f64, hi: f64, footprint_m: f64) -> f64 {
-    let duty = (hi - lo) / period;
-    if footprint_m >= period {
-        return duty;
-    }
-    let xm = x.rem_euclid(period);
-    let half = 0.5 * footprint_m.max(1e-9);
-    let (a, b) = (xm - half, xm + half);
-    let mut covered = 0.0;
-    for k in [-1.0, 0.0, 1.0] {
-        let (l, h) = (lo + k * period, hi + k * period);
-        covered += (b.min(h) - a.max(l)).max(0.0);
-    }
-    (covered / (b - a)).clamp(0.0, 1.0)
-}
-
-/// Coverage of a single stripe `[lo, hi]` over the footprint around `x`.
-pub fn stripe_coverage(x: f64, lo: f64, hi: f64, footprint_m: f64) -> f64 {
-    let half = 0.5 * footprint_m.max(1e-9);
-    ((x + half).min(hi) - (x - half).max(lo)).max(0.0) / (2.0 * half)
-}
-
-fn mix(a: Rgb, b: Rgb, t: f32) -> Rgb {
-    [
-        a[0] + (b[0] - a[0]) * t,
-        a[1] + (b[1] - a[1]) * t,
-        a[2] + (b[2] - a[2]) * t,
-    ]
-}
-
-fn scale(a: Rgb, s: f32) -> Rgb {
-    [a[0] * s, a[1] * s, a[2] * s]
 }
 
 fn p32(p: &Vector3<f64>) -> [f32; 3] {
@@ -249,7 +212,7 @@ fn cross_street(
     seed: u32,
 ) -> Rgb {
     let c = asphalt_base(p, fp_m, seed);
-    let half = crate::synth::world::CROSS_STREET_HALF_WIDTH_M;
+    let half = CROSS_STREET_HALF_WIDTH_M;
     let lx = local.x.abs();
     let zebra = if p.y.abs() <= road_half_width_m - 0.5 {
         stripe_coverage(lx, half - 3.0, half - 0.5, fp_m)
@@ -398,76 +361,4 @@ fn facade(
         * periodic_coverage(s, bay_w, 0.2 * bay_w, 0.8 * bay_w, fp_m);
     c = mix(c, glass, win as f32);
     mix(c, scale(wall, 1.3), sill as f32)
-}
-
-/// The sky at infinity along unit direction `d`: a horizon-to-zenith gradient, procedural
-/// clouds on a cloud plane, and the sun disk. `pixel_angle_rad` band-limits the clouds.
-pub fn sky(d: &Vector3<f64>, sun: &Vector3<f64>, pixel_angle_rad: f64, seed: u32) -> Rgb {
-    let up = d.z.max(0.0) as f32;
-    let mut c = mix(HORIZON_SKY, ZENITH_SKY, up.powf(SKY_GRADIENT_EXPONENT));
-    // Clouds: fractal noise on the plane z = 1 (coordinates d.xy / d.z, clamped near the
-    // horizon); the footprint there grows like pixel_angle / d.z^2.
-    let dz = d.z.max(0.04);
-    let (cx, cy) = (d.x / dz, d.y / dz);
-    let fp = (pixel_angle_rad / (dz * dz)) as f32;
-    let density = fbm2(cx as f32, cy as f32, seed ^ 0x41, 0.8, 7, fp);
-    let wisps = fbm2(
-        cx as f32 * 3.0,
-        cy as f32 * 3.0,
-        seed ^ 0x42,
-        1.0,
-        4,
-        fp * 3.0,
-    );
-    let cover = ((density - 0.38) * 3.0 + (wisps - 0.5) * 0.8).clamp(0.0, 1.0);
-    let shade = 0.75 + 0.35 * wisps;
-    c = mix(c, [shade, shade, shade * 1.02], cover * 0.9);
-    // A thin high veil keeps even clear patches textured (photometric matching needs it).
-    // Noise on the unit sphere of directions: isotropic in angle, no horizon singularity,
-    // band-limited by the pixel's angular size.
-    let veil = fbm3(
-        [d.x as f32, d.y as f32, d.z as f32],
-        seed ^ 0x43,
-        SKY_VEIL_BASE_FREQ,
-        6,
-        pixel_angle_rad as f32,
-    );
-    c = scale(c, 0.8 + 0.4 * veil);
-    // Haze near the horizon and the sun.
-    let cos_sun = d.dot(sun) as f32;
-    let glow = cos_sun.max(0.0).powf(64.0) * 0.6;
-    let disk = if cos_sun > SUN_DISK_COS { 6.0 } else { 0.0 };
-    [
-        c[0] + glow + disk,
-        c[1] + glow * 0.9 + disk,
-        c[2] + glow * 0.7 + disk,
-    ]
-}
-
-/// Sky colour at the horizon (also the fog colour) and at the zenith, linear RGB; the
-/// gradient is `mix(horizon, zenith, max(d_z, 0)^SKY_GRADIENT_EXPONENT)`.
-pub const HORIZON_SKY: Rgb = [0.75, 0.82, 0.92];
-pub const ZENITH_SKY: Rgb = [0.22, 0.42, 0.8];
-const SKY_GRADIENT_EXPONENT: f32 = 0.6;
-/// Lowest frequency of the sky veil, cycles per unit of direction (about per radian).
-const SKY_VEIL_BASE_FREQ: f32 = 6.0;
-
-/// Cosine of the sun disk's angular radius (about 0.6 degrees, a little larger than the real
-/// sun so it covers a few pixels).
-pub const SUN_DISK_COS: f32 = 0.999_945;
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn coverage_box_filter() {
-        // Fully inside, outside and half-overlapping a stripe [0, 1].
-        assert!((stripe_coverage(0.5, 0.0, 1.0, 0.1) - 1.0).abs() < 1e-12);
-        assert!(stripe_coverage(2.0, 0.0, 1.0, 0.1).abs() < 1e-12);
-        assert!((stripe_coverage(1.0, 0.0, 1.0, 0.2) - 0.5).abs() < 1e-12);
-        // A wide footprint over a periodic stripe gives the duty cycle.
-        assert!((periodic_coverage(0.3, 2.0, 0.0, 0.5, 10.0) - 0.25).abs() < 1e-12);
-        assert!((periodic_coverage(4.25, 2.0, 0.0, 0.5, 0.1) - 1.0).abs() < 1e-12);
-    }
 }

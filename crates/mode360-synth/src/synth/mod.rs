@@ -26,6 +26,7 @@
 pub mod blockers;
 pub mod bvh;
 pub mod camera_view;
+pub mod colour;
 pub mod material;
 pub mod noise;
 pub mod objects;
@@ -33,6 +34,7 @@ pub mod pattern;
 mod props;
 mod scene;
 pub mod shape;
+pub mod sky;
 pub mod soiling;
 pub mod street;
 pub mod world;
@@ -133,7 +135,7 @@ impl Default for SynthConfig {
             seed: 1,
             width: 512,
             soiled: false,
-            max_depth_m: 1000.0,
+            max_depth_m: mode360_core::geometry::DEFAULT_MAX_DEPTH_M,
             frame_period_s: 0.1,
             speed_mps: 8.0,
             scene: SceneKind::Street,

@@ -13,7 +13,8 @@
 //! code's random rigs, so for those rigs the scene depends on `(seed, index)` only.
 
 use super::bvh::{Aabb, OrientedKind, Prim, Shape};
-use super::material::{Material, Rgb, SurfacePrim};
+use super::colour::Rgb;
+use super::material::{Material, SurfacePrim};
 use super::noise::Rng;
 use super::pattern::{random_colour, random_unit, Background, Pattern};
 use nalgebra::{UnitQuaternion, Vector3};

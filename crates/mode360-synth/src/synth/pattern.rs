@@ -3,7 +3,7 @@
 //! backgrounds at infinity. All are band-limited by the pixel footprint like the street
 //! materials: checkers and stripes are box-filtered, noise octaves fade near Nyquist.
 
-use super::material::{periodic_coverage, Rgb};
+use super::colour::{mix, periodic_coverage, Rgb};
 use super::noise::{fbm3, lattice_unit, Rng};
 use nalgebra::Vector3;
 
@@ -30,14 +30,6 @@ pub struct Pattern {
     /// Unit direction across the stripes.
     pub dir: [f32; 3],
     pub seed: u32,
-}
-
-fn mix(a: Rgb, b: Rgb, t: f32) -> Rgb {
-    [
-        a[0] + (b[0] - a[0]) * t,
-        a[1] + (b[1] - a[1]) * t,
-        a[2] + (b[2] - a[2]) * t,
-    ]
 }
 
 /// A random colour: either a saturated hue or a grey, linear RGB in `[0.02, 0.9]`.
@@ -154,7 +146,7 @@ impl Background {
         seed: u32,
     ) -> Rgb {
         match self {
-            Background::Sky => super::material::sky(d, sun, pixel_angle_rad, seed),
+            Background::Sky => super::sky::sky(d, sun, pixel_angle_rad, seed),
             Background::Pattern(p) => p.albedo(d, pixel_angle_rad),
         }
     }

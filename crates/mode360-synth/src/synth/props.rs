@@ -1,7 +1,8 @@
 //! Street furniture built from primitives: cars and pedestrians, and small helpers.
 
 use super::bvh::{Aabb, Prim, Shape};
-use super::material::{Material, Rgb, SurfacePrim};
+use super::colour::Rgb;
+use super::material::{Material, SurfacePrim};
 use super::noise::Rng;
 use super::street::KERB_HEIGHT_M;
 use nalgebra::Vector3;

@@ -3,8 +3,10 @@
 //! with sun, shadows, sky ambient, ground bounce and fog.
 
 use super::bvh::{self, Bvh, Ray};
-use super::material::{self, Material, Rgb};
+use super::colour::Rgb;
+use super::material::{self, Material};
 use super::pattern::Background;
+use super::sky::HORIZON_SKY;
 use super::world::{self, WorldParams};
 use nalgebra::Vector3;
 
@@ -161,7 +163,7 @@ impl FrameScene<'_> {
         }
         // Aerial perspective towards the horizon sky colour.
         let fog = (1.0 - (-t / FOG_DISTANCE_M).exp()) as f32;
-        for (ci, h) in c.iter_mut().zip(material::HORIZON_SKY) {
+        for (ci, h) in c.iter_mut().zip(HORIZON_SKY) {
             *ci += (h - *ci) * fog;
         }
         Sample {

@@ -30,3 +30,6 @@ impl StreetStyle {
         }
     }
 }
+
+/// Half width of a cross street along x, centred in its tile, metres.
+pub const CROSS_STREET_HALF_WIDTH_M: f64 = 6.0;

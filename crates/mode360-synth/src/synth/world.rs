@@ -10,10 +10,13 @@
 //! the density of parked cars and trees per world seed ([`StreetLayout::varied`]).
 
 use super::bvh::Shape;
-use super::material::{Material, Rgb, SurfacePrim};
+use super::colour::Rgb;
+use super::material::{Material, SurfacePrim};
 use super::noise::{hash_words, unit_from_hash, Rng};
 use super::props::{aabox, car, pedestrian, push};
-use super::street::{StreetStyle, KERB_HEIGHT_M, LANE_WIDTH_M, ROAD_HALF_WIDTH_M};
+use super::street::{
+    StreetStyle, CROSS_STREET_HALF_WIDTH_M, KERB_HEIGHT_M, LANE_WIDTH_M, ROAD_HALF_WIDTH_M,
+};
 use nalgebra::Vector3;
 
 /// Length of a tile of static content along x, metres.
@@ -68,9 +71,6 @@ const FACADE_COLOURS: [Rgb; 8] = [
 ];
 /// Probability that a tile holds a cross street (no buildings, zebra crossings).
 pub const INTERSECTION_PROBABILITY: f64 = 0.12;
-/// Half width of a cross street along x, centred in its tile, metres.
-pub const CROSS_STREET_HALF_WIDTH_M: f64 = 6.0;
-
 /// Whether `tile` is an intersection with a cross street (a pure function of seed and tile).
 pub fn is_intersection(params: &WorldParams, tile: i64) -> bool {
     unit_from_hash(hash_words(&[params.seed, tile as u64, 0x1A7E])) < INTERSECTION_PROBABILITY

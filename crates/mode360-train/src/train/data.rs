@@ -41,9 +41,8 @@
 //! held-out set never shares a world with training.
 
 use super::fisheye_rigs::random_fisheye_rig;
-use super::rig_layouts::{
-    draw_family, layout_rig, rig_from_poses, roof_poses, LayoutFamily, RigLayouts,
-};
+use super::rack::random_rig;
+use super::rig_layouts::{draw_family, layout_rig, LayoutFamily, RigLayouts};
 use super::rig_pool::pooled_rig_index;
 use candle_core::{Device, Tensor};
 use mode360_core::frame::{FloatImage, RgbImage};
@@ -62,21 +61,6 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::thread::JoinHandle;
 
-/// Fewest cameras of a random rig.
-pub const MIN_RIG_CAMERAS: usize = 2;
-/// Most cameras of a random rig.
-pub const MAX_RIG_CAMERAS: usize = 5;
-/// Cameras are placed in `[-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M]^2` (a 1.5 m roof rack).
-pub const RACK_HALF_SIZE_M: f64 = 0.75;
-/// Two cameras of a random rig are at least this far apart horizontally.
-pub const MIN_CAMERA_SEPARATION_M: f64 = 0.3;
-/// Camera heights above the road, metres.
-pub const MIN_HEIGHT_M: f64 = 1.5;
-pub const MAX_HEIGHT_M: f64 = 2.2;
-/// Largest random roll, pitch and yaw of a camera, radians (5 degrees).
-pub const MAX_TILT_RAD: f64 = 0.087;
-/// Placement attempts per camera before the separation constraint is relaxed.
-const PLACEMENT_ATTEMPTS: usize = 64;
 /// Frames along the street a sample may be taken from.
 pub const STREET_FRAMES: usize = 400;
 /// Domain-separation words for the sample and world seeds.
@@ -279,41 +263,6 @@ pub struct TrainSample {
     pub images: Vec<Tensor>,
     /// Ground-truth range of the output frame (camera 1), metres; sky = `max_depth_m`.
     pub range_m: FloatImage,
-}
-
-/// `n` camera positions on the roof rack (`[x, y]`, metres), at least
-/// `MIN_CAMERA_SEPARATION_M` apart where `PLACEMENT_ATTEMPTS` draws allow.
-pub(super) fn rack_positions(rng: &mut Rng, n: usize) -> Vec<[f64; 2]> {
-    let mut xy: Vec<[f64; 2]> = Vec::with_capacity(n);
-    for _ in 0..n {
-        let mut best = [0.0, 0.0];
-        let mut best_sep = f64::NEG_INFINITY;
-        for _ in 0..PLACEMENT_ATTEMPTS {
-            let p = [
-                rng.range(-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M),
-                rng.range(-RACK_HALF_SIZE_M, RACK_HALF_SIZE_M),
-            ];
-            let sep = xy
-                .iter()
-                .map(|q| (p[0] - q[0]).hypot(p[1] - q[1]))
-                .fold(f64::INFINITY, f64::min);
-            if sep > best_sep {
-                best = p;
-                best_sep = sep;
-            }
-            if sep >= MIN_CAMERA_SEPARATION_M {
-                break;
-            }
-        }
-        xy.push(best);
-    }
-    xy
-}
-
-/// A random roof-rack rig (see the module docs), built by [`rig_from_poses`].
-pub fn random_rig(seed: u64) -> Result<Rig, RigError> {
-    let mut rng = Rng::new(&[seed, 0x416]);
-    rig_from_poses(&roof_poses(&mut rng), &format!("<random rig {seed}>"))
 }
 
 /// The spec of training sample `index` of the stream `cfg.seed`.

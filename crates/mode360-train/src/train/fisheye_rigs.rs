@@ -2,7 +2,7 @@
 //! 360° cameras, wide fisheyes (OmniMVS-like) and dual-fisheye 360° cameras.
 //!
 //! A rig of seed `s` (a pure function of `s` and the ERP width): 3 to 5 cameras placed like
-//! [`super::data::random_rig`]'s; with probability [`DUAL_FISHEYE_CHANCE`] every camera is a
+//! [`super::rack::random_rig`]'s; with probability [`DUAL_FISHEYE_CHANCE`] every camera is a
 //! dual-fisheye 360° camera (two Kannala-Brandt lenses of [`DUAL_LENS_HALF_FOV_RAD`] back to
 //! back, upright, random yaw), otherwise a single Kannala-Brandt fisheye whose half field of
 //! view is drawn from [`MIN_HALF_FOV_RAD`, `MAX_HALF_FOV_RAD`], looking outward from the rack's
@@ -12,9 +12,16 @@
 //! Depth is estimated in `rack_center`, a REP 103 frame at the rack's centre at the mean
 //! camera height, as on such rigs in practice (no camera's optical frame is upright).
 
-use super::data::{rack_positions, MAX_HEIGHT_M, MIN_HEIGHT_M};
-use mode360_core::geometry::{Rig, RigError};
+use super::rack::{rack_positions, MAX_HEIGHT_M, MIN_HEIGHT_M};
+use mode360_core::geometry::camera::{
+    DualFisheye, DualLens, FisheyeCamera, FisheyeLens, Focal, KannalaBrandt,
+};
+use mode360_core::geometry::rig::DEFAULT_RIG_FRAME;
+use mode360_core::geometry::{
+    ImageSize, IntrinsicsError, Projection, Rig, RigCamera, RigError, RigOutput,
+};
 use mode360_synth::synth::noise::Rng;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use std::f64::consts::{FRAC_PI_2, PI};
 
 /// Fewest cameras of a random fisheye rig (a 220° lens needs a partner on every side).
@@ -38,6 +45,8 @@ pub const MAX_TILT_RAD: f64 = 8.0 * PI / 180.0;
 pub const FISHEYE_SIDE_FRACTION: f64 = 0.75;
 /// Smallest fisheye image side, pixels.
 const MIN_FISHEYE_SIDE_PX: usize = 16;
+/// The output frame of a fisheye rack: REP 103 at the rack's centre, mean camera height.
+pub const RACK_CENTRE_FRAME: &str = "rack_center";
 /// Domain separation of the fisheye rig stream.
 const FISHEYE_RIG_TAG: u64 = 0x7A41_0F15;
 
@@ -47,15 +56,33 @@ pub fn fisheye_side_px(width: usize) -> usize {
     side.max(MIN_FISHEYE_SIDE_PX)
 }
 
-/// Kannala-Brandt intrinsics (no distortion) putting `half_fov_rad` on a circle of radius
-/// `side / 2` around `(cx, cy)`.
-fn kb_intrinsics(side: usize, half_fov_rad: f64, cx: f64, cy: f64) -> String {
+/// An undistorted Kannala-Brandt lens putting `half_fov_rad` on a circle of radius `side / 2`
+/// around `(cx, cy)`.
+fn kb_lens(
+    side: usize,
+    half_fov_rad: f64,
+    cx: f64,
+    cy: f64,
+) -> Result<FisheyeLens, IntrinsicsError> {
     let f = (side as f64 / 2.0) / half_fov_rad;
-    format!("{{fx: {f:.17e}, fy: {f:.17e}, cx: {cx:.17e}, cy: {cy:.17e}, k1: 0.0, k2: 0.0, k3: 0.0, k4: 0.0}}")
+    let focal = Focal::new(f, f, cx, cy)?;
+    Ok(FisheyeLens::KannalaBrandt(KannalaBrandt::new(
+        focal, [0.0; 4],
+    )?))
+}
+
+/// `rig_from_cam` as a translation and roll, pitch, yaw (`R = Rz(yaw) Ry(pitch) Rx(roll)`).
+fn pose(translation_m: [f64; 3], [roll, pitch, yaw]: [f64; 3]) -> Isometry3<f64> {
+    let [x, y, z] = translation_m;
+    Isometry3::from_parts(
+        Translation3::new(x, y, z),
+        UnitQuaternion::from_euler_angles(roll, pitch, yaw),
+    )
 }
 
 /// The random fisheye rig of `seed` for ERP width `width` (see the module docs).
 pub fn random_fisheye_rig(seed: u64, width: usize) -> Result<Rig, RigError> {
+    let source = format!("<random fisheye rig {seed}>");
     let mut rng = Rng::new(&[seed, FISHEYE_RIG_TAG]);
     let n = MIN_FISHEYE_CAMERAS + rng.index(MAX_FISHEYE_CAMERAS - MIN_FISHEYE_CAMERAS + 1);
     let xy = rack_positions(&mut rng, n);
@@ -66,59 +93,65 @@ pub fn random_fisheye_rig(seed: u64, width: usize) -> Result<Rig, RigError> {
         .map(|_| rng.range(MIN_HEIGHT_M, MAX_HEIGHT_M))
         .collect();
     let mean_height = heights.iter().sum::<f64>() / n as f64;
-    let mut yaml = format!(
-        "rig_frame: base_link\nreference_camera: cam1\noutput:\n  frame_id: rack_center\n  \
-         rig_from_output: {{translation: [0.0, 0.0, {mean_height:.17e}], rotation_xyzw: [0.0, 0.0, 0.0, 1.0]}}\ncameras:\n"
-    );
+    let mut cameras = Vec::with_capacity(n);
     for (k, (p, z)) in xy.iter().zip(&heights).enumerate() {
         let c = k + 1;
+        let name = format!("cam{c}");
+        let intrinsics_err = |e: IntrinsicsError| RigError::Camera {
+            file: source.clone(),
+            camera: name.clone(),
+            field: e.field,
+            problem: e.problem,
+        };
         let outward = p[1].atan2(p[0]);
         let yaw = outward + rng.range(-MAX_YAW_JITTER_RAD, MAX_YAW_JITTER_RAD);
-        yaml.push_str(&format!(
-            "  - name: cam{c}\n    topic: /cam{c}/image_raw\n    frame_id: cam{c}_link\n"
-        ));
-        if dual {
-            let lens = |i: usize, x: f64, lens_yaw: f64| {
-                format!(
-                    "      - projection: kannala_brandt\n        intrinsics: {}\n        \
-                     cam_from_lens: {{translation: [{x:.17e}, 0.0, 0.0], rotation_rpy: [{:.17e}, 0.0, {lens_yaw:.17e}]}}\n",
-                    kb_intrinsics(
+        let (projection, rig_from_cam) = if dual {
+            let lens = |i: usize, x: f64, lens_yaw: f64| -> Result<DualLens, IntrinsicsError> {
+                Ok(DualLens {
+                    model: kb_lens(
                         side,
                         DUAL_LENS_HALF_FOV_RAD,
                         centre + (i * side) as f64,
-                        centre
-                    ),
-                    -FRAC_PI_2,
-                )
+                        centre,
+                    )?,
+                    cam_from_lens: pose([x, 0.0, 0.0], [-FRAC_PI_2, 0.0, lens_yaw]),
+                })
             };
-            yaml.push_str(&format!(
-                "    projection: dual_fisheye\n    image_size: [{}, {side}]\n    lenses:\n{}{}",
-                2 * side,
-                lens(0, DUAL_LENS_SEPARATION_M / 2.0, -FRAC_PI_2),
-                lens(1, -DUAL_LENS_SEPARATION_M / 2.0, FRAC_PI_2),
-            ));
-            yaml.push_str(&format!(
-                "    rig_from_cam: {{translation: [{:.17e}, {:.17e}, {z:.17e}], rotation_rpy: [0.0, 0.0, {yaw:.17e}]}}\n",
-                p[0], p[1]
-            ));
+            let lenses = [
+                lens(0, DUAL_LENS_SEPARATION_M / 2.0, -FRAC_PI_2).map_err(intrinsics_err)?,
+                lens(1, -DUAL_LENS_SEPARATION_M / 2.0, FRAC_PI_2).map_err(intrinsics_err)?,
+            ];
+            let size = ImageSize::new(2 * side as u32, side as u32).map_err(intrinsics_err)?;
+            let camera = DualFisheye::new(lenses, size).map_err(intrinsics_err)?;
+            (
+                Projection::DualFisheye(camera),
+                pose([p[0], p[1], *z], [0.0, 0.0, yaw]),
+            )
         } else {
             let half_fov = rng.range(MIN_HALF_FOV_RAD, MAX_HALF_FOV_RAD);
             let tilt = rng.range(-MAX_TILT_RAD, MAX_TILT_RAD);
-            yaml.push_str(&format!(
-                "    projection: kannala_brandt\n    image_size: [{side}, {side}]\n    intrinsics: {}\n",
-                kb_intrinsics(side, half_fov, centre, centre)
-            ));
+            let size = ImageSize::new(side as u32, side as u32).map_err(intrinsics_err)?;
+            let lens = kb_lens(side, half_fov, centre, centre).map_err(intrinsics_err)?;
+            let camera = FisheyeCamera::new(lens, size).map_err(intrinsics_err)?;
             // The optical axis (z) along `yaw`, the image's top up, tilted by `tilt`.
-            yaml.push_str(&format!(
-                "    rig_from_cam: {{translation: [{:.17e}, {:.17e}, {z:.17e}], rotation_rpy: [{:.17e}, 0.0, {:.17e}]}}\n",
-                p[0],
-                p[1],
-                -FRAC_PI_2 + tilt,
-                yaw - FRAC_PI_2
-            ));
-        }
+            (
+                Projection::Fisheye(camera),
+                pose([p[0], p[1], *z], [-FRAC_PI_2 + tilt, 0.0, yaw - FRAC_PI_2]),
+            )
+        };
+        cameras.push(RigCamera {
+            topic: format!("/cam{c}/image_raw"),
+            frame_id: format!("cam{c}_link"),
+            name,
+            projection,
+            rig_from_cam,
+        });
     }
-    Rig::from_yaml_str(&yaml, &format!("<random fisheye rig {seed}>"))
+    let output = RigOutput {
+        frame_id: RACK_CENTRE_FRAME.into(),
+        rig_from_output: Isometry3::translation(0.0, 0.0, mean_height),
+    };
+    Rig::new(DEFAULT_RIG_FRAME, cameras, 0, Some(output)).map_err(|e| e.in_source(&source))
 }
 
 #[cfg(test)]

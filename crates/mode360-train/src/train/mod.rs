@@ -33,6 +33,7 @@ pub mod fisheye_rigs;
 pub mod log;
 pub mod loss;
 pub mod optim;
+pub mod rack;
 pub mod rig_layouts;
 pub mod rig_pool;
 

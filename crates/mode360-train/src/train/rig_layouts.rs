@@ -1,6 +1,6 @@
 //! Rig layout families for training (issue 19: one set of weights for every layout the node
 //! accepts). `--rig-layouts roof` keeps today's stream: every random ERP rig is a roof rack
-//! ([`super::data::random_rig`]). With `--rig-layouts any`, a random (non-Deep360,
+//! ([`super::rack::random_rig`]). With `--rig-layouts any`, a random (non-Deep360,
 //! non-fisheye) rig of sample `k` is drawn from one of these families, the family from its own
 //! stream `Rng::new(&[s, k, LAYOUT_TAG])` ([`draw_family`]), the rig a pure function of the
 //! family and the sample's rig seed ([`layout_rig`]):
@@ -18,8 +18,8 @@
 //! is random, so the reference is not always the lowest or the front camera. Every rig is
 //! built by [`rig_from_poses`] (YAML text validated by [`Rig::from_yaml_str`]).
 
-use super::data::{
-    rack_positions, MAX_HEIGHT_M, MAX_RIG_CAMERAS, MAX_TILT_RAD, MIN_HEIGHT_M, MIN_RIG_CAMERAS,
+use super::rack::{
+    rack_positions, random_rig, rig_from_poses, CameraPose, MAX_RIG_CAMERAS, MIN_RIG_CAMERAS,
     RACK_HALF_SIZE_M,
 };
 use mode360_core::geometry::{Rig, RigError};
@@ -127,32 +127,6 @@ const BODY_SLOTS: usize = 6;
 pub(super) const LAYOUT_TAG: u64 = 0x7A41_0006;
 const LAYOUT_RIG_TAG: u64 = 0x7A41_1A70;
 
-/// One camera's place on a rig: `rig_from_cam` as a translation (metres) and roll, pitch, yaw
-/// (radians, `R = Rz(yaw) Ry(pitch) Rx(roll)`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CameraPose {
-    pub translation_m: [f64; 3],
-    pub rpy_rad: [f64; 3],
-}
-
-/// An ERP rig of `cam1..camN` at `poses` (camera 1 the reference and output frame), validated
-/// by [`Rig::from_yaml_str`] under the name `source`. The one place where training builds ERP
-/// rigs: the YAML text is exactly what [`super::data::random_rig`] always wrote, so streams
-/// reproduce bit for bit.
-pub fn rig_from_poses(poses: &[CameraPose], source: &str) -> Result<Rig, RigError> {
-    let mut yaml = String::from("rig_frame: base_link\nreference_camera: cam1\ncameras:\n");
-    for (k, pose) in poses.iter().enumerate() {
-        let ([x, y, z], [roll, pitch, yaw]) = (pose.translation_m, pose.rpy_rad);
-        let c = k + 1;
-        yaml.push_str(&format!(
-            "  - name: cam{c}\n    topic: /cam{c}/image_raw\n    frame_id: cam{c}_link\n    \
-             projection: equirectangular\n    rig_from_cam: {{translation: [{x:.17e}, {y:.17e}, {z:.17e}], \
-             rotation_rpy: [{roll:.17e}, {pitch:.17e}, {yaw:.17e}]}}\n",
-        ));
-    }
-    Rig::from_yaml_str(&yaml, source)
-}
-
 /// The family of training sample `index` of stream `seed` under `--rig-layouts any`.
 pub fn draw_family(seed: u64, index: u64) -> LayoutFamily {
     let u = Rng::new(&[seed, index, LAYOUT_TAG]).unit();
@@ -170,31 +144,11 @@ pub fn draw_family(seed: u64, index: u64) -> LayoutFamily {
 pub fn layout_rig(family: LayoutFamily, seed: u64) -> Result<Rig, RigError> {
     let source = format!("<random {} rig {seed}>", family.as_str());
     match family {
-        LayoutFamily::RoofRack => super::data::random_rig(seed),
+        LayoutFamily::RoofRack => random_rig(seed),
         LayoutFamily::VerticalMast => rig_from_poses(&mast_poses(seed), &source),
         LayoutFamily::TurnedMixedHeights => rig_from_poses(&turned_poses(seed), &source),
         LayoutFamily::BodyCorners => rig_from_poses(&body_poses(seed), &source),
     }
-}
-
-/// The roof rack's poses (what [`super::data::random_rig`] builds), drawn from `rng`.
-pub(super) fn roof_poses(rng: &mut Rng) -> Vec<CameraPose> {
-    let n = MIN_RIG_CAMERAS + rng.index(MAX_RIG_CAMERAS - MIN_RIG_CAMERAS + 1);
-    let xy = rack_positions(rng, n);
-    xy.iter()
-        .map(|p| {
-            let z = rng.range(MIN_HEIGHT_M, MAX_HEIGHT_M);
-            let rpy_rad = [
-                rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
-                rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
-                rng.range(-MAX_TILT_RAD, MAX_TILT_RAD),
-            ];
-            CameraPose {
-                translation_m: [p[0], p[1], z],
-                rpy_rad,
-            }
-        })
-        .collect()
 }
 
 fn family_rng(family: LayoutFamily, seed: u64) -> Rng {

@@ -34,7 +34,7 @@ pub use basalt::rig_from_basalt_json;
 pub use kalibr::rig_from_kalibr_camchain;
 
 use super::camera::{Eucm, FisheyeCamera, FisheyeLens, Focal, ImageSize, IntrinsicsError};
-use super::rig::{Projection, Rig, RigCamera, RigError, DEFAULT_RIG_FRAME};
+use super::rig::{Projection, Rig, RigCamera, RigError, RigOutput, DEFAULT_RIG_FRAME};
 use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion};
 use std::path::Path;
 
@@ -245,14 +245,14 @@ pub(crate) fn assemble(
             }
         })
         .collect();
-    let rig = Rig {
-        rig_frame: opts.rig_frame.clone(),
-        cameras,
-        reference: 0,
-        output_frame_id,
+    let output = RigOutput {
+        frame_id: output_frame_id,
         rig_from_output,
     };
-    Ok(Rig::from_yaml_str(&rig.to_yaml(), file)?)
+    Ok(
+        Rig::new(opts.rig_frame.clone(), cameras, 0, Some(output))
+            .map_err(|e| e.in_source(file))?,
+    )
 }
 
 /// Reads a calibration file's text.

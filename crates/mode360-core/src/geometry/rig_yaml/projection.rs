@@ -20,11 +20,12 @@
 //! Intrinsics per model: `double_sphere` fx fy cx cy xi alpha; `kannala_brandt` fx fy cx cy
 //! k1 k2 k3 k4; `eucm` fx fy cx cy alpha beta. Principal points are in full-image pixels.
 
-use super::camera::{
+use super::fields::{parse_pose, pose_to_raw, Ctx, RawPose};
+use crate::geometry::camera::{
     DoubleSphere, DualFisheye, DualLens, Eucm, FisheyeCamera, FisheyeLens, Focal, ImageSize,
     IntrinsicsError, KannalaBrandt, DUAL_FISHEYE_LENSES,
 };
-use super::rig::{parse_pose, pose_to_raw, Ctx, Projection, RawPose, RigError};
+use crate::geometry::rig::{Projection, RigError};
 use serde::{Deserialize, Serialize};
 
 /// The projection names the rig YAML accepts.
@@ -271,55 +272,6 @@ pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Project
     }
 }
 
-/// An image whose size does not fit its camera's projection.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-pub enum ImageSizeError {
-    #[error("expected a 2:1 equirectangular panorama (width = 2 x height), got {width}x{height}")]
-    NotPanorama { width: u32, height: u32 },
-    #[error("expected {expected_width}x{expected_height} (its {projection} image_size), got {width}x{height}")]
-    NotImageSize {
-        projection: &'static str,
-        expected_width: u32,
-        expected_height: u32,
-        width: u32,
-        height: u32,
-    },
-}
-
-impl Projection {
-    /// The image size the projection is calibrated for; `None` for equirectangular (any 2:1
-    /// size).
-    pub fn image_size(&self) -> Option<ImageSize> {
-        use super::camera::CameraModel;
-        match self {
-            Projection::Equirectangular => None,
-            Projection::Fisheye(c) => Some(c.image_size()),
-            Projection::DualFisheye(d) => Some(d.image_size()),
-        }
-    }
-
-    /// Whether a `width x height` image can be this camera's: an equirectangular camera's must
-    /// be 2:1 (and not empty), a fisheye or dual-fisheye camera's exactly its `image_size`.
-    pub fn check_image_size(&self, width: u32, height: u32) -> Result<(), ImageSizeError> {
-        match self.image_size() {
-            None if width == 0 || width != 2 * height => {
-                Err(ImageSizeError::NotPanorama { width, height })
-            }
-            None => Ok(()),
-            Some(s) if (s.width, s.height) != (width, height) => {
-                Err(ImageSizeError::NotImageSize {
-                    projection: self.name(),
-                    expected_width: s.width,
-                    expected_height: s.height,
-                    width,
-                    height,
-                })
-            }
-            Some(_) => Ok(()),
-        }
-    }
-}
-
 fn lens_to_raw(lens: &FisheyeLens) -> RawIntrinsics {
     let f = lens.focal();
     let mut raw = RawIntrinsics {
@@ -348,8 +300,8 @@ fn lens_to_raw(lens: &FisheyeLens) -> RawIntrinsics {
 
 /// The YAML fields of a projection (the form [`parse_projection`] reads).
 pub(super) fn projection_to_raw(p: &Projection) -> RawProjectionOut {
-    use super::camera::CameraModel;
-    let size = |s: super::camera::ImageSize| Some(vec![s.width as f64, s.height as f64]);
+    use crate::geometry::camera::CameraModel;
+    let size = |s: crate::geometry::camera::ImageSize| Some(vec![s.width as f64, s.height as f64]);
     match p {
         Projection::Equirectangular => RawProjectionOut {
             projection: "equirectangular".into(),

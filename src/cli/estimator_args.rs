@@ -1,0 +1,23 @@
+//! The `--estimator` / `--weights` pair shared by `eval`, `replay`, `demo` and `bench-node`.
+
+use clap::Args;
+use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use std::path::PathBuf;
+
+/// Which depth estimator a command runs, flattened into its arguments.
+#[derive(Args, Clone, Debug)]
+pub struct EstimatorArgs {
+    /// Depth estimator.
+    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    pub estimator: EstimatorKind,
+    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+}
+
+impl EstimatorArgs {
+    /// The estimator these arguments name, not yet loaded.
+    pub fn spec(&self) -> EstimatorSpec {
+        EstimatorSpec::with_weights(self.estimator, self.weights.clone())
+    }
+}
