@@ -5,6 +5,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 use mode360::cli;
 use mode360_node::node::ros_args;
+use std::process::ExitCode;
 
 /// jemalloc keeps freed pages for reuse: the network's tensors are tens of megabytes, and the
 /// system allocator returns each one to the kernel on free, so the next pass page-faults its
@@ -87,13 +88,40 @@ fn log_filter(command: &Command) -> tracing_subscriber::EnvFilter {
     }
 }
 
-fn main() -> Result<()> {
+/// The error as one line: each message of its chain once (a message already contained in
+/// the ones before it, as `thiserror`'s `{source}` texts are, is not repeated).
+fn describe(error: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in error.chain() {
+        let message = cause.to_string();
+        if out.contains(&message) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&message);
+    }
+    out
+}
+
+fn main() -> ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(log_filter(&cli.command))
         .with_writer(std::io::stderr)
         .init();
-    match cli.command {
+    match run(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("Error: {}", describe(&e));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(command: Command) -> Result<()> {
+    match command {
         Command::Synth(a) => cli::synth::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Train(a) => cli::train::run(a),

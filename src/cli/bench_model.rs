@@ -22,10 +22,10 @@ use mode360_core::memory::{peak_resident_mib, reset_peak_resident, resident_mib}
 use mode360_estimator::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
 use mode360_estimator::estimator::DepthEstimator;
 use mode360_estimator::model::{
-    load_weights, read_config, Preset, Ssmode, SsmodeConfig, StageProfiler, SweepSampling,
+    input_tensor, load_weights, read_config, Preset, Ssmode, SsmodeConfig, StageProfiler,
+    SweepSampling,
 };
 use mode360_synth::synth::{SynthConfig, SynthRenderer};
-use mode360_train::train::data::image_tensor;
 
 /// What one case measures.
 #[derive(Clone, Debug)]
@@ -155,7 +155,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
     let images = frame
         .images
         .iter()
-        .map(image_tensor)
+        .map(|img| input_tensor(img, img.width() as usize, &Device::Cpu))
         .collect::<Result<Vec<_>, _>>()?;
 
     // Warm-up (page faults, thread pools), untimed.

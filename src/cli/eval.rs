@@ -19,14 +19,13 @@ use super::estimator_args::EstimatorArgs;
 use super::progress::frames_bar;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
-use mode360_core::frame::{FloatImage, RgbImage};
-use mode360_core::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
+use mode360_core::frame::RgbImage;
+use mode360_core::geometry::{ErpGrid, GeerPair};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
 use mode360_estimator::estimator::DepthEstimator;
 use mode360_io::bag::{
     RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
 };
-use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -218,13 +217,14 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             let pair = match &pair_cache {
                 Some((w, p)) if *w == gt.width => p.clone(),
                 _ => {
-                    let p = reference_pair(&rig, output).with_context(|| bag_name.clone())?;
+                    let p = metrics::reference_disparity_pair(&rig, output)
+                        .with_context(|| bag_name.clone())?;
                     pair_cache = Some((gt.width, p.clone()));
                     p
                 }
             };
-            let disp_pred = disparity_image(&rig, output, &pair, &est.range_m);
-            let disp_gt = disparity_image(&rig, output, &pair, gt);
+            let disp_pred = metrics::disparity_image(&rig, output, &pair, &est.range_m);
+            let disp_gt = metrics::disparity_image(&rig, output, &pair, gt);
             let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
             group.average.push(depth, disparity);
             group
@@ -286,44 +286,6 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
         rows,
         drops: drops.counts(),
     })
-}
-
-/// GEER pair of the reference camera and the next camera of the rig, GEER width = ERP height.
-fn reference_pair(rig: &Rig, output: ErpGrid) -> Result<GeerPair, GeometryError> {
-    let other = (rig.reference + 1) % rig.cameras.len();
-    GeerPair::new(
-        rig.camera_origin(rig.reference),
-        rig.camera_origin(other),
-        Vector3::z(),
-        output.height(),
-    )
-}
-
-/// Converts an output-frame range image to the pair's angular disparity in GEER pixels.
-/// Non-finite ranges give NaN.
-pub fn disparity_image(
-    rig: &Rig,
-    output: ErpGrid,
-    pair: &GeerPair,
-    range_m: &FloatImage,
-) -> Vec<f32> {
-    range_m
-        .data
-        .iter()
-        .enumerate()
-        .map(|(k, &rho)| {
-            if !(rho.is_finite() && rho > 0.0) {
-                return f32::NAN;
-            }
-            let p = PixelCoord {
-                u: (k % output.width()) as f64,
-                v: (k / output.width()) as f64,
-            };
-            let p_out = output.dir_from_pixel(p) * rho as f64;
-            let p_rig = rig.rig_from_output * Point3::from(p_out);
-            pair.disparity_px(pair.point_disparity(&p_rig.coords).disparity_rad) as f32
-        })
-        .collect()
 }
 
 impl EvalReport {

@@ -26,6 +26,9 @@
 //! D1  = 100 * fraction with |p - g| > 3 px and |p - g| > 5% of g   (KITTI 2015)
 //! ```
 
+use crate::frame::FloatImage;
+use crate::geometry::{ErpGrid, GeerPair, GeometryError, PixelCoord, Rig};
+use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// The delta accuracy base threshold.
@@ -315,6 +318,44 @@ impl FrameAverage {
             )
         })
     }
+}
+
+/// GEER pair for the disparity metrics: the reference camera and the next camera of the rig, GEER width = ERP height.
+pub fn reference_disparity_pair(rig: &Rig, output: ErpGrid) -> Result<GeerPair, GeometryError> {
+    let other = (rig.reference + 1) % rig.cameras.len();
+    GeerPair::new(
+        rig.camera_origin(rig.reference),
+        rig.camera_origin(other),
+        Vector3::z(),
+        output.height(),
+    )
+}
+
+/// Converts an output-frame range image to the pair's angular disparity in GEER pixels.
+/// Non-finite ranges give NaN.
+pub fn disparity_image(
+    rig: &Rig,
+    output: ErpGrid,
+    pair: &GeerPair,
+    range_m: &FloatImage,
+) -> Vec<f32> {
+    range_m
+        .data
+        .iter()
+        .enumerate()
+        .map(|(k, &rho)| {
+            if !(rho.is_finite() && rho > 0.0) {
+                return f32::NAN;
+            }
+            let p = PixelCoord {
+                u: (k % output.width()) as f64,
+                v: (k / output.width()) as f64,
+            };
+            let p_out = output.dir_from_pixel(p) * rho as f64;
+            let p_rig = rig.rig_from_output * Point3::from(p_out);
+            pair.disparity_px(pair.point_disparity(&p_rig.coords).disparity_rad) as f32
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -8,11 +8,10 @@
 use candle_core::{Device, Tensor};
 
 use super::ModelError;
+use crate::matching::INTENSITY_SCALE;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{resample_erp, ErpGrid};
 
-/// 8-bit colour to [0, 1].
-const BYTE_SCALE: f32 = 1.0 / 255.0;
 /// Channels of an RGB pixel.
 pub const RGB_CHANNELS: usize = 3;
 
@@ -33,7 +32,7 @@ pub fn input_tensor(img: &RgbImage, width: usize, device: &Device) -> Result<Ten
     let rgb: Vec<f32> = img
         .as_raw()
         .iter()
-        .map(|&b| f32::from(b) * BYTE_SCALE)
+        .map(|&b| f32::from(b) * INTENSITY_SCALE)
         .collect();
     let data = resample_erp(&rgb, RGB_CHANNELS, src, dst);
     Ok(Tensor::from_vec(

@@ -3,7 +3,7 @@
 //! params files by [`super::params_file`].
 
 use super::live_view::{LiveViewAddress, FOXGLOVE_OFF};
-use super::pipeline::FarValue;
+use super::pipeline::{FarValue, PipelineParams};
 use super::qos_overrides::QosOverrides;
 use mode360_io::msgs::compressed_depth::DEFAULT_DEPTH_QUANTIZATION;
 use std::collections::BTreeMap;
@@ -166,6 +166,17 @@ impl Default for NodeParams {
 }
 
 impl NodeParams {
+    /// The pipeline's settings among these parameters.
+    pub fn pipeline_params(&self) -> PipelineParams {
+        PipelineParams {
+            output_width: self.output_width,
+            max_depth_m: self.max_depth_m as f32,
+            far_value: self.far_value,
+            min_confidence: self.min_confidence as f32,
+            depth_quantization: self.depth_quantization as f32,
+        }
+    }
+
     /// Fully qualified node name, `/ns/name`.
     pub fn fully_qualified_name(&self) -> String {
         format!(

@@ -113,11 +113,8 @@ pub fn node_options(params: &NodeParams, runtime: RuntimeParams) -> NodeOptions 
             let mut base = current.lock().map_err(|_| "parameters lock poisoned")?;
             let next = validate(&base, name, value)?;
             let mut settings = runtime.lock().map_err(|_| "settings lock poisoned")?;
-            let pipeline = &mut settings.pipeline;
-            pipeline.max_depth_m = next.max_depth_m as f32;
-            pipeline.min_confidence = next.min_confidence as f32;
-            pipeline.far_value = next.far_value;
-            pipeline.depth_quantization = next.depth_quantization as f32;
+            // Only run-time parameters pass `validate`, so the rest stays as it was.
+            settings.pipeline = next.pipeline_params();
             settings.outputs = OutputToggles::of(&next);
             tracing::info!("parameter {name} = {value:?}");
             *base = next;

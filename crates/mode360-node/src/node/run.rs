@@ -8,7 +8,7 @@ use super::dds::{runtime, DdsOptions};
 use super::diagnostics::{CameraHealth, NodeHealth};
 use super::live_view::LiveView;
 use super::params::{ExtrinsicsSource, NodeParams};
-use super::pipeline::{Pipeline, PipelineParams};
+use super::pipeline::Pipeline;
 use super::receive::{camera_topic, dds_main, live_view_topics};
 use super::ros_params::{OutputToggles, RuntimeSettings};
 use super::shutdown::ShutdownSignals;
@@ -165,17 +165,7 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
         tracing::warn!("rig {}: {part}", params.rig_file.display());
     }
     let estimator = params.estimator.build()?;
-    let pipeline = Pipeline::new(
-        rig.clone(),
-        estimator,
-        PipelineParams {
-            output_width: params.output_width,
-            max_depth_m: params.max_depth_m as f32,
-            far_value: params.far_value,
-            min_confidence: params.min_confidence as f32,
-            depth_quantization: params.depth_quantization as f32,
-        },
-    )?;
+    let pipeline = Pipeline::new(rig.clone(), estimator, params.pipeline_params())?;
     let live = match params.live_view_address() {
         Some(at) => Some(LiveView::start(&at, &live_view_topics(&params, &rig))?),
         None => None,
