@@ -42,34 +42,18 @@ pub use diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
 pub use params::{ImageTransport, NodeParams, ParamsError};
 pub use pipeline::{Pipeline, PipelineError, PipelineOutput, PipelineParams};
 
-/// Relative topic of the range image.
-pub const DEPTH_TOPIC: &str = "depth";
-/// Relative topic of the range image in image_transport's compressedDepth format.
-pub const COMPRESSED_DEPTH_TOPIC: &str = "depth/compressedDepth";
-/// Relative topic of the point cloud.
-pub const POINTS_TOPIC: &str = "points";
-/// Relative topic of the confidence image.
-pub const CONFIDENCE_TOPIC: &str = "confidence";
-/// Absolute topic of the static transforms (the bags' topic too).
-pub use mode360_io::bag::TF_STATIC_TOPIC;
-/// Absolute topic of the diagnostics.
-pub const DIAGNOSTICS_TOPIC: &str = "/diagnostics";
-/// Absolute topic of the simulated clock.
-pub const CLOCK_TOPIC: &str = "/clock";
 /// Environment variable holding the DDS domain ([`DdsOptions::from_env`]).
 pub const ROS_DOMAIN_ID_ENV: &str = "ROS_DOMAIN_ID";
 
-/// `name` resolved in `namespace` (`/` or `/a/b`): absolute names stay, relative ones are
-/// prefixed.
-pub fn resolve_topic(namespace: &str, name: &str) -> String {
-    if name.starts_with('/') {
-        name.to_string()
-    } else {
-        format!("{}/{}", namespace.trim_end_matches('/'), name)
-    }
-}
+pub mod topics;
+pub use topics::{
+    resolve_topic, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
+    DIAGNOSTICS_TOPIC, POINTS_TOPIC, TF_STATIC_TOPIC,
+};
 
 pub mod dds;
+mod decode;
+mod endpoints;
 mod error;
 mod receive;
 mod run;

@@ -15,6 +15,10 @@ use mode360_io::msgs::{CompressedImage, Image, PointCloud2};
 use ros2_client::Publisher;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+
+use super::error::dds_err;
+use super::NodeError;
 
 /// The 1-slot "latest group" mailbox between the DDS thread and the inference worker.
 #[derive(Default)]
@@ -172,4 +176,31 @@ pub(super) fn worker_main(
             }
         }
     }
+}
+
+/// Starts the inference worker thread ([`worker_main`]).
+pub(super) fn spawn_worker(
+    pipeline: Pipeline,
+    publishers: OutputPublishers,
+    shared: Arc<Shared>,
+) -> Result<JoinHandle<()>, NodeError> {
+    std::thread::Builder::new()
+        .name("mode360-inference".into())
+        .spawn(move || worker_main(pipeline, publishers, shared))
+        .map_err(|e| e.to_string())
+        .map_err(dds_err("starting the inference thread"))
+}
+
+/// Tells the worker to stop, drops a group still waiting for inference (counted), and waits
+/// for the thread; `Err` if it panicked.
+pub(super) fn stop_worker(shared: &Shared, worker: JoinHandle<()>) -> std::thread::Result<()> {
+    {
+        let mut mb = lock(&shared.mailbox);
+        mb.shutdown = true;
+        if mb.slot.take().is_some() {
+            lock(&shared.health).groups_dropped += 1;
+        }
+    }
+    shared.wake.notify_all();
+    worker.join()
 }

@@ -1,0 +1,126 @@
+//! The node's DDS endpoints, created once on the DDS thread: the node itself (with its
+//! parameter services), the output publishers, `/tf_static` (sent at once) and
+//! `/diagnostics`, the camera subscriptions (raw or compressed per camera) and `/clock`. The
+//! QoS of each is the node's default for its kind, then the parameters' overrides.
+
+use super::dds::{
+    clock_qos, create_publisher, create_subscription, dds_context, latched_qos, output_qos,
+    sensor_qos, DdsOptions, SpunNode,
+};
+use super::error::dds_err;
+use super::params::{ImageTransport, NodeParams};
+use super::qos_overrides::QosEntity;
+use super::ros_params::{node_options, RuntimeParams};
+use super::topics::{
+    camera_topic, output_topic, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
+    DIAGNOSTICS_TOPIC, POINTS_TOPIC, TF_STATIC_TOPIC,
+};
+use super::worker::OutputPublishers;
+use super::NodeError;
+use mode360_core::geometry::Rig;
+use mode360_io::bag::rig_tf_static;
+use mode360_io::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
+use ros2_client::{Context, Publisher};
+use std::sync::Arc;
+
+/// Everything the DDS thread sets up before it reports ready.
+pub(super) struct DdsSetup {
+    pub(super) context: Context,
+    pub(super) spun: SpunNode,
+    pub(super) publishers: OutputPublishers,
+    /// `None` with `publish_tf: false`.
+    pub(super) tf_static: Option<Publisher<TFMessage>>,
+    pub(super) diagnostics: Publisher<DiagnosticArray>,
+    pub(super) raw_subs: Vec<(usize, ros2_client::Subscription<Image>)>,
+    pub(super) compressed_subs: Vec<(usize, ros2_client::Subscription<CompressedImage>)>,
+    pub(super) clock_sub: Option<ros2_client::Subscription<Clock>>,
+}
+
+pub(super) fn dds_setup(
+    params: &NodeParams,
+    dds: &DdsOptions,
+    rig: &Rig,
+    runtime: RuntimeParams,
+) -> Result<DdsSetup, NodeError> {
+    let context = dds_context(dds)?;
+    let options = node_options(params, runtime);
+    let mut spun = SpunNode::with_options(&context, &params.namespace, &params.node_name, options)?;
+    let topic = |name: &str| output_topic(params, name);
+    // QoS of each endpoint: the node's default for its kind, then the parameters' overrides.
+    let pub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Publisher, base);
+    let sub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Subscription, base);
+    let output = |name: &str| {
+        let t = topic(name);
+        let q = pub_qos(&t, output_qos());
+        (t, q)
+    };
+    let node = &mut spun.node;
+    let (t, q) = output(DEPTH_TOPIC);
+    let depth = create_publisher(node, &t, q)?;
+    let (t, q) = output(POINTS_TOPIC);
+    let points = Arc::new(create_publisher(node, &t, q)?);
+    let (t, q) = output(COMPRESSED_DEPTH_TOPIC);
+    let compressed_depth = Arc::new(create_publisher(node, &t, q)?);
+    let (t, q) = output(CONFIDENCE_TOPIC);
+    let confidence = create_publisher(node, &t, q)?;
+    let publishers = OutputPublishers {
+        depth,
+        points,
+        compressed_depth,
+        confidence,
+    };
+    let tf_static: Option<Publisher<TFMessage>> = if params.publish_tf {
+        Some(create_publisher(
+            node,
+            TF_STATIC_TOPIC,
+            pub_qos(TF_STATIC_TOPIC, latched_qos()),
+        )?)
+    } else {
+        None
+    };
+    let diagnostics: Publisher<DiagnosticArray> = create_publisher(
+        node,
+        DIAGNOSTICS_TOPIC,
+        pub_qos(DIAGNOSTICS_TOPIC, output_qos()),
+    )?;
+    let mut raw_subs = Vec::new();
+    let mut compressed_subs = Vec::new();
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        let t = camera_topic(params, &cam.name, &cam.topic);
+        match params.image_transport(&cam.name) {
+            ImageTransport::Raw => raw_subs.push((
+                i,
+                create_subscription::<Image>(node, &t, sub_qos(&t, sensor_qos()))?,
+            )),
+            ImageTransport::Compressed => compressed_subs.push((
+                i,
+                create_subscription::<CompressedImage>(node, &t, sub_qos(&t, sensor_qos()))?,
+            )),
+        }
+    }
+    let clock_sub = if params.use_sim_time {
+        Some(create_subscription::<Clock>(
+            node,
+            CLOCK_TOPIC,
+            sub_qos(CLOCK_TOPIC, clock_qos()),
+        )?)
+    } else {
+        None
+    };
+    if let Some(tf_static) = &tf_static {
+        tf_static
+            .publish(rig_tf_static(rig))
+            .map_err(|e| format!("{e:?}"))
+            .map_err(dds_err("publishing /tf_static"))?;
+    }
+    Ok(DdsSetup {
+        context,
+        spun,
+        publishers,
+        tf_static,
+        diagnostics,
+        raw_subs,
+        compressed_subs,
+        clock_sub,
+    })
+}
