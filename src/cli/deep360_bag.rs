@@ -9,11 +9,11 @@
 //! read back from them). The `mode360.synth` metadata record carries `soiled` and
 //! `max_depth_m` (read by `eval`) and where the frames came from.
 
-use super::progress::frames_bar;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::geometry::ErpGrid;
 use mode360_core::memory::BYTES_PER_MIB;
+use mode360_core::progress::frames_bar;
 use mode360_io::bag::RigBagWriter;
 use mode360_io::bag::{MAX_DEPTH_KEY, SOILED_KEY};
 use mode360_io::deep360::{

@@ -6,7 +6,6 @@
 //! received depth against the bag's ground truth.
 
 use super::estimator_args::EstimatorArgs;
-use super::play::{play_bag, play_bag_until, PlayOptions};
 use crate::viz::{colorize_range, depth_legend, stack_vertical};
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
@@ -19,6 +18,7 @@ use mode360_io::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360_io::msgs::{Header, Image, PointCloud2};
 use mode360_node::node::live_view::{DEFAULT_FOXGLOVE_PORT, FOXGLOVE_OFF};
 use mode360_node::node::pipeline::decode_points;
+use mode360_node::node::player::{play_bag, play_bag_until, PlayOptions};
 use mode360_node::node::{
     create_subscription, dds_context, runtime, spawn_node, stop_flag_on_signals, DdsOptions,
     NodeHandle, NodeParams, SpunNode,

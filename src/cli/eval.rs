@@ -16,12 +16,12 @@ pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
 use super::drops::{DropCount, DropTally};
 use super::estimator_args::EstimatorArgs;
-use super::progress::frames_bar;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{ErpGrid, GeerPair};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
+use mode360_core::progress::frames_bar;
 use mode360_estimator::estimator::DepthEstimator;
 use mode360_io::bag::{
     RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,

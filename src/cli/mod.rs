@@ -8,7 +8,7 @@
 //!
 //! | module | command | what it does |
 //! |---|---|---|
-//! | [`synth`] | `synth` | renders synthetic frames into a rig bag ([`synth::record_synthetic_bag`]) |
+//! | [`synth`] | `synth` | renders synthetic frames into a rig bag (`mode360_synth::synth::record`) |
 //! | [`eval`] | `eval` | scores an estimator on rig bags, with the geometry share |
 //! | [`train`] | `train` | trains SSMODE ([`mode360_train::train`]) |
 //! | [`node`] | `node` | runs the ROS 2 node ([`mode360_node::node`]) |
@@ -21,7 +21,7 @@
 //! | [`same_image_bag`] | `same-image-bag` | a bag with the reference image on every camera |
 //! | [`rig`] | `rig import` | a Kalibr camchain or Basalt calibration into a rig YAML |
 //!
-//! [`progress`] holds the progress bars the long commands share, [`drops`] the tally of
+//! `mode360_core::progress` holds the progress bars the long commands share, [`drops`] the tally of
 //! malformed messages that `replay` and `eval` drop and go past.
 
 pub mod bench_model;
@@ -33,7 +33,6 @@ pub mod estimator_args;
 pub mod eval;
 pub mod node;
 pub mod play;
-pub mod progress;
 pub mod replay;
 pub mod rig;
 pub mod same_image_bag;

@@ -5,9 +5,9 @@
 
 use crate::common::{repo_path, TestResult};
 use mode360::bag::{BagError, RigBagReader, RigBagWriter};
-use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::frame::{RgbImage, RigFrame};
 use mode360::geometry::Rig;
+use mode360::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360::synth::{SceneKind, SynthConfig, SynthRenderer};
 use std::collections::BTreeMap;
 

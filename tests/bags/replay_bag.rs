@@ -3,13 +3,13 @@
 use crate::common::{TestResult, RIG_PATH};
 use mode360::bag::{BagReader, RigBagReader, GROUND_TRUTH_TOPIC, TF_STATIC_TOPIC};
 use mode360::cli::replay::{replay_bag, ReplayOptions};
-use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::estimator::{EstimatorKind, EstimatorSpec};
 use mode360::geometry::Rig;
 use mode360::msgs::image::float_from_image_msg;
 use mode360::msgs::{DiagnosticArray, Image, PointCloud2, TFMessage};
 use mode360::node::diagnostics::diagnostic_value;
 use mode360::node::pipeline::{decode_points, is_point_range};
+use mode360::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 
 const WIDTH: usize = 128;

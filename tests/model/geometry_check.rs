@@ -8,11 +8,11 @@ use mode360::bag::{
     SAME_IMAGE_METADATA, SYNTH_METADATA, TF_STATIC_TOPIC,
 };
 use mode360::cli::eval::{evaluate, geometry_share, EvalOptions, ViewMode};
-use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::estimator::{self, DepthEstimate, DepthEstimator, EstimatorError};
 use mode360::frame::RgbImage;
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::msgs::{Image, TFMessage};
+use mode360::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 use std::path::{Path, PathBuf};
 

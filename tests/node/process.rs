@@ -7,12 +7,12 @@
 use super::harness::loopback;
 use crate::common::TestResult;
 use mode360::bag::RigBagReader;
-use mode360::cli::play::{play_bag, PlayOptions};
-use mode360::cli::synth::{record_synthetic_bag, RecordOptions};
 use mode360::geometry::Rig;
 use mode360::msgs::{DiagnosticArray, Image};
 use mode360::node::diagnostics::diagnostic_value;
+use mode360::node::player::{play_bag, PlayOptions};
 use mode360::node::{create_subscription, dds_context, SpunNode};
+use mode360::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;

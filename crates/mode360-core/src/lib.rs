@@ -2,10 +2,11 @@
 //!
 //! Rig calibration, camera models and projections ([`geometry`]), images with their frames
 //! ([`frame`]), depth metrics ([`metrics`]), camera synchronization ([`sync`]) and process
-//! memory ([`memory`]).
+//! memory ([`memory`]) and progress bars of long work ([`progress`]).
 
 pub mod frame;
 pub mod geometry;
 pub mod memory;
 pub mod metrics;
+pub mod progress;
 pub mod sync;

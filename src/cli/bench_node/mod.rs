@@ -17,18 +17,18 @@
 //!   means a leak).
 
 use super::estimator_args::EstimatorArgs;
-use super::play::{play_bag_until, PlayOptions, Published};
-use super::synth::{record_synthetic_bag, RecordOptions};
 use anyhow::{anyhow, bail, Context, Result};
 use mode360_core::memory::resident_mib;
 use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::RigBagReader;
 use mode360_io::msgs::{CompressedImage, Image, RosMessage};
 use mode360_node::node::params::DEFAULT_RIG_FILE;
+use mode360_node::node::player::{play_bag_until, PlayOptions, Published};
 use mode360_node::node::{
     create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHealth, NodeParams,
     ShutdownSignals, SpunNode,
 };
+use mode360_synth::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360_synth::synth::SynthConfig;
 
 mod report;
@@ -254,6 +254,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
                         st.complete += 1;
                     }
                 })
+                .map_err(anyhow::Error::from)
             })
             .context("starting the player thread")?
     };

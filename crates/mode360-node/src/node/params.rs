@@ -1,6 +1,6 @@
 //! What the node is configured with ([`NodeParams`]) and its defaults. The parameters are
 //! declared in [`super::param_table`], read from `--ros-args` by [`super::ros_args`] and from
-//! params files by [`super::params_file`].
+//! params files by `params_file.rs`.
 
 use super::live_view::{LiveViewAddress, FOXGLOVE_OFF};
 use super::pipeline::{FarValue, PipelineParams};

@@ -1,6 +1,6 @@
 //! The node's processing core, free of DDS: one synchronized group of decoded panoramas in,
 //! the published messages (`depth`, `points`, `confidence`) out. The live node's inference
-//! worker (`super::worker`) and offline replay ([`crate::cli::replay`]) both run this.
+//! worker (`super::worker`) and offline replay (`mode360 replay`) both run this.
 //!
 //! Depth values follow REP 117: a finite range is a measurement; `+Inf` is "nothing within
 //! range" (sky, or a range at or beyond `max_depth_m`); `NaN` is "no valid measurement"

@@ -3,7 +3,7 @@
 //! Accepted `--ros-args` forms (as `ros2 run` passes them): `--params-file FILE`,
 //! `-p name:=value` / `--param name:=value`, `-r from:=to` / `--remap from:=to`,
 //! `-r __ns:=/x`, `-r __node:=name`, `--log-level LEVEL`, and `--` (or a later `--ros-args`)
-//! closing a section. Params files ([`super::params_file`]) and `-p` values are applied in
+//! closing a section. Params files (`params_file.rs`) and `-p` values are applied in
 //! command-line order: later sources win.
 
 use super::param_table::{image_transport, parameter, DEPRECATED_NAMES};
@@ -99,7 +99,7 @@ impl NodeParams {
         Ok(params)
     }
 
-    /// Sets one parameter from its text value: a name of [`PARAMETERS`], a deprecated name
+    /// Sets one parameter from its text value: a name of [`PARAMETERS`](super::param_table::PARAMETERS), a deprecated name
     /// (warned), `image_transport.CAMERA` or `qos_overrides./TOPIC.ENDPOINT.POLICY`.
     pub fn set(&mut self, name: &str, value: &str) -> Result<(), ParamsError> {
         let bad = |problem: String| ParamsError::Value {

@@ -54,7 +54,7 @@ impl ShutdownSignals {
 }
 
 /// A flag that turns true on SIGINT or SIGTERM (a background thread waits for them), for
-/// blocking loops such as [`crate::cli::play::play_bag_until`].
+/// blocking loops such as [`super::player::play_bag_until`].
 pub fn stop_flag_on_signals() -> Result<Arc<AtomicBool>, NodeError> {
     let rt = runtime()?;
     let mut signals = {

@@ -32,6 +32,7 @@ pub mod noise;
 pub mod objects;
 pub mod pattern;
 mod props;
+pub mod record;
 mod scene;
 pub mod shape;
 pub mod sky;

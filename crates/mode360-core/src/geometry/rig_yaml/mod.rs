@@ -18,7 +18,7 @@
 //! ```
 //!
 //! The frames are described in [`crate::geometry::rig`]; the fisheye fields (`image_size`,
-//! `intrinsics`, `lenses`) in [`projection`].
+//! `intrinsics`, `lenses`) in `projection.rs`.
 
 mod fields;
 mod projection;
