@@ -9,6 +9,7 @@ mod fisheye_sweep;
 mod geometry_check;
 mod model_estimator;
 mod model_ssmode;
+mod model_ssmode_layers;
 mod photometric_channel;
 mod photometric_scene;
 mod photometric_sweep;

@@ -1,12 +1,11 @@
-//! SSMODE network: shapes for any camera count, parameter count of the paper preset, gradient
-//! flow, overfitting one synthetic frame, weight round trip, and the sweep tables.
+//! SSMODE network: shapes for any camera count, parameter counts of the presets, gradient
+//! flow, overfitting one synthetic frame, weight round trip, `bench-model`'s per-stage profile,
+//! fused inference layers against the tracked ones, the presets' resolved range and config
+//! validation. The cost volume and the regression are checked in `model_ssmode_layers`.
 
 use crate::common::deep360_rig as rig;
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
-use mode360::geometry::{ErpGrid, PixelCoord};
-use mode360::model::config::CostKind;
-use mode360::model::cost_volume::cost_volume;
 use mode360::model::{load_weights, save_weights, Ssmode, SsmodeConfig, SweepSampling};
 use mode360::synth::{SynthConfig, SynthRenderer};
 
@@ -274,82 +273,6 @@ fn weights_round_trip_is_bit_identical() {
     );
 }
 
-#[test]
-fn cost_volume_samples_features_where_the_sweep_geometry_says() {
-    let cfg = SsmodeConfig::tiny();
-    let rig = rig();
-    let sampling = SweepSampling::new(&rig, &cfg).expect("sampling");
-    let geo = sampling.geometry();
-    let grid: ErpGrid = geo.output();
-    let (h, w, c) = (grid.height(), grid.width(), 2usize);
-    // Feature of camera k, pixel p, channel ch: a smooth but non-trivial function.
-    let feat = |k: usize, p: usize, ch: usize| -> f32 {
-        ((p * 7 + k * 13 + ch * 5) % 23) as f32 / 23.0 + ch as f32
-    };
-    let cameras = rig.cameras.len();
-    let features: Vec<Tensor> = (0..cameras)
-        .map(|k| {
-            let data: Vec<f32> = (0..h * w)
-                .flat_map(|p| (0..c).map(move |ch| feat(k, p, ch)))
-                .collect();
-            Tensor::from_vec(data, (1, h, w, c), &Device::Cpu).unwrap()
-        })
-        .collect();
-    let volume = cost_volume(
-        &Tensor::cat(&features, 0).unwrap(),
-        &sampling,
-        CostKind::MeanVariance,
-    )
-    .expect("cost volume");
-    assert_eq!(volume.dims(), &[1, cfg.spheres, h, w, 2 * c]);
-    let vol: Vec<f32> = volume.flatten_all().unwrap().to_vec1().unwrap();
-    let mut checked = 0;
-    for sphere in [0, cfg.spheres / 2, cfg.spheres - 1] {
-        for (u, v) in [
-            (0usize, 0usize),
-            (3, 2),
-            (w - 1, h / 2),
-            (w / 2, h - 1),
-            (5, 5),
-        ] {
-            for ch in 0..c {
-                let samples: Vec<f64> = (0..cameras)
-                    .map(|k| {
-                        let q = geo.sample(
-                            k,
-                            sphere,
-                            PixelCoord {
-                                u: u as f64,
-                                v: v as f64,
-                            },
-                        );
-                        let taps = geo.camera_grid(k).bilinear_taps(q);
-                        taps.index
-                            .iter()
-                            .zip(taps.weight.iter())
-                            .map(|(&i, &wt)| wt as f64 * feat(k, i as usize, ch) as f64)
-                            .sum()
-                    })
-                    .collect();
-                let n = cameras as f64;
-                let mean = samples.iter().sum::<f64>() / n;
-                let var = samples.iter().map(|x| x * x).sum::<f64>() / n - mean * mean;
-                let base = (((sphere * h + v) * w) + u) * 2 * c;
-                assert!(
-                    (vol[base + ch] as f64 - mean).abs() < 1e-4,
-                    "mean at {sphere},{v},{u}"
-                );
-                assert!(
-                    (vol[base + c + ch] as f64 - var).abs() < 1e-3,
-                    "var at {sphere},{v},{u}"
-                );
-                checked += 1;
-            }
-        }
-    }
-    assert_eq!(checked, 3 * 5 * c);
-}
-
 /// The per-stage profile of `mode360 bench-model`: every stage is reported, and the FLOPs it
 /// counts scale exactly with the pixel count (the same network at twice the width does four
 /// times the convolution work in every stage that has any).
@@ -447,84 +370,6 @@ fn fused_inference_layers_equal_the_tracked_layers() {
 }
 
 #[test]
-fn fused_inference_regression_equals_the_training_path() {
-    use mode360::model::regression::{confidence, regress, regress_inference};
-    let cfg = SsmodeConfig::tiny();
-    let hyps = cfg.output_hypotheses().expect("hypotheses");
-    let (height, width) = (18, 36);
-    for (scale, far) in [(0.5f32, 0.7), (8.0, 0.7), (8.0, 0.3), (8.0, 2.0)] {
-        // (B, D, h, w) with odd h and w; fixed pseudo-random values in [-scale, scale] so the
-        // share of tied pixels (skipped below) is the same on every run
-        const DIMS: (usize, usize, usize, usize) = (2, 5, 5, 9);
-        let values: Vec<f32> = (0..DIMS.0 * DIMS.1 * DIMS.2 * DIMS.3)
-            .map(|i| ((i * 7919 + 13) % 1009) as f32 / 504.5 - 1.0)
-            .map(|v| v * scale)
-            .collect();
-        let cost = Tensor::from_vec(values, DIMS, &Device::Cpu).unwrap();
-        let slow = regress(&cost, &hyps, height, width, far).unwrap();
-        let slow_conf = confidence(&slow.probabilities).unwrap();
-        let fast = regress_inference(&cost, &hyps, height, width, far).unwrap();
-        let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let max_abs = |a: &Tensor, b: &Tensor| {
-            flat(a)
-                .iter()
-                .zip(flat(b))
-                .map(|(x, y)| (x - y).abs())
-                .fold(0f32, f32::max)
-        };
-        assert_eq!(fast.range_m.dims(), [2, height, width]);
-        assert!(max_abs(&fast.inverse_depth_index, &slow.inverse_depth_index) < 1e-5);
-        // The confidence window sits on the argmax; where two hypotheses tie (to rounding,
-        // e.g. at the clamped ends of the interpolation) either choice is right, so such
-        // pixels are skipped; every other pixel must agree.
-        let n = hyps.count();
-        let probs = slow
-            .probabilities
-            .permute((0, 2, 3, 1))
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1::<f32>()
-            .unwrap();
-        let (a, b) = (flat(&fast.confidence), flat(&slow_conf));
-        let mut compared = 0;
-        for i in 0..a.len() {
-            let mut p = probs[i * n..(i + 1) * n].to_vec();
-            p.sort_by(|x, y| y.total_cmp(x));
-            if p[0] - p[1] <= 1e-6 * p[0] {
-                continue;
-            }
-            compared += 1;
-            assert!(
-                (a[i] - b[i]).abs() < 1e-5,
-                "pixel {i}: confidence {} vs {}",
-                a[i],
-                b[i]
-            );
-        }
-        assert!(compared * 2 > a.len(), "only {compared} untied pixels");
-        // Far-plane readout: exactly the pixels with p_0 >= far read max depth, in both paths.
-        let max_depth = hyps.depth_m(0.0) as f32;
-        let expected_far = (0..a.len())
-            .filter(|&i| f64::from(probs[i * n]) >= far)
-            .count();
-        for range in [&fast.range_m, &slow.range_m] {
-            let snapped = flat(range).iter().filter(|&&r| r == max_depth).count();
-            assert_eq!(snapped, expected_far, "far-plane pixels at threshold {far}");
-        }
-        if far < 0.5 {
-            assert!(expected_far > 0, "no pixel reached the far plane at {far}");
-        }
-        let rel = flat(&fast.range_m)
-            .iter()
-            .zip(flat(&slow.range_m))
-            .map(|(x, y)| ((x - y) / y).abs())
-            .fold(0f32, f32::max);
-        assert!(rel < 1e-4, "range differs by {rel} relative");
-    }
-}
-
-#[test]
 fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
     let parallax = SsmodeConfig::parallax();
     parallax.validate().expect("parallax preset is valid");
@@ -571,49 +416,4 @@ fn configs_with_unsupported_cost_layouts_are_rejected_by_field() {
         let err = cfg.validate().expect_err(field).to_string();
         assert!(err.contains(field), "{field}: {err}");
     }
-}
-
-#[test]
-fn variance_volume_is_zero_where_every_camera_sees_the_same_feature() {
-    // Identical features in every camera: on the far sphere every camera looks along the same
-    // directions (the rig is 1 m across, the sphere 100 m away), so the variance there is
-    // about zero; on the nearest sphere the cameras disagree.
-    let cfg = SsmodeConfig::tiny_parallax();
-    let sampling = SweepSampling::new(&rig(), &cfg).expect("sampling");
-    // A smooth pattern (a tenth of a cell of parallax barely changes it).
-    let (h, w) = (cfg.cost_height(), cfg.cost_width());
-    let data: Vec<f32> = (0..h * w * 3)
-        .map(|k| {
-            let (v, u, ch) = (k / (3 * w), (k / 3) % w, k % 3);
-            let lon = 2.0 * std::f32::consts::PI * u as f32 / w as f32;
-            ((ch + 1) as f32 * lon + 0.2 * v as f32).sin()
-        })
-        .collect();
-    let f = Tensor::from_vec(data, (1, h, w, 3), &Device::Cpu).unwrap();
-    let features = vec![f.clone(), f.clone(), f.clone(), f];
-    let volume = cost_volume(
-        &Tensor::cat(&features, 0).unwrap(),
-        &sampling,
-        CostKind::Variance,
-    )
-    .expect("volume");
-    let (b, d, h, w, c) = volume.dims5().expect("rank 5");
-    assert_eq!(
-        (b, d, h, w, c),
-        (1, cfg.spheres, cfg.cost_height(), cfg.cost_width(), 3)
-    );
-    let mean_on = |sphere: usize| -> f32 {
-        volume
-            .narrow(1, sphere, 1)
-            .unwrap()
-            .mean_all()
-            .unwrap()
-            .to_scalar()
-            .unwrap()
-    };
-    let (far, near) = (mean_on(0), mean_on(d - 1));
-    assert!(
-        far < 0.1 * near,
-        "far sphere variance {far}, nearest {near}"
-    );
 }

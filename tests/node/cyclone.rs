@@ -12,9 +12,10 @@
 //! Needs `MODE360_PYTHON`: a Python with `cyclonedds` (`tests/interop/setup.sh DIR` makes one).
 //! Without it the tests are skipped, unless `CI` is set, where they fail.
 
-use super::harness::{
-    dds_peer_tests, DdsPeer, Peer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT, PEER_WIDTH,
+use super::dds_peer::{
+    dds_peer_tests, DdsPeer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT, PEER_WIDTH,
 };
+use super::harness::Peer;
 use crate::common::PYTHON_ENV;
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;

@@ -16,9 +16,10 @@
 //! Debian's `libfastrtps-dev` and `fastddsgen`). Without it the tests are skipped, unless `CI`
 //! is set, where they fail.
 
-use super::harness::{
-    dds_peer_tests, DdsPeer, Peer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT, PEER_WIDTH,
+use super::dds_peer::{
+    dds_peer_tests, DdsPeer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT, PEER_WIDTH,
 };
+use super::harness::Peer;
 use crate::common::tool_from_env;
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;

@@ -13,6 +13,7 @@ mod common;
 mod bad_input;
 mod cyclone;
 mod dds;
+mod dds_peer;
 mod dropout;
 mod fastdds;
 mod foxglove;
