@@ -11,6 +11,8 @@ use super::drops::DropTally;
 use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
+use mode360_core::geometry::rig_match::check_same_cameras;
+use mode360_core::geometry::Rig;
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use mode360_core::sync::SyncStats;
 use mode360_estimator::estimator::EstimatorSpec;
@@ -44,6 +46,9 @@ pub struct ReplayOptions {
     pub max_depth_m: Option<f64>,
     /// Stop after this many frames (`None`: all).
     pub max_frames: Option<usize>,
+    /// Another calibration of the bag's cameras (same cameras, topics and projections; other
+    /// poses), used instead of the bag's and written into the output bag.
+    pub rig: Option<PathBuf>,
 }
 
 /// What was replayed.
@@ -77,7 +82,19 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     let reader = RigBagReader::open(&opts.input)
         .with_context(|| format!("opening {}", opts.input.display()))?;
     let file = opts.input.display().to_string();
-    let rig = reader.rig().clone();
+    let rig = match &opts.rig {
+        None => reader.rig().clone(),
+        Some(path) => {
+            let rig = Rig::from_file(path)?;
+            check_same_cameras(reader.rig(), &rig).with_context(|| {
+                format!(
+                    "rig file {} does not fit the cameras of bag '{file}'",
+                    path.display()
+                )
+            })?;
+            rig
+        }
+    };
     let info = reader.info();
     let max_depth_m = match (opts.max_depth_m, info.get(MAX_DEPTH_KEY)) {
         (Some(m), _) => m,
@@ -217,6 +234,10 @@ pub struct ReplayArgs {
     /// Process at most this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Replay with this rig calibration instead of the bag's (same cameras; e.g. from
+    /// `mode360 rig refine`); the output bag records it.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
 }
 
 /// `mode360 replay`: replays the bag and prints the latency and the accuracy against ground truth.
@@ -228,6 +249,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         output_width: a.output_width,
         max_depth_m: None,
         max_frames: a.max_frames,
+        rig: a.rig,
     })?;
     println!(
         "replayed {} frames into {} (mean latency {:.0} ms)",

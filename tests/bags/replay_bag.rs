@@ -45,6 +45,7 @@ fn replay_writes_decodable_outputs_matching_inputs() -> TestResult {
         output_width: None,
         max_depth_m: None,
         max_frames: None,
+        rig: None,
     })?;
     assert_eq!(summary.frames, FRAMES);
     let metrics = summary.metrics.ok_or("no metrics")?;
@@ -123,6 +124,7 @@ fn replay_writes_decodable_outputs_matching_inputs() -> TestResult {
         output_width: None,
         max_depth_m: None,
         max_frames: Some(1),
+        rig: None,
     })?;
     let depth2 = BagReader::open(&output2)?.decode_topic::<Image>("/depth")?;
     assert_eq!(depth2.len(), 1);
@@ -201,6 +203,7 @@ fn malformed_messages_are_dropped_counted_and_every_good_frame_is_kept() -> Test
         output_width: None,
         max_depth_m: None,
         max_frames: None,
+        rig: None,
     })?;
     assert_eq!(summary.frames, GOOD_FRAMES);
     let drops = summary.drops.counts();
@@ -286,5 +289,91 @@ fn check_compressed_depth(output: &std::path::Path, frames: usize) -> TestResult
     assert_eq!(report["format"], "32FC1; compressedDepth png");
     let max_rel = report["max_rel_err"].as_f64().ok_or("max_rel_err")?;
     assert!(max_rel <= bound, "relative error {max_rel} > {bound}");
+    Ok(())
+}
+
+/// `replay --rig`: a bag replayed with a camera turned by 5° in the calibration (two pixels at this width) scores worse
+/// than with its own calibration written to a file (which reproduces the bag's replay to the
+/// byte), the output bag records the calibration used, and a file whose cameras differ from
+/// the bag's is refused naming the camera.
+#[test]
+fn replay_with_another_rig_file() -> TestResult {
+    let dir = tempfile::tempdir()?;
+    let input = dir.path().join("in.mcap");
+    let rig = Rig::from_file(RIG_PATH)?;
+    record_synthetic_bag(&RecordOptions {
+        rig: rig.clone(),
+        config: SynthConfig {
+            seed: 3,
+            width: WIDTH,
+            max_depth_m: MAX_DEPTH_M,
+            ..Default::default()
+        },
+        frames: 1,
+        first_frame: 0,
+        out: input.clone(),
+        show_progress: false,
+    })?;
+    let replay = |name: &str, rig_file: Option<std::path::PathBuf>| {
+        let output = dir.path().join(name);
+        let summary = replay_bag(&ReplayOptions {
+            input: input.clone(),
+            output: output.clone(),
+            estimator: EstimatorSpec::new(EstimatorKind::Photometric),
+            output_width: None,
+            max_depth_m: None,
+            max_frames: None,
+            rig: rig_file,
+        });
+        (summary, output)
+    };
+    let (own, own_out) = replay("own.mcap", None);
+    let own = own?;
+    let same_file = dir.path().join("same.yaml");
+    std::fs::write(&same_file, rig.to_yaml())?;
+    let (same, same_out) = replay("same.mcap", Some(same_file));
+    same?;
+    let depth = |path: &std::path::Path| -> Result<Vec<u8>, Box<dyn std::error::Error>> {
+        Ok(BagReader::open(path)?.decode_topic::<Image>("/depth")?[0]
+            .data
+            .clone())
+    };
+    assert_eq!(depth(&own_out)?, depth(&same_out)?);
+
+    let mut knocked = rig.clone();
+    let knock = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, 5f64.to_radians());
+    knocked.cameras[1].rig_from_cam.rotation = knock * knocked.cameras[1].rig_from_cam.rotation;
+    let knocked_file = dir.path().join("knocked.yaml");
+    std::fs::write(&knocked_file, knocked.to_yaml())?;
+    let (worse, worse_out) = replay("knocked.mcap", Some(knocked_file));
+    let (own_d1, worse_d1) = (
+        own.metrics.ok_or("no metrics")?.delta1_pct,
+        worse?.metrics.ok_or("no metrics")?.delta1_pct,
+    );
+    assert!(
+        worse_d1 < own_d1 - 1.0,
+        "knocked {worse_d1:.2} % vs own {own_d1:.2} %"
+    );
+    let recorded = RigBagReader::open(&worse_out)?.rig().clone();
+    let angle = recorded.cameras[1]
+        .rig_from_cam
+        .rotation
+        .angle_to(&knocked.cameras[1].rig_from_cam.rotation);
+    assert!(
+        angle < 1e-9,
+        "output bag's camera 2 is {angle} rad off the file's"
+    );
+
+    let renamed = dir.path().join("renamed.yaml");
+    std::fs::write(&renamed, rig.to_yaml().replace("name: cam3", "name: cam9"))?;
+    let (refused, _) = replay("renamed.mcap", Some(renamed.clone()));
+    let e = format!(
+        "{:#}",
+        refused.err().ok_or("a renamed camera was accepted")?
+    );
+    assert!(
+        e.contains("renamed.yaml") && e.contains("'cam9'") && e.contains("'cam3'"),
+        "{e}"
+    );
     Ok(())
 }

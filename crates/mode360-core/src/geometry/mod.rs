@@ -18,6 +18,7 @@ pub mod geer;
 pub mod import;
 pub mod panorama;
 pub mod rig;
+pub mod rig_match;
 pub mod rig_yaml;
 pub mod sweep;
 
