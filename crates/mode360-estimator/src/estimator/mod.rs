@@ -7,6 +7,7 @@ use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, Rig};
 
 pub mod guided_upsample;
+pub mod lens_health;
 pub mod photometric;
 pub mod ssmode;
 

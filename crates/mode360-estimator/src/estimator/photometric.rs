@@ -29,7 +29,7 @@
 //! 3.3 CPU-seconds per frame (under 2 s wall on two idle cores).
 
 mod curve;
-mod sampling;
+pub(crate) mod sampling;
 mod sgm;
 
 pub use curve::{refine_minimum, CurveMinimum, CONFIDENCE_EXCLUSION};
