@@ -185,6 +185,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             cam.record_good();
         }
         health.groups_processed += 1;
+        health.record_lens(&out.lens);
         health.sync = SyncStats {
             groups: summary.frames as u64,
             ..SyncStats::default()

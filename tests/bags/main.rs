@@ -13,4 +13,5 @@ mod deep360_fixture;
 mod deep360_train;
 mod deep360_writer;
 mod fisheye_bag;
+mod lens_replay;
 mod replay_bag;

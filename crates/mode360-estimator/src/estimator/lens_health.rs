@@ -54,6 +54,8 @@ pub const BLOCKED_VOTE: f64 = 0.5;
 /// region, while the scattered spots of lens soiling (drops, small mud spots, glare) and chance
 /// mismatches are small.
 pub const MIN_REGION_FRACTION: f64 = 0.04;
+/// Frames a [`LensHealthWindow`] keeps by default (the node's and replay's window).
+pub const LENS_WINDOW_FRAMES: usize = 10;
 /// Nearest range used when sampling, metres (closer estimates are clamped).
 const MIN_RANGE_M: f32 = 0.3;
 
@@ -231,6 +233,55 @@ pub struct LensHealthAccumulator {
     /// `[camera][k]`: frames in which the camera was the odd one out, and frames that decided.
     odd: Vec<Vec<u32>>,
     decided: Vec<Vec<u32>>,
+}
+
+/// The lens health over the newest `capacity` frames (older votes fall out, so a lens that is
+/// cleaned reads clean again within a window).
+#[derive(Clone, Debug)]
+pub struct LensHealthWindow {
+    capacity: usize,
+    frames: std::collections::VecDeque<LensVotes>,
+}
+
+impl LensHealthWindow {
+    /// A window of `capacity` frames (at least one).
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            capacity: capacity.max(1),
+            frames: std::collections::VecDeque::new(),
+        }
+    }
+
+    /// Adds one frame's votes, dropping the oldest beyond the capacity (and every older frame
+    /// when the number of cameras changes).
+    pub fn add(&mut self, votes: LensVotes) {
+        if self
+            .frames
+            .front()
+            .is_some_and(|f| f.votes.len() != votes.votes.len())
+        {
+            self.frames.clear();
+        }
+        if self.frames.len() == self.capacity {
+            self.frames.pop_front();
+        }
+        self.frames.push_back(votes);
+    }
+
+    /// Each camera's health over the window (empty before the first frame).
+    pub fn health(&self) -> Vec<LensHealth> {
+        let mut acc = LensHealthAccumulator::default();
+        for votes in &self.frames {
+            acc.add(votes);
+        }
+        acc.health()
+    }
+}
+
+impl Default for LensHealthWindow {
+    fn default() -> Self {
+        Self::new(LENS_WINDOW_FRAMES)
+    }
 }
 
 /// One camera's lens health over the accumulated frames.

@@ -3,6 +3,7 @@
 //! pipeline (sync counters, dropped groups, inference latency, degraded cameras).
 
 use mode360_core::sync::{SyncError, SyncStats};
+use mode360_estimator::estimator::lens_health::LensHealth;
 use mode360_io::msgs::image::ImageMsgError;
 use mode360_io::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
 use std::collections::BTreeMap;
@@ -99,6 +100,8 @@ pub struct CameraHealth {
     pub bad_by_reason: BTreeMap<BadImageReason, u64>,
     /// Bad messages since the newest good one (0 after a good message).
     pub bad_since_good: u64,
+    /// The lens check's latest finding (`None` before the first complete group).
+    pub lens: Option<LensHealth>,
 }
 
 impl CameraHealth {
@@ -124,7 +127,7 @@ impl CameraHealth {
 }
 
 /// Health of the whole node.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct NodeHealth {
     pub cameras: Vec<CameraHealth>,
     pub sync: SyncStats,
@@ -141,6 +144,40 @@ pub struct NodeHealth {
     pub last_latency_ms: Option<f64>,
     /// Mean latency over all processed groups, milliseconds.
     pub mean_latency_ms: Option<f64>,
+    /// A camera whose blocked fraction exceeds this is WARN (ERROR above
+    /// [`LENS_ERROR_FRACTION`]); the `lens_warn_fraction` parameter.
+    pub lens_warn_fraction: f64,
+}
+
+/// Blocked fraction above which a camera is ERROR whatever the warning threshold.
+pub const LENS_ERROR_FRACTION: f64 = 0.5;
+/// Default of the `lens_warn_fraction` parameter.
+pub const DEFAULT_LENS_WARN_FRACTION: f64 = 0.15;
+
+impl Default for NodeHealth {
+    fn default() -> Self {
+        Self {
+            cameras: Vec::new(),
+            sync: SyncStats::default(),
+            groups_processed: 0,
+            groups_dropped: 0,
+            clouds_skipped: 0,
+            pipeline_errors: 0,
+            last_pipeline_error: None,
+            last_latency_ms: None,
+            mean_latency_ms: None,
+            lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
+        }
+    }
+}
+
+impl NodeHealth {
+    /// Takes the pipeline's lens findings (rig order) into the cameras' health.
+    pub fn record_lens(&mut self, lens: &[LensHealth]) {
+        for (cam, health) in self.cameras.iter_mut().zip(lens) {
+            cam.lens = Some(health.clone());
+        }
+    }
 }
 
 fn kv(key: &str, value: impl ToString) -> KeyValue {
@@ -152,6 +189,26 @@ fn kv(key: &str, value: impl ToString) -> KeyValue {
 
 fn opt_ms(v: Option<f64>) -> String {
     v.map_or_else(|| "n/a".to_string(), |x| format!("{x:.1}"))
+}
+
+/// The level and message of a camera whose lens looks blocked (`None` when it looks clear).
+fn lens_status(cam: &CameraHealth, warn_fraction: f64) -> Option<(u8, String)> {
+    let lens = cam.lens.as_ref()?;
+    let level = if lens.blocked_fraction > LENS_ERROR_FRACTION {
+        DiagnosticStatus::ERROR
+    } else if lens.blocked_fraction > warn_fraction {
+        DiagnosticStatus::WARN
+    } else {
+        return None;
+    };
+    Some((
+        level,
+        format!(
+            "lens looks blocked or soiled: {:.0} % of its view ({} of the panorama)",
+            100.0 * lens.blocked_fraction,
+            lens.region.as_deref().unwrap_or("unknown part")
+        ),
+    ))
 }
 
 /// The `/diagnostics` message of `health` stamped `stamp_ns`.
@@ -178,6 +235,10 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
         } else {
             (DiagnosticStatus::OK, "receiving".into())
         };
+        let (level, message) = match lens_status(cam, health.lens_warn_fraction) {
+            Some((lens_level, lens_message)) if lens_level >= level => (lens_level, lens_message),
+            _ => (level, message),
+        };
         let mut values = vec![
             kv("topic", &cam.topic),
             kv("received", cam.received),
@@ -192,6 +253,12 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
             kv(
                 "last_bad_reason",
                 cam.last_bad_reason.as_deref().unwrap_or(""),
+            ),
+            kv(
+                "blocked_fraction",
+                cam.lens
+                    .as_ref()
+                    .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.blocked_fraction)),
             ),
         ];
         values.extend(BadImageReason::ALL.iter().map(|r| {
@@ -363,6 +430,57 @@ mod tests {
         assert_eq!(
             diagnostic_value(&a, "mode360: pipeline", "last_latency_ms"),
             Some("12.3")
+        );
+    }
+
+    #[test]
+    fn a_blocked_lens_turns_warn_then_error_naming_where() {
+        let status = |fraction: f64| {
+            let mut health = NodeHealth {
+                cameras: vec![CameraHealth {
+                    name: "cam3".into(),
+                    active: true,
+                    received: 5,
+                    ..Default::default()
+                }],
+                ..Default::default()
+            };
+            health.record_lens(&[LensHealth {
+                blocked_fraction: fraction,
+                decided_fraction: 1.0,
+                region: Some("middle front".into()),
+            }]);
+            let array = diagnostic_array(1, "test", &health);
+            let s = array.status[0].clone();
+            let value = diagnostic_value(&array, &s.name, "blocked_fraction").map(String::from);
+            (s.level, s.message, value)
+        };
+        let (level, message, value) = status(0.05);
+        assert_eq!(
+            (level, message.as_str()),
+            (DiagnosticStatus::OK, "receiving")
+        );
+        assert_eq!(value.as_deref(), Some("0.050"));
+        let (level, message, _) = status(0.3);
+        assert_eq!(level, DiagnosticStatus::WARN);
+        assert!(
+            message.contains("blocked")
+                && message.contains("30 %")
+                && message.contains("middle front"),
+            "{message}"
+        );
+        assert_eq!(status(0.6).0, DiagnosticStatus::ERROR);
+        let fresh = diagnostic_array(
+            1,
+            "test",
+            &NodeHealth {
+                cameras: vec![CameraHealth::default()],
+                ..Default::default()
+            },
+        );
+        assert_eq!(
+            diagnostic_value(&fresh, &fresh.status[0].name, "blocked_fraction"),
+            Some("n/a")
         );
     }
 }

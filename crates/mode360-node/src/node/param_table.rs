@@ -325,6 +325,19 @@ pub const PARAMETERS: &[ParamSpec] = &[
             Ok(())
         },
     },
+    ParamSpec {
+        name: "lens_warn_fraction",
+        runtime: false,
+        get: |p| ParamValue::Double(p.lens_warn_fraction),
+        set: |p, v| {
+            p.lens_warn_fraction = v
+                .parse::<f64>()
+                .ok()
+                .filter(|f| (0.0..=1.0).contains(f))
+                .ok_or("expected a fraction from 0 to 1")?;
+            Ok(())
+        },
+    },
 ];
 
 /// The table entry called `name`.

@@ -2,6 +2,7 @@
 //! declared in [`super::param_table`], read from `--ros-args` by [`super::ros_args`] and from
 //! params files by `params_file.rs`.
 
+use super::diagnostics::DEFAULT_LENS_WARN_FRACTION;
 use super::live_view::{LiveViewAddress, FOXGLOVE_OFF};
 use super::pipeline::{FarValue, PipelineParams};
 use super::qos_overrides::QosOverrides;
@@ -131,6 +132,8 @@ pub struct NodeParams {
     pub foxglove_port: u16,
     /// Interface the Foxglove live view listens on.
     pub foxglove_address: IpAddr,
+    /// A camera whose lens check finds more of its view blocked is WARN on `/diagnostics`.
+    pub lens_warn_fraction: f64,
 }
 
 impl Default for NodeParams {
@@ -161,6 +164,7 @@ impl Default for NodeParams {
             remaps: BTreeMap::new(),
             foxglove_port: FOXGLOVE_OFF,
             foxglove_address: IpAddr::from(DEFAULT_FOXGLOVE_IP),
+            lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
         }
     }
 }

@@ -192,6 +192,7 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
                     ..Default::default()
                 })
                 .collect(),
+            lens_warn_fraction: params.lens_warn_fraction,
             ..Default::default()
         }),
     });

@@ -158,6 +158,7 @@ pub(super) fn worker_main(
                 let ms = out.latency.as_secs_f64() * 1e3;
                 let mut h = lock(&shared.health);
                 h.groups_processed += 1;
+                h.record_lens(&out.lens);
                 if skipped_points {
                     h.clouds_skipped += 1;
                 }
