@@ -19,6 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let info = reader.info();
         let mut acc = LensHealthAccumulator::default();
         let mut sweep = PhotometricSweep::new(PhotometricConfig::default())?;
+        let mut check_s = Vec::new();
         for frame in reader.frames() {
             let frame = frame?;
             let range = if use_sweep {
@@ -27,9 +28,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             } else {
                 frame.ground_truth.clone().ok_or("no ground truth")?
             };
+            let t0 = std::time::Instant::now();
             acc.add(&lens_votes(&rig, &frame.images, &range)?);
+            check_s.push(t0.elapsed().as_secs_f64());
         }
-        println!("{path} (truth: {:?})", info.get("blocked_fraction"));
+        println!(
+            "{path} (truth: {:?}); lens check {:.1} ms a frame",
+            info.get("blocked_fraction"),
+            1e3 * check_s.iter().sum::<f64>() / check_s.len().max(1) as f64
+        );
         for (cam, h) in rig.cameras.iter().zip(acc.health()) {
             println!(
                 "  {}: blocked {:.3} of the decided {:.3}, {:?}",

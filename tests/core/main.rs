@@ -5,12 +5,14 @@
 mod common;
 
 mod calib_import;
+mod calib_strict;
 mod camera_models;
 mod geometry;
 mod msgs_cdr;
 mod ops_conv3d;
 mod ops_sample;
 mod rig_models;
+mod rig_strict;
 mod synth_blockers;
 mod synth_fisheye;
 mod synth_objects;

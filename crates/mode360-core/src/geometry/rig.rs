@@ -8,7 +8,18 @@
 //! calibrate it; a dual-fisheye camera's frame is the body frame its lenses' `cam_from_lens`
 //! are given in.
 
-use super::camera::{CameraModel, DualFisheye, FisheyeCamera, ImageSize};
+mod bounds;
+mod names;
+
+pub(crate) use bounds::num;
+pub use bounds::{
+    check_distortion, check_focal, check_lens, check_rpy, check_translation, MAX_DISTORTION_ABS,
+    MAX_FOCAL_PX, MAX_RPY_ABS_RAD, MAX_TRANSLATION_M, MIN_FOCAL_PX,
+};
+pub(crate) use names::quoted;
+pub use names::{validate_frame_id, validate_topic_name, MAX_FRAME_ID_LEN, MAX_TOPIC_NAME_LEN};
+
+use super::camera::{CameraModel, DualFisheye, FisheyeCamera, ImageSize, IntrinsicsError};
 use super::GeometryError;
 use nalgebra::{Isometry3, Vector3};
 use std::collections::HashSet;
@@ -33,6 +44,9 @@ pub enum RigError {
     },
     #[error("{file}: malformed YAML: {message}")]
     Yaml { file: String, message: String },
+    /// A file refused before parsing (too large, nested too deep, not UTF-8).
+    #[error("{file}: {problem}")]
+    Input { file: String, problem: String },
     #[error("{file}: camera '{camera}': field '{field}': {problem}")]
     Camera {
         file: String,
@@ -116,6 +130,7 @@ impl RigError {
         match self {
             Self::Io { source, .. } => Self::Io { file, source },
             Self::Yaml { message, .. } => Self::Yaml { file, message },
+            Self::Input { problem, .. } => Self::Input { file, problem },
             Self::Camera {
                 camera,
                 field,
@@ -144,18 +159,45 @@ pub struct RigOutput {
     pub rig_from_output: Isometry3<f64>,
 }
 
-/// A pose is usable when every translation component and quaternion coefficient is finite.
-fn is_finite_pose(pose: &Isometry3<f64>) -> bool {
-    pose.translation.vector.iter().all(|v| v.is_finite())
-        && pose.rotation.coords.iter().all(|v| v.is_finite())
+/// A pose is usable when every translation component and quaternion coefficient is finite
+/// and the translation is within [`MAX_TRANSLATION_M`]; the problem otherwise.
+fn check_pose(pose: &Isometry3<f64>) -> Result<(), String> {
+    if !(pose.translation.vector.iter().all(|v| v.is_finite())
+        && pose.rotation.coords.iter().all(|v| v.is_finite()))
+    {
+        return Err("pose is not finite".into());
+    }
+    check_translation(&pose.translation.vector)
+}
+
+/// A projection's intrinsics within the plausible bounds ([`check_lens`]), and a dual-fisheye
+/// camera's lens offsets within [`MAX_TRANSLATION_M`]; the error's field is the rig YAML's
+/// (`intrinsics.fx`, `lenses[1].intrinsics.k2`, `lenses[0].cam_from_lens`).
+fn check_projection(p: &Projection) -> Result<(), IntrinsicsError> {
+    match p {
+        Projection::Equirectangular => Ok(()),
+        Projection::Fisheye(c) => check_lens(c.lens()).map_err(|e| e.prefixed("intrinsics.")),
+        Projection::DualFisheye(d) => {
+            for (i, lens) in d.lenses().iter().enumerate() {
+                check_lens(&lens.model)
+                    .map_err(|e| e.prefixed(&format!("lenses[{i}].intrinsics.")))?;
+                check_translation(&lens.cam_from_lens.translation.vector).map_err(|problem| {
+                    IntrinsicsError::new(format!("lenses[{i}].cam_from_lens"), problem)
+                })?;
+            }
+            Ok(())
+        }
+    }
 }
 
 impl Rig {
-    /// A validated rig: at least [`MIN_CAMERAS`] cameras with non-empty, unique names, topics
-    /// and frame ids and finite poses; `reference` indexes `cameras`; the rig frame and the
-    /// output frame are non-empty and the output pose is finite. `output` defaults to the
-    /// reference camera's frame and pose. Errors name the camera and the field, with the
-    /// source [`UNNAMED_SOURCE`] (relabel with [`RigError::in_source`]).
+    /// A validated rig: at least [`MIN_CAMERAS`] cameras with non-empty, unique names, valid
+    /// and unique ROS 2 topics ([`validate_topic_name`]) and frame ids
+    /// ([`validate_frame_id`]), finite poses within [`MAX_TRANSLATION_M`] and plausible
+    /// intrinsics ([`check_lens`]); `reference` indexes `cameras`; the rig frame and the
+    /// output frame are valid frame ids and the output pose is finite and within bounds.
+    /// `output` defaults to the reference camera's frame and pose. Errors name the camera and
+    /// the field, with the source [`UNNAMED_SOURCE`] (relabel with [`RigError::in_source`]).
     pub fn new(
         rig_frame: impl Into<String>,
         cameras: Vec<RigCamera>,
@@ -200,6 +242,8 @@ impl Rig {
                     return Err(cam_err(&label, field, "empty".into()));
                 }
             }
+            validate_topic_name(&cam.topic).map_err(|p| cam_err(&label, "topic", p))?;
+            validate_frame_id(&cam.frame_id).map_err(|p| cam_err(&label, "frame_id", p))?;
             if !names.insert(cam.name.as_str()) {
                 return Err(cam_err(&label, "name", "duplicate camera name".into()));
             }
@@ -211,9 +255,8 @@ impl Rig {
                 let problem = format!("frame_id '{}' is used by another camera", cam.frame_id);
                 return Err(cam_err(&label, "frame_id", problem));
             }
-            if !is_finite_pose(&cam.rig_from_cam) {
-                return Err(cam_err(&label, "rig_from_cam", "pose is not finite".into()));
-            }
+            check_pose(&cam.rig_from_cam).map_err(|p| cam_err(&label, "rig_from_cam", p))?;
+            check_projection(&cam.projection).map_err(|e| cam_err(&label, &e.field, e.problem))?;
         }
         if reference >= cameras.len() {
             return Err(rig_err(
@@ -226,22 +269,13 @@ impl Rig {
             ));
         }
         let rig_frame = rig_frame.into();
-        if rig_frame.trim().is_empty() {
-            return Err(rig_err("rig_frame", "empty".into()));
-        }
+        validate_frame_id(&rig_frame).map_err(|p| rig_err("rig_frame", p))?;
         let output = output.unwrap_or_else(|| RigOutput {
             frame_id: cameras[reference].frame_id.clone(),
             rig_from_output: cameras[reference].rig_from_cam,
         });
-        if output.frame_id.trim().is_empty() {
-            return Err(rig_err("output.frame_id", "empty".into()));
-        }
-        if !is_finite_pose(&output.rig_from_output) {
-            return Err(rig_err(
-                "output.rig_from_output",
-                "pose is not finite".into(),
-            ));
-        }
+        validate_frame_id(&output.frame_id).map_err(|p| rig_err("output.frame_id", p))?;
+        check_pose(&output.rig_from_output).map_err(|p| rig_err("output.rig_from_output", p))?;
         Ok(Self {
             rig_frame,
             cameras,

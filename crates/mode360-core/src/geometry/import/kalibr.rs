@@ -16,17 +16,23 @@
 //!
 //! Intrinsics per `camera_model`: `pinhole` `[fu, fv, pu, pv]`, `omni` `[xi, fu, fv, pu, pv]`,
 //! `ds` `[xi, alpha, fu, fv, pu, pv]`, `eucm` `[alpha, beta, fu, fv, pu, pv]`.
-//! The module docs of [`super`] give the frames and the model conversions.
+//! Coefficients per `distortion_model` (required, as Kalibr always writes it): `none` `[]`
+//! (all zeros accepted), `radtan` `[k1, k2, p1, p2]`, `equidistant` `[k1, k2, k3, k4]`,
+//! `fov` `[w]`. The module docs of [`super`] give the frames, the model conversions and what
+//! is refused.
 
-use super::{assemble, read, CamCtx, ImportError, ImportOptions, ImportedCamera};
+use super::{assemble, read, CamCtx, ImportError, ImportOptions, ImportedCamera, ModelKind};
 use crate::geometry::camera::{DoubleSphere, Eucm, FisheyeLens, Focal, KannalaBrandt};
+use crate::geometry::rig::{check_focal, num, quoted};
+use crate::geometry::rig_yaml::MAX_FLOW_COLLECTIONS;
 use crate::geometry::Rig;
 use nalgebra::Isometry3;
+use serde::de::{self, Deserializer, MapAccess, Visitor};
 use serde::Deserialize;
-use std::collections::BTreeMap;
 use std::path::Path;
 
 const SUPPORTED: &str = "pinhole, omni, ds, eucm";
+const DISTORTIONS: &str = "none, radtan, equidistant, fov";
 
 /// One camera of a camchain; fields Kalibr adds that the rig does not use are ignored.
 #[derive(Debug, Deserialize)]
@@ -41,18 +47,50 @@ struct KalibrCamera {
     t_cn_cnm1: Option<Vec<Vec<f64>>>,
 }
 
+/// The camchain's cameras in file order. A camera key given twice is an error (serde_yaml
+/// refuses a field given twice within a camera, but a map would keep the last camera).
+struct Cameras(Vec<(String, KalibrCamera)>);
+
+impl<'de> Deserialize<'de> for Cameras {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct CamerasVisitor;
+        impl<'de> Visitor<'de> for CamerasVisitor {
+            type Value = Cameras;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a mapping of cameras (cam0, cam1, ...)")
+            }
+
+            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Cameras, A::Error> {
+                let mut cams: Vec<(String, KalibrCamera)> = Vec::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    if cams.iter().any(|(k, _)| *k == key) {
+                        return Err(de::Error::custom(format!(
+                            "duplicate key {} (each camera may appear once)",
+                            quoted(&key)
+                        )));
+                    }
+                    let cam = map.next_value()?;
+                    cams.push((key, cam));
+                }
+                Ok(Cameras(cams))
+            }
+        }
+        d.deserialize_map(CamerasVisitor)
+    }
+}
+
 /// Reads a Kalibr camchain file into a rig (camera 0 is the rig frame).
 pub fn rig_from_kalibr_camchain(
     path: impl AsRef<Path>,
     opts: &ImportOptions,
 ) -> Result<Rig, ImportError> {
-    let (file, text) = read(path.as_ref())?;
-    let raw: BTreeMap<String, KalibrCamera> =
-        serde_yaml::from_str(&text).map_err(|e| ImportError::Parse {
-            file: file.clone(),
-            format: "Kalibr camchain YAML",
-            message: e.to_string(),
-        })?;
+    let (file, text) = read(path.as_ref(), Some(MAX_FLOW_COLLECTIONS))?;
+    let Cameras(raw) = serde_yaml::from_str(&text).map_err(|e| ImportError::Parse {
+        file: file.clone(),
+        format: "Kalibr camchain YAML",
+        message: e.to_string(),
+    })?;
     // cam0, cam1, ... in chain order, none missing.
     let mut ordered: Vec<(usize, &String, &KalibrCamera)> = Vec::with_capacity(raw.len());
     for (key, cam) in &raw {
@@ -112,8 +150,13 @@ fn exactly<'a>(
     Ok(v)
 }
 
+/// `[fu, fv, pu, pv]`: finite, positive and plausible focal lengths.
 fn focal(ctx: &CamCtx, f: &[f64]) -> Result<Focal, ImportError> {
-    Focal::new(f[0], f[1], f[2], f[3]).map_err(|e| ctx.intrinsics("intrinsics", e))
+    let ie = |e| ctx.intrinsics("intrinsics", e);
+    let focal = Focal::new(f[0], f[1], f[2], f[3]).map_err(ie)?;
+    check_focal("fx", focal.fx).map_err(ie)?;
+    check_focal("fy", focal.fy).map_err(ie)?;
+    Ok(focal)
 }
 
 fn projection(
@@ -123,7 +166,10 @@ fn projection(
     let model = cam
         .camera_model
         .as_deref()
-        .ok_or_else(|| ctx.err("camera_model", "missing"))?;
+        .ok_or_else(|| ctx.err("camera_model", format!("missing (one of {SUPPORTED})")))?;
+    if !SUPPORTED.split(", ").any(|m| m == model) {
+        return Err(ctx.unknown_model("camera_model", ModelKind::Camera, model, SUPPORTED));
+    }
     let intr = cam
         .intrinsics
         .as_deref()
@@ -134,10 +180,9 @@ fn projection(
             .as_deref()
             .ok_or_else(|| ctx.err("resolution", "missing"))?,
     )?;
-    let distortion = cam.distortion_model.as_deref().unwrap_or("none");
-    let coeffs = cam.distortion_coeffs.as_deref().unwrap_or(&[]);
+    let (distortion, coeffs) = distortion(ctx, cam)?;
     // A distortion that is there in name only (all coefficients zero) changes nothing.
-    let undistorted = distortion == "none" || coeffs.iter().all(|c| *c == 0.0);
+    let undistorted = coeffs.iter().all(|c| *c == 0.0);
     let refuse = |reason: &str| ctx.unrepresentable(&format!("{model}/{distortion}"), reason);
     let ie = |e| ctx.intrinsics("intrinsics", e);
     let lens = match model {
@@ -156,6 +201,8 @@ fn projection(
         }
         "omni" => {
             let v = exactly(ctx, "intrinsics", intr, 5, "[xi, fu, fv, pu, pv]")?;
+            // The file's focal lengths are checked as written, before the conversion.
+            focal(ctx, &v[1..])?;
             let xi = v[0];
             if !(xi >= 0.0 && xi.is_finite()) {
                 return Err(refuse(&format!(
@@ -166,17 +213,14 @@ fn projection(
             let f = Focal::new(v[1] / s, v[2] / s, v[3], v[4]).map_err(ie)?;
             FisheyeLens::Eucm(Eucm::new(f, xi / s, 1.0).map_err(ie)?)
         }
-        "pinhole" => {
+        _ => {
             let v = exactly(ctx, "intrinsics", intr, 4, "[fu, fv, pu, pv]")?;
             let f = focal(ctx, v)?;
             match distortion {
-                "equidistant" => {
-                    let k = exactly(ctx, "distortion_coeffs", coeffs, 4, "[k1, k2, k3, k4]")?;
-                    FisheyeLens::KannalaBrandt(
-                        KannalaBrandt::new(f, [k[0], k[1], k[2], k[3]])
-                            .map_err(|e| ctx.intrinsics("distortion_coeffs", e))?,
-                    )
-                }
+                "equidistant" => FisheyeLens::KannalaBrandt(
+                    KannalaBrandt::new(f, [coeffs[0], coeffs[1], coeffs[2], coeffs[3]])
+                        .map_err(|e| ctx.intrinsics("distortion_coeffs", e))?,
+                ),
                 _ if undistorted => ctx.pinhole("intrinsics", f)?,
                 _ => {
                     return Err(refuse(
@@ -185,14 +229,69 @@ fn projection(
                 }
             }
         }
+    };
+    ctx.plausible(&lens, |p| {
+        if p.starts_with('k') {
+            "distortion_coeffs"
+        } else {
+            "intrinsics"
+        }
+        .to_string()
+    })?;
+    ctx.fisheye("intrinsics", lens, size)
+}
+
+/// The camera's `distortion_model` (required) and its `distortion_coeffs`, as many as the
+/// model takes: refuses an unknown model, a wrong count, non-finite values, and non-zero
+/// coefficients that `none` would ignore.
+fn distortion<'a>(
+    ctx: &CamCtx,
+    cam: &'a KalibrCamera,
+) -> Result<(&'a str, &'a [f64]), ImportError> {
+    let model = cam.distortion_model.as_deref().ok_or_else(|| {
+        ctx.err(
+            "distortion_model",
+            format!("missing (Kalibr writes one for every camera: {DISTORTIONS}; none for ds, eucm and omni)"),
+        )
+    })?;
+    let (n, layout) = match model {
+        "none" => (0, "[]"),
+        "radtan" => (4, "[k1, k2, p1, p2]"),
+        "equidistant" => (4, "[k1, k2, k3, k4]"),
+        "fov" => (1, "[w]"),
         other => {
-            return Err(ImportError::UnknownModel {
-                file: ctx.file.into(),
-                camera: ctx.camera.into(),
-                model: other.into(),
-                supported: SUPPORTED,
-            })
+            return Err(ctx.unknown_model(
+                "distortion_model",
+                ModelKind::Distortion,
+                other,
+                DISTORTIONS,
+            ))
         }
     };
-    ctx.fisheye("intrinsics", lens, size)
+    let field = "distortion_coeffs";
+    let coeffs: &[f64] = match (cam.distortion_coeffs.as_deref(), n) {
+        (None, 0) => &[],
+        (None, _) => {
+            return Err(ctx.err(field, format!("missing ({model} takes {n}: {layout})")));
+        }
+        (Some(c), _) => c,
+    };
+    if let Some(bad) = coeffs.iter().find(|c| !c.is_finite()) {
+        return Err(ctx.err(field, format!("value {bad} is not finite")));
+    }
+    if n == 0 {
+        if let Some(c) = coeffs.iter().find(|c| **c != 0.0) {
+            return Err(ctx.err(
+                field,
+                format!(
+                    "{} coefficients (one is {}) would be ignored: distortion_model none takes none (give [] or the distortion model they belong to)",
+                    coeffs.len(),
+                    num(*c)
+                ),
+            ));
+        }
+    } else {
+        exactly(ctx, field, coeffs, n, layout)?;
+    }
+    Ok((model, coeffs))
 }

@@ -26,15 +26,41 @@
 //! (`fu x / (xi d + z) = (fu / (1 + xi)) x / (alpha d + (1 - alpha) z)`); Basalt's `ucm` is
 //! already written with `alpha`. A radial-tangential or FOV distortion with non-zero
 //! coefficients has no exact counterpart and is refused, naming the camera and the model.
+//!
+//! Strict reading, the same for both formats:
+//!
+//! * a missing or unknown camera or distortion model is an error naming the camera and the
+//!   field; so are distortion coefficients the model would ignore (non-zero ones under Kalibr's
+//!   `distortion_model: none`, or a count the model does not take), and Basalt intrinsics the
+//!   `camera_type` does not take;
+//! * a duplicated key is an error (Kalibr's YAML through serde_yaml; Basalt's JSON through a
+//!   reader that names the key and where it is);
+//! * a UTF-8 byte-order mark at the start is dropped;
+//! * files over [`MAX_CALIBRATION_FILE_BYTES`] are refused before they are read, and text
+//!   nested deeper than [`MAX_FLOW_DEPTH`] before it is parsed
+//!   ([`crate::geometry::rig_yaml`]'s guards);
+//! * values outside the plausible bounds of [`crate::geometry::rig`] are refused with the
+//!   bound: focal lengths outside [`MIN_FOCAL_PX`](crate::geometry::rig::MIN_FOCAL_PX) to
+//!   [`MAX_FOCAL_PX`](crate::geometry::rig::MAX_FOCAL_PX) (1e-3 to 1e6 px), distortion
+//!   parameters beyond [`MAX_DISTORTION_ABS`](crate::geometry::rig::MAX_DISTORTION_ABS)
+//!   (1e3), translations beyond [`MAX_TRANSLATION_M`](crate::geometry::rig::MAX_TRANSLATION_M)
+//!   (1 km), non-finite numbers anywhere; principal points must lie in the image;
+//! * topics and frame ids are ROS 2 names ([`crate::geometry::rig::validate_topic_name`]).
 
 mod basalt;
+mod json;
 mod kalibr;
 
 pub use basalt::rig_from_basalt_json;
 pub use kalibr::rig_from_kalibr_camchain;
 
 use super::camera::{Eucm, FisheyeCamera, FisheyeLens, Focal, ImageSize, IntrinsicsError};
-use super::rig::{Projection, Rig, RigCamera, RigError, RigOutput, DEFAULT_RIG_FRAME};
+use super::rig::{
+    check_lens, check_translation, validate_topic_name, Projection, Rig, RigCamera, RigError,
+    RigOutput, DEFAULT_RIG_FRAME,
+};
+use super::rig_yaml::input::{self, ReadError};
+pub use super::rig_yaml::{MAX_CALIBRATION_FILE_BYTES, MAX_FLOW_DEPTH};
 use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion};
 use std::path::Path;
 
@@ -80,10 +106,13 @@ pub enum ImportError {
         field: String,
         problem: String,
     },
-    #[error("{file}: camera '{camera}': unknown camera model '{model}' (supported: {supported})")]
+    #[error("{file}: camera '{camera}': field '{field}': unknown {kind} model '{model}' (supported: {supported})")]
     UnknownModel {
         file: String,
         camera: String,
+        /// The file's field: `camera_model`, `distortion_model`, `camera_type`.
+        field: String,
+        kind: ModelKind,
         model: String,
         supported: &'static str,
     },
@@ -98,6 +127,22 @@ pub enum ImportError {
     File { file: String, problem: String },
     #[error(transparent)]
     Rig(#[from] RigError),
+}
+
+/// Which model an [`ImportError::UnknownModel`] is: the camera's or its distortion's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelKind {
+    Camera,
+    Distortion,
+}
+
+impl std::fmt::Display for ModelKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Camera => "camera",
+            Self::Distortion => "distortion",
+        })
+    }
 }
 
 /// A rotation matrix whose `R^T R` differs from the identity by more than this is refused.
@@ -140,6 +185,34 @@ impl CamCtx<'_> {
     /// An intrinsics error from a model constructor, under the calibration's own field.
     pub fn intrinsics(&self, field: &str, e: IntrinsicsError) -> ImportError {
         self.err(field, format!("{}: {}", e.field, e.problem))
+    }
+
+    /// An unknown model in `field`.
+    pub fn unknown_model(
+        &self,
+        field: &str,
+        kind: ModelKind,
+        model: &str,
+        supported: &'static str,
+    ) -> ImportError {
+        ImportError::UnknownModel {
+            file: self.file.into(),
+            camera: self.camera.into(),
+            field: field.into(),
+            kind,
+            model: model.into(),
+            supported,
+        }
+    }
+
+    /// `Err` unless the lens's focal lengths and distortion parameters are plausible
+    /// ([`check_lens`]); `field_of` gives the file's field for the parameter (`fx`, `k1`).
+    pub fn plausible(
+        &self,
+        lens: &FisheyeLens,
+        field_of: impl Fn(&str) -> String,
+    ) -> Result<(), ImportError> {
+        check_lens(lens).map_err(|e| self.intrinsics(&field_of(&e.field), e))
     }
 
     /// `[w, h]` from the file's resolution field.
@@ -199,10 +272,9 @@ impl CamCtx<'_> {
             )));
         }
         let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&m));
-        Ok(Isometry3::from_parts(
-            nalgebra::Translation3::new(rows[0][3], rows[1][3], rows[2][3]),
-            rotation,
-        ))
+        let t = nalgebra::Vector3::new(rows[0][3], rows[1][3], rows[2][3]);
+        check_translation(&t).map_err(bad)?;
+        Ok(Isometry3::from_parts(t.into(), rotation))
     }
 }
 
@@ -213,7 +285,8 @@ pub fn optical_from_body() -> UnitQuaternion<f64> {
     UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m))
 }
 
-/// The rig from imported cameras, validated as any rig YAML is (through its YAML form).
+/// The rig from imported cameras, validated by [`Rig::new`] as every rig is (the file's own
+/// topics first, under the file's field name).
 pub(crate) fn assemble(
     file: &str,
     cams: Vec<ImportedCamera>,
@@ -233,18 +306,28 @@ pub(crate) fn assemble(
                 (Some(prefix), _) => {
                     format!("{}/{}/image_raw", prefix.trim_end_matches('/'), c.name)
                 }
-                (None, Some(t)) => t,
+                (None, Some(t)) => {
+                    // The file's own topic: named by the file's field.
+                    validate_topic_name(&t).map_err(|p| {
+                        CamCtx {
+                            file,
+                            camera: &c.name,
+                        }
+                        .err("rostopic", p)
+                    })?;
+                    t
+                }
                 (None, None) => format!("/{}/image_raw", c.name),
             };
-            RigCamera {
+            Ok(RigCamera {
                 frame_id: format!("{}_optical_frame", c.name),
                 name: c.name,
                 topic,
                 projection: c.projection,
                 rig_from_cam: c.rig_from_cam,
-            }
+            })
         })
-        .collect();
+        .collect::<Result<Vec<_>, ImportError>>()?;
     let output = RigOutput {
         frame_id: output_frame_id,
         rig_from_output,
@@ -255,12 +338,25 @@ pub(crate) fn assemble(
     )
 }
 
-/// Reads a calibration file's text.
-pub(crate) fn read(path: &Path) -> Result<(String, String), ImportError> {
+/// Reads a calibration file's text through the guards of the module docs: at most
+/// [`MAX_CALIBRATION_FILE_BYTES`], without a byte-order mark, nested at most
+/// [`MAX_FLOW_DEPTH`] deep and (for YAML, `max_collections`) with at most that many `[`/`{`.
+pub(crate) fn read(
+    path: &Path,
+    max_collections: Option<usize>,
+) -> Result<(String, String), ImportError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ImportError::Io {
+    let refused = |problem| ImportError::File {
         file: file.clone(),
-        source,
+        problem,
+    };
+    let text = input::read_calibration(path).map_err(|e| match e {
+        ReadError::Io(source) => ImportError::Io {
+            file: file.clone(),
+            source,
+        },
+        ReadError::Refused(problem) => refused(problem),
     })?;
+    input::check_nesting(&text, max_collections).map_err(refused)?;
     Ok((file, text))
 }

@@ -1,8 +1,9 @@
 //! The YAML fields every part of a rig file shares: where a problem was found ([`Ctx`]),
 //! finite number lists, non-empty strings and poses (`translation` with `rotation_xyzw` or
-//! `rotation_rpy`).
+//! `rotation_rpy`; translations and angles within the bounds of
+//! [`crate::geometry::rig::MAX_TRANSLATION_M`] and [`crate::geometry::rig::MAX_RPY_ABS_RAD`]).
 
-use crate::geometry::rig::{RigError, QUATERNION_NORM_TOLERANCE};
+use crate::geometry::rig::{check_rpy, check_translation, RigError, QUATERNION_NORM_TOLERANCE};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
@@ -65,6 +66,8 @@ pub(super) fn parse_pose(
         .as_deref()
         .ok_or_else(|| ctx.err(&field("translation"), "missing"))?;
     let [tx, ty, tz] = finite_vec::<3>(ctx, &field("translation"), t)?;
+    check_translation(&nalgebra::Vector3::new(tx, ty, tz))
+        .map_err(|p| ctx.err(&field("translation"), p))?;
     let rotation = match (&raw.rotation_xyzw, &raw.rotation_rpy) {
         (Some(_), Some(_)) => {
             return Err(ctx.err(
@@ -87,6 +90,8 @@ pub(super) fn parse_pose(
         }
         (None, Some(rpy)) => {
             let [r, p, y] = finite_vec::<3>(ctx, &field("rotation_rpy"), rpy)?;
+            check_rpy(&field("rotation_rpy"), &[r, p, y])
+                .map_err(|e| ctx.err(&e.field, e.problem))?;
             UnitQuaternion::from_euler_angles(r, p, y)
         }
     };

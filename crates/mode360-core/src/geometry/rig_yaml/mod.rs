@@ -18,11 +18,15 @@
 //! ```
 //!
 //! The frames are described in [`crate::geometry::rig`]; the fisheye fields (`image_size`,
-//! `intrinsics`, `lenses`) in `projection.rs`.
+//! `intrinsics`, `lenses`) in `projection.rs`. Before parsing, a file over
+//! [`MAX_CALIBRATION_FILE_BYTES`] or nested deeper than [`MAX_FLOW_DEPTH`] is refused and a
+//! byte-order mark is dropped (`input.rs`, shared with the calibration importers).
 
 mod fields;
+pub(crate) mod input;
 mod projection;
 
+pub use input::{MAX_CALIBRATION_FILE_BYTES, MAX_FLOW_COLLECTIONS, MAX_FLOW_DEPTH};
 pub use projection::PROJECTION_NAMES;
 
 use crate::geometry::rig::{Rig, RigCamera, RigError, RigOutput, DEFAULT_RIG_FRAME, MIN_CAMERAS};
@@ -68,15 +72,28 @@ impl Rig {
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, RigError> {
         let path = path.as_ref();
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io {
-            file: file.clone(),
-            source,
+        let text = input::read_calibration(path).map_err(|e| match e {
+            input::ReadError::Io(source) => RigError::Io {
+                file: file.clone(),
+                source,
+            },
+            input::ReadError::Refused(problem) => RigError::Input {
+                file: file.clone(),
+                problem,
+            },
         })?;
         Self::from_yaml_str(&text, &file)
     }
 
-    /// Parses and validates rig YAML; `source_name` names the text in errors.
+    /// Parses and validates rig YAML; `source_name` names the text in errors. A leading
+    /// byte-order mark is dropped; text over the size limit or nested too deep is refused
+    /// before parsing.
     pub fn from_yaml_str(text: &str, source_name: &str) -> Result<Self, RigError> {
+        let text = input::strip_bom(text);
+        input::check_yaml(text).map_err(|problem| RigError::Input {
+            file: source_name.to_string(),
+            problem,
+        })?;
         let raw: RawRig = serde_yaml::from_str(text).map_err(|e| RigError::Yaml {
             file: source_name.to_string(),
             message: e.to_string(),

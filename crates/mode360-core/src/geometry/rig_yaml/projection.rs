@@ -3,6 +3,7 @@
 //!
 //! ```yaml
 //! projection: equirectangular            # the default; no image_size, no intrinsics
+//!                                        # (a camera with those and no projection is an error)
 //!
 //! projection: double_sphere              # or kannala_brandt, eucm
 //! image_size: [1280, 1024]               # width, height in pixels
@@ -185,7 +186,28 @@ fn parse_lens(
 
 /// The camera's projection from its YAML fields.
 pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Projection, RigError> {
-    let name = raw.projection.unwrap_or("equirectangular");
+    // No projection means equirectangular, which takes none of the fisheye fields: with one of
+    // them present, the projection is what is missing.
+    let fisheye_field = [
+        ("image_size", raw.image_size.is_some()),
+        ("intrinsics", raw.intrinsics.is_some()),
+        ("lenses", raw.lenses.is_some()),
+    ]
+    .into_iter()
+    .find_map(|(f, present)| present.then_some(f));
+    let name = match (raw.projection, fisheye_field) {
+        (Some(name), _) => name,
+        (None, None) => "equirectangular",
+        (None, Some(f)) => {
+            return Err(ctx.err(
+                "projection",
+                format!(
+                    "missing, but the camera has {f}, which only fisheye projections take: give projection: {} (without projection and fisheye fields a camera is equirectangular)",
+                    PROJECTION_NAMES[1..].join(", ")
+                ),
+            ))
+        }
+    };
     let refuse_extra = |field: &str, present: bool| -> Result<(), RigError> {
         if present {
             Err(ctx.err(field, format!("not used by projection {name}")))
