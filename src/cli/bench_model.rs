@@ -364,7 +364,7 @@ pub fn run(a: BenchModelArgs) -> Result<()> {
         }
     }
     print!("{}", format_table(&cases));
-    std::fs::write(&a.json, serde_json::to_string_pretty(&cases)?)
+    mode360_core::atomic_file::write_atomic(&a.json, serde_json::to_string_pretty(&cases)?)
         .with_context(|| format!("writing {}", a.json.display()))?;
     println!("wrote {}", a.json.display());
     Ok(())

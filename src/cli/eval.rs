@@ -420,7 +420,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
         print!("{}", report.to_table());
         serde_json::to_string_pretty(&report)?
     };
-    std::fs::write(&a.json, json).with_context(|| format!("writing {}", a.json.display()))?;
+    mode360_core::atomic_file::write_atomic(&a.json, json)
+        .with_context(|| format!("writing {}", a.json.display()))?;
     println!("wrote {}", a.json.display());
     Ok(())
 }

@@ -76,5 +76,6 @@ pub fn write_rig(rig: &Rig, out: &Path) -> Result<()> {
          # optical frames (z forward, x right, y down); see README, \"Rig calibration\".\n{}",
         rig.to_yaml()
     );
-    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))
+    mode360_core::atomic_file::write_atomic(out, text)
+        .with_context(|| format!("writing {}", out.display()))
 }

@@ -460,3 +460,62 @@ fn rig_import_writes_a_loadable_rig_and_refuses_unknown_models() {
     let o = mode360(&["rig", "import", "--out", out.to_str().unwrap()]);
     assert!(!o.status.success());
 }
+
+/// A run that fails never touches an existing output: an oversized fisheye calibration and
+/// an oversized width are refused before anything is allocated, naming the field and the
+/// limit, and the bag already at `--out` keeps its bytes; a run that succeeds replaces it
+/// whole and leaves no temporary file.
+#[test]
+fn failed_runs_leave_existing_outputs_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("keep.mcap");
+    std::fs::write(&out, b"precious").unwrap();
+    let huge = dir.path().join("huge.yaml");
+    std::fs::write(
+        &huge,
+        "cameras:\n  - {name: a, topic: /a, frame_id: a, projection: kannala_brandt, \
+         image_size: [200000, 200000], intrinsics: {fx: 100, fy: 100, cx: 100000, cy: 100000, \
+         k1: 0, k2: 0, k3: 0, k4: 0}, rig_from_cam: {translation: [0, 0, 1], rotation_xyzw: [0, 0, 0, 1]}}\n  \
+         - {name: b, topic: /b, frame_id: b, rig_from_cam: {translation: [0, 1, 1], rotation_xyzw: [0, 0, 0, 1]}}\n",
+    )
+    .unwrap();
+    let out_arg = out.to_str().unwrap();
+    for (args, needles) in [
+        (
+            vec![
+                "synth",
+                "--rig",
+                huge.to_str().unwrap(),
+                "--frames",
+                "1",
+                "--out",
+                out_arg,
+            ],
+            ["image_size", "16384"],
+        ),
+        (
+            vec![
+                "synth", "--width", "100000", "--frames", "1", "--out", out_arg,
+            ],
+            ["100000", "16384"],
+        ),
+    ] {
+        let o = mode360(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        for n in needles {
+            assert!(err.contains(n), "{args:?}: '{err}' should mention {n}");
+        }
+        assert_eq!(std::fs::read(&out).unwrap(), b"precious", "{args:?}");
+    }
+    let o = mode360(&["synth", "--width", "64", "--frames", "1", "--out", out_arg]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_ne!(std::fs::read(&out).unwrap(), b"precious");
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("partial"))
+        .collect();
+    assert!(left.is_empty(), "temporary files left: {left:?}");
+}

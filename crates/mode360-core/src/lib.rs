@@ -4,6 +4,7 @@
 //! ([`frame`]), depth metrics ([`metrics`]), camera synchronization ([`sync`]) and process
 //! memory ([`memory`]) and progress bars of long work ([`progress`]).
 
+pub mod atomic_file;
 pub mod frame;
 pub mod geometry;
 pub mod memory;

@@ -428,7 +428,7 @@ pub fn run(a: BenchNodeArgs) -> Result<()> {
     })?;
     print!("{}", report.to_table());
     if let Some(path) = a.json {
-        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+        mode360_core::atomic_file::write_atomic(&path, serde_json::to_string_pretty(&report)?)
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
     }

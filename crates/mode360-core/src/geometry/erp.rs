@@ -16,6 +16,8 @@ use std::f64::consts::{FRAC_PI_2, PI};
 
 /// The smallest ERP width accepted.
 pub const MIN_ERP_WIDTH: usize = 4;
+/// The largest ERP width accepted (16K panoramas; a larger grid would only exhaust memory).
+pub const MAX_ERP_WIDTH: usize = 16_384;
 
 /// Longitude and latitude of a viewing direction, radians.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -64,12 +66,19 @@ pub struct ErpGrid {
 }
 
 impl ErpGrid {
-    /// An ERP grid `width` wide and `width / 2` tall; `width` must be even and at least 4.
+    /// An ERP grid `width` wide and `width / 2` tall; `width` must be even, at least
+    /// [`MIN_ERP_WIDTH`] and at most [`MAX_ERP_WIDTH`].
     pub fn new(width: usize) -> Result<Self, GeometryError> {
         if width < MIN_ERP_WIDTH || !width.is_multiple_of(2) {
             return Err(GeometryError::BadErpWidth {
                 width,
                 min: MIN_ERP_WIDTH,
+            });
+        }
+        if width > MAX_ERP_WIDTH {
+            return Err(GeometryError::ErpTooWide {
+                width,
+                max: MAX_ERP_WIDTH,
             });
         }
         Ok(Self {

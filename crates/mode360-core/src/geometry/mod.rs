@@ -37,6 +37,8 @@ pub const DEFAULT_MAX_DEPTH_M: f64 = 1000.0;
 pub enum GeometryError {
     #[error("ERP width must be even and at least {min}, got {width}")]
     BadErpWidth { width: usize, min: usize },
+    #[error("ERP width {width} is larger than the largest accepted, {max}")]
+    ErpTooWide { width: usize, max: usize },
     #[error("GEER pair needs two distinct camera centres (baseline {baseline_m} m)")]
     ZeroBaseline { baseline_m: f64 },
     #[error("depth range must satisfy 0 < min < max, got min {min_m} m, max {max_m} m")]

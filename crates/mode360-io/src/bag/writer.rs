@@ -2,6 +2,7 @@
 
 use super::error::BagError;
 use super::format::*;
+use mode360_core::atomic_file::AtomicFile;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::BufWriter;
@@ -40,12 +41,14 @@ struct WriterChannel {
     sequence: u32,
 }
 
-/// Writes a ROS 2 MCAP bag. Call [`Self::finish`] to write the summary and see any error;
-/// dropping the writer also finishes the file (the mcap crate does so), silently. A
-/// recording cut off by a crash is still readable by [`BagReader`] up to its last complete
-/// chunk.
+/// Writes a ROS 2 MCAP bag. The bag is written beside its path ([`AtomicFile`]) and
+/// [`Self::finish`] renames it into place: a run that fails or is killed never touches an
+/// existing file there. Dropping the writer without `finish` removes the unfinished bag; a
+/// killed run leaves it as `.NAME.partial-PID`, readable by [`BagReader`] up to its last
+/// complete chunk.
 pub struct BagWriter {
     file: String,
+    atomic: AtomicFile,
     writer: Writer<BufWriter<File>>,
     schemas: HashMap<&'static str, u16>,
     channels: HashMap<String, WriterChannel>,
@@ -60,11 +63,12 @@ impl BagWriter {
     /// Creates (or truncates) a bag at `path` with `options`.
     pub fn create_with(path: impl AsRef<Path>, options: BagWriteOptions) -> Result<Self, BagError> {
         let file = path.as_ref().display().to_string();
-        let handle = File::create(path.as_ref()).map_err(|source| BagError::Io {
-            file: file.clone(),
-            action: "cannot create bag",
-            source,
-        })?;
+        let (atomic, handle) =
+            AtomicFile::create(path.as_ref()).map_err(|source| BagError::Io {
+                file: file.clone(),
+                action: "cannot create bag",
+                source,
+            })?;
         let compression = match options.compression {
             BagCompression::None => None,
             BagCompression::Zstd => Some(Compression::Zstd),
@@ -87,6 +91,7 @@ impl BagWriter {
             })?;
         Ok(Self {
             file,
+            atomic,
             writer,
             schemas: HashMap::new(),
             channels: HashMap::new(),
@@ -206,25 +211,25 @@ impl BagWriter {
             .map_err(self.mcap_err("writing metadata"))
     }
 
-    /// Flushes the last chunk and writes the summary and footer.
+    /// Flushes the last chunk, writes the summary and footer, and puts the bag in place.
     pub fn finish(mut self) -> Result<(), BagError> {
         self.writer
             .finish()
             .map_err(self.mcap_err("finishing the bag"))?;
         let file = self.file.clone();
-        self.writer
+        let handle = self
+            .writer
             .into_inner()
             .into_inner()
             .map_err(|err| BagError::Io {
                 file,
                 action: "cannot flush bag",
                 source: err.into_error(),
-            })?
-            .sync_all()
-            .map_err(|source| BagError::Io {
-                file: self.file.clone(),
-                action: "cannot sync bag",
-                source,
-            })
+            })?;
+        self.atomic.commit(handle).map_err(|source| BagError::Io {
+            file: self.file.clone(),
+            action: "cannot put the finished bag in place",
+            source,
+        })
     }
 }

@@ -125,7 +125,7 @@ pub fn truncate_after_step(path: &Path, header: &str, max_step: usize) -> std::i
         .collect();
     let mut out = kept.join("\n");
     out.push('\n');
-    std::fs::write(path, out)
+    mode360_core::atomic_file::write_atomic(path, out)
 }
 
 /// `(x, y)` columns of a CSV, by header name; unparsable rows are skipped.

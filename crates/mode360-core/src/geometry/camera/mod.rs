@@ -64,6 +64,10 @@ impl IntrinsicsError {
     }
 }
 
+/// Largest image side a camera may have, pixels (a 16K sensor side; more would only exhaust
+/// memory).
+pub const MAX_IMAGE_SIDE_PX: u32 = 16_384;
+
 /// Image size in pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ImageSize {
@@ -72,12 +76,19 @@ pub struct ImageSize {
 }
 
 impl ImageSize {
-    /// Both sides at least [`MIN_IMAGE_SIDE_PX`]; the error names `image_size`.
+    /// Both sides at least [`MIN_IMAGE_SIDE_PX`] and at most [`MAX_IMAGE_SIDE_PX`] (checked
+    /// before anything is allocated for the image); the error names `image_size`.
     pub fn new(width: u32, height: u32) -> Result<Self, IntrinsicsError> {
         if width < MIN_IMAGE_SIDE_PX || height < MIN_IMAGE_SIDE_PX {
             return Err(IntrinsicsError::new(
                 "image_size",
                 format!("{width} x {height} is not an image (each side at least {MIN_IMAGE_SIDE_PX} px)"),
+            ));
+        }
+        if width > MAX_IMAGE_SIDE_PX || height > MAX_IMAGE_SIDE_PX {
+            return Err(IntrinsicsError::new(
+                "image_size",
+                format!("{width} x {height} is larger than any camera's (each side at most {MAX_IMAGE_SIDE_PX} px)"),
             ));
         }
         Ok(Self { width, height })
