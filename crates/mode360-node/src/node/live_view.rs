@@ -33,6 +33,10 @@ pub const FOXGLOVE_OFF: u16 = 0;
 pub const SERVER_NAME: &str = "mode360";
 /// Worker threads of the server's runtime (it only moves bytes).
 const SERVER_THREADS: usize = 1;
+/// Messages queued per client before the oldest are dropped. The SDK's default (1024) lets a
+/// client that subscribes to everything and never reads hold about a gigabyte of images and
+/// clouds (a group's messages are up to 1.5 MiB at 512 wide); 16 is about three groups.
+pub const CLIENT_BACKLOG_MESSAGES: usize = 16;
 
 /// Why the live view could not start.
 #[derive(Debug, thiserror::Error)]
@@ -173,6 +177,7 @@ impl LiveView {
             .name(SERVER_NAME)
             .bind(at.address.to_string(), at.port)
             .context(&context)
+            .message_backlog_size(CLIENT_BACKLOG_MESSAGES)
             .tokio_runtime(runtime.handle());
         // Started from a plain thread: `block_on` refuses to run inside another runtime.
         let handle = std::thread::scope(|s| {
