@@ -7,6 +7,7 @@ mod common;
 mod calib_import;
 mod calib_strict;
 mod camera_models;
+mod fuzz_inputs;
 mod geometry;
 mod msgs_cdr;
 mod ops_conv3d;
