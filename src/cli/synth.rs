@@ -14,9 +14,9 @@ pub struct SynthArgs {
     /// Rig calibration YAML.
     #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
     pub rig: PathBuf,
-    /// Number of frames to render.
-    #[arg(long, default_value_t = 10)]
-    pub frames: usize,
+    /// Number of frames to render (at most 100000).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=MAX_SYNTH_FRAMES as i64))]
+    pub frames: u32,
     /// Index of the first frame along the drive.
     #[arg(long, default_value_t = 0)]
     pub first_frame: usize,
@@ -56,6 +56,10 @@ pub struct SynthArgs {
     pub out: PathBuf,
 }
 
+/// Most frames one `synth` run renders (a 27-hour drive at 1 Hz; the bag would be hundreds of
+/// gigabytes at 512 wide).
+pub const MAX_SYNTH_FRAMES: u32 = 100_000;
+
 /// `mode360 synth`: renders the frames into the bag and prints the size and the rate.
 pub fn run(a: SynthArgs) -> Result<()> {
     let rig = Rig::from_file(&a.rig)?;
@@ -63,6 +67,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
         rig
     } else {
         rig.scaled(a.fisheye_scale)
+            .map_err(|e| e.in_source(&a.rig.display().to_string()))
             .with_context(|| format!("--fisheye-scale {}", a.fisheye_scale))?
     };
     if let Some(part) = mode360_core::geometry::panorama::rig_coverage_warning(&rig) {
@@ -89,7 +94,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
     let summary = record_synthetic_bag(&RecordOptions {
         rig,
         config,
-        frames: a.frames,
+        frames: a.frames as usize,
         first_frame: a.first_frame,
         out: a.out.clone(),
         show_progress: true,
