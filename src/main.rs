@@ -88,6 +88,31 @@ fn log_filter(command: &Command) -> tracing_subscriber::EnvFilter {
     }
 }
 
+/// Logs to stderr through `filter`, lines cut and repeats limited ([`cli::logging`]).
+fn init_logging(filter: tracing_subscriber::EnvFilter) {
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    use tracing_subscriber::Layer;
+    let limit = cli::logging::CallsiteRateLimit::default();
+    // Decided per event: a cached per-callsite answer would defeat the count.
+    let repeats = tracing_subscriber::filter::dynamic_filter_fn(move |meta, _| {
+        // Warnings and errors repeat in loops (reconnecting clients); information does not.
+        !meta.is_event()
+            || *meta.level() > tracing::Level::WARN
+            || limit.allow(meta.callsite(), std::time::Instant::now())
+    })
+    .with_callsite_filter(|_| tracing::subscriber::Interest::sometimes());
+    tracing_subscriber::registry()
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+                .with_writer(cli::logging::CutLines)
+                .with_filter(repeats)
+                .with_filter(filter),
+        )
+        .init();
+}
+
 /// The error as one line: each message of its chain once (a message already contained in
 /// the ones before it, as `thiserror`'s `{source}` texts are, is not repeated).
 fn describe(error: &anyhow::Error) -> String {
@@ -107,10 +132,7 @@ fn describe(error: &anyhow::Error) -> String {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(log_filter(&cli.command))
-        .with_writer(std::io::stderr)
-        .init();
+    init_logging(log_filter(&cli.command));
     match run(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -31,6 +31,7 @@ pub mod demo;
 pub mod drops;
 pub mod estimator_args;
 pub mod eval;
+pub mod logging;
 pub mod node;
 pub mod play;
 pub mod replay;
