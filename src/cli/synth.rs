@@ -56,6 +56,33 @@ pub struct SynthArgs {
     pub out: PathBuf,
 }
 
+/// Bytes a rendered frame holds per image pixel, with the renderer's buffers (8-bit RGB, an
+/// f32 range and ray and hit buffers of a few words a pixel).
+const RENDER_BYTES_PER_PIXEL: f64 = 64.0;
+
+/// Refuses a rig whose frames would not fit in memory, before anything is allocated, saying
+/// what one frame would need.
+fn check_memory(rig: &Rig, width: usize) -> Result<()> {
+    let pixels: f64 = rig
+        .cameras
+        .iter()
+        .map(|c| match c.projection.image_size() {
+            Some(s) => f64::from(s.width) * f64::from(s.height),
+            None => (width * width / 2) as f64,
+        })
+        .sum::<f64>()
+        + (width * width / 2) as f64;
+    let need_mib = pixels * RENDER_BYTES_PER_PIXEL / BYTES_PER_MIB;
+    if let Some(available) = mode360_core::memory::available_mib() {
+        if need_mib > available {
+            anyhow::bail!(
+                "rendering a frame of this rig at width {width} needs about {need_mib:.0} MiB,                  {available:.0} MiB are available"
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Most frames one `synth` run renders (a 27-hour drive at 1 Hz; the bag would be hundreds of
 /// gigabytes at 512 wide).
 pub const MAX_SYNTH_FRAMES: u32 = 100_000;
@@ -70,6 +97,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
             .map_err(|e| e.in_source(&a.rig.display().to_string()))
             .with_context(|| format!("--fisheye-scale {}", a.fisheye_scale))?
     };
+    check_memory(&rig, a.width)?;
     if let Some(part) = mode360_core::geometry::panorama::rig_coverage_warning(&rig) {
         tracing::warn!("rig {}: {part}", a.rig.display());
     }

@@ -519,3 +519,50 @@ fn failed_runs_leave_existing_outputs_untouched() {
         .collect();
     assert!(left.is_empty(), "temporary files left: {left:?}");
 }
+
+/// A rig whose frames would not fit in memory is refused before rendering, with what a frame
+/// would need, and the existing output stays.
+#[test]
+fn synth_refuses_frames_that_would_not_fit_in_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("keep.mcap");
+    std::fs::write(&out, b"precious").unwrap();
+    let big = dir.path().join("big.yaml");
+    let camera = |i: usize| {
+        format!(
+            "  - {{name: c{i}, topic: /c{i}, frame_id: c{i}, projection: kannala_brandt, \
+             image_size: [16384, 16384], intrinsics: {{fx: 5000, fy: 5000, cx: 8192, cy: 8192, \
+             k1: 0, k2: 0, k3: 0, k4: 0}}, rig_from_cam: {{translation: [0, {i}, 1], \
+             rotation_xyzw: [0, 0, 0, 1]}}}}\n"
+        )
+    };
+    let yaml: String = std::iter::once("cameras:\n".to_string())
+        .chain((0..4).map(camera))
+        .collect();
+    std::fs::write(&big, yaml).unwrap();
+    // 4 x 16384^2 pixels at 64 bytes a pixel: about 65,600 MiB.
+    let need_mib = 4.0 * 16384.0 * 16384.0 * 64.0 / (1024.0 * 1024.0);
+    match mode360::memory::available_mib() {
+        Some(available) if available < need_mib => {}
+        other => {
+            println!("skipped: {other:?} MiB available, the rig needs {need_mib:.0}");
+            return;
+        }
+    }
+    let o = mode360(&[
+        "synth",
+        "--rig",
+        big.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("needs about") && err.contains("MiB are available"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&out).unwrap(), b"precious");
+}

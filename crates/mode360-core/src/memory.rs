@@ -39,6 +39,13 @@ pub fn resident_mib_of(pid: u32) -> Option<f64> {
     status_field_kib(&status, "VmRSS:").map(|kib| kib / KIB_PER_MIB)
 }
 
+/// Memory the kernel could give this process without swapping (`MemAvailable` of
+/// `/proc/meminfo`), in MiB, when `/proc` has it.
+pub fn available_mib() -> Option<f64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    status_field_kib(&meminfo, "MemAvailable:").map(|kib| kib / KIB_PER_MIB)
+}
+
 fn proc_status_kib(key: &str) -> Option<f64> {
     status_field_kib(&std::fs::read_to_string("/proc/self/status").ok()?, key)
 }
