@@ -76,7 +76,7 @@ fn check_memory(rig: &Rig, width: usize) -> Result<()> {
     if let Some(available) = mode360_core::memory::available_mib() {
         if need_mib > available {
             anyhow::bail!(
-                "rendering a frame of this rig at width {width} needs about {need_mib:.0} MiB,                  {available:.0} MiB are available"
+                "rendering a frame of this rig at width {width} needs about {need_mib:.0} MiB, {available:.0} MiB are available"
             );
         }
     }
