@@ -63,6 +63,8 @@ const RENDER_BYTES_PER_PIXEL: f64 = 64.0;
 /// Refuses a rig whose frames would not fit in memory, before anything is allocated, saying
 /// what one frame would need.
 fn check_memory(rig: &Rig, width: usize) -> Result<()> {
+    // The width's own limits first: they say more than a memory figure.
+    mode360_core::geometry::ErpGrid::new(width).with_context(|| format!("--width {width}"))?;
     let pixels: f64 = rig
         .cameras
         .iter()
