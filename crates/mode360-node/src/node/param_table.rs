@@ -101,6 +101,14 @@ fn positive_usize(value: &str) -> Result<usize, String> {
         .ok_or_else(|| "expected a positive integer".into())
 }
 
+fn unit_interval(value: &str) -> Result<f64, String> {
+    value
+        .parse::<f64>()
+        .ok()
+        .filter(|v| (0.0..=1.0).contains(v))
+        .ok_or_else(|| "expected a number from 0 to 1".into())
+}
+
 fn boolean(value: &str) -> Result<bool, String> {
     match value {
         "true" | "True" => Ok(true),
@@ -219,11 +227,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
         runtime: true,
         get: |p| ParamValue::Double(p.min_confidence),
         set: |p, v| {
-            p.min_confidence = v
-                .parse::<f64>()
-                .ok()
-                .filter(|c| (0.0..=1.0).contains(c))
-                .ok_or("expected a number from 0 to 1")?;
+            p.min_confidence = unit_interval(v)?;
             Ok(())
         },
     },
@@ -330,11 +334,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
         runtime: false,
         get: |p| ParamValue::Double(p.lens_warn_fraction),
         set: |p, v| {
-            p.lens_warn_fraction = v
-                .parse::<f64>()
-                .ok()
-                .filter(|f| (0.0..=1.0).contains(f))
-                .ok_or("expected a fraction from 0 to 1")?;
+            p.lens_warn_fraction = unit_interval(v)?;
             Ok(())
         },
     },
