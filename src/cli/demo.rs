@@ -81,8 +81,7 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
 
 /// The demo, leaving the node running.
 fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
-    let reader =
-        RigBagReader::open(&opts.bag).with_context(|| format!("opening {}", opts.bag.display()))?;
+    let reader = RigBagReader::open(&opts.bag)?;
     let rig = reader.rig().clone();
     let max_depth_m = reader
         .info()
@@ -239,10 +238,7 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
 
 /// Keeps the node's live view fed: plays the bag in a loop until SIGINT or SIGTERM.
 fn serve_live_view(opts: &DemoOptions, port: u16) -> Result<()> {
-    let rig = RigBagReader::open(&opts.bag)
-        .with_context(|| format!("opening {}", opts.bag.display()))?
-        .rig()
-        .clone();
+    let rig = RigBagReader::open(&opts.bag)?.rig().clone();
     let stop = stop_flag_on_signals()?;
     println!(
         "Foxglove live view on ws://127.0.0.1:{port}: in Foxglove, Open connection > Foxglove \

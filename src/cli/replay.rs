@@ -79,8 +79,7 @@ impl ReplaySummary {
 
 /// Replays `opts.input` into `opts.output`.
 pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
-    let reader = RigBagReader::open(&opts.input)
-        .with_context(|| format!("opening {}", opts.input.display()))?;
+    let reader = RigBagReader::open(&opts.input)?;
     let file = opts.input.display().to_string();
     let rig = match &opts.rig {
         None => reader.rig().clone(),
