@@ -9,6 +9,7 @@ mod calib_strict;
 mod camera_models;
 mod fuzz_inputs;
 mod geometry;
+mod import_circles;
 mod msgs_cdr;
 mod ops_conv3d;
 mod ops_sample;
