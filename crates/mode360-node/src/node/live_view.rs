@@ -15,7 +15,13 @@
 //! The server runs on its own small tokio runtime, so starting it works from any thread, also
 //! inside another runtime. Each view has its own [`foxglove::Context`]: two nodes in one
 //! process do not share channels.
+//!
+//! When a client leaves, the memory its queue held goes back to the kernel
+//! ([`release_freed_pages`], [`RELEASE_DELAY`] later): the binary's jemalloc otherwise keeps
+//! freed pages for the next frame (`muzzy_decay_ms:-1`, `src/main.rs`), and a node that once
+//! served stalled clients would keep their backlog's size for good.
 
+use foxglove::websocket::ServerListener;
 use foxglove::{Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
 use mode360_io::bag::{MESSAGE_ENCODING, SCHEMA_ENCODING};
 use mode360_io::msgs::{
@@ -23,7 +29,9 @@ use mode360_io::msgs::{
 };
 use std::marker::PhantomData;
 use std::net::IpAddr;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 /// Port of Foxglove's WebSocket connection by default (what the app suggests).
 pub const DEFAULT_FOXGLOVE_PORT: u16 = 8765;
@@ -37,6 +45,65 @@ const SERVER_THREADS: usize = 1;
 /// client that subscribes to everything and never reads hold about a gigabyte of images and
 /// clouds (a group's messages are up to 1.5 MiB at 512 wide); 16 is about three groups.
 pub const CLIENT_BACKLOG_MESSAGES: usize = 16;
+/// How long after a client disconnects its freed memory is handed back to the kernel: the
+/// server drops the client's queue once its connection task ends, shortly after the
+/// disconnect is reported. Disconnects within this time share one release.
+pub const RELEASE_DELAY: Duration = Duration::from_secs(1);
+/// jemalloc's name for all arenas at once (`MALLCTL_ARENAS_ALL`) in `arena.<i>.purge`.
+const PURGE_ALL_ARENAS: &std::ffi::CStr = c"arena.4096.purge";
+
+/// Hands the pages jemalloc holds free (dirty and lazily purged ones, of every arena) back to
+/// the kernel at once, so the resident size drops to what is in use. True when jemalloc did;
+/// where the process allocates with another allocator, jemalloc's own arenas are empty and
+/// this costs nothing. The next allocations fault their pages in again, so this runs when
+/// memory was freed for good (a client gone), never per frame.
+pub fn release_freed_pages() -> bool {
+    // SAFETY: `arena.<i>.purge` reads and writes nothing (all pointers null, length 0) and
+    // the name is a NUL-terminated string; jemalloc locks each arena while purging it.
+    let rc = unsafe {
+        tikv_jemalloc_sys::mallctl(
+            PURGE_ALL_ARENAS.as_ptr(),
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            0,
+        )
+    };
+    rc == 0
+}
+
+/// Releases freed pages [`RELEASE_DELAY`] after a client disconnects (one release pending at
+/// a time), on the server's runtime.
+struct ReleaseOnDisconnect {
+    runtime: tokio::runtime::Handle,
+    pending: Arc<AtomicBool>,
+    /// Releases done so far.
+    releases: Arc<AtomicUsize>,
+}
+
+impl ServerListener for ReleaseOnDisconnect {
+    fn on_client_disconnect(&self) {
+        if self.pending.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        let (pending, releases) = (self.pending.clone(), self.releases.clone());
+        self.runtime.spawn(async move {
+            tokio::time::sleep(RELEASE_DELAY).await;
+            pending.store(false, Ordering::Release);
+            let before = mode360_core::memory::resident_mib();
+            let released = tokio::task::spawn_blocking(release_freed_pages)
+                .await
+                .unwrap_or(false);
+            let after = mode360_core::memory::resident_mib();
+            releases.fetch_add(1, Ordering::AcqRel);
+            if let (true, Some(before), Some(after)) = (released, before, after) {
+                tracing::debug!(
+                    "live view: a client left; resident memory {before:.0} -> {after:.0} MiB"
+                );
+            }
+        });
+    }
+}
 
 /// Why the live view could not start.
 #[derive(Debug, thiserror::Error)]
@@ -135,6 +202,8 @@ pub struct LiveView {
     pub tf_static: LiveTopic<TFMessage>,
     pub diagnostics: LiveTopic<DiagnosticArray>,
     port: u16,
+    /// Times freed memory was released after clients left.
+    releases: Arc<AtomicUsize>,
     server: Option<WebSocketServerHandle>,
     /// Dropped last: the server's tasks run on it.
     runtime: Option<tokio::runtime::Runtime>,
@@ -173,11 +242,17 @@ impl LiveView {
             .enable_all()
             .build()
             .map_err(|e| server_err(format!("cannot start its runtime: {e}")))?;
+        let releases = Arc::new(AtomicUsize::new(0));
         let server = WebSocketServer::new()
             .name(SERVER_NAME)
             .bind(at.address.to_string(), at.port)
             .context(&context)
             .message_backlog_size(CLIENT_BACKLOG_MESSAGES)
+            .listener(Arc::new(ReleaseOnDisconnect {
+                runtime: runtime.handle().clone(),
+                pending: Arc::new(AtomicBool::new(false)),
+                releases: releases.clone(),
+            }))
             .tokio_runtime(runtime.handle());
         // Started from a plain thread: `block_on` refuses to run inside another runtime.
         let handle = std::thread::scope(|s| {
@@ -201,6 +276,7 @@ impl LiveView {
             tf_static,
             diagnostics,
             port,
+            releases,
             server: Some(handle),
             runtime: Some(runtime),
             _context: context,
@@ -215,6 +291,11 @@ impl LiveView {
     /// Clients connected now.
     pub fn client_count(&self) -> usize {
         self.server.as_ref().map_or(0, |s| s.client_count())
+    }
+
+    /// How many times memory freed by departed clients was handed back to the kernel.
+    pub fn memory_releases(&self) -> usize {
+        self.releases.load(Ordering::Acquire)
     }
 
     /// Sends camera `i`'s message (raw or compressed, as received).
@@ -252,7 +333,17 @@ impl Drop for LiveView {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::net::{Ipv4Addr, TcpListener};
+    use mode360_core::memory::resident_mib;
+    use std::io::{Read, Write};
+    use std::net::{Ipv4Addr, TcpListener, TcpStream};
+    use std::time::Instant;
+
+    /// The unit tests allocate as the binary does (`src/main.rs`): jemalloc, freed pages kept.
+    #[global_allocator]
+    static JEMALLOC: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
+    #[allow(non_upper_case_globals)]
+    #[export_name = "_rjem_malloc_conf"]
+    pub static malloc_conf: &[u8] = b"oversize_threshold:0,muzzy_decay_ms:-1\0";
 
     fn topics() -> LiveViewTopics {
         LiveViewTopics {
@@ -279,6 +370,63 @@ mod tests {
         };
         let e = LiveView::start(&at, &topics()).err().unwrap().to_string();
         assert!(e.contains(&format!("127.0.0.1:{port}")), "{e}");
+    }
+
+    fn free_port() -> LiveViewAddress {
+        let taken = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).unwrap();
+        let port = taken.local_addr().unwrap().port();
+        LiveViewAddress {
+            address: Ipv4Addr::LOCALHOST.into(),
+            port,
+        }
+    }
+
+    #[test]
+    fn freed_pages_go_back_to_the_kernel_only_when_released() {
+        const BLOCKS: usize = 256;
+        let blocks: Vec<Vec<u8>> = (0..BLOCKS).map(|i| vec![i as u8 | 1; 1 << 20]).collect();
+        let held = resident_mib().unwrap();
+        drop(blocks);
+        let kept = resident_mib().unwrap();
+        assert!(release_freed_pages());
+        let released = resident_mib().unwrap();
+        // Without a release jemalloc keeps the 256 MiB resident; with one, they are gone.
+        assert!(held - kept < 64.0, "held {held:.0}, kept {kept:.0} MiB");
+        assert!(
+            held - released > 200.0,
+            "held {held:.0}, after release {released:.0} MiB"
+        );
+    }
+
+    #[test]
+    fn a_client_leaving_releases_freed_memory() {
+        let at = free_port();
+        let view = LiveView::start(&at, &topics()).unwrap();
+        let mut ws = TcpStream::connect((at.address, at.port)).unwrap();
+        write!(
+            ws,
+            "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n\
+             Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\
+             Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+        )
+        .unwrap();
+        let mut reply = [0u8; 12];
+        ws.read_exact(&mut reply).unwrap();
+        assert_eq!(&reply, b"HTTP/1.1 101");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while view.client_count() != 1 && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert_eq!(view.client_count(), 1);
+        assert_eq!(view.memory_releases(), 0);
+        drop(ws);
+        let left = Instant::now();
+        while view.memory_releases() == 0 && left.elapsed() < RELEASE_DELAY * 5 {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert_eq!(view.client_count(), 0);
+        assert_eq!(view.memory_releases(), 1);
+        assert!(left.elapsed() >= RELEASE_DELAY, "{:?}", left.elapsed());
     }
 
     #[test]
