@@ -24,30 +24,150 @@
 use super::{assemble, read, CamCtx, ImportError, ImportOptions, ImportedCamera, ModelKind};
 use crate::geometry::camera::{DoubleSphere, Eucm, FisheyeLens, Focal, KannalaBrandt};
 use crate::geometry::rig::{check_focal, num, quoted};
+use crate::geometry::rig_yaml::input::yaml_error;
 use crate::geometry::rig_yaml::MAX_FLOW_COLLECTIONS;
 use crate::geometry::Rig;
 use nalgebra::Isometry3;
-use serde::de::{self, Deserializer, MapAccess, Visitor};
+use serde::de::{Deserializer, MapAccess, Visitor};
 use serde::Deserialize;
+use serde_yaml::Value;
 use std::path::Path;
 
 const SUPPORTED: &str = "pinhole, omni, ds, eucm";
 const DISTORTIONS: &str = "none, radtan, equidistant, fov";
 
-/// One camera of a camchain; fields Kalibr adds that the rig does not use are ignored.
+/// One camera of a camchain as YAML values; fields Kalibr adds that the rig does not use are
+/// ignored. The values are typed by [`Fields::of`], so a wrong type or a number beyond `f64`
+/// (YAML reads `1e400` as text) is an error naming the camera and the field.
 #[derive(Debug, Deserialize)]
 struct KalibrCamera {
+    camera_model: Option<Value>,
+    intrinsics: Option<Value>,
+    distortion_model: Option<Value>,
+    distortion_coeffs: Option<Value>,
+    resolution: Option<Value>,
+    rostopic: Option<Value>,
+    #[serde(rename = "T_cn_cnm1")]
+    t_cn_cnm1: Option<Value>,
+}
+
+/// A camera's fields, typed (`None`: missing or null).
+struct Fields {
     camera_model: Option<String>,
     intrinsics: Option<Vec<f64>>,
     distortion_model: Option<String>,
     distortion_coeffs: Option<Vec<f64>>,
     resolution: Option<Vec<f64>>,
     rostopic: Option<String>,
-    #[serde(rename = "T_cn_cnm1")]
     t_cn_cnm1: Option<Vec<Vec<f64>>>,
 }
 
-/// The camchain's cameras in file order. A camera key given twice is an error (serde_yaml
+impl Fields {
+    fn of(ctx: &CamCtx, cam: &KalibrCamera) -> Result<Self, ImportError> {
+        Ok(Self {
+            camera_model: text(ctx, "camera_model", cam.camera_model.as_ref())?,
+            intrinsics: numbers(ctx, "intrinsics", cam.intrinsics.as_ref())?,
+            distortion_model: text(ctx, "distortion_model", cam.distortion_model.as_ref())?,
+            distortion_coeffs: numbers(ctx, "distortion_coeffs", cam.distortion_coeffs.as_ref())?,
+            resolution: numbers(ctx, "resolution", cam.resolution.as_ref())?,
+            rostopic: text(ctx, "rostopic", cam.rostopic.as_ref())?,
+            t_cn_cnm1: match present(cam.t_cn_cnm1.as_ref()) {
+                None => None,
+                Some(Value::Sequence(rows)) => Some(
+                    rows.iter()
+                        .enumerate()
+                        .map(|(r, row)| {
+                            let field = format!("T_cn_cnm1[{r}]");
+                            numbers(ctx, &field, Some(row))?.ok_or_else(|| {
+                                ctx.err(&field, "expected a row of 4 numbers, got null")
+                            })
+                        })
+                        .collect::<Result<_, _>>()?,
+                ),
+                Some(other) => {
+                    return Err(ctx.err(
+                        "T_cn_cnm1",
+                        format!(
+                            "expected a 4x4 matrix (4 rows of 4 numbers), got {}",
+                            kind(other)
+                        ),
+                    ))
+                }
+            },
+        })
+    }
+}
+
+/// `v` unless it is missing or null.
+fn present(v: Option<&Value>) -> Option<&Value> {
+    v.filter(|v| !v.is_null())
+}
+
+/// What a YAML value is, for "expected ..., got ..." messages.
+fn kind(v: &Value) -> String {
+    match v {
+        Value::Null => "null".into(),
+        Value::Bool(b) => format!("{b}"),
+        Value::Number(n) => format!("the number {n}"),
+        Value::String(s) => format!("the text {}", quoted(s)),
+        Value::Sequence(_) => "a list".into(),
+        Value::Mapping(_) => "a mapping".into(),
+        Value::Tagged(t) => format!("a value tagged {}", quoted(&t.tag.to_string())),
+    }
+}
+
+/// A text field (a model name, a topic).
+fn text(ctx: &CamCtx, field: &str, v: Option<&Value>) -> Result<Option<String>, ImportError> {
+    match present(v) {
+        None => Ok(None),
+        Some(Value::String(s)) => Ok(Some(s.clone())),
+        Some(other) => Err(ctx.err(field, format!("expected text, got {}", kind(other)))),
+    }
+}
+
+/// A list of numbers; the element's index names a bad one (`intrinsics[2]`). Non-finite
+/// numbers (`.nan`, `.inf`) pass here and are refused with their field's bound later.
+fn numbers(ctx: &CamCtx, field: &str, v: Option<&Value>) -> Result<Option<Vec<f64>>, ImportError> {
+    let items = match present(v) {
+        None => return Ok(None),
+        Some(Value::Sequence(items)) => items,
+        Some(other) => {
+            return Err(ctx.err(
+                field,
+                format!("expected a list of numbers, got {}", kind(other)),
+            ))
+        }
+    };
+    items
+        .iter()
+        .enumerate()
+        .map(|(i, item)| {
+            let at = || format!("{field}[{i}]");
+            match item {
+                Value::Number(n) => n
+                    .as_f64()
+                    .ok_or_else(|| ctx.err(&at(), format!("{n} is not a number"))),
+                // YAML resolves a number beyond f64 (`1e400`) as text.
+                Value::String(s)
+                    if s.trim().parse::<f64>().is_ok_and(f64::is_infinite)
+                        && !s
+                            .trim()
+                            .trim_start_matches(['+', '-'])
+                            .starts_with(['i', 'I']) =>
+                {
+                    Err(ctx.err(
+                        &at(),
+                        format!("{} is beyond the range of a 64-bit float", quoted(s)),
+                    ))
+                }
+                other => Err(ctx.err(&at(), format!("expected a number, got {}", kind(other)))),
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
+/// The camchain's cameras in file order, a camera key given twice kept twice (serde_yaml
 /// refuses a field given twice within a camera, but a map would keep the last camera).
 struct Cameras(Vec<(String, KalibrCamera)>);
 
@@ -62,16 +182,9 @@ impl<'de> Deserialize<'de> for Cameras {
             }
 
             fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Cameras, A::Error> {
-                let mut cams: Vec<(String, KalibrCamera)> = Vec::new();
+                let mut cams = Vec::new();
                 while let Some(key) = map.next_key::<String>()? {
-                    if cams.iter().any(|(k, _)| *k == key) {
-                        return Err(de::Error::custom(format!(
-                            "duplicate key {} (each camera may appear once)",
-                            quoted(&key)
-                        )));
-                    }
-                    let cam = map.next_value()?;
-                    cams.push((key, cam));
+                    cams.push((key, map.next_value()?));
                 }
                 Ok(Cameras(cams))
             }
@@ -89,8 +202,15 @@ pub fn rig_from_kalibr_camchain(
     let Cameras(raw) = serde_yaml::from_str(&text).map_err(|e| ImportError::Parse {
         file: file.clone(),
         format: "Kalibr camchain YAML",
-        message: e.to_string(),
+        message: yaml_error(&text, &e),
     })?;
+    if let Some(twice) = raw
+        .iter()
+        .enumerate()
+        .find_map(|(i, (key, _))| raw[..i].iter().any(|(k, _)| k == key).then_some(key))
+    {
+        return Err(duplicate_camera(&file, &text, twice));
+    }
     // cam0, cam1, ... in chain order, none missing.
     let mut ordered: Vec<(usize, &String, &KalibrCamera)> = Vec::with_capacity(raw.len());
     for (key, cam) in &raw {
@@ -117,6 +237,7 @@ pub fn rig_from_kalibr_camchain(
             file: &file,
             camera: key,
         };
+        let cam = &Fields::of(&ctx, cam)?;
         if i > 0 {
             let rows = cam.t_cn_cnm1.as_deref().ok_or_else(|| {
                 ctx.err("T_cn_cnm1", "missing (every camera after cam0 needs it)")
@@ -131,6 +252,36 @@ pub fn rig_from_kalibr_camchain(
         });
     }
     assemble(&file, cams, opts)
+}
+
+/// A camera key given twice: malformed at the line of its second block-style `key:`, else
+/// (flow style) named without a position.
+fn duplicate_camera(file: &str, text: &str, key: &str) -> ImportError {
+    let problem = format!(
+        "duplicate key {} (each camera may appear once)",
+        quoted(key)
+    );
+    let second = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| {
+            l.trim_start_matches(['"', '\''])
+                .strip_prefix(key)
+                .is_some_and(|rest| rest.trim_start_matches(['"', '\'']).starts_with(':'))
+                && !l.starts_with(char::is_whitespace)
+        })
+        .nth(1);
+    match second {
+        Some((i, _)) => ImportError::Parse {
+            file: file.into(),
+            format: "Kalibr camchain YAML",
+            message: format!("{problem} at line {} column 1", i + 1),
+        },
+        None => ImportError::File {
+            file: file.into(),
+            problem,
+        },
+    }
 }
 
 /// `Err` naming `field` unless `v` has `n` numbers.
@@ -159,10 +310,7 @@ fn focal(ctx: &CamCtx, f: &[f64]) -> Result<Focal, ImportError> {
     Ok(focal)
 }
 
-fn projection(
-    ctx: &CamCtx,
-    cam: &KalibrCamera,
-) -> Result<crate::geometry::Projection, ImportError> {
+fn projection(ctx: &CamCtx, cam: &Fields) -> Result<crate::geometry::Projection, ImportError> {
     let model = cam
         .camera_model
         .as_deref()
@@ -244,10 +392,7 @@ fn projection(
 /// The camera's `distortion_model` (required) and its `distortion_coeffs`, as many as the
 /// model takes: refuses an unknown model, a wrong count, non-finite values, and non-zero
 /// coefficients that `none` would ignore.
-fn distortion<'a>(
-    ctx: &CamCtx,
-    cam: &'a KalibrCamera,
-) -> Result<(&'a str, &'a [f64]), ImportError> {
+fn distortion<'a>(ctx: &CamCtx, cam: &'a Fields) -> Result<(&'a str, &'a [f64]), ImportError> {
     let model = cam.distortion_model.as_deref().ok_or_else(|| {
         ctx.err(
             "distortion_model",

@@ -110,6 +110,23 @@ pub(crate) fn check_yaml(text: &str) -> Result<(), String> {
     check_nesting(text, Some(MAX_FLOW_COLLECTIONS))
 }
 
+/// serde_yaml's message for `e` on `text`, always with a line and column: the scanner's
+/// errors that give only a byte position (`control characters are not allowed at position
+/// 87`) get the line and column of that byte instead.
+pub(crate) fn yaml_error(text: &str, e: &serde_yaml::Error) -> String {
+    let message = e.to_string();
+    let Some((head, offset)) = message
+        .rsplit_once(" at position ")
+        .and_then(|(head, n)| Some((head, n.trim().parse::<usize>().ok()?)))
+    else {
+        return message;
+    };
+    let before = text.get(..offset.min(text.len())).unwrap_or(text);
+    let line = before.matches('\n').count() + 1;
+    let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    format!("{head} at line {line} column {column}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -133,6 +150,21 @@ mod tests {
         let t0 = Instant::now();
         assert!(check_yaml(&"[".repeat(1 << 20)).is_err());
         assert!(t0.elapsed().as_secs_f64() < 1.0);
+    }
+
+    #[test]
+    fn a_byte_position_becomes_a_line_and_column() {
+        let text = "a: 1\nb: x\u{0}y\n";
+        let e = serde_yaml::from_str::<serde_yaml::Value>(text).unwrap_err();
+        assert!(e.to_string().ends_with("at position 9"), "{e}");
+        assert_eq!(
+            yaml_error(text, &e),
+            "control characters are not allowed at line 2 column 5"
+        );
+        let text = "a: [1\n";
+        let e = serde_yaml::from_str::<serde_yaml::Value>(text).unwrap_err();
+        assert_eq!(yaml_error(text, &e), e.to_string());
+        assert!(yaml_error(text, &e).contains("line 2 column 1"), "{e}");
     }
 
     #[test]

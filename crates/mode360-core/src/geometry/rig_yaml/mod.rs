@@ -96,7 +96,7 @@ impl Rig {
         })?;
         let raw: RawRig = serde_yaml::from_str(text).map_err(|e| RigError::Yaml {
             file: source_name.to_string(),
-            message: e.to_string(),
+            message: input::yaml_error(text, &e),
         })?;
         let top = Ctx {
             file: source_name,
