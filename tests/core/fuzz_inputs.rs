@@ -3,10 +3,27 @@
 //! (bytes flipped, lines dropped, duplicated or swapped, cut short, odd values and deep nesting
 //! inserted) by a fixed-seed generator, and every case must end in a value or an error: no
 //! panic, no case slower than [`CASE_LIMIT`], and a text error that names the file it read.
+//!
+//! What a refused text file's error must name besides the file ([`where_named`]):
+//! - a value the file gives but the rig cannot take (a wrong type, a number beyond `f64`, a
+//!   missing or unknown model, a bound) names the field (`field '...'`), and the camera
+//!   (`camera '...'`) when the field is a camera's; a model that has no exact counterpart
+//!   names the camera and the model (`model '...'`);
+//! - text that is not YAML or JSON, or a key given twice, is "malformed" and names the line and
+//!   the column (`at line L column C`); rig YAML's type errors are serde_yaml's, which also
+//!   give the field's path (`cameras[0].intrinsics.fx: invalid type ...`), while Kalibr's and
+//!   Basalt's are never "malformed": they name the camera and the field;
+//! - a top-level Kalibr key that is not a camera (`cam0`, `cam1`, ...) names the key;
+//! - a problem of the file as a whole (too large, nested too deep, no cameras, a gap in
+//!   Kalibr's chain, Basalt's per-camera lists of different lengths) says which
+//!   ([`WHOLE_FILE`]).
+//!
+//! `mode360 rig import` is run on every Kalibr and Basalt case with an existing output file:
+//! a refused input leaves it byte for byte, and no partial file beside it.
 
 use mode360::bag::{BagReader, RigBagReader, RigBagWriter};
+use mode360::cli::rig::{run_import, RigImportArgs};
 use mode360::frame::{RgbImage, RigFrame};
-use mode360::geometry::import::{rig_from_basalt_json, rig_from_kalibr_camchain, ImportOptions};
 use mode360::geometry::Rig;
 use mode360::msgs::image::{image_msg_from_rgb, rgb_from_image_msg};
 use mode360::msgs::{decode_cdr, encode_cdr, Header, Image};
@@ -34,6 +51,67 @@ const ODD_TOKENS: [&str; 12] = [
     "'unterminated",
     "99999999999999999999999",
 ];
+
+/// Errors about a file as a whole: what each says instead of a field or a position.
+const WHOLE_FILE: [&str; 6] = [
+    "larger than",
+    "nested",
+    "flow collections",
+    "no cameras",
+    "the chain has a gap",
+    "one each per camera",
+];
+
+/// What a refused text file's error names besides the file (the module docs' rules).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Named {
+    /// `field '...'` (with `camera '...'` where it is a camera's), or a camera's model.
+    Field,
+    /// A top-level key that is not a camera, or one given twice: `key '...'`.
+    Key,
+    /// A malformed file: `line L column C`.
+    Position,
+    /// A problem of the whole file ([`WHOLE_FILE`]).
+    WholeFile,
+}
+
+/// Whether `e` says `line <digits> column <digits>`.
+fn names_position(e: &str) -> bool {
+    let digits = |s: &str| s.chars().take_while(char::is_ascii_digit).count();
+    e.match_indices("line ").any(|(i, _)| {
+        let rest = &e[i + 5..];
+        let n = digits(rest);
+        n > 0
+            && rest[n..]
+                .strip_prefix(" column ")
+                .is_some_and(|c| digits(c) > 0)
+    })
+}
+
+/// What `e` names by the module docs' rules, or `Err` saying which rule it breaks.
+fn where_named(e: &str) -> Result<Named, String> {
+    if e.contains("malformed") {
+        return if names_position(e) {
+            Ok(Named::Position)
+        } else {
+            Err("a malformed file's error names no line and column".into())
+        };
+    }
+    let camera = e.contains("camera '");
+    if e.contains("field '") || (camera && e.contains("model '")) {
+        return Ok(Named::Field);
+    }
+    if camera {
+        return Err("names a camera but not its field".into());
+    }
+    if e.contains("key '") || e.contains("key \"") {
+        return Ok(Named::Key);
+    }
+    if WHOLE_FILE.iter().any(|w| e.contains(w)) {
+        return Ok(Named::WholeFile);
+    }
+    Err("names no field, no position and no whole-file problem".into())
+}
 
 /// xorshift64*: a fixed stream per case.
 struct Rng(u64);
@@ -171,16 +249,18 @@ fn repo(relative: &str) -> String {
     format!("{}/{relative}", env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Mutated text files read by `read`; errors must name the file.
+/// Mutated text files read by `read`; errors must name the file and what the module docs'
+/// rules ask. Returns (accepted, refused) and the refusals by what they name.
 fn fuzz_text_files(
     label: &str,
     seed_file: &str,
     extension: &str,
     read: impl Fn(&Path) -> Result<(), String>,
-) -> (usize, usize) {
+) -> ((usize, usize), BTreeMap<Named, usize>) {
     let text = std::fs::read_to_string(repo(seed_file)).expect("seed file");
     let dir = tempfile::tempdir().expect("tempdir");
-    fuzz(label, CASES_PER_SEED, |k| {
+    let mut named = BTreeMap::new();
+    let counts = fuzz(label, CASES_PER_SEED, |k| {
         let mut rng = Rng::new(k + 1);
         let mut mutated = text.clone();
         for _ in 0..1 + rng.below(3) {
@@ -194,25 +274,93 @@ fn fuzz_text_files(
                 e.contains(name.as_deref().unwrap_or("?")),
                 "{label} case {k}: error does not name the file: {e}"
             );
+            match where_named(&e) {
+                Ok(n) => *named.entry(n).or_insert(0) += 1,
+                Err(rule) => panic!("{label} case {k}: {rule}: {e}"),
+            }
             e
         })
-    })
+    });
+    (counts, named)
+}
+
+/// `mode360 rig import` of `input` (`--kalibr` or `--basalt`) over an existing `out` file:
+/// refused, `out` keeps its bytes and nothing is left beside it; imported, `out` is a rig.
+fn import_over_existing(input: &Path, kalibr: bool, out: &Path) -> Result<(), String> {
+    const BEFORE: &[u8] = b"# an existing rig file the import must not touch when it fails\n";
+    std::fs::write(out, BEFORE).expect("existing output");
+    let input = Some(input.to_path_buf());
+    let outcome = run_import(RigImportArgs {
+        kalibr: input.clone().filter(|_| kalibr),
+        basalt: input.filter(|_| !kalibr),
+        out: out.to_path_buf(),
+        rig_frame: "rig".into(),
+        topic_prefix: None,
+    });
+    let after = std::fs::read(out).expect("output still there");
+    let dir = out.parent().expect("output folder");
+    let partial = std::fs::read_dir(dir)
+        .expect("list output folder")
+        .filter_map(|f| f.ok())
+        .map(|f| f.file_name().to_string_lossy().into_owned())
+        .find(|f| f.contains("partial"));
+    assert_eq!(
+        partial,
+        None,
+        "a partial file is left beside {}",
+        out.display()
+    );
+    match outcome {
+        Err(e) => {
+            let message = format!("{e:#}");
+            // A field's value of the wrong type is the camera's field's error, not serde's.
+            assert!(
+                !message.contains("expected f64") && !message.contains("expected a sequence"),
+                "a bad value is reported as malformed: {message}"
+            );
+            assert!(
+                after == BEFORE,
+                "a refused import changed {}: {e:#}",
+                out.display()
+            );
+            Err(format!("{e:#}"))
+        }
+        Ok(()) => {
+            assert!(
+                after != BEFORE,
+                "an accepted import left {} as it was",
+                out.display()
+            );
+            if let Err(e) = Rig::from_file(out) {
+                panic!("the imported rig does not read back: {e}");
+            }
+            Ok(())
+        }
+    }
 }
 
 #[test]
 fn mutated_rig_yaml_files_are_read_or_refused_naming_the_file() {
     let mut total = (0, 0);
+    let mut named = BTreeMap::new();
     for seed in [
         "launch_configs/rig_deep360.yaml",
         "launch_configs/rig_omnimvs.yaml",
         "launch_configs/rig_dual_fisheye.yaml",
     ] {
-        let (ok, refused) = fuzz_text_files("rig yaml", seed, "yaml", |p| {
+        let ((ok, refused), by) = fuzz_text_files("rig yaml", seed, "yaml", |p| {
             Rig::from_file(p).map(|_| ()).map_err(|e| e.to_string())
         });
         total = (total.0 + ok, total.1 + refused);
+        for (n, c) in by {
+            *named.entry(n).or_insert(0) += c;
+        }
     }
-    println!("rig YAML: {} accepted, {} refused", total.0, total.1);
+    println!(
+        "rig YAML: {} accepted, {} refused naming {named:?}",
+        total.0, total.1
+    );
+    assert!(named.contains_key(&Named::Field) && named.contains_key(&Named::Position));
     assert!(
         total.1 > total.0,
         "most mutations should be refused: {total:?}"
@@ -221,29 +369,59 @@ fn mutated_rig_yaml_files_are_read_or_refused_naming_the_file() {
 
 #[test]
 fn mutated_kalibr_and_basalt_files_are_imported_or_refused_naming_the_file() {
-    let opts = ImportOptions::default();
-    let kalibr = fuzz_text_files(
+    let out_dir = tempfile::tempdir().expect("tempdir");
+    let out = out_dir.path().join("rig.yaml");
+    let (kalibr, kalibr_named) = fuzz_text_files(
         "kalibr",
         "tests/fixtures/calib/kalibr_camchain.yaml",
         "yaml",
-        |p| {
-            rig_from_kalibr_camchain(p, &opts)
-                .map(|_| ())
-                .map_err(|e| e.to_string())
-        },
+        |p| import_over_existing(p, true, &out),
     );
-    let basalt = fuzz_text_files(
+    let (basalt, basalt_named) = fuzz_text_files(
         "basalt",
         "tests/fixtures/calib/basalt_calibration.json",
         "json",
-        |p| {
-            rig_from_basalt_json(p, &opts)
-                .map(|_| ())
-                .map_err(|e| e.to_string())
-        },
+        |p| import_over_existing(p, false, &out),
     );
-    println!("Kalibr: {kalibr:?}, Basalt: {basalt:?} (accepted, refused)");
+    println!(
+        "Kalibr: {kalibr:?} naming {kalibr_named:?}, Basalt: {basalt:?} naming {basalt_named:?} \
+         (accepted, refused)"
+    );
     assert!(kalibr.1 > 0 && basalt.1 > 0);
+    assert!(kalibr_named.contains_key(&Named::Field) && basalt_named.contains_key(&Named::Field));
+}
+
+#[test]
+fn the_naming_rules_accept_and_refuse_what_they_say() {
+    let ok = |e: &str, n: Named| assert_eq!(where_named(e), Ok(n), "{e}");
+    ok(
+        "a.yaml: camera 'cam0': field 'intrinsics[2]': \"1e400\" is beyond",
+        Named::Field,
+    );
+    ok(
+        "a.yaml: camera 'cam2': model 'omni/radtan' cannot be represented",
+        Named::Field,
+    );
+    ok(
+        "a.yaml: key 'cao2' is not a Kalibr camera (cam0, cam1, ...)",
+        Named::Key,
+    );
+    ok(
+        "a.yaml: malformed YAML: did not find expected key at line 3 column 5",
+        Named::Position,
+    );
+    ok(
+        "a.json: 4 intrinsics, 3 T_imu_cam and 4 resolution entries: one each per camera",
+        Named::WholeFile,
+    );
+    for bad in [
+        "a.yaml: malformed YAML: invalid type: string, expected f64",
+        "a.yaml: malformed YAML: at line 3",
+        "a.yaml: camera 'cam0': cannot read it",
+        "a.yaml: something went wrong",
+    ] {
+        assert!(where_named(bad).is_err(), "{bad}");
+    }
 }
 
 #[test]
