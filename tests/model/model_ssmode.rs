@@ -17,6 +17,8 @@ const COMPACT_PARAMS: usize = 404_104;
 const PARALLAX_PARAMS: usize = 152_520;
 /// `parallax_zncc` and `parallax_zncc_log`: the ZNCC channel widens the entry convolution.
 const PARALLAX_ZNCC_PARAMS: usize = 152_736;
+/// `parallax_zncc_log_pos`: two position channels widen it by 2 x 27 x 8 weights.
+const PARALLAX_ZNCC_LOG_POS_PARAMS: usize = 153_168;
 
 fn model(cfg: &SsmodeConfig) -> (VarMap, Ssmode) {
     let varmap = VarMap::new();
@@ -399,6 +401,12 @@ fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
             cfg.name
         );
     }
+    let (varmap, _net) = model(&SsmodeConfig::parallax_zncc_log_pos());
+    assert_eq!(
+        param_count(&varmap),
+        PARALLAX_ZNCC_LOG_POS_PARAMS,
+        "parallax_zncc_log_pos preset (models/README.md, Presets)"
+    );
 }
 
 #[test]

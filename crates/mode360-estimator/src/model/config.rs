@@ -69,6 +69,8 @@ pub enum Preset {
     ParallaxZncc,
     /// `parallax_zncc` with spheres and hypotheses uniform in log depth.
     ParallaxZnccLog,
+    /// `parallax_zncc_log` with two position channels (sphere, latitude) in the cost volume.
+    ParallaxZnccLogPos,
     /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
     /// The paper's sizes.
@@ -83,10 +85,11 @@ pub enum Preset {
 
 impl Preset {
     /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::Parallax,
         Self::ParallaxZncc,
         Self::ParallaxZnccLog,
+        Self::ParallaxZnccLogPos,
         Self::Compact,
         Self::Paper,
         Self::Tiny,
@@ -100,6 +103,7 @@ impl Preset {
             Self::Parallax => "parallax",
             Self::ParallaxZncc => "parallax_zncc",
             Self::ParallaxZnccLog => "parallax_zncc_log",
+            Self::ParallaxZnccLogPos => "parallax_zncc_log_pos",
             Self::Compact => "compact",
             Self::Paper => "paper",
             Self::Tiny => "tiny",
@@ -113,6 +117,7 @@ impl Preset {
             Self::Parallax => SsmodeConfig::parallax(),
             Self::ParallaxZncc => SsmodeConfig::parallax_zncc(),
             Self::ParallaxZnccLog => SsmodeConfig::parallax_zncc_log(),
+            Self::ParallaxZnccLogPos => SsmodeConfig::parallax_zncc_log_pos(),
             Self::Compact => SsmodeConfig::compact(),
             Self::Paper => SsmodeConfig::paper(),
             Self::Tiny => SsmodeConfig::tiny(),
@@ -195,6 +200,11 @@ pub struct SsmodeConfig {
     /// (files without it: uniform in inverse depth, the paper's).
     #[serde(default)]
     pub hypothesis_spacing: HypothesisSpacing,
+    /// Append two position channels (sphere index, sine of latitude) to the cost volume
+    /// ([`super::position_channels`]; files without it: no), so the aggregation can learn a
+    /// prior where the views give no evidence.
+    #[serde(default)]
+    pub position_channels: bool,
 }
 
 /// [`SsmodeConfig::far_plane_probability`] of the presets.
@@ -227,6 +237,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
+            position_channels: false,
         }
     }
 
@@ -253,6 +264,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
+            position_channels: false,
         }
     }
 
@@ -280,6 +292,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
+            position_channels: false,
         }
     }
 
@@ -304,6 +317,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
+            position_channels: false,
         }
     }
 
@@ -345,6 +359,18 @@ impl SsmodeConfig {
         }
     }
 
+    /// [`Self::parallax_zncc_log`] with the position channels ([`super::position_channels`]):
+    /// where the matching evidence is flat (an epipole, a textureless floor) the aggregation
+    /// can prefer hypotheses by sphere and latitude instead of answering the middle of the
+    /// range.
+    pub fn parallax_zncc_log_pos() -> Self {
+        Self {
+            name: "parallax_zncc_log_pos".to_string(),
+            position_channels: true,
+            ..Self::parallax_zncc_log()
+        }
+    }
+
     /// [`Self::tiny_parallax`] with the photometric cost channel, for tests.
     pub fn tiny_zncc() -> Self {
         Self {
@@ -356,7 +382,7 @@ impl SsmodeConfig {
 
     /// Names of the presets, for messages.
     pub const PRESETS: &'static str =
-        "parallax, parallax_zncc, parallax_zncc_log, compact, paper, tiny, tiny_parallax, tiny_zncc";
+        "parallax, parallax_zncc, parallax_zncc_log, parallax_zncc_log_pos, compact, paper, tiny, tiny_parallax, tiny_zncc";
 
     /// The preset called `name` (see [`Preset`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {
@@ -394,9 +420,15 @@ impl SsmodeConfig {
     }
 
     /// Channels of the cost volume the aggregation takes: the view aggregation of the matching
-    /// features, plus one with the photometric cost channel.
+    /// features, plus one with the photometric cost channel and two with the position channels.
     pub fn cost_volume_channels(&self) -> usize {
-        self.cost.channels(self.matching_channels()) + usize::from(self.photometric_cost)
+        self.cost.channels(self.matching_channels())
+            + usize::from(self.photometric_cost)
+            + if self.position_channels {
+                super::position_channels::POSITION_CHANNELS
+            } else {
+                0
+            }
     }
 
     /// Whether the matching features come from a fine branch (cost finer than the trunk).

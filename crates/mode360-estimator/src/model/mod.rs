@@ -5,6 +5,7 @@
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
+//! [`position_channels`] (sphere and latitude as cost-volume channels),
 //! [`weights`] (safetensors with the config in the header), [`config`] (presets),
 //! [`sweep_sampling`] (per-rig sampling tables).
 
@@ -15,6 +16,7 @@ pub mod hourglass;
 pub mod input;
 pub mod ops;
 pub mod photometric_cost;
+pub mod position_channels;
 pub mod regression;
 pub mod sphere_conv;
 pub mod ssmode;

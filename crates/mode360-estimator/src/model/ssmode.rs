@@ -5,6 +5,7 @@
 //! feature                   -> (N B, h, w, Cf) -> N x (B, h, w, Cf)   h = H / cost_downsample
 //! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
 //! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
+//! position_channels         -> (B, D, h, w, C'' + 2)      optional sphere and latitude
 //! aggregation               -> K x (B, D/s, h/s, w/s, Ch) stacked hourglasses, entry stride s
 //! classif{k}                -> K x (B, D/s, h/s, w/s)
 //! regression                -> K x (B, H, W) range, index; confidence of the last
@@ -20,6 +21,7 @@ use super::cost_volume::cost_volume;
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
+use super::position_channels::position_channels;
 use super::regression::{confidence, regress, regress_inference, RegressionHead};
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{flop_count, OpsError};
@@ -229,6 +231,14 @@ impl Ssmode {
         let volume = if self.cfg.photometric_cost {
             let photometric = photometric_cost(images, sampling)?;
             Tensor::cat(&[&volume, &photometric], 4)?
+        } else {
+            volume
+        };
+        // (B, D, h, w, C'' + 2) with the position channels
+        let volume = if self.cfg.position_channels {
+            let (b, d, h, w, _) = volume.dims5()?;
+            let position = position_channels(b, d, h, w, volume.device())?;
+            Tensor::cat(&[&volume, &position], 4)?
         } else {
             volume
         };

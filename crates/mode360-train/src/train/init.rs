@@ -12,7 +12,8 @@ use std::path::Path;
 fn architecture(cfg: &SsmodeConfig) -> String {
     format!(
         "features {:?} x {:?} -> {}, fine branch {} at 1/{}, {:?} cost over {} spheres, \
-         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}",
+         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}, \
+         position channels {}",
         cfg.feature_channels,
         cfg.feature_blocks,
         cfg.feature_out_channels,
@@ -23,28 +24,36 @@ fn architecture(cfg: &SsmodeConfig) -> String {
         cfg.aggregation_stride,
         cfg.hourglasses,
         cfg.hourglass_channels,
-        cfg.photometric_cost
+        cfg.photometric_cost,
+        cfg.position_channels
     )
 }
 
-/// The aggregation's entry convolution, the one layer the photometric cost channel widens.
+/// The aggregation's entry convolution, the one layer that the photometric cost channel and
+/// the position channels widen.
 const ENTRY_CONV_WEIGHT: &str = "aggregation.dres0.0.weight";
 /// Input-channel axis of a 3-D convolution weight `(3, 3, 3, Cin, Cout)`.
 const CONV3D_INPUT_AXIS: usize = 3;
 
-/// Whether `file` is `cfg` without the photometric cost channel: its weights start a run of
-/// `cfg` with the entry convolution widened by zeros ([`load_widened`]).
+/// Whether `file` is `cfg` without some of its appended cost-volume channels (the photometric
+/// cost channel, the position channels): its weights start a run of `cfg` with the entry
+/// convolution widened by zeros ([`load_widened`]). The channels are appended in that order,
+/// so the file's own extra channels must be a prefix of the run's.
 fn widens_to(file: &SsmodeConfig, cfg: &SsmodeConfig) -> bool {
-    cfg.photometric_cost
-        && !file.photometric_cost
+    let adds_zncc = cfg.photometric_cost && !file.photometric_cost;
+    let adds_position = cfg.position_channels && !file.position_channels;
+    let keeps_order = !(adds_zncc && file.position_channels);
+    (adds_zncc || adds_position)
+        && keeps_order
         && architecture(&SsmodeConfig {
-            photometric_cost: true,
+            photometric_cost: cfg.photometric_cost,
+            position_channels: cfg.position_channels,
             ..file.clone()
         }) == architecture(cfg)
 }
 
 /// Loads `path` into `varmap`, widening the entry convolution by zero weights for the
-/// photometric cost channel: at the start the network computes what the file's network did,
+/// channels the file lacks: at the start the network computes what the file's network did,
 /// and training brings the new channel in.
 fn load_widened(path: &Path, varmap: &mut VarMap) -> Result<(), TrainError> {
     let weights_err = |problem: String| {
@@ -263,52 +272,82 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn widened_start_weights_compute_what_the_file_network_did() {
+    /// Saves a `narrow_cfg` network, starts a `wide_cfg` one from it and checks that the
+    /// entry convolution gained `added` zero input channels and the output did not change.
+    fn check_widening(narrow_cfg: &SsmodeConfig, wide_cfg: &SsmodeConfig, added: usize) {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("tiny_parallax.safetensors");
-        let narrow_cfg = SsmodeConfig::tiny_parallax();
+        let path = dir.path().join("narrow.safetensors");
         let narrow_map = VarMap::new();
-        let narrow = Ssmode::new(
-            &narrow_cfg,
-            seeded_var_builder(&narrow_map, 3, &Device::Cpu),
-        )
-        .unwrap();
-        mode360_estimator::model::save_weights(&narrow_map, &narrow_cfg, &path).unwrap();
+        let narrow =
+            Ssmode::new(narrow_cfg, seeded_var_builder(&narrow_map, 3, &Device::Cpu)).unwrap();
+        mode360_estimator::model::save_weights(&narrow_map, narrow_cfg, &path).unwrap();
 
-        let wide_cfg = SsmodeConfig::tiny_zncc();
         let mut wide_map = VarMap::new();
-        let wide = Ssmode::new(&wide_cfg, seeded_var_builder(&wide_map, 9, &Device::Cpu)).unwrap();
-        load_init_weights(&path, &wide_cfg, &mut wide_map).unwrap();
+        let wide = Ssmode::new(wide_cfg, seeded_var_builder(&wide_map, 9, &Device::Cpu)).unwrap();
+        load_init_weights(&path, wide_cfg, &mut wide_map).unwrap();
         let entry = wide_map.data().lock().unwrap()[ENTRY_CONV_WEIGHT]
             .as_tensor()
             .clone();
         let c = narrow_cfg.cost_volume_channels();
-        assert_eq!(entry.dims()[CONV3D_INPUT_AXIS], c + 1);
-        let new_channel: Vec<f32> = entry
-            .narrow(CONV3D_INPUT_AXIS, c, 1)
+        assert_eq!(entry.dims()[CONV3D_INPUT_AXIS], c + added);
+        let new_channels: Vec<f32> = entry
+            .narrow(CONV3D_INPUT_AXIS, c, added)
             .unwrap()
             .flatten_all()
             .unwrap()
             .to_vec1()
             .unwrap();
-        assert!(new_channel.iter().all(|&w| w == 0.0));
+        assert!(new_channels.iter().all(|&w| w == 0.0));
 
         let rig = mode360_io::deep360::deep360_rig().unwrap();
-        let imgs = images(&narrow_cfg, rig.cameras.len());
+        let imgs = images(narrow_cfg, rig.cameras.len());
         let run = |model: &Ssmode, cfg: &SsmodeConfig| -> Vec<f32> {
             let sampling = SweepSampling::new(&rig, cfg).unwrap();
             let out = model.forward(&imgs, &sampling, false).unwrap();
             out.stages[0].flatten_all().unwrap().to_vec1().unwrap()
         };
-        let a = run(&narrow, &narrow_cfg);
-        let b = run(&wide, &wide_cfg);
+        let a = run(&narrow, narrow_cfg);
+        let b = run(&wide, wide_cfg);
         let max_diff = a
             .iter()
             .zip(&b)
             .map(|(x, y)| (x - y).abs() / x.abs().max(1.0))
             .fold(0.0f32, f32::max);
         assert!(max_diff < 1e-5, "relative difference {max_diff}");
+    }
+
+    fn tiny_zncc_pos() -> SsmodeConfig {
+        SsmodeConfig {
+            name: "tiny_zncc_pos".to_string(),
+            position_channels: true,
+            ..SsmodeConfig::tiny_zncc()
+        }
+    }
+
+    #[test]
+    fn widened_start_weights_compute_what_the_file_network_did() {
+        check_widening(
+            &SsmodeConfig::tiny_parallax(),
+            &SsmodeConfig::tiny_zncc(),
+            1,
+        );
+    }
+
+    #[test]
+    fn position_channels_widen_a_zncc_network_without_changing_it() {
+        check_widening(&SsmodeConfig::tiny_zncc(), &tiny_zncc_pos(), 2);
+        check_widening(&SsmodeConfig::tiny_parallax(), &tiny_zncc_pos(), 3);
+    }
+
+    #[test]
+    fn widening_keeps_the_channel_order() {
+        let file = SsmodeConfig {
+            position_channels: true,
+            ..SsmodeConfig::tiny_parallax()
+        };
+        assert!(!widens_to(&file, &tiny_zncc_pos()));
+        assert!(widens_to(&SsmodeConfig::tiny_zncc(), &tiny_zncc_pos()));
+        assert!(!widens_to(&tiny_zncc_pos(), &SsmodeConfig::tiny_zncc()));
     }
 
     #[test]
