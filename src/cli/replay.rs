@@ -25,7 +25,7 @@ use mode360_node::node::{
     resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
     POINTS_TOPIC,
 };
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// Namespace the replayed node's relative topics are resolved in.
@@ -77,23 +77,27 @@ impl ReplaySummary {
     }
 }
 
+/// The calibration to run a bag with: the rig file at `rig_file`, which must have the bag's
+/// cameras (the error names the camera), or the bag's own; `file` names the bag in errors.
+pub fn calibration_for(reader: &RigBagReader, rig_file: Option<&Path>, file: &str) -> Result<Rig> {
+    let Some(path) = rig_file else {
+        return Ok(reader.rig().clone());
+    };
+    let rig = Rig::from_file(path)?;
+    check_same_cameras(reader.rig(), &rig).with_context(|| {
+        format!(
+            "rig file {} does not fit the cameras of bag '{file}'",
+            path.display()
+        )
+    })?;
+    Ok(rig)
+}
+
 /// Replays `opts.input` into `opts.output`.
 pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     let reader = RigBagReader::open(&opts.input)?;
     let file = opts.input.display().to_string();
-    let rig = match &opts.rig {
-        None => reader.rig().clone(),
-        Some(path) => {
-            let rig = Rig::from_file(path)?;
-            check_same_cameras(reader.rig(), &rig).with_context(|| {
-                format!(
-                    "rig file {} does not fit the cameras of bag '{file}'",
-                    path.display()
-                )
-            })?;
-            rig
-        }
-    };
+    let rig = calibration_for(&reader, opts.rig.as_deref(), &file)?;
     let info = reader.info();
     let max_depth_m = match (opts.max_depth_m, info.get(MAX_DEPTH_KEY)) {
         (Some(m), _) => m,
@@ -185,6 +189,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         }
         health.groups_processed += 1;
         health.record_lens(&out.lens);
+        health.record_calibration(&out.calibration);
         health.sync = SyncStats {
             groups: summary.frames as u64,
             ..SyncStats::default()

@@ -7,6 +7,7 @@ mod common;
 
 mod bag_interop;
 mod bag_roundtrip;
+mod calibration_replay;
 mod cli;
 mod deep360_bag;
 mod deep360_fixture;

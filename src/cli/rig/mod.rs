@@ -1,5 +1,6 @@
 //! `mode360 rig import`: a Kalibr camchain or a Basalt `calibration.json` into the project's
 //! rig YAML ([`mode360_core::geometry::import`] does the work; this is the command around it).
+//! `mode360 rig refine` is in [`refine`].
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -9,6 +10,8 @@ use mode360_core::geometry::import::{
 use mode360_core::geometry::rig::DEFAULT_RIG_FRAME;
 use mode360_core::geometry::Rig;
 use std::path::{Path, PathBuf};
+
+pub mod refine;
 
 #[derive(Args)]
 pub struct RigArgs {
@@ -20,6 +23,8 @@ pub struct RigArgs {
 pub enum RigCommand {
     /// Convert a Kalibr camchain or a Basalt calibration.json into a rig YAML.
     Import(RigImportArgs),
+    /// Refine the cameras' rotations from a bag's images and write the corrected rig YAML.
+    Refine(refine::RigRefineArgs),
 }
 
 #[derive(Args)]
@@ -47,6 +52,7 @@ pub struct RigImportArgs {
 pub fn run(a: RigArgs) -> Result<()> {
     match a.command {
         RigCommand::Import(i) => run_import(i),
+        RigCommand::Refine(r) => refine::run_refine(r),
     }
 }
 

@@ -151,7 +151,7 @@ pub fn analysis_grid() -> ErpGrid {
 
 /// `range_m` (any ERP width) at the analysis grid's cells, nearest neighbour, clamped to
 /// `[MIN_RANGE_M, inf)`; non-finite ranges (sky, no estimate) become the far plane.
-fn ranges_on(grid: ErpGrid, range_m: &FloatImage) -> Vec<f32> {
+pub(super) fn ranges_on(grid: ErpGrid, range_m: &FloatImage) -> Vec<f32> {
     let (w, h) = (range_m.width.max(1), range_m.height.max(1));
     let far = range_m
         .data

@@ -6,6 +6,8 @@ use std::path::PathBuf;
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, Rig};
 
+pub mod calibration;
+pub mod calibration_drift;
 pub mod guided_upsample;
 pub mod lens_health;
 pub mod photometric;

@@ -3,6 +3,7 @@
 //! pipeline (sync counters, dropped groups, inference latency, degraded cameras).
 
 use mode360_core::sync::{SyncError, SyncStats};
+use mode360_estimator::estimator::calibration_drift::CalibrationDrift;
 use mode360_estimator::estimator::lens_health::LensHealth;
 use mode360_io::msgs::image::ImageMsgError;
 use mode360_io::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
@@ -102,6 +103,8 @@ pub struct CameraHealth {
     pub bad_since_good: u64,
     /// The lens check's latest finding (`None` before the first complete group).
     pub lens: Option<LensHealth>,
+    /// The calibration drift check's latest finding (`None` before its first check).
+    pub calibration: Option<CalibrationDrift>,
 }
 
 impl CameraHealth {
@@ -147,12 +150,17 @@ pub struct NodeHealth {
     /// A camera whose blocked fraction exceeds this is WARN (ERROR above
     /// [`LENS_ERROR_FRACTION`]); the `lens_warn_fraction` parameter.
     pub lens_warn_fraction: f64,
+    /// The camera the drift check suspects is WARN when its correction exceeds this, degrees;
+    /// the `calibration_warn_deg` parameter.
+    pub calibration_warn_deg: f64,
 }
 
 /// Blocked fraction above which a camera is ERROR whatever the warning threshold.
 pub const LENS_ERROR_FRACTION: f64 = 0.5;
 /// Default of the `lens_warn_fraction` parameter.
 pub const DEFAULT_LENS_WARN_FRACTION: f64 = 0.15;
+/// Default of the `calibration_warn_deg` parameter.
+pub const DEFAULT_CALIBRATION_WARN_DEG: f64 = 0.3;
 
 impl Default for NodeHealth {
     fn default() -> Self {
@@ -167,6 +175,7 @@ impl Default for NodeHealth {
             last_latency_ms: None,
             mean_latency_ms: None,
             lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
+            calibration_warn_deg: DEFAULT_CALIBRATION_WARN_DEG,
         }
     }
 }
@@ -176,6 +185,13 @@ impl NodeHealth {
     pub fn record_lens(&mut self, lens: &[LensHealth]) {
         for (cam, health) in self.cameras.iter_mut().zip(lens) {
             cam.lens = Some(health.clone());
+        }
+    }
+
+    /// Takes the pipeline's calibration drift findings (rig order) into the cameras' health.
+    pub fn record_calibration(&mut self, drift: &[CalibrationDrift]) {
+        for (cam, d) in self.cameras.iter_mut().zip(drift) {
+            cam.calibration = Some(d.clone());
         }
     }
 }
@@ -211,6 +227,22 @@ fn lens_status(cam: &CameraHealth, warn_fraction: f64) -> Option<(u8, String)> {
     ))
 }
 
+/// The level and message of the camera the drift check suspects, when turning it by more than
+/// `warn_deg` would make the cameras agree better (`None` otherwise).
+fn calibration_status(cam: &CameraHealth, warn_deg: f64) -> Option<(u8, String)> {
+    let drift = cam.calibration.as_ref()?;
+    (drift.suspect && drift.correction_deg > warn_deg).then(|| {
+        (
+            DiagnosticStatus::WARN,
+            format!(
+                "calibration looks off: turning this camera by {:.2} deg would make it agree \
+                 with the others (mode360 rig refine)",
+                drift.correction_deg
+            ),
+        )
+    })
+}
+
 /// The `/diagnostics` message of `health` stamped `stamp_ns`.
 pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -> DiagnosticArray {
     let mut status = Vec::with_capacity(health.cameras.len() + 1);
@@ -239,6 +271,15 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
             Some((lens_level, lens_message)) if lens_level >= level => (lens_level, lens_message),
             _ => (level, message),
         };
+        let (level, message) = match calibration_status(cam, health.calibration_warn_deg) {
+            Some((cal_level, cal_message)) if cal_level > level => (cal_level, cal_message),
+            Some((cal_level, cal_message))
+                if cal_level == level && level != DiagnosticStatus::OK =>
+            {
+                (level, format!("{message}; {cal_message}"))
+            }
+            _ => (level, message),
+        };
         let mut values = vec![
             kv("topic", &cam.topic),
             kv("received", cam.received),
@@ -259,6 +300,12 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
                 cam.lens
                     .as_ref()
                     .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.blocked_fraction)),
+            ),
+            kv(
+                "calibration_correction_deg",
+                cam.calibration
+                    .as_ref()
+                    .map_or_else(|| "n/a".into(), |d| format!("{:.3}", d.correction_deg)),
             ),
         ];
         values.extend(BadImageReason::ALL.iter().map(|r| {

@@ -338,7 +338,25 @@ pub const PARAMETERS: &[ParamSpec] = &[
             Ok(())
         },
     },
+    ParamSpec {
+        name: "calibration_warn_deg",
+        runtime: false,
+        get: |p| ParamValue::Double(p.calibration_warn_deg),
+        set: |p, v| {
+            p.calibration_warn_deg = v
+                .parse::<f64>()
+                .ok()
+                .filter(|deg| *deg > 0.0 && *deg <= MAX_CALIBRATION_WARN_DEG)
+                .ok_or_else(|| {
+                    format!("expected degrees above 0 and at most {MAX_CALIBRATION_WARN_DEG}")
+                })?;
+            Ok(())
+        },
+    },
 ];
+
+/// Largest `calibration_warn_deg`: the drift check searches corrections up to 3 degrees.
+const MAX_CALIBRATION_WARN_DEG: f64 = 3.0;
 
 /// The table entry called `name`.
 pub fn parameter(name: &str) -> Option<&'static ParamSpec> {

@@ -2,7 +2,7 @@
 //! declared in [`super::param_table`], read from `--ros-args` by [`super::ros_args`] and from
 //! params files by `params_file.rs`.
 
-use super::diagnostics::DEFAULT_LENS_WARN_FRACTION;
+use super::diagnostics::{DEFAULT_CALIBRATION_WARN_DEG, DEFAULT_LENS_WARN_FRACTION};
 use super::live_view::{LiveViewAddress, FOXGLOVE_OFF};
 use super::pipeline::{FarValue, PipelineParams};
 use super::qos_overrides::QosOverrides;
@@ -134,6 +134,9 @@ pub struct NodeParams {
     pub foxglove_address: IpAddr,
     /// A camera whose lens check finds more of its view blocked is WARN on `/diagnostics`.
     pub lens_warn_fraction: f64,
+    /// The camera the calibration drift check suspects is WARN when turning it by more than
+    /// this many degrees would make the cameras agree better.
+    pub calibration_warn_deg: f64,
 }
 
 impl Default for NodeParams {
@@ -165,6 +168,7 @@ impl Default for NodeParams {
             foxglove_port: FOXGLOVE_OFF,
             foxglove_address: IpAddr::from(DEFAULT_FOXGLOVE_IP),
             lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
+            calibration_warn_deg: DEFAULT_CALIBRATION_WARN_DEG,
         }
     }
 }

@@ -21,6 +21,7 @@
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::rig::MIN_CAMERAS;
 use mode360_core::geometry::{ErpGrid, GeometryError, Rig, RigError};
+use mode360_estimator::estimator::calibration_drift::{CalibrationDrift, CalibrationDriftMonitor};
 use mode360_estimator::estimator::lens_health::{lens_votes, LensHealth, LensHealthWindow};
 use mode360_estimator::estimator::{DepthEstimator, EstimatorError};
 use mode360_io::msgs::compressed_depth::{
@@ -161,6 +162,9 @@ pub struct PipelineOutput {
     /// Each camera's lens health over the newest groups (rig order; checked on complete
     /// groups only, empty before the first).
     pub lens: Vec<LensHealth>,
+    /// Each camera's calibration as the drift check sees it (rig order; checked every few
+    /// complete groups, empty before the first check).
+    pub calibration: Vec<CalibrationDrift>,
     /// Wall time of the estimator plus message building.
     pub latency: Duration,
 }
@@ -172,6 +176,7 @@ pub struct Pipeline {
     params: PipelineParams,
     grid: ErpGrid,
     lens: LensHealthWindow,
+    drift: CalibrationDriftMonitor,
 }
 
 impl Pipeline {
@@ -181,7 +186,9 @@ impl Pipeline {
         params: PipelineParams,
     ) -> Result<Self, PipelineError> {
         let grid = ErpGrid::new(params.output_width)?;
+        let drift = CalibrationDriftMonitor::new(&rig)?;
         Ok(Self {
+            drift,
             rig,
             estimator,
             params,
@@ -272,6 +279,7 @@ impl Pipeline {
         if missing_cameras.is_empty() {
             self.lens
                 .add(lens_votes(&self.rig, &images, &estimate.range_m)?);
+            self.drift.add(&images, &estimate.range_m)?;
         }
         apply_rep117(&mut estimate.range_m, &estimate.confidence, &self.params);
         // Colour source: the reference camera when present, else the first camera present.
@@ -317,6 +325,7 @@ impl Pipeline {
             confidence: image_msg_from_float(header, &estimate.confidence),
             missing_cameras,
             lens: self.lens.health(),
+            calibration: self.drift.drift(),
             latency: t0.elapsed(),
         })
     }

@@ -193,6 +193,7 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
                 })
                 .collect(),
             lens_warn_fraction: params.lens_warn_fraction,
+            calibration_warn_deg: params.calibration_warn_deg,
             ..Default::default()
         }),
     });

@@ -159,6 +159,7 @@ pub(super) fn worker_main(
                 let mut h = lock(&shared.health);
                 h.groups_processed += 1;
                 h.record_lens(&out.lens);
+                h.record_calibration(&out.calibration);
                 if skipped_points {
                     h.clouds_skipped += 1;
                 }
