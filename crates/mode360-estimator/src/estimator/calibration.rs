@@ -401,6 +401,26 @@ impl RotationCheck {
         }
     }
 
+    /// Camera `c`'s correction `w` with its agreement before and after, measured on `cells`.
+    fn correction(
+        &self,
+        c: usize,
+        w: Vector3<f64>,
+        before: f64,
+        after: f64,
+        cells: usize,
+    ) -> CameraCorrection {
+        CameraCorrection {
+            camera: c,
+            name: self.rig.cameras[c].name.clone(),
+            rotation_vector_rig: w,
+            angle_deg: w.norm().to_degrees(),
+            agreement_before: before,
+            agreement_after: after,
+            cells,
+        }
+    }
+
     /// Every camera's unturned view of every frame and its window statistics, at the range
     /// camera `at` is checked at.
     fn prepare(&self, frames: &[CheckFrame], at: usize) -> Result<Prepared, EstimatorError> {
@@ -531,15 +551,7 @@ impl RotationCheck {
                 } else {
                     (zero, before)
                 };
-                Ok(CameraCorrection {
-                    camera: c,
-                    name: self.rig.cameras[c].name.clone(),
-                    rotation_vector_rig: w,
-                    angle_deg: w.norm().to_degrees(),
-                    agreement_before: before,
-                    agreement_after: after,
-                    cells: count,
-                })
+                Ok(self.correction(c, w, before, after, count))
             })
             .collect::<Result<Vec<_>, EstimatorError>>()?;
         Ok(corrections)
@@ -597,15 +609,7 @@ impl RotationCheck {
                         at_w = at_next;
                     }
                 }
-                CameraCorrection {
-                    camera: c,
-                    name: self.rig.cameras[c].name.clone(),
-                    rotation_vector_rig: w,
-                    angle_deg: w.norm().to_degrees(),
-                    agreement_before: before,
-                    agreement_after: at_w,
-                    cells: count,
-                }
+                self.correction(c, w, before, at_w, count)
             })
             .collect())
     }
