@@ -22,6 +22,8 @@ use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{ErpGrid, GeerPair};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
 use mode360_core::progress::frames_bar;
+use mode360_estimator::estimator::lens_health::LENS_WINDOW_FRAMES;
+use mode360_estimator::estimator::lens_mask::LensGuard;
 use mode360_estimator::estimator::DepthEstimator;
 use mode360_io::bag::{
     RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
@@ -80,6 +82,9 @@ pub struct EvalOptions {
     pub png_dir: Option<PathBuf>,
     /// True views, or the reference camera's image for every camera.
     pub views: ViewMode,
+    /// Give the estimator the lens check's masks of the bag's frames so far, as the node and
+    /// replay do (a blocked part of a lens is treated as unseen).
+    pub lens_masks: bool,
 }
 
 impl Default for EvalOptions {
@@ -91,6 +96,7 @@ impl Default for EvalOptions {
             show_progress: false,
             png_dir: None,
             views: ViewMode::True,
+            lens_masks: true,
         }
     }
 }
@@ -187,6 +193,8 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             opts.show_progress,
         );
         let mut pair_cache: Option<(usize, GeerPair)> = None;
+        // A fresh lens check per bag, as a node started on it would have.
+        let mut lens = LensGuard::new(LENS_WINDOW_FRAMES, opts.lens_masks);
         let mut n = 0;
         for frame in reader.frames() {
             if opts.max_frames.is_some_and(|m| n >= m) {
@@ -210,7 +218,9 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             );
             let output = ErpGrid::new(gt.width).with_context(at)?;
             let t0 = Instant::now();
-            let est = estimator.estimate(&rig, &images, output).with_context(at)?;
+            let est = lens
+                .estimate(estimator, &rig, &images, output)
+                .with_context(at)?;
             group.elapsed_s += t0.elapsed().as_secs_f64();
             let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m)
                 .with_context(at)?;
@@ -385,6 +395,10 @@ pub struct EvalArgs {
     /// Evaluate with true views and with --same-image views; print both and the δ1 difference.
     #[arg(long)]
     pub geometry_share: bool,
+    /// Do not mask the blocked parts of lenses that the lens check finds (the node and replay
+    /// mask them).
+    #[arg(long)]
+    pub no_lens_mask: bool,
 }
 
 /// `mode360 eval`: builds the estimator, scores it (or its geometry share) and writes the JSON.
@@ -410,6 +424,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         } else {
             ViewMode::True
         },
+        lens_masks: !a.no_lens_mask,
     };
     let json = if a.geometry_share {
         let report = geometry_share(&opts, est.as_mut())?;

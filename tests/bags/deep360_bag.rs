@@ -191,6 +191,7 @@ fn evaluating_converted_bags() {
         show_progress: false,
         png_dir: None,
         views: ViewMode::True,
+        lens_masks: true,
     };
 
     // The ground truth against itself is perfect, through metrics directly ...

@@ -235,6 +235,7 @@ fn malformed_messages_are_dropped_counted_and_every_good_frame_is_kept() -> Test
             show_progress: false,
             png_dir: None,
             views: ViewMode::True,
+            lens_masks: true,
         },
         &mut sweep,
     )?;

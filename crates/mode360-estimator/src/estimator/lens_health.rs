@@ -65,6 +65,10 @@ pub struct LensVotes {
     /// `[camera][k]`: `Some(true)` the camera was the odd one out, `Some(false)` it agreed,
     /// `None` undecided.
     pub votes: Vec<Vec<Option<bool>>>,
+    /// `[camera][k]`: the cell of the camera's own panorama, on the analysis grid, that sees
+    /// direction `k`'s estimated point (`None` where its lens does not see it): where a vote
+    /// lands on the lens, for [`super::lens_mask`].
+    pub cells: Vec<Vec<Option<u32>>>,
 }
 
 /// Odd-one-out votes of one frame: `images` in rig order, `range_m` the estimated range of the
@@ -94,6 +98,7 @@ pub fn lens_votes(
     let n = images.len();
     // Each camera's grey panorama sampled at every direction's estimated point.
     let mut warped = Vec::with_capacity(n);
+    let mut cells = Vec::with_capacity(n);
     for (c, pano) in panoramas.iter().enumerate() {
         let (w, h) = (pano.width() as usize, pano.height() as usize);
         let camera_grid = ErpGrid::new(w).map_err(|_| EstimatorError::BadImageSize {
@@ -107,20 +112,28 @@ pub fn lens_votes(
             .collect();
         let sampler = CameraSampler::new(grid, &pano_rig.cam_from_output(c), camera_grid);
         let sees = validity[c].as_ref();
-        warped.push(
-            (0..grid.len())
-                .map(|k| {
-                    let [u, v] = sampler.pixel(k, ranges[k]);
-                    let seen = sees.is_none_or(|valid| {
-                        let (ui, vi) = (u.round() as i64, v.round() as i64);
-                        let ui = ui.rem_euclid(w as i64) as usize;
-                        let vi = vi.clamp(0, h as i64 - 1) as usize;
-                        valid.get(vi * w + ui).is_some_and(|&x| x > 0.5)
-                    });
-                    seen.then(|| bilinear_wrapped(&grey, w, h, u, v))
-                })
-                .collect::<Vec<Option<f32>>>(),
-        );
+        let (samples, lens_cells): (Vec<Option<f32>>, Vec<Option<u32>>) = (0..grid.len())
+            .map(|k| {
+                let [u, v] = sampler.pixel(k, ranges[k]);
+                let (ui, vi) = (u.round() as i64, v.round() as i64);
+                let ui = ui.rem_euclid(w as i64) as usize;
+                let vi = vi.clamp(0, h as i64 - 1) as usize;
+                let seen =
+                    sees.is_none_or(|valid| valid.get(vi * w + ui).is_some_and(|&x| x > 0.5));
+                if !seen {
+                    return (None, None);
+                }
+                // The camera pixel's cell on the analysis grid of the camera's panorama.
+                let cu = (ui * grid.width() / w).min(grid.width() - 1);
+                let cv = (vi * grid.height() / h).min(grid.height() - 1);
+                (
+                    Some(bilinear_wrapped(&grey, w, h, u, v)),
+                    Some((cv * grid.width() + cu) as u32),
+                )
+            })
+            .unzip();
+        warped.push(samples);
+        cells.push(lens_cells);
     }
     let mut votes: Vec<Vec<Option<bool>>> = (0..n)
         .map(|c| {
@@ -140,7 +153,7 @@ pub fn lens_votes(
             }
         }
     }
-    Ok(LensVotes { votes })
+    Ok(LensVotes { votes, cells })
 }
 
 /// The analysis grid.
@@ -268,6 +281,11 @@ impl LensHealthWindow {
         self.frames.push_back(votes);
     }
 
+    /// The frames in the window, oldest first.
+    pub fn frames(&self) -> impl Iterator<Item = &LensVotes> {
+        self.frames.iter()
+    }
+
     /// Each camera's health over the window (empty before the first frame).
     pub fn health(&self) -> Vec<LensHealth> {
         let mut acc = LensHealthAccumulator::default();
@@ -316,13 +334,7 @@ impl LensHealthAccumulator {
     /// Each camera's health over the frames added so far.
     pub fn health(&self) -> Vec<LensHealth> {
         let grid = analysis_grid();
-        let weight = |k: usize| {
-            let ll = grid.lonlat_from_pixel(PixelCoord {
-                u: (k % grid.width()) as f64,
-                v: (k / grid.width()) as f64,
-            });
-            ll.lat_rad.cos()
-        };
+        let weight = |k: usize| cell_weight(grid, k);
         self.odd
             .iter()
             .zip(&self.decided)
@@ -365,6 +377,16 @@ impl LensHealthAccumulator {
     }
 }
 
+/// Solid-angle weight `cos(lat)` of cell `k` of `grid`.
+pub(super) fn cell_weight(grid: ErpGrid, k: usize) -> f64 {
+    grid.lonlat_from_pixel(PixelCoord {
+        u: (k % grid.width()) as f64,
+        v: (k / grid.width()) as f64,
+    })
+    .lat_rad
+    .cos()
+}
+
 /// Where in the output panorama a region's centre lies (`u`, `v` in `[0, 1]`): "upper",
 /// "middle" or "lower", then the side as seen in the panorama ("left", "centre", "right",
 /// "back" at the seam).
@@ -386,7 +408,7 @@ fn describe_region(u: f64, v: f64) -> String {
 }
 
 /// The 4-connected regions of `mask` on `grid` (columns wrap across the seam), as cell lists.
-fn regions(grid: ErpGrid, mask: &[bool]) -> Vec<Vec<usize>> {
+pub(super) fn regions(grid: ErpGrid, mask: &[bool]) -> Vec<Vec<usize>> {
     let (w, h) = (grid.width(), grid.height());
     let mut seen = vec![false; mask.len()];
     let mut out = Vec::new();

@@ -10,6 +10,7 @@ pub mod calibration;
 pub mod calibration_drift;
 pub mod guided_upsample;
 pub mod lens_health;
+pub mod lens_mask;
 pub mod photometric;
 pub mod ssmode;
 
@@ -73,6 +74,13 @@ pub trait DepthEstimator: Send {
         images: &[RgbImage],
         output: ErpGrid,
     ) -> Result<DepthEstimate, EstimatorError>;
+
+    /// The blocked part of each camera's view (rig order, [`lens_mask::LensMask`]) to treat as
+    /// unseen from the next [`Self::estimate`] on, while the rig has that many cameras; an
+    /// empty slice clears them. Estimators that cannot use masks ignore them.
+    fn set_lens_masks(&mut self, masks: &[Option<lens_mask::LensMask>]) {
+        let _ = masks;
+    }
 }
 
 /// The depth estimators the node and the tools can run (`--estimator`, the node's `estimator`

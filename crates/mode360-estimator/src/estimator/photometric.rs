@@ -8,7 +8,8 @@
 //!    formula of [`mode360_core::geometry::SweepGeometry`] (submodule `sampling`); a camera whose frame
 //!    is the output frame is used as is.
 //! 3. Windowed ZNCC between every camera pair, the best `ceil(f P)` of the `P` pair costs
-//!    averaged per pixel (occlusion-robust, submodule `cost`); pairs are blended toward the
+//!    averaged per pixel (occlusion-robust, submodule `cost`; where only `S < P` pairs see the
+//!    pixel, a fisheye's blind region or a masked lens, the best `ceil(ceil(f P) S / P)`); pairs are blended toward the
 //!    undecided cost where their baseline is nearly parallel to the ray; a small far prior
 //!    `far_prior * i / (D - 1)` is added: a cost volume `C(v, u, i)`.
 //! 4. Semi-global aggregation along rows (closed loops in longitude) and columns, with `P2`
@@ -34,6 +35,7 @@ mod sgm;
 
 pub use curve::{refine_minimum, CurveMinimum, CONFIDENCE_EXCLUSION};
 
+use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::matching::zncc::{self as cost, PairCostParams, ViewStats};
 use crate::matching::{luma, INTENSITY_SCALE};
@@ -92,7 +94,8 @@ pub struct PhotometricConfig {
     pub mean_weight: f32,
     /// Mean intensity difference at which the mean term saturates.
     pub mean_scale: f32,
-    /// Fraction of camera pairs (the best ones) averaged per pixel, in (0, 1].
+    /// Fraction of camera pairs (the best ones) averaged per pixel, in (0, 1] (of the pairs
+    /// that see the pixel).
     pub best_pair_fraction: f32,
     /// Blend each pair's cost toward undecided by `1 - sin(angle(ray, baseline))^k`, with
     /// `k = parallax_exponent`; 0 turns the weighting off.
@@ -177,6 +180,10 @@ struct RigCache {
     key: CacheKey,
     /// Per camera, where its panorama holds content (`None`: everywhere).
     validity: Vec<Option<Vec<f32>>>,
+    /// Per camera, where it is used: `validity` without the lens masks' blocked parts.
+    seen: Vec<Option<Vec<f32>>>,
+    /// The lens masks `seen` was built with.
+    masks: Vec<Option<LensMask>>,
     samplers: Vec<CameraSampler>,
     /// Per camera pair `(a < b)`, per output pixel: `sin(angle(ray, baseline))^k`.
     pair_weights: Vec<Vec<f32>>,
@@ -190,6 +197,8 @@ pub struct PhotometricSweep {
     cache: Option<RigCache>,
     /// Fisheye images into panoramas as wide as the output, for the last rig seen.
     remap: Option<RigRemap>,
+    /// Blocked parts of the cameras' views ([`DepthEstimator::set_lens_masks`]).
+    lens_masks: Vec<Option<LensMask>>,
 }
 
 impl PhotometricSweep {
@@ -201,6 +210,7 @@ impl PhotometricSweep {
             hypotheses,
             cache: None,
             remap: None,
+            lens_masks: Vec::new(),
         })
     }
 
@@ -281,16 +291,31 @@ impl PhotometricSweep {
                 .map(|(grid, pose)| CameraSampler::new(output, pose, *grid))
                 .collect();
             let pair_weights = pair_parallax_weights(&key, self.cfg.parallax_exponent);
+            let validity = self
+                .remap
+                .as_ref()
+                .map(RigRemap::validity)
+                .unwrap_or_default();
             self.cache = Some(RigCache {
                 key,
-                validity: self
-                    .remap
-                    .as_ref()
-                    .map(RigRemap::validity)
-                    .unwrap_or_default(),
+                seen: validity.clone(),
+                validity,
+                masks: Vec::new(),
                 samplers,
                 pair_weights,
             });
+        }
+        if let Some(cache) = self.cache.as_mut() {
+            // Masks of another number of cameras are stale: ignored.
+            let masks = if self.lens_masks.len() == cache.samplers.len() {
+                &self.lens_masks[..]
+            } else {
+                &[]
+            };
+            if cache.masks != masks {
+                cache.seen = masked_validity(&cache.validity, masks, &cache.key.camera_grids);
+                cache.masks = masks.to_vec();
+            }
         }
         Ok(panoramas.par_iter().map(|p| grey_image(p)).collect())
     }
@@ -354,7 +379,7 @@ impl PhotometricSweep {
                 let seen: Vec<Option<Vec<f32>>> = cache
                     .samplers
                     .iter()
-                    .zip(&cache.validity)
+                    .zip(&cache.seen)
                     .map(|(sampler, valid)| {
                         valid.as_ref().map(|valid| {
                             let mut warped = vec![0.0f32; n];
@@ -381,6 +406,32 @@ impl PhotometricSweep {
             });
         volume
     }
+}
+
+/// Each camera's validity (`None`: it sees everything) with its lens mask's blocked part set to
+/// 0, on the camera's panorama grid.
+fn masked_validity(
+    validity: &[Option<Vec<f32>>],
+    masks: &[Option<LensMask>],
+    grids: &[ErpGrid],
+) -> Vec<Option<Vec<f32>>> {
+    grids
+        .iter()
+        .enumerate()
+        .map(|(c, grid)| {
+            let valid = validity.get(c).cloned().flatten();
+            let Some(mask) = masks.get(c).and_then(Option::as_ref) else {
+                return valid;
+            };
+            let mut valid = valid.unwrap_or_else(|| vec![1.0; grid.len()]);
+            for (v, blocked) in valid.iter_mut().zip(mask.blocked_on(*grid)) {
+                if blocked {
+                    *v = 0.0;
+                }
+            }
+            Some(valid)
+        })
+        .collect()
 }
 
 /// Parallax weights of the cached rig's camera pairs ([`crate::matching::pair_parallax_weights`]).
@@ -508,6 +559,12 @@ impl DepthEstimator for PhotometricSweep {
         output: ErpGrid,
     ) -> Result<DepthEstimate, EstimatorError> {
         self.estimate_with(rig, images, output, true)
+    }
+
+    fn set_lens_masks(&mut self, masks: &[Option<LensMask>]) {
+        if self.lens_masks != masks {
+            self.lens_masks = masks.to_vec();
+        }
     }
 }
 

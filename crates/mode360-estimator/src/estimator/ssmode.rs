@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use candle_core::{Device, Tensor};
 
 use super::guided_upsample::{grey_on_grid, guided_upsample};
+use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use crate::model::{input_tensor, load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
 use mode360_core::frame::RgbImage;
@@ -76,6 +77,10 @@ pub struct SsmodeEstimator {
     cached: Option<(Rig, SweepSampling)>,
     /// Fisheye images into panoramas at the network's width, for the last rig seen.
     remap: Option<RigRemap>,
+    /// Blocked parts of the cameras' views ([`DepthEstimator::set_lens_masks`]).
+    lens_masks: Vec<Option<LensMask>>,
+    /// The cached tables with `lens_masks` applied, and the masks they were built with.
+    masked: Option<(Vec<Option<LensMask>>, SweepSampling)>,
 }
 
 fn model_err(e: impl Into<ModelError>) -> EstimatorError {
@@ -109,6 +114,8 @@ impl SsmodeEstimator {
             device,
             cached: None,
             remap: None,
+            lens_masks: Vec::new(),
+            masked: None,
         })
     }
 
@@ -120,6 +127,8 @@ impl SsmodeEstimator {
             device: Device::Cpu,
             cached: None,
             remap: None,
+            lens_masks: Vec::new(),
+            masked: None,
         }
     }
 
@@ -150,8 +159,46 @@ impl SsmodeEstimator {
                 })
             })?;
             self.cached = Some((rig.clone(), sampling));
+            self.masked = None;
         }
         Ok(())
+    }
+
+    /// Whether the lens masks apply to the cached tables (set for this many cameras).
+    fn masks_apply(&self) -> bool {
+        self.cached.as_ref().is_some_and(|(_, base)| {
+            self.lens_masks.len() == base.camera_count()
+                && self.lens_masks.iter().any(Option::is_some)
+        })
+    }
+
+    /// Builds the masked tables when the masks apply and changed.
+    fn refresh_masked(&mut self) {
+        if !self.masks_apply()
+            || self
+                .masked
+                .as_ref()
+                .is_some_and(|(m, _)| *m == self.lens_masks)
+        {
+            return;
+        }
+        if let Some((_, base)) = &self.cached {
+            let grid = base.geometry().output();
+            let blocked: Vec<Option<Vec<bool>>> = self
+                .lens_masks
+                .iter()
+                .map(|m| m.as_ref().map(|m| m.blocked_on(grid)))
+                .collect();
+            self.masked = Some((self.lens_masks.clone(), base.with_blocked(&blocked)));
+        }
+    }
+
+    /// The cached tables, masked when the masks apply ([`Self::refresh_masked`] first).
+    fn sampling(&self) -> Option<&SweepSampling> {
+        match &self.masked {
+            Some((_, masked)) if self.masks_apply() => Some(masked),
+            _ => self.cached.as_ref().map(|(_, s)| s),
+        }
     }
 }
 
@@ -225,8 +272,9 @@ impl DepthEstimator for SsmodeEstimator {
             tensors.push(t);
         }
         self.refresh_sampling(rig)?;
-        let sampling = match &self.cached {
-            Some((_, s)) => s,
+        self.refresh_masked();
+        let sampling = match self.sampling() {
+            Some(s) => s,
             None => {
                 return Err(model_err(ModelError::BadConfig {
                     field: "rig".to_string(),
@@ -265,5 +313,11 @@ impl DepthEstimator for SsmodeEstimator {
             }
         }
         Ok(DepthEstimate::on_grid(output, range, conf))
+    }
+
+    fn set_lens_masks(&mut self, masks: &[Option<LensMask>]) {
+        if self.lens_masks != masks {
+            self.lens_masks = masks.to_vec();
+        }
     }
 }

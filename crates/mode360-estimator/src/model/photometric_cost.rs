@@ -10,7 +10,7 @@
 //! ```text
 //! cost_ab  = (1 - w_mean) (1 - zncc_ab) / 2 + w_mean min(|E[a] - E[b]| / s_mean, 1)
 //! cost_ab' = s_ab cost_ab + (1 - s_ab) / 2      s_ab = |dir x b_hat_ab|: no parallax, undecided
-//! cost     = mean of the best ceil(P / 2) of the P pairs that both cameras see
+//! cost     = mean of the best ceil(ceil(P / 2) S / P) of the S pairs both cameras see (of P)
 //! channel  = 1 - 2 cost                          in [-1, 1]: 1 a match, 0 undecided or unseen
 //! ```
 //!

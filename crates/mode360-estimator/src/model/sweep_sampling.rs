@@ -8,7 +8,7 @@ use super::sphere_conv::SphereConvTable;
 use super::ModelError;
 use crate::model::ops::{view_scale, SampleTable};
 
-use mode360_core::geometry::{ErpGrid, Rig, SweepGeometry};
+use mode360_core::geometry::{BilinearTaps, ErpGrid, Rig, SweepGeometry};
 
 /// Exponent `k` of the pair parallax weight `|dir x b_hat|^k` of the photometric cost channel.
 pub const PARALLAX_EXPONENT: f32 = 1.0;
@@ -55,16 +55,9 @@ impl SweepSampling {
             .map(|cam| SampleTable::new(&geometry.camera_taps(cam)))
             .collect::<Vec<_>>();
         let view_scale = (!geometry.all_see_everything()).then(|| view_scale(&sweep_tables));
-        let coverage = view_scale.as_ref().map(|scale| {
-            (0..pixels)
-                .map(|k| {
-                    (0..cfg.spheres)
-                        .filter(|d| scale[d * pixels + k] > 0.0)
-                        .count() as f32
-                        / cfg.spheres as f32
-                })
-                .collect()
-        });
+        let coverage = view_scale
+            .as_ref()
+            .map(|scale| coverage_of(scale, pixels, cfg.spheres));
         let pair_weights = cfg.photometric_cost.then(|| {
             let centres: Vec<_> = (0..cameras)
                 .map(|cam| geometry.camera_centre_in_output_m(cam))
@@ -79,6 +72,35 @@ impl SweepSampling {
             sphere_conv: SphereConvTable::new(trunk_grid),
             geometry,
         })
+    }
+
+    /// These tables with the samples of each camera's `blocked` cells (row-major over the
+    /// camera's panorama at the cost volume's resolution; `None`: nothing blocked) counted as
+    /// not seen, as a fisheye's blind region is: a sample any of whose taps lands on a blocked
+    /// cell gets zero weight, and the view scale and coverage count the views left.
+    pub fn with_blocked(&self, blocked: &[Option<Vec<bool>>]) -> Self {
+        let sweep_tables: Vec<SampleTable> = self
+            .sweep_tables
+            .iter()
+            .enumerate()
+            .map(
+                |(cam, table)| match blocked.get(cam).and_then(Option::as_ref) {
+                    None => table.clone(),
+                    Some(cells) => mask_table(table, cells),
+                },
+            )
+            .collect();
+        let view_scale = view_scale(&sweep_tables);
+        let spheres = self.geometry.hypotheses().count();
+        let coverage = coverage_of(&view_scale, self.geometry.output().len(), spheres);
+        Self {
+            geometry: self.geometry.clone(),
+            view_scale: Some(view_scale),
+            coverage: Some(coverage),
+            sweep_tables,
+            sphere_conv: self.sphere_conv.clone(),
+            pair_weights: self.pair_weights.clone(),
+        }
     }
 
     /// The sweep geometry at the cost volume's resolution.
@@ -117,4 +139,42 @@ impl SweepSampling {
     pub fn coverage(&self) -> Option<&[f32]> {
         self.coverage.as_deref()
     }
+}
+
+/// Per cell of `pixels`, the share of the `spheres` spheres whose sample at least two views see
+/// (a non-zero view scale).
+fn coverage_of(view_scale: &[f32], pixels: usize, spheres: usize) -> Vec<f32> {
+    (0..pixels)
+        .map(|k| {
+            (0..spheres)
+                .filter(|d| view_scale[d * pixels + k] > 0.0)
+                .count() as f32
+                / spheres.max(1) as f32
+        })
+        .collect()
+}
+
+/// `table` with every sample that has a tap of non-zero weight on a `blocked` pixel zeroed.
+fn mask_table(table: &SampleTable, blocked: &[bool]) -> SampleTable {
+    let (index, weight) = (table.flat_indices(), table.flat_weights());
+    let taps: Vec<BilinearTaps> = index
+        .chunks_exact(SampleTable::TAPS)
+        .zip(weight.chunks_exact(SampleTable::TAPS))
+        .map(|(i, w)| {
+            let mut t = BilinearTaps {
+                index: [i[0], i[1], i[2], i[3]],
+                weight: [w[0], w[1], w[2], w[3]],
+            };
+            let hit = t
+                .index
+                .iter()
+                .zip(&t.weight)
+                .any(|(&p, &wt)| wt > 0.0 && blocked.get(p as usize).copied().unwrap_or(false));
+            if hit {
+                t.weight = [0.0; SampleTable::TAPS];
+            }
+            t
+        })
+        .collect();
+    SampleTable::new(&taps)
 }

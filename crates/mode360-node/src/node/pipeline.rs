@@ -22,7 +22,8 @@ use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::rig::MIN_CAMERAS;
 use mode360_core::geometry::{ErpGrid, GeometryError, Rig, RigError};
 use mode360_estimator::estimator::calibration_drift::{CalibrationDrift, CalibrationDriftMonitor};
-use mode360_estimator::estimator::lens_health::{lens_votes, LensHealth, LensHealthWindow};
+use mode360_estimator::estimator::lens_health::{LensHealth, LENS_WINDOW_FRAMES};
+use mode360_estimator::estimator::lens_mask::LensGuard;
 use mode360_estimator::estimator::{DepthEstimator, EstimatorError};
 use mode360_io::msgs::compressed_depth::{
     encode_compressed_depth, CompressedDepthError, DEFAULT_DEPTH_QUANTIZATION,
@@ -175,7 +176,8 @@ pub struct Pipeline {
     estimator: Box<dyn DepthEstimator>,
     params: PipelineParams,
     grid: ErpGrid,
-    lens: LensHealthWindow,
+    /// The lens check, whose masks the estimator gets.
+    lens: LensGuard,
     drift: CalibrationDriftMonitor,
 }
 
@@ -193,7 +195,7 @@ impl Pipeline {
             estimator,
             params,
             grid,
-            lens: LensHealthWindow::default(),
+            lens: LensGuard::new(LENS_WINDOW_FRAMES, true),
         })
     }
 
@@ -271,16 +273,16 @@ impl Pipeline {
             return Err(PipelineError::SizeMismatch { sizes });
         }
         let mut estimate = if missing_cameras.is_empty() {
-            self.estimator.estimate(&self.rig, &images, self.grid)?
+            let estimate =
+                self.lens
+                    .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
+            self.drift.add(&images, &estimate.range_m)?;
+            estimate
         } else {
             let sub = self.rig.subset(&present)?;
-            self.estimator.estimate(&sub, &images, self.grid)?
-        };
-        if missing_cameras.is_empty() {
             self.lens
-                .add(lens_votes(&self.rig, &images, &estimate.range_m)?);
-            self.drift.add(&images, &estimate.range_m)?;
-        }
+                .estimate_partial(self.estimator.as_mut(), &sub, &images, self.grid)?
+        };
         apply_rep117(&mut estimate.range_m, &estimate.confidence, &self.params);
         // Colour source: the reference camera when present, else the first camera present.
         let colour_slot = present
