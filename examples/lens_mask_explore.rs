@@ -3,13 +3,15 @@
 //! camera's mask is compared with the truth, the pixels that differ from the same frames of a
 //! bag rendered without the blocker (ERP cameras).
 //!
-//! `cargo run --release --example lens_mask_explore -- BLOCKED_BAG CLEAN_BAG`. Nothing is
+//! `cargo run --release --example lens_mask_explore -- BLOCKED_BAG CLEAN_BAG`;
+//! `LENS_ESTIMATOR=ssmode` runs the shipped SSMODE instead of the sweep. Nothing is
 //! asserted here: the tests in tests/model/lens_mask.rs are.
 
 use mode360::bag::RigBagReader;
 use mode360::estimator::lens_health::LENS_WINDOW_FRAMES;
 use mode360::estimator::lens_mask::LensGuard;
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
+use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use mode360::geometry::ErpGrid;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -20,13 +22,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let blocked = RigBagReader::open(blocked_bag)?;
     let clean = RigBagReader::open(clean_bag)?;
     let rig = blocked.rig().clone();
-    let mut sweep = PhotometricSweep::new(PhotometricConfig::default())?;
+    let mut sweep: Box<dyn DepthEstimator> = match std::env::var("LENS_ESTIMATOR").as_deref() {
+        Ok("ssmode") => EstimatorSpec::new(EstimatorKind::Ssmode).build()?,
+        _ => Box::new(PhotometricSweep::new(PhotometricConfig::default())?),
+    };
     let mut guard = LensGuard::new(LENS_WINDOW_FRAMES, true);
     for (n, (frame, clean_frame)) in blocked.frames().zip(clean.frames()).enumerate() {
         let (frame, clean_frame) = (frame?, clean_frame?);
         let grid = ErpGrid::new(frame.images[rig.reference].width() as usize)?;
-        guard.estimate(&mut sweep, &rig, &frame.images, grid)?;
-        println!("frame {n}:");
+        guard.estimate(sweep.as_mut(), &rig, &frame.images, grid)?;
+        println!(
+            "frame {n}: health {:?}",
+            guard
+                .health()
+                .iter()
+                .map(|h| (h.blocked_fraction * 1000.0).round() / 1000.0)
+                .collect::<Vec<_>>()
+        );
         for (c, cam) in rig.cameras.iter().enumerate() {
             let (img, clean_img) = (&frame.images[c], &clean_frame.images[c]);
             let camera_grid = ErpGrid::new(img.width() as usize)?;

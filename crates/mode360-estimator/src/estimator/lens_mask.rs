@@ -5,8 +5,9 @@
 //! The lens check votes per direction of the output frame ([`super::lens_health`]); each vote
 //! also records the cell of the camera's own panorama that saw the estimated point
 //! ([`LensVotes::cells`]). A blocker is fixed on the lens, so the votes are counted again per
-//! camera cell over the window: a cell is blocked when the camera was the odd one out in at
-//! least [`BLOCKED_VOTE`] of the votes that landed on it,
+//! camera cell over the window, each on the cells within [`SPLAT_RADIUS_CELLS`] of where it
+//! landed: a cell is blocked when the camera was the odd one out in at least [`BLOCKED_VOTE`]
+//! of the votes counted on it,
 //!
 //! ```text
 //! blocked(j) = odd(j) >= BLOCKED_VOTE * decided(j),  decided(j) > 0
@@ -31,6 +32,10 @@ use mode360_core::geometry::{ErpGrid, Rig};
 
 /// Cells (of the analysis grid, about 2.8° each) by which a blocked region is grown.
 pub const MASK_DILATION_CELLS: usize = 2;
+/// Each vote counts on the cells within this many cells of where it lands: the directions of
+/// the output grid land on the lens with gaps and overlaps (parallax, rounding), and a vote
+/// rests on a matching window of several cells anyway.
+pub const SPLAT_RADIUS_CELLS: usize = 1;
 
 /// The blocked part of one camera's view, on the analysis grid of the camera's panorama (its
 /// own ERP frame, as the estimators sweep it).
@@ -97,8 +102,10 @@ pub fn lens_masks<'a>(frames: impl IntoIterator<Item = &'a LensVotes>) -> Vec<Op
         for (c, (votes, cells)) in frame.votes.iter().zip(&frame.cells).enumerate() {
             for (vote, cell) in votes.iter().zip(cells) {
                 if let (Some(is_odd), Some(j)) = (vote, cell) {
-                    decided[c][*j as usize] += 1;
-                    odd[c][*j as usize] += u32::from(*is_odd);
+                    for n in neighbourhood(grid, *j as usize, SPLAT_RADIUS_CELLS) {
+                        decided[c][n] += 1;
+                        odd[c][n] += u32::from(*is_odd);
+                    }
                 }
             }
         }
@@ -128,6 +135,14 @@ pub fn lens_masks<'a>(frames: impl IntoIterator<Item = &'a LensVotes>) -> Vec<Op
             })
         })
         .collect()
+}
+
+/// The cells within `r` rows and columns of cell `k` (columns wrap, rows clamp; each once).
+fn neighbourhood(grid: ErpGrid, k: usize, r: usize) -> impl Iterator<Item = usize> {
+    let (w, h) = (grid.width(), grid.height());
+    let (u, v) = (k % w, k / w);
+    let rows = v.saturating_sub(r)..=(v + r).min(h - 1);
+    rows.flat_map(move |vv| (0..=2 * r).map(move |du| vv * w + (u + w + du - r) % w))
 }
 
 /// `mask` grown by `r` cells in rows and columns (columns wrap, rows clamp).
