@@ -19,6 +19,8 @@ const PARALLAX_PARAMS: usize = 152_520;
 const PARALLAX_ZNCC_PARAMS: usize = 152_736;
 /// `parallax_zncc_log_pos`: two position channels widen it by 2 x 27 x 8 weights.
 const PARALLAX_ZNCC_LOG_POS_PARAMS: usize = 153_168;
+/// `parallax_zncc_log_prior`: the logit prior adds 48 aggregated spheres x 16 latitude bins.
+const PARALLAX_ZNCC_LOG_PRIOR_PARAMS: usize = 153_504;
 
 fn model(cfg: &SsmodeConfig) -> (VarMap, Ssmode) {
     let varmap = VarMap::new();
@@ -406,6 +408,12 @@ fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
         param_count(&varmap),
         PARALLAX_ZNCC_LOG_POS_PARAMS,
         "parallax_zncc_log_pos preset (models/README.md, Presets)"
+    );
+    let (varmap, _net) = model(&SsmodeConfig::parallax_zncc_log_prior());
+    assert_eq!(
+        param_count(&varmap),
+        PARALLAX_ZNCC_LOG_PRIOR_PARAMS,
+        "parallax_zncc_log_prior preset (models/README.md, Presets)"
     );
 }
 

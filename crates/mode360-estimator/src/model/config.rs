@@ -71,6 +71,8 @@ pub enum Preset {
     ParallaxZnccLog,
     /// `parallax_zncc_log` with two position channels (sphere, latitude) in the cost volume.
     ParallaxZnccLogPos,
+    /// `parallax_zncc_log` with a learned prior over hypotheses by latitude on the logits.
+    ParallaxZnccLogPrior,
     /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
     /// The paper's sizes.
@@ -85,11 +87,12 @@ pub enum Preset {
 
 impl Preset {
     /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
-    pub const ALL: [Self; 9] = [
+    pub const ALL: [Self; 10] = [
         Self::Parallax,
         Self::ParallaxZncc,
         Self::ParallaxZnccLog,
         Self::ParallaxZnccLogPos,
+        Self::ParallaxZnccLogPrior,
         Self::Compact,
         Self::Paper,
         Self::Tiny,
@@ -104,6 +107,7 @@ impl Preset {
             Self::ParallaxZncc => "parallax_zncc",
             Self::ParallaxZnccLog => "parallax_zncc_log",
             Self::ParallaxZnccLogPos => "parallax_zncc_log_pos",
+            Self::ParallaxZnccLogPrior => "parallax_zncc_log_prior",
             Self::Compact => "compact",
             Self::Paper => "paper",
             Self::Tiny => "tiny",
@@ -118,6 +122,7 @@ impl Preset {
             Self::ParallaxZncc => SsmodeConfig::parallax_zncc(),
             Self::ParallaxZnccLog => SsmodeConfig::parallax_zncc_log(),
             Self::ParallaxZnccLogPos => SsmodeConfig::parallax_zncc_log_pos(),
+            Self::ParallaxZnccLogPrior => SsmodeConfig::parallax_zncc_log_prior(),
             Self::Compact => SsmodeConfig::compact(),
             Self::Paper => SsmodeConfig::paper(),
             Self::Tiny => SsmodeConfig::tiny(),
@@ -205,6 +210,11 @@ pub struct SsmodeConfig {
     /// prior where the views give no evidence.
     #[serde(default)]
     pub position_channels: bool,
+    /// Add a learned prior over hypotheses by latitude to every stage's logits
+    /// ([`super::logit_prior`]; files without it: no), so that where the views give no
+    /// evidence the network answers what is likely there rather than the middle of its range.
+    #[serde(default)]
+    pub logit_prior: bool,
 }
 
 /// [`SsmodeConfig::far_plane_probability`] of the presets.
@@ -238,6 +248,7 @@ impl SsmodeConfig {
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
+            logit_prior: false,
         }
     }
 
@@ -265,6 +276,7 @@ impl SsmodeConfig {
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
+            logit_prior: false,
         }
     }
 
@@ -293,6 +305,7 @@ impl SsmodeConfig {
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
+            logit_prior: false,
         }
     }
 
@@ -318,6 +331,7 @@ impl SsmodeConfig {
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
+            logit_prior: false,
         }
     }
 
@@ -371,6 +385,15 @@ impl SsmodeConfig {
         }
     }
 
+    /// [`Self::parallax_zncc_log`] with the learned logit prior ([`super::logit_prior`]).
+    pub fn parallax_zncc_log_prior() -> Self {
+        Self {
+            name: "parallax_zncc_log_prior".to_string(),
+            logit_prior: true,
+            ..Self::parallax_zncc_log()
+        }
+    }
+
     /// [`Self::tiny_parallax`] with the photometric cost channel, for tests.
     pub fn tiny_zncc() -> Self {
         Self {
@@ -382,7 +405,7 @@ impl SsmodeConfig {
 
     /// Names of the presets, for messages.
     pub const PRESETS: &'static str =
-        "parallax, parallax_zncc, parallax_zncc_log, parallax_zncc_log_pos, compact, paper, tiny, tiny_parallax, tiny_zncc";
+        "parallax, parallax_zncc, parallax_zncc_log, parallax_zncc_log_pos, parallax_zncc_log_prior, compact, paper, tiny, tiny_parallax, tiny_zncc";
 
     /// The preset called `name` (see [`Preset`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {
@@ -429,6 +452,11 @@ impl SsmodeConfig {
             } else {
                 0
             }
+    }
+
+    /// Spheres of the aggregated cost the regression heads read (`spheres / aggregation_stride`).
+    pub fn aggregated_spheres(&self) -> usize {
+        self.spheres / self.aggregation_stride.max(1)
     }
 
     /// Whether the matching features come from a fine branch (cost finer than the trunk).

@@ -16,6 +16,7 @@ pub mod hourglass;
 pub mod input;
 pub mod ops;
 pub mod photometric_cost;
+pub mod logit_prior;
 pub mod position_channels;
 pub mod regression;
 pub mod sphere_conv;

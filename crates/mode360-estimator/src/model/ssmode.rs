@@ -8,6 +8,7 @@
 //! position_channels         -> (B, D, h, w, C'' + 2)      optional sphere and latitude
 //! aggregation               -> K x (B, D/s, h/s, w/s, Ch) stacked hourglasses, entry stride s
 //! classif{k}                -> K x (B, D/s, h/s, w/s)
+//! logit_prior               -> K x (B, D/s, h/s, w/s)    optional prior by latitude
 //! regression                -> K x (B, H, W) range, index; confidence of the last
 //! ```
 
@@ -21,6 +22,7 @@ use super::cost_volume::cost_volume;
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
+use super::logit_prior::LogitPrior;
 use super::position_channels::position_channels;
 use super::regression::{confidence, regress, regress_inference, RegressionHead};
 use super::sweep_sampling::SweepSampling;
@@ -110,7 +112,7 @@ impl StageProfiler {
     }
 }
 
-/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`.
+/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`, `logit_prior`.
 #[derive(Clone, Debug)]
 pub struct Ssmode {
     cfg: SsmodeConfig,
@@ -118,6 +120,7 @@ pub struct Ssmode {
     feature: FeatureExtractor,
     aggregation: CostAggregation,
     classif: Vec<RegressionHead>,
+    logit_prior: Option<LogitPrior>,
 }
 
 impl Ssmode {
@@ -132,7 +135,19 @@ impl Ssmode {
             classif: (0..cfg.hourglasses)
                 .map(|k| RegressionHead::new(cfg.hourglass_channels, vb.pp(format!("classif{k}"))))
                 .collect::<Result<_>>()?,
+            logit_prior: cfg
+                .logit_prior
+                .then(|| LogitPrior::new(cfg.aggregated_spheres(), vb.clone()))
+                .transpose()?,
         })
+    }
+
+    /// A regression head's cost with the logit prior, when the network has one.
+    fn with_prior(&self, cost: Tensor) -> Result<Tensor> {
+        match &self.logit_prior {
+            Some(prior) => prior.forward(&cost),
+            None => Ok(cost),
+        }
     }
 
     pub fn config(&self) -> &SsmodeConfig {
@@ -258,7 +273,7 @@ impl Ssmode {
                     what: "no hourglass stages".to_string(),
                 })?;
             // (B, D/s, h/s, w/s)
-            let cost = head.forward(x)?;
+            let cost = self.with_prior(head.forward(x)?)?;
             drop(aggregated);
             // (B, H, W) each
             let r = regress_inference(
@@ -281,7 +296,7 @@ impl Ssmode {
         let mut last_probabilities = None;
         for (head, x) in self.classif.iter().zip(&aggregated) {
             // (B, D/s, h/s, w/s)
-            let cost = head.forward(x)?;
+            let cost = self.with_prior(head.forward(x)?)?;
             // (B, H, W)
             let r = regress(
                 &cost,
