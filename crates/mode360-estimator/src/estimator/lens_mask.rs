@@ -285,16 +285,19 @@ mod tests {
         for &k in &big {
             assert!(mask.cells()[k], "blocked cell {k} not masked");
         }
-        // Grown by MASK_DILATION_CELLS on every side, not further.
+        // Grown by MASK_DILATION_CELLS on every side, not further (mid-side; the splat rounds
+        // the corners: a corner cell has 4 odd votes of 9).
         let r = MASK_DILATION_CELLS;
-        assert!(mask.cells()[(40 - r) * w + 10 - r]);
-        assert!(!mask.cells()[(40 - r - 1) * w + 10]);
-        assert!(mask.cells()[(59 + r) * w + 39 + r]);
-        assert!(!mask.cells()[59 * w + 39 + r + 1]);
+        assert!(mask.cells()[(40 - r) * w + 25]);
+        assert!(!mask.cells()[(40 - r - 1) * w + 25]);
+        assert!(mask.cells()[50 * w + 39 + r]);
+        assert!(!mask.cells()[50 * w + 39 + r + 1]);
+        assert!(!mask.cells()[(40 - r) * w + 10 - r], "corner rounded off");
         // The small spot is below MIN_REGION_FRACTION and stays unmasked.
         assert!(spot.iter().all(|&k| !mask.cells()[k]));
-        let expected = (20 + 2 * r) * (30 + 2 * r);
-        assert_eq!(mask.cells().iter().filter(|&&b| b).count(), expected);
+        let masked = mask.cells().iter().filter(|&&b| b).count();
+        let (block, grown) = (20 * 30, (20 + 2 * r) * (30 + 2 * r));
+        assert!(masked > block && masked < grown, "{masked} cells");
     }
 
     #[test]

@@ -49,7 +49,11 @@ impl LogitPrior {
     /// The prior over `spheres` aggregated spheres (zeros when new).
     pub fn new(spheres: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
-            logit_prior: vb.get_with_hints((spheres, LATITUDE_BINS), "logit_prior", Init::Const(0.0))?,
+            logit_prior: vb.get_with_hints(
+                (spheres, LATITUDE_BINS),
+                "logit_prior",
+                Init::Const(0.0),
+            )?,
         })
     }
 
@@ -98,8 +102,13 @@ mod tests {
         for k in 0..LATITUDE_BINS / 2 {
             theta[LATITUDE_BINS + k] = 1.0;
         }
-        let data = varmap.data().lock().map_err(|_| candle_core::Error::Msg("lock".into()))?;
-        let var = data.get("logit_prior").ok_or(candle_core::Error::Msg("no var".into()))?;
+        let data = varmap
+            .data()
+            .lock()
+            .map_err(|_| candle_core::Error::Msg("lock".into()))?;
+        let var = data
+            .get("logit_prior")
+            .ok_or(candle_core::Error::Msg("no var".into()))?;
         var.set(&Tensor::from_vec(theta, (3, LATITUDE_BINS), &Device::Cpu)?)?;
         drop(data);
         let out = prior.forward(&cost)?.sub(&cost)?;
