@@ -8,6 +8,7 @@ mod common;
 mod fisheye_sweep;
 mod geometry_check;
 mod lens_health;
+mod model_composites;
 mod model_estimator;
 mod model_ssmode;
 mod model_ssmode_layers;
