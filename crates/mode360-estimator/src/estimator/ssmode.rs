@@ -122,18 +122,20 @@ impl SsmodeEstimator {
 
     /// Wraps an already built network on the CPU; `label` names its weights in messages.
     pub fn from_model(model: Ssmode, label: impl Into<PathBuf>) -> Self {
-        Self::from_model_on(model, label, Device::Cpu)
+        Self {
+            weights_path: label.into(),
+            model,
+            device: Device::Cpu,
+            cached: None,
+            remap: None,
+        }
     }
 
     /// Wraps an already built network whose weights live on `device`.
     pub fn from_model_on(model: Ssmode, label: impl Into<PathBuf>, device: Device) -> Self {
-        Self {
-            weights_path: label.into(),
-            model,
-            device,
-            cached: None,
-            remap: None,
-        }
+        let mut estimator = Self::from_model(model, label);
+        estimator.device = device;
+        estimator
     }
 
     pub fn config(&self) -> &SsmodeConfig {
