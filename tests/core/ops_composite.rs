@@ -332,7 +332,8 @@ fn sweep_variance_matches_its_composite() {
             &|t| sweep_variance_composite(t[0], &tables, None),
         );
         // cameras blind to some samples, some samples seen by fewer than two
-        let blind = |cam: usize, k: usize| (k + cam) % 4 == 0 || (k % 7 == 0 && cam < 2);
+        let blind =
+            |cam: usize, k: usize| (k + cam).is_multiple_of(4) || (k.is_multiple_of(7) && cam < 2);
         let masked: Vec<SampleTable> = (0..cameras)
             .map(|cam| random_table(grid, n, 90 + cam as u64, |k| blind(cam, k)))
             .collect();
