@@ -78,7 +78,8 @@ fn open_cuda(device: ComputeDevice, _ordinal: usize) -> Result<Device, DeviceErr
 fn open_cuda(device: ComputeDevice, ordinal: usize) -> Result<Device, DeviceError> {
     Device::new_cuda(ordinal).map_err(|e| DeviceError::Unavailable {
         device,
-        problem: e.to_string(),
+        // the first line: candle appends a backtrace when RUST_BACKTRACE is set
+        problem: e.to_string().lines().next().unwrap_or_default().to_string(),
         found: cuda_devices_found(),
     })
 }
