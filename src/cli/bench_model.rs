@@ -1,5 +1,5 @@
 //! `mode360 bench-model`: wall time per network stage, GFLOP/s and peak resident memory of
-//! SSMODE forward passes (inference, CPU), plus the estimator's end-to-end time per frame
+//! SSMODE forward passes (inference, on the CPU or a CUDA GPU), plus the estimator's end-to-end time per frame
 //! (panorama resize in, network, resize out).
 //!
 //! One [`ModelBenchCase`] per preset and width. Peak memory is the process's high-water mark
@@ -21,9 +21,10 @@ use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
 use mode360_estimator::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
 use mode360_estimator::estimator::DepthEstimator;
+use mode360_estimator::model::ops::with_composites;
 use mode360_estimator::model::{
-    input_tensor, load_weights, read_config, Preset, Ssmode, SsmodeConfig, StageProfiler,
-    SweepSampling,
+    input_tensor, load_weights, read_config, ComputeDevice, Preset, Ssmode, SsmodeConfig,
+    StageProfiler, SweepSampling,
 };
 use mode360_synth::synth::{SynthConfig, SynthRenderer};
 
@@ -41,6 +42,10 @@ pub struct ModelBenchOptions {
     pub runs: usize,
     /// Scene seed of the rendered input frame.
     pub seed: u64,
+    /// Where the network runs.
+    pub device: ComputeDevice,
+    /// On the CPU, run the ops' device-generic composites (a GPU's path) instead of the kernels.
+    pub composites: bool,
 }
 
 /// One stage over the timed runs.
@@ -65,6 +70,9 @@ pub struct ModelBenchCase {
     pub spheres: usize,
     pub hypotheses: usize,
     pub trained_weights: bool,
+    /// `cpu` or `cuda:N`, with ` (composites)` when the CPU ran the device-generic ops.
+    #[serde(default)]
+    pub device: String,
     pub runs: usize,
     pub threads: usize,
     pub stages: Vec<StageSummary>,
@@ -135,12 +143,22 @@ fn median(values: &mut [f64]) -> f64 {
 
 /// Runs one case. See the module docs.
 pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
+    if opts.composites {
+        if opts.device.is_cuda() {
+            bail!("--composites compares the CPU's two paths; a GPU always runs the composites");
+        }
+        return with_composites(|| measure_case(opts));
+    }
+    measure_case(opts)
+}
+
+fn measure_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
     if opts.runs == 0 {
         bail!("--runs must be at least 1");
     }
     let peak_reset = reset_peak_resident();
     let rss_start_mib = resident_mib().unwrap_or(0.0);
-    let device = Device::Cpu;
+    let device = opts.device.open()?;
     let (model, parameters) =
         build_network(opts.preset, opts.width, opts.weights.as_deref(), &device)?;
     let cfg = model.config().clone();
@@ -155,7 +173,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
     let images = frame
         .images
         .iter()
-        .map(|img| input_tensor(img, img.width() as usize, &Device::Cpu))
+        .map(|img| input_tensor(img, img.width() as usize, &device))
         .collect::<Result<Vec<_>, _>>()?;
 
     // Warm-up (page faults, thread pools), untimed.
@@ -166,6 +184,8 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
         let mut profiler = StageProfiler::new();
         let start = Instant::now();
         let out = model.forward_profiled(&images, &sampling, false, Some(&mut profiler))?;
+        // a GPU's kernels run asynchronously: wait for them before reading the clock
+        device.synchronize()?;
         network.push(start.elapsed().as_secs_f64());
         drop(out);
         for t in profiler.stages() {
@@ -199,7 +219,7 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
         .weights
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("<random {}>", opts.preset)));
-    let mut estimator = SsmodeEstimator::from_model(model, label);
+    let mut estimator = SsmodeEstimator::from_model_on(model, label, device);
     let grid = ErpGrid::new(cfg.width)?;
     let mut end_to_end = Vec::with_capacity(opts.runs);
     for _ in 0..opts.runs {
@@ -217,6 +237,11 @@ pub fn bench_model_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
         spheres: cfg.sphere_hypotheses()?.count(),
         hypotheses: cfg.output_hypotheses()?.count(),
         trained_weights: opts.weights.is_some(),
+        device: if opts.composites {
+            format!("{} (composites)", opts.device)
+        } else {
+            opts.device.to_string()
+        },
         runs: opts.runs,
         threads: rayon::current_num_threads(),
         stages,
@@ -278,14 +303,15 @@ pub fn format_table(cases: &[ModelBenchCase]) -> String {
         ));
     }
     out.push_str(
-        "\n| preset | input | params | spheres / hypotheses | network s (median, min) | end-to-end s | peak RSS MiB |\n|---|---|---|---|---|---|---|\n",
+        "\n| preset | input | device | params | spheres / hypotheses | network s (median, min) | end-to-end s | peak RSS MiB |\n|---|---|---|---|---|---|---|---|\n",
     );
     for c in cases {
         out.push_str(&format!(
-            "| {} | {}x{} | {} | {} / {} | {:.3}, {:.3} | {:.3} | {:.0}{} |\n",
+            "| {} | {}x{} | {} | {} | {} / {} | {:.3}, {:.3} | {:.3} | {:.0}{} |\n",
             c.preset,
             c.width,
             c.height,
+            c.device,
             c.parameters,
             c.spheres,
             c.hypotheses,
@@ -324,6 +350,14 @@ pub struct BenchModelArgs {
     /// includes earlier cases where the kernel cannot reset it).
     #[arg(long)]
     pub in_process: bool,
+    /// Where the network runs: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the
+    /// `cuda` feature).
+    #[arg(long, default_value_t = ComputeDevice::Cpu)]
+    pub device: ComputeDevice,
+    /// On the CPU, run every op's device-generic composite (the path a GPU takes) instead of
+    /// the CPU kernels, to compare the two.
+    #[arg(long)]
+    pub composites: bool,
 }
 
 pub fn run(a: BenchModelArgs) -> Result<()> {
@@ -356,6 +390,8 @@ pub fn run(a: BenchModelArgs) -> Result<()> {
                     rig: rig.clone(),
                     runs: a.runs,
                     seed: 1,
+                    device: a.device,
+                    composites: a.composites,
                 })?
             } else {
                 bench_model_child(&a, *preset, width, weights.as_deref())?
@@ -387,6 +423,7 @@ fn bench_model_child(
         .args(["--presets", preset.as_str()])
         .args(["--widths", &width.to_string()])
         .args(["--runs", &a.runs.to_string()])
+        .args(["--device", &a.device.to_string()])
         .arg("--rig")
         .arg(&a.rig)
         .arg("--json")
@@ -394,6 +431,9 @@ fn bench_model_child(
         .stdout(std::process::Stdio::null());
     if let Some(w) = weights {
         cmd.arg("--weights").arg(w);
+    }
+    if a.composites {
+        cmd.arg("--composites");
     }
     let status = cmd.status().context("starting the bench child process")?;
     if !status.success() {

@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use clap::Args;
-use mode360_estimator::model::Preset;
+use mode360_estimator::model::{ComputeDevice, Preset};
 use mode360_synth::synth::StreetStyle;
 use mode360_train::train::rig_layouts::RigLayouts;
 use mode360_train::train::{run_training, TrainOptions};
@@ -86,6 +86,10 @@ pub struct TrainArgs {
     /// Clip the global gradient norm to this (off when absent).
     #[arg(long)]
     pub max_grad_norm: Option<f64>,
+    /// Where the network trains: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the
+    /// `cuda` feature).
+    #[arg(long, default_value_t = ComputeDevice::Cpu)]
+    pub device: ComputeDevice,
 }
 
 /// `mode360 train`: trains (or resumes) and prints where the weights went.
@@ -114,6 +118,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,
+        device: a.device,
         ..TrainOptions::default()
     };
     let s = run_training(&opts)?;

@@ -9,6 +9,7 @@ mod bag_interop;
 mod bag_roundtrip;
 mod calibration_replay;
 mod cli;
+mod cli_device;
 mod deep360_bag;
 mod deep360_fixture;
 mod deep360_train;

@@ -11,6 +11,7 @@ mod fuzz_inputs;
 mod geometry;
 mod import_circles;
 mod msgs_cdr;
+mod ops_composite;
 mod ops_conv3d;
 mod ops_sample;
 mod rig_models;

@@ -9,6 +9,7 @@ mod fisheye_sweep;
 mod geometry_check;
 mod lens_health;
 mod lens_mask;
+mod model_composites;
 mod model_estimator;
 mod model_ssmode;
 mod model_ssmode_layers;

@@ -283,7 +283,7 @@ fn weights_round_trip_is_bit_identical() {
 #[test]
 fn bench_profile_flops_scale_with_pixels() {
     use mode360::cli::bench_model::{bench_model_case, ModelBenchOptions};
-    let case = |width: usize| {
+    let case = |width: usize, composites: bool| {
         bench_model_case(&ModelBenchOptions {
             preset: mode360::model::Preset::Tiny,
             width: Some(width),
@@ -291,10 +291,25 @@ fn bench_profile_flops_scale_with_pixels() {
             rig: rig(),
             runs: 1,
             seed: 2,
+            device: mode360::model::ComputeDevice::Cpu,
+            composites,
         })
         .expect("bench case")
     };
-    let (small, large) = (case(64), case(128));
+    let (small, large) = (case(64, false), case(128, false));
+    // the device-generic path (a GPU's) does the same convolution work, stage by stage
+    let composite = case(64, true);
+    assert_eq!(
+        (small.device.as_str(), composite.device.as_str()),
+        ("cpu", "cpu (composites)")
+    );
+    for (k, c) in small.stages.iter().zip(&composite.stages) {
+        assert_eq!(
+            (&k.stage, k.gflop),
+            (&c.stage, c.gflop),
+            "kernels vs composites"
+        );
+    }
     let names: Vec<&str> = small.stages.iter().map(|s| s.stage.as_str()).collect();
     assert_eq!(
         names,

@@ -32,7 +32,32 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         blocked_fraction: 0.0,
         rig_pool: 0,
         max_grad_norm: Some(5.0),
+        device: mode360::model::ComputeDevice::Cpu,
         show_progress: false,
+    }
+}
+
+/// Training on a GPU that this binary or machine lacks is an error naming CUDA and what was
+/// found, before the run folder is made (on a GPU host with the `cuda` feature it trains).
+#[test]
+fn training_on_a_missing_gpu_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let on_gpu = TrainOptions {
+        device: mode360::model::ComputeDevice::Cuda { ordinal: 0 },
+        ..opts(&out, 1)
+    };
+    if let Err(e) = run_training(&on_gpu) {
+        let e = e.to_string();
+        assert!(
+            e.contains("CUDA device cuda:0") && e.contains("found"),
+            "{e}"
+        );
+        assert!(
+            !out.exists(),
+            "{} made before the device failed",
+            out.display()
+        );
     }
 }
 

@@ -131,6 +131,13 @@ struct PlayerState {
 
 /// Runs the bench (see the module docs).
 pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
+    // Fail before rendering or starting anything when the GPU cannot be had.
+    if opts.estimator.device.is_cuda() {
+        opts.estimator
+            .device
+            .open()
+            .context("the device of the node's estimator (--device)")?;
+    }
     if let Some(path) = opts.estimator.weights_path() {
         if !path.exists() {
             bail!(
@@ -354,6 +361,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
     };
     Ok(BenchReport {
         estimator: opts.estimator.kind.to_string(),
+        device: opts.estimator.device.to_string(),
         bag: bag_path.display().to_string(),
         input_width,
         output_width,

@@ -98,6 +98,8 @@ pub struct RssStats {
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
     pub estimator: String,
+    /// Where the estimator ran: `cpu` or `cuda:N`.
+    pub device: String,
     pub bag: String,
     pub input_width: usize,
     pub output_width: usize,
@@ -134,6 +136,7 @@ impl BenchReport {
         };
         let mut rows: Vec<(String, String)> = vec![
             ("estimator".into(), self.estimator.clone()),
+            ("device".into(), self.device.clone()),
             ("bag".into(), self.bag.clone()),
             (
                 "input / output width".into(),

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use crate::model::ComputeDevice;
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, Rig};
 
@@ -136,11 +137,15 @@ impl std::str::FromStr for EstimatorKind {
     }
 }
 
-/// An estimator and, for SSMODE, its weights file (`None`: the shipped weights).
+/// An estimator and, for SSMODE, its weights file (`None`: the shipped weights) and the device
+/// its network runs on.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct EstimatorSpec {
     pub kind: EstimatorKind,
     pub weights: Option<PathBuf>,
+    /// Where SSMODE runs (`--device`, the node's `device`); the photometric sweep runs on the
+    /// CPU only, and asking it for another device is an error at [`Self::build`].
+    pub device: ComputeDevice,
 }
 
 impl EstimatorSpec {
@@ -148,14 +153,23 @@ impl EstimatorSpec {
     pub fn new(kind: EstimatorKind) -> Self {
         Self {
             kind,
-            weights: None,
+            ..Self::default()
         }
     }
 
     /// `kind` with `weights` (an error at [`Self::build`] for an estimator without weights, so
     /// that weights given to the wrong estimator are not silently ignored).
     pub fn with_weights(kind: EstimatorKind, weights: Option<PathBuf>) -> Self {
-        Self { kind, weights }
+        Self {
+            kind,
+            weights,
+            ..Self::default()
+        }
+    }
+
+    /// The same estimator on `device`.
+    pub fn on_device(self, device: ComputeDevice) -> Self {
+        Self { device, ..self }
     }
 
     /// The weights file SSMODE will load (the shipped one when none was given); `None` for
@@ -168,8 +182,18 @@ impl EstimatorSpec {
         })
     }
 
-    /// Builds the estimator.
+    /// Builds the estimator (for SSMODE on a CUDA device: opens it, or says why not).
     pub fn build(&self) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
+        if self.kind == EstimatorKind::Photometric && self.device != ComputeDevice::Cpu {
+            return Err(EstimatorError::BadConfig {
+                field: "device".to_string(),
+                problem: format!(
+                    "the photometric estimator runs on the CPU only (asked for {}); use \
+                     --estimator ssmode for the GPU",
+                    self.device
+                ),
+            });
+        }
         match (self.kind, &self.weights) {
             (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
                 photometric::PhotometricConfig::default(),
@@ -181,8 +205,9 @@ impl EstimatorSpec {
                     path.display()
                 ),
             }),
-            (EstimatorKind::Ssmode, weights) => Ok(Box::new(ssmode::SsmodeEstimator::load(
+            (EstimatorKind::Ssmode, weights) => Ok(Box::new(ssmode::SsmodeEstimator::load_on(
                 weights.clone().unwrap_or_else(ssmode::default_weights_path),
+                self.device,
             )?)),
         }
     }
@@ -226,5 +251,26 @@ mod tests {
         let missing = EstimatorSpec::with_weights(EstimatorKind::Ssmode, Some("/no/w.st".into()));
         let e = missing.build().err().expect("missing weights").to_string();
         assert!(e.contains("/no/w.st"), "{e}");
+    }
+
+    #[test]
+    fn a_cuda_device_is_opened_or_refused_with_what_was_found() {
+        let cuda = ComputeDevice::Cuda { ordinal: 0 };
+        let photometric = EstimatorSpec::new(EstimatorKind::Photometric).on_device(cuda);
+        let e = photometric
+            .build()
+            .err()
+            .expect("photometric on CUDA")
+            .to_string();
+        assert!(e.contains("CPU only") && e.contains("cuda:0"), "{e}");
+        // the shipped weights exist, so only the device can fail (here: no GPU, or no feature)
+        let ssmode = EstimatorSpec::new(EstimatorKind::Ssmode).on_device(cuda);
+        if let Err(e) = ssmode.build() {
+            let e = e.to_string();
+            assert!(
+                e.contains("CUDA device cuda:0") && e.contains("found"),
+                "{e}"
+            );
+        }
     }
 }

@@ -2,9 +2,9 @@
 //! the network's width (bilinear, longitude wraps; fisheye images are first resampled into
 //! panoramas of their own frame, [`RigRemap`], and the sweep aggregates only the cameras that
 //! see each point; confidence is scaled by the share of spheres that two cameras see), runs the
-//! forward pass on the CPU and resizes the range back to the requested output grid (guided by
-//! the reference image where the output is finer, [`super::guided_upsample`]). Sweep tables are
-//! cached per rig.
+//! forward pass on the CPU or a CUDA GPU ([`ComputeDevice`]) and resizes the range back to the
+//! requested output grid (guided by the reference image where the output is finer,
+//! [`super::guided_upsample`]). Sweep tables are cached per rig.
 
 use std::path::{Path, PathBuf};
 
@@ -13,7 +13,9 @@ use candle_core::{Device, Tensor};
 use super::guided_upsample::{grey_on_grid, guided_upsample};
 use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use crate::model::{input_tensor, load_weights, ModelError, Ssmode, SsmodeConfig, SweepSampling};
+use crate::model::{
+    input_tensor, load_weights, ComputeDevice, ModelError, Ssmode, SsmodeConfig, SweepSampling,
+};
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::panorama::RigRemap;
 pub use mode360_core::geometry::resample_erp;
@@ -68,7 +70,7 @@ fn shipped_path(relative: &str) -> PathBuf {
     }
 }
 
-/// SSMODE inference on the CPU.
+/// SSMODE inference on the CPU or a CUDA GPU.
 pub struct SsmodeEstimator {
     weights_path: PathBuf,
     model: Ssmode,
@@ -88,8 +90,14 @@ fn model_err(e: impl Into<ModelError>) -> EstimatorError {
 }
 
 impl SsmodeEstimator {
-    /// Loads weights (with their config) from `path`.
+    /// Loads weights (with their config) from `path`, to run on the CPU.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, EstimatorError> {
+        Self::load_on(path, ComputeDevice::Cpu)
+    }
+
+    /// Loads weights (with their config) from `path` onto `device`; an error naming CUDA and
+    /// what was found when a CUDA device cannot be opened.
+    pub fn load_on(path: impl AsRef<Path>, device: ComputeDevice) -> Result<Self, EstimatorError> {
         let path = path.as_ref();
         if !path.exists() {
             return Err(EstimatorError::BadConfig {
@@ -100,7 +108,7 @@ impl SsmodeEstimator {
                 ),
             });
         }
-        let device = Device::Cpu;
+        let device = device.open().map_err(model_err)?;
         let (cfg, vb) = load_weights(path, &device).map_err(model_err)?;
         let model = Ssmode::new(&cfg, vb).map_err(|e| {
             model_err(ModelError::Weights {
@@ -119,7 +127,7 @@ impl SsmodeEstimator {
         })
     }
 
-    /// Wraps an already built network; `label` names its weights in messages.
+    /// Wraps an already built network on the CPU; `label` names its weights in messages.
     pub fn from_model(model: Ssmode, label: impl Into<PathBuf>) -> Self {
         Self {
             weights_path: label.into(),
@@ -130,6 +138,13 @@ impl SsmodeEstimator {
             lens_masks: Vec::new(),
             masked: None,
         }
+    }
+
+    /// Wraps an already built network whose weights live on `device`.
+    pub fn from_model_on(model: Ssmode, label: impl Into<PathBuf>, device: Device) -> Self {
+        let mut estimator = Self::from_model(model, label);
+        estimator.device = device;
+        estimator
     }
 
     pub fn config(&self) -> &SsmodeConfig {

@@ -21,7 +21,7 @@ use candle_core::{Result, Tensor};
 use super::config::CostKind;
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{
-    has_custom_kernels, sweep_variance, sweep_variance_visible, table_sample, OpsError,
+    sweep_variance, sweep_variance_visible, table_sample, OpsError,
 };
 
 /// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
@@ -52,7 +52,7 @@ pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) 
         }
         .into());
     }
-    if kind == CostKind::Variance && has_custom_kernels(features.device()) {
+    if kind == CostKind::Variance {
         let tables = (0..cameras)
             .map(|cam| {
                 sampling.sweep_table(cam).cloned().ok_or(OpsError::Shape {

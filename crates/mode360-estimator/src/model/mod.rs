@@ -7,10 +7,11 @@
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
 //! [`position_channels`] (sphere and latitude as cost-volume channels),
 //! [`weights`] (safetensors with the config in the header), [`config`] (presets),
-//! [`sweep_sampling`] (per-rig sampling tables).
+//! [`sweep_sampling`] (per-rig sampling tables), [`device`] (the CPU or a CUDA GPU).
 
 pub mod config;
 pub mod cost_volume;
+pub mod device;
 pub mod feature;
 pub mod hourglass;
 pub mod input;
@@ -25,6 +26,7 @@ pub mod sweep_sampling;
 pub mod weights;
 
 pub use config::{Preset, SsmodeConfig};
+pub use device::{ComputeDevice, DeviceError};
 pub use input::input_tensor;
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use sweep_sampling::SweepSampling;
@@ -55,4 +57,6 @@ pub enum ModelError {
     },
     #[error("tensor error: {0}")]
     Candle(#[from] candle_core::Error),
+    #[error("{0}")]
+    Device(#[from] DeviceError),
 }

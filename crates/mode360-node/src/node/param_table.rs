@@ -10,6 +10,7 @@
 use super::params::{ExtrinsicsSource, ImageTransport, NodeParams};
 use super::pipeline::FarValue;
 use mode360_estimator::estimator::EstimatorError;
+use mode360_estimator::model::DeviceError;
 use std::net::IpAddr;
 use std::path::PathBuf;
 
@@ -151,6 +152,15 @@ pub const PARAMETERS: &[ParamSpec] = &[
         },
         set: |p, v| {
             p.estimator.weights = (!v.is_empty()).then(|| PathBuf::from(v));
+            Ok(())
+        },
+    },
+    ParamSpec {
+        name: "device",
+        runtime: false,
+        get: |p| ParamValue::String(p.estimator.device.to_string()),
+        set: |p, v| {
+            p.estimator.device = v.parse().map_err(|e: DeviceError| e.to_string())?;
             Ok(())
         },
     },
@@ -402,6 +412,15 @@ mod tests {
             assert!(p.set(spec.name, &text).is_ok(), "{} via set", spec.name);
         }
         assert_eq!(table_names().len(), PARAMETERS.len(), "duplicate names");
+    }
+
+    #[test]
+    fn device_is_cpu_or_a_cuda_index() {
+        let mut p = NodeParams::default();
+        p.set("device", "cuda:1").unwrap();
+        assert_eq!(p.estimator.device.to_string(), "cuda:1");
+        let e = p.set("device", "gpu").unwrap_err().to_string();
+        assert!(e.contains("device") && e.contains("cpu or cuda:N"), "{e}");
     }
 
     /// The shipped params file sets exactly the table's parameters, to their defaults.

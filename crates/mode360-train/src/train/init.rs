@@ -99,7 +99,7 @@ fn load_widened(path: &Path, varmap: &mut VarMap) -> Result<(), TrainError> {
                 t.dims()
             )));
         }
-        var.set(&t)?;
+        var.set(&t.to_device(var.device())?)?;
     }
     Ok(())
 }

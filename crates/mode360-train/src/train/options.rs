@@ -6,7 +6,7 @@ use super::data::DataError;
 use super::log::ValRecord;
 use super::loss::LossError;
 use super::rig_layouts::RigLayouts;
-use mode360_estimator::model::{ModelError, Preset, SsmodeConfig};
+use mode360_estimator::model::{ComputeDevice, ModelError, Preset, SsmodeConfig};
 use mode360_synth::synth::StreetStyle;
 use std::path::{Path, PathBuf};
 
@@ -96,6 +96,8 @@ pub struct TrainOptions {
     /// Start a new run (not a resumed one) from these weights instead of the random
     /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
     pub init_weights: Option<PathBuf>,
+    /// Where the network trains (the CPU, or a CUDA GPU with the `cuda` feature).
+    pub device: ComputeDevice,
     pub show_progress: bool,
 }
 
@@ -128,6 +130,7 @@ impl Default for TrainOptions {
             rig_pool: 0,
             max_grad_norm: None,
             init_weights: None,
+            device: ComputeDevice::Cpu,
             show_progress: true,
         }
     }

@@ -21,7 +21,7 @@ use super::optim::{AdamW, AdamWParams, LrSchedule};
 use super::options::{io_err, resolve_config, StepReport, TrainError, TrainOptions, TrainSummary};
 use candle_core::{DType, Device};
 use candle_nn::VarMap;
-use mode360_estimator::model::{save_weights, Ssmode, SsmodeConfig};
+use mode360_estimator::model::{save_weights, ModelError, Ssmode, SsmodeConfig};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -77,7 +77,7 @@ impl Trainer {
             .as_ref()
             .map(|root| Deep360Mix::open(root, opts.deep360_disk_fraction))
             .transpose()?;
-        let device = Device::Cpu;
+        let device = opts.device.open().map_err(ModelError::from)?;
         std::fs::create_dir_all(&opts.out_dir).map_err(io_err(&opts.out_dir))?;
         let mut varmap = VarMap::new();
         let model = Ssmode::new(&cfg, seeded_var_builder(&varmap, opts.seed, &device))?;

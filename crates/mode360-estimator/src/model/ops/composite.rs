@@ -1,11 +1,14 @@
 //! The same ops built only from candle ops that have gradients (matmul, pad, narrow, reshape,
-//! index_select), for devices without the custom CPU kernels. Slower and more memory hungry
-//! than the kernels, but exact; tests check that both agree.
+//! index_select), so they run on any candle device: the path of devices without the custom CPU
+//! kernels (CUDA, Metal), chosen by [`super::has_custom_kernels`]. Slower and more memory hungry
+//! than the kernels on the CPU, but exact; tests check that both agree, forward and backward
+//! (`tests/core/ops_composite.rs`). Unlike the fused kernels, the fused composites have
+//! gradients.
 
 use candle_core::{IndexOp, Result, Tensor};
 
 use super::types::{
-    dims_of, Conv3dGeometry, LinearAxisMap, OpsError, SampleTable, SPATIAL_AXES_3D,
+    dims_of, Conv3dGeometry, Epilogue, LinearAxisMap, OpsError, SampleTable, SPATIAL_AXES_3D,
 };
 
 /// First spatial axis of a channels-last volume `(B, D, H, W, C)`.
@@ -234,15 +237,124 @@ pub fn table_sample_composite(features: &Tensor, table: &SampleTable) -> Result<
     let (b, pixels, c) = (dims[0], dims[1] * dims[2], dims[3]);
     table.check_pixels(pixels, "table_sample_composite")?;
     let n = table.len();
-    let device = features.device();
-    let index = Tensor::from_slice(table.flat_indices(), n * SampleTable::TAPS, device)?;
-    let weight = Tensor::from_slice(table.flat_weights(), (1, n, SampleTable::TAPS, 1), device)?;
+    let on_device = table.on_device(features.device())?;
     features
         .reshape((b, pixels, c))? // (B, H·W, C)
-        .index_select(&index, 1)? // (B, 4N, C)
+        .index_select(&on_device.index, 1)? // (B, 4N, C)
         .reshape((b, n, SampleTable::TAPS, c))? // (B, N, 4, C)
-        .broadcast_mul(&weight)?
+        .broadcast_mul(&on_device.weight)?
         .sum(2) // (B, N, C)
+}
+
+/// [`super::sweep_variance`] (`view_scale: None`) and [`super::sweep_variance_visible`]
+/// (`Some`) from [`table_sample_composite`]: stacked features `(M B, H, W, C)`, one table per
+/// camera -> `(B, N, C)`, `var = s Σ_c v_c² − (s Σ_c v_c)²` with `s = 1/M` or the per-sample
+/// view scale.
+pub fn sweep_variance_composite(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&[f32]>,
+) -> Result<Tensor> {
+    const OP: &str = "sweep_variance_composite";
+    let dims = dims_of(features, OP, "features", 4)?;
+    let cameras = tables.len();
+    let samples = tables.first().map_or(0, SampleTable::len);
+    let shape_error = |what: String| OpsError::Shape { op: OP, what };
+    if cameras == 0 || !dims[0].is_multiple_of(cameras) {
+        return Err(shape_error(format!("features {dims:?} for {cameras} cameras' tables")).into());
+    }
+    if tables.iter().any(|t| t.len() != samples) || view_scale.is_some_and(|s| s.len() != samples) {
+        return Err(shape_error(format!(
+            "tables or view scales not all of {samples} samples"
+        ))
+        .into());
+    }
+    let batch = dims[0] / cameras;
+    let mut sum: Option<Tensor> = None;
+    let mut sum_sq: Option<Tensor> = None;
+    for (cam, table) in tables.iter().enumerate() {
+        // (B, N, C)
+        let v = table_sample_composite(&features.narrow(0, cam * batch, batch)?, table)?;
+        let sq = v.sqr()?;
+        sum = Some(match sum {
+            Some(s) => (s + v)?,
+            None => v,
+        });
+        sum_sq = Some(match sum_sq {
+            Some(s) => (s + sq)?,
+            None => sq,
+        });
+    }
+    let (Some(s), Some(q)) = (sum, sum_sq) else {
+        return Err(shape_error("no cameras".to_string()).into());
+    };
+    match view_scale {
+        None => {
+            let m = cameras as f64;
+            let mean = (s / m)?;
+            (q / m)? - mean.sqr()?
+        }
+        Some(scale) => {
+            // (N) -> (1, N, 1)
+            let scale = Tensor::from_slice(scale, (1, samples, 1), features.device())?;
+            let mean = s.broadcast_mul(&scale)?;
+            q.broadcast_mul(&scale)? - mean.sqr()?
+        }
+    }
+}
+
+/// [`super::conv3d_fused`] from [`conv3d_composite`] and the epilogue as candle ops.
+pub fn conv3d_fused_composite(
+    x: &Tensor,
+    w: &Tensor,
+    stride: [usize; 3],
+    padding: [usize; 3],
+    epilogue: Epilogue,
+) -> Result<Tensor> {
+    apply_epilogue(conv3d_composite(x, w, stride, padding)?, epilogue)
+}
+
+/// [`super::conv_transpose3d_x2_fused`] from [`conv_transpose3d_composite`] (kernel 3,
+/// stride 2, padding 1, output padding 1: exactly twice the size) and the epilogue.
+pub fn conv_transpose3d_x2_fused_composite(
+    x: &Tensor,
+    w: &Tensor,
+    epilogue: Epilogue,
+) -> Result<Tensor> {
+    let w_dims = dims_of(w, "conv_transpose3d_x2_fused_composite", "w", 5)?;
+    if w_dims[..3] != [3, 3, 3] {
+        return Err(OpsError::Shape {
+            op: "conv_transpose3d_x2_fused_composite",
+            what: format!("w {w_dims:?}: expected a 3x3x3 kernel"),
+        }
+        .into());
+    }
+    let up = conv_transpose3d_composite(x, w, [2; 3], [1; 3], [1; 3])?;
+    apply_epilogue(up, epilogue)
+}
+
+/// `relu?(y + bias + residual)`.
+fn apply_epilogue(y: Tensor, epilogue: Epilogue) -> Result<Tensor> {
+    let y = match epilogue.bias {
+        Some(b) => y.broadcast_add(b)?,
+        None => y,
+    };
+    let y = match epilogue.residual {
+        Some(r) if r.dims() != y.dims() => {
+            return Err(OpsError::Shape {
+                op: "conv3d_fused_composite",
+                what: format!("residual {:?} for an output {:?}", r.dims(), y.dims()),
+            }
+            .into())
+        }
+        Some(r) => (y + r)?,
+        None => y,
+    };
+    if epilogue.relu {
+        y.relu()
+    } else {
+        Ok(y)
+    }
 }
 
 /// [`super::resample_linear_axis`] with two `index_select`s and a weighted sum.

@@ -12,25 +12,18 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor};
 
+use super::composite;
 use super::conv3d::x2_up_geometry;
 use super::conv3d_direct::RowEpilogue;
 use super::conv3d_gemm::{conv3d_forward_cpu, conv3d_input_grad_cpu};
+pub use super::types::Epilogue;
 use super::types::{
     conv_geometry_from, count_flops, cpu_slice, has_custom_kernels, Conv3dGeometry, OpsError,
 };
 
-/// What follows the convolution: `relu?(conv + bias + residual)`.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Epilogue<'a> {
-    /// `(Cout)`.
-    pub bias: Option<&'a Tensor>,
-    /// Shaped like the output.
-    pub residual: Option<&'a Tensor>,
-    pub relu: bool,
-}
-
-/// Whether `conv` over `x` and `w` can take the fused kernels: CPU tensors with no gradient to
-/// track.
+/// Whether `conv` over `x` and `w` can take the fused CPU kernels: CPU tensors with no gradient
+/// to track. (On other devices the fused ops run their composites, which are what the layers
+/// compose anyway.)
 pub fn is_inference(x: &Tensor, w: &Tensor) -> bool {
     has_custom_kernels(x.device()) && !x.track_op() && !w.track_op()
 }
@@ -164,8 +157,8 @@ fn apply(
     }
 }
 
-/// `relu?(conv3d(x, w, stride, padding) + bias + residual)`, CPU and inference only (no
-/// gradient; check [`is_inference`] first).
+/// `relu?(conv3d(x, w, stride, padding) + bias + residual)`. The CPU kernel is for inference
+/// only (no gradient; check [`is_inference`] first); other devices run the composite.
 pub fn conv3d_fused(
     x: &Tensor,
     w: &Tensor,
@@ -174,13 +167,21 @@ pub fn conv3d_fused(
     epilogue: Epilogue,
 ) -> Result<Tensor> {
     let geom = conv_geometry_from(x, w, stride, padding, "conv3d_fused")?;
+    if !has_custom_kernels(x.device()) {
+        count_flops(geom.flops());
+        return composite::conv3d_fused_composite(x, w, stride, padding, epilogue);
+    }
     apply(x, w, geom, Kind::Forward, epilogue)
 }
 
 /// `relu?(conv_transpose3d(x, w, 2, 1, 1) + bias + residual)`: the hourglasses' exact x2
-/// upsampling (kernel 3), CPU and inference only.
+/// upsampling (kernel 3); the CPU kernel for inference only, other devices the composite.
 pub fn conv_transpose3d_x2_fused(x: &Tensor, w: &Tensor, epilogue: Epilogue) -> Result<Tensor> {
     let geom = x2_up_geometry(x, w, "conv_transpose3d_x2_fused")?;
+    if !has_custom_kernels(x.device()) {
+        count_flops(geom.flops());
+        return composite::conv_transpose3d_x2_fused_composite(x, w, epilogue);
+    }
     // (kD, kH, kW, Cin, Cout) -> (kD, kH, kW, Cout, Cin): the convolution whose adjoint this is
     let w_conv = w.transpose(3, 4)?;
     apply(x, &w_conv, geom, Kind::Transposed, epilogue)

@@ -4,7 +4,12 @@
 //! - a fast CPU kernel written as a candle `CustomOp` (`cpu_fwd` over the `gemm` crate and rayon,
 //!   `bwd` built from further ops of this module, so higher derivatives work too);
 //! - a composite built only from candle ops (matmul, index_select, pad, narrow, reshape), used
-//!   automatically when the tensor does not live on the CPU device (CUDA, Metal).
+//!   automatically when the tensor does not live on the CPU device (CUDA, Metal), or on the CPU
+//!   inside [`with_composites`] (how the tests check the GPU's path on a machine without one).
+//!
+//! Every public op below has its composite in [`composite`] (`…_composite`), and the choice
+//! between the two is made in the op itself by [`has_custom_kernels`]; the backward passes of
+//! the kernels dispatch the same way, so a composite's gradient never meets a CPU kernel.
 //!
 //! Layouts are channels-last: volumes are `(B, D, H, W, C)`, images `(B, H, W, C)`.
 //!
@@ -29,8 +34,9 @@ mod table;
 mod types;
 
 pub use composite::{
-    conv3d_composite, conv3d_input_grad_composite, conv3d_weight_grad_composite,
-    conv_transpose3d_composite, resample_linear_axis_composite, table_sample_composite,
+    conv3d_composite, conv3d_fused_composite, conv3d_input_grad_composite,
+    conv3d_weight_grad_composite, conv_transpose3d_composite, conv_transpose3d_x2_fused_composite,
+    resample_linear_axis_composite, sweep_variance_composite, table_sample_composite,
     upsample_trilinear_composite,
 };
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d};
@@ -39,6 +45,6 @@ pub use linear_axis::{resample_linear_axis, upsample_trilinear};
 pub use sweep::{sweep_variance, sweep_variance_visible, view_scale, MIN_VIEWS};
 pub use table::table_sample;
 pub use types::{
-    count_flops, flop_count, has_custom_kernels, Conv3dGeometry, LinearAxisMap, OpsError,
-    SampleTable, SPATIAL_AXES_3D,
+    count_flops, flop_count, has_custom_kernels, with_composites, Conv3dGeometry, LinearAxisMap,
+    OpsError, SampleTable, SPATIAL_AXES_3D,
 };

@@ -302,7 +302,7 @@ fn sweep_variance_impl(
     }
     let batch = dims[0] / cameras;
     if !has_custom_kernels(features.device()) {
-        return sweep_variance_composite(features, tables, batch, view_scale);
+        return composite::sweep_variance_composite(features, tables, view_scale.map(|s| &s[..]));
     }
     features
         .contiguous()?
@@ -314,46 +314,6 @@ fn sweep_variance_impl(
             channels: dims[3],
             view_scale: view_scale.cloned(),
         }))
-}
-
-/// [`sweep_variance`] from candle ops (devices without the custom kernels).
-fn sweep_variance_composite(
-    features: &Tensor,
-    tables: &[SampleTable],
-    batch: usize,
-    view_scale: Option<&Arc<[f32]>>,
-) -> Result<Tensor> {
-    let mut sum: Option<Tensor> = None;
-    let mut sum_sq: Option<Tensor> = None;
-    for (cam, table) in tables.iter().enumerate() {
-        // (B, N, C)
-        let v = composite::table_sample_composite(&features.narrow(0, cam * batch, batch)?, table)?;
-        let sq = v.sqr()?;
-        sum = Some(match sum {
-            Some(s) => (s + v)?,
-            None => v,
-        });
-        sum_sq = Some(match sum_sq {
-            Some(s) => (s + sq)?,
-            None => sq,
-        });
-    }
-    let (Some(s), Some(q)) = (sum, sum_sq) else {
-        candle_core::bail!("sweep_variance: no cameras")
-    };
-    match view_scale {
-        None => {
-            let m = tables.len() as f64;
-            let mean = (s / m)?;
-            (q / m)? - mean.sqr()?
-        }
-        Some(scale) => {
-            // (N) -> (1, N, 1)
-            let scale = Tensor::from_slice(scale, (1, scale.len(), 1), features.device())?;
-            let mean = s.broadcast_mul(&scale)?;
-            q.broadcast_mul(&scale)? - mean.sqr()?
-        }
-    }
 }
 
 struct SweepVarianceOp(SweepShape);

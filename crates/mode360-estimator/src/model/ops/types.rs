@@ -5,7 +5,7 @@
 
 use std::borrow::Cow;
 use std::cell::Cell;
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, Device, Layout, Result, Shape, Tensor};
@@ -49,6 +49,8 @@ impl From<OpsError> for candle_core::Error {
 }
 
 thread_local! {
+    /// Set by [`with_composites`]: the custom kernels are off on this thread.
+    static COMPOSITES_ONLY: Cell<bool> = const { Cell::new(false) };
     /// Floating-point operations issued from this thread by the convolutions and matrix
     /// products of the model (multiply-adds count two), for the benchmark's GFLOP/s. Per
     /// thread, so that concurrent passes on other threads do not count.
@@ -65,9 +67,35 @@ pub fn count_flops(flops: f64) {
     FLOPS.with(|f| f.set(f.get().wrapping_add(flops as u64)));
 }
 
-/// Whether the fast custom CPU kernels can run on tensors on `device`.
+/// Whether the ops take their fast custom CPU kernels for tensors on `device`: on the CPU,
+/// unless [`with_composites`] switched them off; every other device (CUDA, Metal) takes the
+/// device-generic composites.
 pub fn has_custom_kernels(device: &Device) -> bool {
-    matches!(device, Device::Cpu)
+    matches!(device, Device::Cpu) && !COMPOSITES_ONLY.with(Cell::get)
+}
+
+/// Runs `f` with the custom kernels switched off on this thread, so that every op (forward and
+/// backward) takes its device-generic composite on the CPU too: the path a GPU runs, for tests
+/// and benchmarks on a machine without one. Restored on return, also when `f` panics.
+pub fn with_composites<T>(f: impl FnOnce() -> T) -> T {
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            COMPOSITES_ONLY.with(|c| c.set(self.0));
+        }
+    }
+    let _restore = Restore(COMPOSITES_ONLY.with(|c| c.replace(true)));
+    f()
+}
+
+/// What follows a fused convolution: `relu?(conv + bias + residual)`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Epilogue<'a> {
+    /// `(Cout)`.
+    pub bias: Option<&'a Tensor>,
+    /// Shaped like the output.
+    pub residual: Option<&'a Tensor>,
+    pub relu: bool,
 }
 
 /// Checks that `t` has rank `rank` and is f32; returns its dims.
@@ -280,6 +308,15 @@ struct TableData {
     min_pixels: usize,
     /// Built on first backward, for the pixel count seen then.
     transposed: OnceLock<TransposedTable>,
+    /// `index` and `weight` as tensors on the devices the composite ran on, uploaded once.
+    on_device: Mutex<Vec<DeviceTable>>,
+}
+
+/// A table's indices `(4 N)` (u32) and weights `(1, N, 4, 1)` on one device.
+#[derive(Clone, Debug)]
+pub(super) struct DeviceTable {
+    pub(super) index: Tensor,
+    pub(super) weight: Tensor,
 }
 
 /// A precomputed bilinear sampling table: 4 pixel indices and 4 weights per output sample.
@@ -310,6 +347,7 @@ impl SampleTable {
                 weight,
                 min_pixels,
                 transposed: OnceLock::new(),
+                on_device: Mutex::new(Vec::new()),
             }),
         }
     }
@@ -331,6 +369,26 @@ impl SampleTable {
     /// All weights, `4 N`, sample-major.
     pub fn flat_weights(&self) -> &[f32] {
         &self.data.weight
+    }
+
+    /// The table as tensors on `device`, uploaded on first use and kept (the rig's tables are
+    /// reused every frame; on a GPU they would otherwise cross the bus each time).
+    pub(super) fn on_device(&self, device: &Device) -> Result<DeviceTable> {
+        let mut cache = self
+            .data
+            .on_device
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        if let Some(t) = cache.iter().find(|t| t.index.device().same_device(device)) {
+            return Ok(t.clone());
+        }
+        let n = self.len();
+        let table = DeviceTable {
+            index: Tensor::from_slice(&self.data.index, n * Self::TAPS, device)?,
+            weight: Tensor::from_slice(&self.data.weight, (1, n, Self::TAPS, 1), device)?,
+        };
+        cache.push(table.clone());
+        Ok(table)
     }
 
     /// Errors unless every index is below `pixels`.
