@@ -20,9 +20,7 @@ use candle_core::{Result, Tensor};
 
 use super::config::CostKind;
 use super::sweep_sampling::SweepSampling;
-use crate::model::ops::{
-    sweep_variance, sweep_variance_visible, table_sample, OpsError,
-};
+use crate::model::ops::{sweep_variance, sweep_variance_visible, table_sample, OpsError};
 
 /// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
 /// `(M B, H, W, C)` (camera `c`'s batch at rows `c B .. (c + 1) B`), with
