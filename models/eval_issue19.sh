@@ -13,7 +13,8 @@
 # δ1 true, δ1 same image, geometry share (points), AbsRel. Bags are named after WIDTH and
 # FRAMES and rendered only when missing.
 #   models/eval_issue19.sh [BAGS_DIR]
-# env: WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
+# env: SEED (2^63 + 19; another top-bit seed gives a validation set for tuning a readout, never
+# the held-out rows), WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
 # models/ssmode_parallax_zncc_log.safetensors, for ssmode), OUT (BAGS_DIR/out), MODE360_BIN
 # (target/release/mode360).
 set -euo pipefail
@@ -24,7 +25,7 @@ frames="${FRAMES:-4}"
 estimators="${ESTIMATORS:-ssmode photometric}"
 weights="${WEIGHTS:-models/ssmode_parallax_zncc_log.safetensors}"
 bin="${MODE360_BIN:-target/release/mode360}"
-seed=$(python3 -c "print(2**63 + 19)")
+seed="${SEED:-$(python3 -c "print(2**63 + 19)")}"
 fisheye_scale=$(python3 -c "print($width / 512)")
 deep360=launch_configs/rig_deep360.yaml
 mkdir -p "$bags" "$out"
@@ -39,7 +40,10 @@ rows=(
   "blocked_third|--rig $deep360 --blocked-lens 3:0.3333:mud"
 )
 
-bag_of() { echo "$bags/${1}_w${width}_f${frames}.mcap"; }
+# bags of another seed than the held-out one carry it in their name
+suffix=""
+[[ -n "${SEED:-}" ]] && suffix="_s$seed"
+bag_of() { echo "$bags/${1}_w${width}_f${frames}${suffix}.mcap"; }
 
 for row in "${rows[@]}"; do
   name="${row%%|*}"

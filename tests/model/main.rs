@@ -5,6 +5,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod far_field;
 mod fisheye_sweep;
 mod geometry_check;
 mod lens_health;

@@ -88,11 +88,26 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
 
 #[test]
 fn fused_inference_regression_equals_the_training_path() {
-    use mode360::model::regression::{confidence, regress, regress_inference};
+    use mode360::model::regression::{confidence, regress, regress_inference, FarReadout};
     let cfg = SsmodeConfig::tiny();
     let hyps = cfg.output_hypotheses().expect("hypotheses");
     let (height, width) = (18, 36);
-    for (scale, far) in [(0.5f32, 0.7), (8.0, 0.7), (8.0, 0.3), (8.0, 2.0)] {
+    // Far fields of 1 to 4 hypotheses per pixel, for the cases that test them.
+    let counts: Vec<u16> = (0..height * width)
+        .map(|k| (k * 31 % 4) as u16 + 1)
+        .collect();
+    let cases = [
+        (0.5f32, 0.7, false),
+        (8.0, 0.7, false),
+        (8.0, 0.3, false),
+        (8.0, 2.0, false),
+        (8.0, 0.7, true),
+        (8.0, 0.3, true),
+    ];
+    for (scale, far, with_counts) in cases {
+        let far_counts = with_counts.then_some(counts.as_slice());
+        let far_of =
+            |pixel: usize| far_counts.map_or(1, |c| usize::from(c[pixel % (height * width)]));
         // (B, D, h, w) with odd h and w; fixed pseudo-random values in [-scale, scale] so the
         // share of tied pixels (skipped below) is the same on every run
         const DIMS: (usize, usize, usize, usize) = (2, 5, 5, 9);
@@ -101,9 +116,13 @@ fn fused_inference_regression_equals_the_training_path() {
             .map(|v| v * scale)
             .collect();
         let cost = Tensor::from_vec(values, DIMS, &Device::Cpu).unwrap();
-        let slow = regress(&cost, &hyps, height, width, far).unwrap();
+        let readout = FarReadout {
+            probability: far,
+            far_counts,
+        };
+        let slow = regress(&cost, &hyps, height, width, readout).unwrap();
         let slow_conf = confidence(&slow.probabilities).unwrap();
-        let fast = regress_inference(&cost, &hyps, height, width, far).unwrap();
+        let fast = regress_inference(&cost, &hyps, height, width, readout).unwrap();
         let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         let max_abs = |a: &Tensor, b: &Tensor| {
             flat(a)
@@ -143,11 +162,22 @@ fn fused_inference_regression_equals_the_training_path() {
             );
         }
         assert!(compared * 2 > a.len(), "only {compared} untied pixels");
-        // Far-plane readout: exactly the pixels with p_0 >= far read max depth, in both paths.
+        // Far-plane readout: exactly the pixels whose far field (p_0 alone without counts)
+        // holds at least `far` read max depth, in both paths.
         let max_depth = hyps.depth_m(0.0) as f32;
-        let expected_far = (0..a.len())
-            .filter(|&i| f64::from(probs[i * n]) >= far)
-            .count();
+        let far_mass = |i: usize| -> f64 {
+            probs[i * n..i * n + far_of(i)]
+                .iter()
+                .map(|&p| f64::from(p))
+                .sum()
+        };
+        let expected_far = (0..a.len()).filter(|&i| far_mass(i) >= far).count();
+        if with_counts {
+            let alone = (0..a.len())
+                .filter(|&i| f64::from(probs[i * n]) >= far)
+                .count();
+            assert!(expected_far > alone, "the far field adds no pixel at {far}");
+        }
         for range in [&fast.range_m, &slow.range_m] {
             let snapped = flat(range).iter().filter(|&&r| r == max_depth).count();
             assert_eq!(snapped, expected_far, "far-plane pixels at threshold {far}");

@@ -11,9 +11,11 @@
 //! * [`panorama`]: every camera as a panorama (its REP 103 frame, which directions it sees,
 //!   a fisheye image resampled into an ERP panorama with a validity mask).
 //! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
+//! * [`far_field`]: per output pixel, the hypotheses a rig cannot tell from the far plane.
 
 pub mod camera;
 pub mod erp;
+pub mod far_field;
 pub mod geer;
 pub mod import;
 pub mod panorama;
@@ -24,6 +26,7 @@ pub mod sweep;
 
 pub use camera::{CameraModel, ImageSize, IntrinsicsError};
 pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
+pub use far_field::FarField;
 pub use geer::{GeerAngles, GeerPair};
 pub use rig::{ImageSizeError, Projection, Rig, RigCamera, RigError, RigOutput};
 pub use sweep::{DepthHypotheses, DepthRange, HypothesisSpacing, SweepGeometry, SweepTable};

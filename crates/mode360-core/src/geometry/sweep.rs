@@ -250,6 +250,19 @@ impl SweepGeometry {
         self.camera_grids[cam]
     }
 
+    /// The point of output pixel `p` on a sphere of `range_m` in camera `cam`'s panorama
+    /// frame, metres: `cam_from_output * (range_m * dir(p))`.
+    pub fn point_in_camera_m(&self, cam: usize, p: PixelCoord, range_m: f64) -> Vector3<f64> {
+        let point_out = Point3::from(self.output.dir_from_pixel(p) * range_m);
+        (self.cam_from_output[cam] * point_out).coords
+    }
+
+    /// Whether camera `cam`'s lens sees `point` given in its panorama frame
+    /// ([`Self::point_in_camera_m`]).
+    pub fn sees_point(&self, cam: usize, point: &Vector3<f64>) -> bool {
+        self.panoramas[cam].sees(point)
+    }
+
     /// Where camera `cam` sees the point of output pixel `p` on a sphere of `range_m`.
     pub fn sample_at_range(&self, cam: usize, p: PixelCoord, range_m: f64) -> PixelCoord {
         let point_out = Point3::from(self.output.dir_from_pixel(p) * range_m);

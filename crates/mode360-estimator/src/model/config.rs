@@ -197,6 +197,12 @@ pub struct SsmodeConfig {
     /// above 1 disables it. Chosen on the validation split; files without it get the default.
     #[serde(default = "default_far_plane_probability")]
     pub far_plane_probability: f64,
+    /// Far field of the readout: hypotheses whose samples move, for every camera pair, by
+    /// less than this many cost-volume cells from the far plane's count as the far plane in
+    /// the far-plane test ([`mode360_core::geometry::FarField`]); 0 counts the far plane alone.
+    /// Chosen on the validation split; files without it get the default.
+    #[serde(default = "default_far_parallax_cells")]
+    pub far_parallax_cells: f64,
     /// Append the learning-free sweep's windowed-ZNCC matching cost as one more cost-volume
     /// channel ([`super::photometric_cost`]; files without it: no). Needs `cost_downsample` 1.
     #[serde(default)]
@@ -217,11 +223,22 @@ pub struct SsmodeConfig {
     pub logit_prior: bool,
 }
 
-/// [`SsmodeConfig::far_plane_probability`] of the presets.
-pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.8;
+/// [`SsmodeConfig::far_plane_probability`] of the presets and of files without it: with the
+/// far field of [`DEFAULT_FAR_PARALLAX_CELLS`], the best of 0.4, 0.5, 0.65 and 0.8 on the
+/// validation seed 2^63 + 3131 at 512 (models/README.md, "Readout"). Files written before the
+/// far field carry 0.8.
+pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.5;
 
 fn default_far_plane_probability() -> f64 {
     DEFAULT_FAR_PLANE_PROBABILITY
+}
+
+/// [`SsmodeConfig::far_parallax_cells`] of the presets and of files without it: the best of
+/// 0.125 to 1 cells on the validation seed (models/README.md, "Readout").
+pub const DEFAULT_FAR_PARALLAX_CELLS: f64 = 0.25;
+
+fn default_far_parallax_cells() -> f64 {
+    DEFAULT_FAR_PARALLAX_CELLS
 }
 
 impl SsmodeConfig {
@@ -245,6 +262,7 @@ impl SsmodeConfig {
             fine_channels: 0,
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -273,6 +291,7 @@ impl SsmodeConfig {
             fine_channels: 0,
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -302,6 +321,7 @@ impl SsmodeConfig {
             fine_channels: 16,
             aggregation_stride: 2,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -328,6 +348,7 @@ impl SsmodeConfig {
             fine_channels: 0,
             aggregation_stride: 1,
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
+            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -430,6 +451,11 @@ impl SsmodeConfig {
     /// Width of the cost volume (input width / `cost_downsample`).
     pub fn cost_width(&self) -> usize {
         self.width / self.cost_downsample.max(1)
+    }
+
+    /// Angle of one cost-volume cell, radians: `2 pi / cost_width`.
+    pub fn cost_cell_rad(&self) -> f64 {
+        std::f64::consts::TAU / self.cost_width() as f64
     }
 
     /// Height of the cost volume.
@@ -565,6 +591,12 @@ impl SsmodeConfig {
             return bad(
                 "far_plane_probability",
                 format!("{} must be positive", self.far_plane_probability),
+            );
+        }
+        if !(self.far_parallax_cells >= 0.0 && self.far_parallax_cells.is_finite()) {
+            return bad(
+                "far_parallax_cells",
+                format!("{} must be finite and at least 0", self.far_parallax_cells),
             );
         }
         if self.hourglasses == 0 {

@@ -17,6 +17,12 @@
 //! pixel with `p_0 >= far_plane_probability` (the far plane holds most of the mass, as for
 //! the sky) is read out as the far plane itself, `max_depth_m`, like the ground truth encodes
 //! the sky. Only the range is affected; the index the loss trains is the plain expectation.
+//!
+//! The far field ([`FarReadout::far_counts`], from [`mode360_core::geometry::FarField`]): where
+//! the rig cannot tell the farthest `K(p)` hypotheses from the far plane (a short baseline, a
+//! ray along the baseline), the matching cost is flat over them and the probability spreads
+//! across them; its mean lands tens of metres in front of the sky. So the test sums them:
+//! `sum_{i < K(p)} p_i >= far_plane_probability`.
 
 use candle_core::{DType, Result, Tensor};
 use candle_nn::VarBuilder;
@@ -54,6 +60,43 @@ impl RegressionHead {
     }
 }
 
+/// The far-plane test of the readout (see the module docs).
+#[derive(Clone, Copy, Debug)]
+pub struct FarReadout<'a> {
+    /// Probability on the far field at which a pixel reads the far plane (above 1: never).
+    pub probability: f64,
+    /// Per output pixel (row-major, `H W`, shared by the batch), the hypotheses counted from
+    /// the far plane that the rig cannot tell from it; `None`: the far plane alone.
+    pub far_counts: Option<&'a [u16]>,
+}
+
+impl<'a> FarReadout<'a> {
+    /// The test on the far plane alone.
+    pub fn far_plane_only(probability: f64) -> Self {
+        Self {
+            probability,
+            far_counts: None,
+        }
+    }
+
+    /// Hypotheses in pixel `k`'s far field (at least 1, at most `n`).
+    fn count(&self, k: usize, n: usize) -> usize {
+        self.far_counts
+            .and_then(|c| c.get(k))
+            .map_or(1, |&c| usize::from(c).clamp(1, n))
+    }
+
+    fn check(&self, height: usize, width: usize) -> Result<()> {
+        match self.far_counts {
+            Some(c) if c.len() != height * width => Err(candle_core::Error::Msg(format!(
+                "far-field counts cover {} pixels, the output has {height}x{width}",
+                c.len()
+            ))),
+            _ => Ok(()),
+        }
+    }
+}
+
 /// One stage's regression result.
 #[derive(Clone, Debug)]
 pub struct Regression {
@@ -66,14 +109,15 @@ pub struct Regression {
 }
 
 /// Upsamples `cost (B, D, h, w)` to `(B, N, height, width)` and regresses range and index,
-/// with the far-plane readout at `far_plane_probability` (see the module docs).
+/// with the far-plane readout `far` (see the module docs).
 pub fn regress(
     cost: &Tensor,
     hypotheses: &DepthHypotheses,
     height: usize,
     width: usize,
-    far_plane_probability: f64,
+    far: FarReadout,
 ) -> Result<Regression> {
+    far.check(height, width)?;
     let n = hypotheses.count();
     let device = cost.device();
     // (B, N, H, W)
@@ -88,13 +132,30 @@ pub fn regress(
     // expected depth of eq. 7: with hypotheses from 0.5 m to 1000 m uniform in inverse depth,
     // 1 % of probability on the farthest sphere alone would add 10 m to every pixel's range.
     let soft_range_m = range_of_index(&inverse_depth_index, hypotheses)?;
-    // (B, H, W): probability of the far plane
-    let far = probabilities
-        .narrow(HYPOTHESIS_AXIS, 0, 1)?
-        .squeeze(HYPOTHESIS_AXIS)?;
-    let max_depth = Tensor::full(hypotheses.depth_m(0.0) as f32, far.shape(), device)?;
-    let range_m = far
-        .ge(far_plane_probability)?
+    // (B, H, W): probability of the far field
+    let far_mass = match far.far_counts {
+        None => probabilities
+            .narrow(HYPOTHESIS_AXIS, 0, 1)?
+            .squeeze(HYPOTHESIS_AXIS)?,
+        Some(_) => {
+            let pixels = height * width;
+            let mut mask = vec![0f32; n * pixels];
+            for k in 0..pixels {
+                for i in 0..far.count(k, n) {
+                    mask[i * pixels + k] = 1.0;
+                }
+            }
+            // (1, N, H, W)
+            let mask = Tensor::from_vec(mask, (1, n, height, width), device)?;
+            probabilities
+                .detach()
+                .broadcast_mul(&mask)?
+                .sum(HYPOTHESIS_AXIS)?
+        }
+    };
+    let max_depth = Tensor::full(hypotheses.depth_m(0.0) as f32, far_mass.shape(), device)?;
+    let range_m = far_mass
+        .ge(far.probability)?
         .where_cond(&max_depth, &soft_range_m)?;
     Ok(Regression {
         range_m,
@@ -149,8 +210,9 @@ pub fn regress_inference(
     hypotheses: &DepthHypotheses,
     height: usize,
     width: usize,
-    far_plane_probability: f64,
+    far: FarReadout,
 ) -> Result<InferenceRegression> {
+    far.check(height, width)?;
     let n = hypotheses.count();
     let (b, d, _, _) = cost.dims4()?;
     // (B, D, h, w) -> (B, D, h, W) -> (B, D, H, W)
@@ -216,7 +278,8 @@ pub fn regress_inference(
                 let k = expected * inv_sum / (n - 1) as f32;
                 index_row[u] = k;
                 conf_row[u] = near * inv_sum;
-                range_row[u] = if f64::from(p[0] * inv_sum) >= far_plane_probability {
+                let far_mass: f32 = p[..far.count(v * width + u, n)].iter().sum();
+                range_row[u] = if f64::from(far_mass * inv_sum) >= far.probability {
                     far_m
                 } else {
                     hypotheses.depth_at_normalized(f64::from(k)) as f32

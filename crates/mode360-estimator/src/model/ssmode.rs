@@ -24,7 +24,7 @@ use super::hourglass::CostAggregation;
 use super::logit_prior::LogitPrior;
 use super::photometric_cost::photometric_cost;
 use super::position_channels::position_channels;
-use super::regression::{confidence, regress, regress_inference, RegressionHead};
+use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{flop_count, OpsError};
 use mode360_core::geometry::DepthHypotheses;
@@ -281,7 +281,10 @@ impl Ssmode {
                 &self.hypotheses,
                 self.cfg.height(),
                 self.cfg.width,
-                self.cfg.far_plane_probability,
+                FarReadout {
+                    probability: self.cfg.far_plane_probability,
+                    far_counts: sampling.far_counts(),
+                },
             )?;
             mark("regression");
             return Ok(SsmodeOutput {
@@ -303,7 +306,10 @@ impl Ssmode {
                 &self.hypotheses,
                 self.cfg.height(),
                 self.cfg.width,
-                self.cfg.far_plane_probability,
+                FarReadout {
+                    probability: self.cfg.far_plane_probability,
+                    far_counts: sampling.far_counts(),
+                },
             )?;
             stages.push(r.range_m);
             inverse_depth_stages.push(r.inverse_depth_index);

@@ -8,7 +8,7 @@ use super::sphere_conv::SphereConvTable;
 use super::ModelError;
 use crate::model::ops::{view_scale, SampleTable};
 
-use mode360_core::geometry::{BilinearTaps, ErpGrid, Rig, SweepGeometry};
+use mode360_core::geometry::{BilinearTaps, ErpGrid, FarField, Rig, SweepGeometry};
 
 /// Exponent `k` of the pair parallax weight `|dir x b_hat|^k` of the photometric cost channel.
 pub const PARALLAX_EXPONENT: f32 = 1.0;
@@ -19,7 +19,8 @@ pub const PARALLAX_EXPONENT: f32 = 1.0;
 ///   `erp_c(cam_from_output * (rho_d * dir(u, v)))` in that camera's matching features (at the
 ///   same resolution; a fisheye camera's features are those of its panorama, and its taps
 ///   are all zero where its lens does not see the point);
-/// - the SphereNet kernel table of the stage-4 spherical convolution (quarter resolution).
+/// - the SphereNet kernel table of the stage-4 spherical convolution (quarter resolution);
+/// - the far field of the readout at the output resolution ([`FarField`]).
 #[derive(Clone, Debug)]
 pub struct SweepSampling {
     geometry: SweepGeometry,
@@ -33,6 +34,9 @@ pub struct SweepSampling {
     /// Per camera pair `(a < b)` and cost cell, the parallax weight of the photometric cost
     /// channel; `None` when the config has none.
     pair_weights: Option<Vec<Vec<f32>>>,
+    /// Per output pixel, the output hypotheses the rig cannot tell from the far plane at
+    /// [`SsmodeConfig::far_parallax_cells`]; `None` when that is 0.
+    far_field: Option<Arc<FarField>>,
 }
 
 impl SweepSampling {
@@ -64,10 +68,20 @@ impl SweepSampling {
                 .collect();
             crate::matching::pair_parallax_weights(grid, &centres, PARALLAX_EXPONENT)
         });
+        let far_field = if cfg.far_parallax_cells > 0.0 {
+            let out = ErpGrid::new(cfg.width)?;
+            let out_geometry =
+                SweepGeometry::new(rig, out, vec![out; cameras], cfg.output_hypotheses()?)?;
+            let max_shift_rad = cfg.far_parallax_cells * cfg.cost_cell_rad();
+            Some(Arc::new(FarField::new(&out_geometry, max_shift_rad)))
+        } else {
+            None
+        };
         Ok(Self {
             view_scale,
             coverage,
             pair_weights,
+            far_field,
             sweep_tables,
             sphere_conv: SphereConvTable::new(trunk_grid),
             geometry,
@@ -100,6 +114,7 @@ impl SweepSampling {
             sweep_tables,
             sphere_conv: self.sphere_conv.clone(),
             pair_weights: self.pair_weights.clone(),
+            far_field: self.far_field.clone(),
         }
     }
 
@@ -132,6 +147,12 @@ impl SweepSampling {
     /// `None` when the config has no photometric cost channel.
     pub fn pair_weights(&self) -> Option<&[Vec<f32>]> {
         self.pair_weights.as_deref()
+    }
+
+    /// Per output pixel (row-major at the network's width), the output hypotheses counted
+    /// from the far plane that the rig cannot tell from it; `None`: the far plane alone.
+    pub fn far_counts(&self) -> Option<&[u16]> {
+        self.far_field.as_deref().map(FarField::counts)
     }
 
     /// Per cost-volume cell (row-major): the fraction of spheres that at least two cameras

@@ -131,5 +131,29 @@ mod tests {
             err.contains("weights.safetensors") && err.contains("photometric_cost"),
             "{err}"
         );
+        let bad = SsmodeConfig {
+            far_parallax_cells: -1.0,
+            ..SsmodeConfig::parallax_zncc()
+        };
+        let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
+        let err = read_config(&path).unwrap_err().to_string();
+        assert!(err.contains("far_parallax_cells"), "{err}");
+    }
+
+    /// A file written before the far field (no `far_parallax_cells`) reads the default one,
+    /// and keeps its own far-plane probability.
+    #[test]
+    fn files_without_the_far_field_get_the_default() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut json: serde_json::Value =
+            serde_json::to_value(SsmodeConfig::parallax_zncc()).unwrap();
+        json.as_object_mut().unwrap().remove("far_parallax_cells");
+        json["far_plane_probability"] = serde_json::json!(0.8);
+        let cfg = read_config(file_with_config(dir.path(), &json.to_string())).unwrap();
+        assert_eq!(
+            cfg.far_parallax_cells,
+            super::super::config::DEFAULT_FAR_PARALLAX_CELLS
+        );
+        assert_eq!(cfg.far_plane_probability, 0.8);
     }
 }
