@@ -9,8 +9,9 @@ use std::path::PathBuf;
 /// Which depth estimator a command runs, flattened into its arguments.
 #[derive(Args, Clone, Debug)]
 pub struct EstimatorArgs {
-    /// Depth estimator.
-    #[arg(long, value_enum, default_value_t = EstimatorKind::Photometric)]
+    /// Depth estimator (the trained network by default; the photometric sweep is the
+    /// learning-free option).
+    #[arg(long, value_enum, default_value_t = EstimatorKind::default())]
     pub estimator: EstimatorKind,
     /// SSMODE weights file (default: the shipped weights; an error with other estimators).
     #[arg(long)]

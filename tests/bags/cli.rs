@@ -183,7 +183,16 @@ fn same_image_flags_and_bag_rewrite_agree() {
     let bag_s = bag.to_str().unwrap();
     let json = |name: &str| dir.path().join(name);
     let eval = |extra: &[&str], out: &Path| {
-        let mut args = vec!["eval", "--bag", bag_s, "--max-frames", "1"];
+        // The sweep, named: the bounds below were measured on it.
+        let mut args = vec![
+            "eval",
+            "--bag",
+            bag_s,
+            "--max-frames",
+            "1",
+            "--estimator",
+            "photometric",
+        ];
         args.extend_from_slice(extra);
         args.extend_from_slice(&["--json", out.to_str().unwrap()]);
         mode360(&args)
@@ -237,6 +246,8 @@ fn same_image_flags_and_bag_rewrite_agree() {
         rewritten.to_str().unwrap(),
         "--max-frames",
         "1",
+        "--estimator",
+        "photometric",
         "--json",
         json("rewritten.json").to_str().unwrap(),
     ]);

@@ -109,7 +109,7 @@ fn parameters_are_served_changed_at_run_time_and_refused_with_a_reason() -> Test
         vec![
             ParameterValue::Integer(WIDTH as i64),
             ParameterValue::Double(1000.0),
-            ParameterValue::String("photometric".into()),
+            ParameterValue::String("ssmode".into()),
         ]
     );
 
