@@ -77,6 +77,8 @@ pub struct BenchOptions {
     pub rig_file: PathBuf,
     /// Playback speed factor (1 = the bag's own frame rate).
     pub rate: f64,
+    /// The node's `rig_health_checks` (lens and calibration drift checks).
+    pub rig_health_checks: bool,
     pub dds: DdsOptions,
 }
 
@@ -89,6 +91,7 @@ impl Default for BenchOptions {
             bag: None,
             rig_file: DEFAULT_RIG_FILE.into(),
             rate: 1.0,
+            rig_health_checks: true,
             dds: DdsOptions {
                 domain_id: DEFAULT_BENCH_DOMAIN,
                 loopback_only: true,
@@ -202,6 +205,7 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
             estimator: opts.estimator.clone(),
             output_width,
             camera_timeout_s: 60.0,
+            rig_health_checks: opts.rig_health_checks,
             ..Default::default()
         },
         opts.dds.clone(),
@@ -409,6 +413,10 @@ pub struct BenchNodeArgs {
     /// Playback speed factor (1 = the bag's frame rate).
     #[arg(long, default_value_t = 1.0)]
     pub rate: f64,
+    /// Run the node without its lens and calibration drift checks (their cost is the median
+    /// latency's difference to a run with them).
+    #[arg(long)]
+    pub no_rig_health_checks: bool,
     /// Private DDS domain (loopback only).
     #[arg(long, default_value_t = DEFAULT_BENCH_DOMAIN)]
     pub domain_id: u16,
@@ -429,6 +437,7 @@ pub fn run(a: BenchNodeArgs) -> Result<()> {
         bag: a.bag,
         rig_file: a.rig,
         rate: a.rate,
+        rig_health_checks: !a.no_rig_health_checks,
         dds: DdsOptions {
             domain_id: a.domain_id,
             loopback_only: true,

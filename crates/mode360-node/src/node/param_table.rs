@@ -349,6 +349,15 @@ pub const PARAMETERS: &[ParamSpec] = &[
         },
     },
     ParamSpec {
+        name: "rig_health_checks",
+        runtime: false,
+        get: |p| ParamValue::Bool(p.rig_health_checks),
+        set: |p, v| {
+            p.rig_health_checks = boolean(v)?;
+            Ok(())
+        },
+    },
+    ParamSpec {
         name: "calibration_warn_deg",
         runtime: false,
         get: |p| ParamValue::Double(p.calibration_warn_deg),

@@ -137,6 +137,8 @@ pub struct NodeParams {
     /// The camera the calibration drift check suspects is WARN when turning it by more than
     /// this many degrees would make the cameras agree better.
     pub calibration_warn_deg: f64,
+    /// Run the lens and calibration drift checks (off: no lens masks, their figures n/a).
+    pub rig_health_checks: bool,
 }
 
 impl Default for NodeParams {
@@ -169,6 +171,7 @@ impl Default for NodeParams {
             foxglove_address: IpAddr::from(DEFAULT_FOXGLOVE_IP),
             lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
             calibration_warn_deg: DEFAULT_CALIBRATION_WARN_DEG,
+            rig_health_checks: true,
         }
     }
 }
@@ -182,6 +185,7 @@ impl NodeParams {
             far_value: self.far_value,
             min_confidence: self.min_confidence as f32,
             depth_quantization: self.depth_quantization as f32,
+            rig_health_checks: self.rig_health_checks,
         }
     }
 

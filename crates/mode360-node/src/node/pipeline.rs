@@ -94,6 +94,9 @@ pub struct PipelineParams {
     pub min_confidence: f32,
     /// `depth/compressedDepth`'s quantization `Q` (image_transport's `depth_quantization`).
     pub depth_quantization: f32,
+    /// Run the lens check (lens masks, `blocked_fraction`) and the calibration drift check on
+    /// complete groups; `false` skips both (their figures read n/a).
+    pub rig_health_checks: bool,
 }
 
 impl Default for PipelineParams {
@@ -104,6 +107,7 @@ impl Default for PipelineParams {
             far_value: FarValue::Inf,
             min_confidence: 0.0,
             depth_quantization: DEFAULT_DEPTH_QUANTIZATION,
+            rig_health_checks: true,
         }
     }
 }
@@ -272,7 +276,7 @@ impl Pipeline {
                 .join(", ");
             return Err(PipelineError::SizeMismatch { sizes });
         }
-        let mut estimate = if missing_cameras.is_empty() {
+        let mut estimate = if missing_cameras.is_empty() && self.params.rig_health_checks {
             let estimate =
                 self.lens
                     .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
@@ -326,8 +330,16 @@ impl Pipeline {
             points,
             confidence: image_msg_from_float(header, &estimate.confidence),
             missing_cameras,
-            lens: self.lens.health(),
-            calibration: self.drift.drift(),
+            lens: if self.params.rig_health_checks {
+                self.lens.health()
+            } else {
+                Vec::new()
+            },
+            calibration: if self.params.rig_health_checks {
+                self.drift.drift()
+            } else {
+                Vec::new()
+            },
             latency: t0.elapsed(),
         })
     }

@@ -263,3 +263,32 @@ fn fisheye_points_take_colour_from_a_camera_that_sees_them() {
     let err = p.process(bad, 1).err().map(|e| e.to_string()).unwrap();
     assert!(err.contains("rear_left 64x32"), "{err}");
 }
+
+#[test]
+fn rig_health_checks_off_skip_the_lens_and_drift_checks() {
+    // Wide enough for the drift check (it skips images narrower than 256).
+    let width = 256;
+    let group = |p: &Pipeline| -> Vec<Option<RgbImage>> {
+        (0..p.rig().cameras.len())
+            .map(|_| Some(test_image(width as u32)))
+            .collect()
+    };
+    let mut on = pipeline(width);
+    let n = on.rig().cameras.len();
+    let checked = on.process(group(&on), 5).unwrap();
+    assert_eq!(checked.lens.len(), n, "one lens health per camera");
+    assert_eq!(checked.calibration.len(), n, "one drift figure per camera");
+
+    let mut off = pipeline(width);
+    off.set_params(PipelineParams {
+        rig_health_checks: false,
+        ..off.params().clone()
+    });
+    let unchecked = off.process(group(&off), 5).unwrap();
+    assert!(unchecked.lens.is_empty() && unchecked.calibration.is_empty());
+    assert_eq!(unchecked.missing_cameras, Vec::<String>::new());
+    assert_eq!(
+        float_from_image_msg(&unchecked.depth).unwrap().data.len(),
+        width * width / 2
+    );
+}
