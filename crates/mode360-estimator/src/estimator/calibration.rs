@@ -562,7 +562,9 @@ impl RotationCheck {
     /// A quick estimate of every camera's correction (the node's drift check): from `w = 0`,
     /// `iterations` diagonal Newton steps on the agreement, each from central differences of
     /// `step_deg` along the rig axes (7 evaluations a step; a step is clamped to 2 `step_deg`
-    /// per axis, and where the agreement is not concave it moves uphill by `step_deg`).
+    /// per axis, and where the agreement is not concave it moves uphill by `step_deg`). While
+    /// a step still hits that clamp, more steps follow, until the correction could reach
+    /// `max_correction_deg` (so a knock larger than `2 iterations step_deg` is not read short).
     pub fn quick_corrections(
         &self,
         frames: &[CheckFrame],
@@ -583,7 +585,13 @@ impl RotationCheck {
                 let before = score(&w);
                 let mut at_w = before;
                 if count >= MIN_TEXTURED_CELLS {
-                    for _ in 0..iterations {
+                    let most = iterations + (max / (2.0 * h)).ceil() as usize;
+                    let mut clamped = true;
+                    for i in 0..most {
+                        if i >= iterations && !clamped {
+                            break;
+                        }
+                        clamped = false;
                         let mut next = w;
                         for axis in 0..3 {
                             let (mut minus, mut plus) = (w, w);
@@ -593,7 +601,9 @@ impl RotationCheck {
                             let slope = (sp - sm) / (2.0 * h);
                             let curvature = (sp - 2.0 * at_w + sm) / (h * h);
                             next[axis] += if curvature < 0.0 {
-                                (-slope / curvature).clamp(-2.0 * h, 2.0 * h)
+                                let newton = -slope / curvature;
+                                clamped |= newton.abs() > 2.0 * h;
+                                newton.clamp(-2.0 * h, 2.0 * h)
                             } else {
                                 h * slope.signum()
                             };
