@@ -15,10 +15,15 @@ use mode360::model::{Ssmode, SsmodeConfig, SweepSampling};
 /// few layers deep, sums in other orders).
 const REL_TOL: f64 = 1e-3;
 
-/// The seed of the reproducible weights. With candle's random initialisation the gradient of a
-/// bias that the ZNCC channel almost cancels (a sum of many terms, zero up to rounding) once
-/// differed by 2.6 times the tolerance in CI; on seeds 1 to 6 of these weights the worst
-/// gradient uses 0.24 of it, seed 1 0.064.
+/// A parameter's gradient is compared to [`REL_TOL`] of its own largest magnitude, or of this
+/// share of the largest gradient of any parameter where that is larger (gradients that are
+/// zero up to rounding, like a bias the ZNCC normalisation cancels).
+const GRADIENT_FLOOR_SHARE: f64 = 1e-3;
+
+/// The seed of the reproducible weights. With candle's random initialisation, which differs per
+/// run, the worst gradient ranged from 0.003 to 7 times the tolerance over 14 runs (non-smooth
+/// points of ReLU and sampling met by other weights); with these weights it is 0.0031 on
+/// every run.
 const WEIGHTS_SEED: u64 = 1;
 
 /// Outputs (every stage's range, the confidence) and, with `train`, each parameter's gradient
@@ -62,8 +67,10 @@ fn assert_close(what: &str, a: &[f64], b: &[f64], floor: f64) {
     );
 }
 
-/// Replaces every variable's random initialisation by a reproducible one of the same mean and
-/// spread (uniform, from [`pseudo_random`]), so that the comparison is the same on every run.
+/// Replaces every variable's random initialisation by a reproducible one: uniform in
+/// `±1/sqrt(fan_in)` (`fan_in`: the elements per output channel, the last axis) from
+/// [`pseudo_random`], for every variable that candle initialises at random (non-constant);
+/// constant ones (a zero bias, a unit scale) stay.
 fn seed_weights(varmap: &VarMap, seed: u64) {
     let data = varmap.data().lock().unwrap();
     let mut names: Vec<&String> = data.keys().collect();
@@ -71,16 +78,15 @@ fn seed_weights(varmap: &VarMap, seed: u64) {
     for (i, name) in names.into_iter().enumerate() {
         let var = &data[name];
         let v = values(var.as_tensor());
-        let n = v.len() as f64;
-        let mean = v.iter().sum::<f64>() / n;
-        let std = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
-        if std == 0.0 {
+        if v.iter().all(|x| *x == v[0]) {
             continue;
         }
+        let dims = var.as_tensor().dims();
+        let fan_in = v.len() / dims.last().copied().unwrap_or(1).max(1);
+        let bound = 1.0 / (fan_in.max(1) as f64).sqrt();
         let r = pseudo_random(v.len(), seed.wrapping_mul(1000).wrapping_add(i as u64));
-        let w: Vec<f64> = r.iter().map(|x| mean + std * 3f64.sqrt() * x).collect();
-        var.set(&tensor(&w, var.as_tensor().dims()))
-            .expect("set weights");
+        let w: Vec<f64> = r.iter().map(|x| bound * x).collect();
+        var.set(&tensor(&w, dims)).expect("set weights");
     }
 }
 
@@ -125,7 +131,7 @@ fn kernels_and_composites_agree(cfg: &SsmodeConfig, rig: &Rig) {
         for ((name, k), (_, c)) in kernels.grads.iter().zip(&composites.grads) {
             assert!(k.iter().any(|v| *v != 0.0), "{case}: {name}: zero gradient");
             let what = format!("{case}: gradient of {name}");
-            assert_close(&what, k, c, REL_TOL * largest);
+            assert_close(&what, k, c, GRADIENT_FLOOR_SHARE * largest);
         }
     }
 }
