@@ -228,8 +228,8 @@ impl LensGuard {
         Ok(estimate)
     }
 
-    /// Estimates a partial group (`rig` a subset of the cameras): without masks, and without a
-    /// lens check (which needs every camera).
+    /// Estimates without masks and without a lens check: a partial group (`rig` a subset of the
+    /// cameras; the check needs every camera), or any group with the checks switched off.
     pub fn estimate_partial(
         &self,
         estimator: &mut dyn DepthEstimator,

@@ -276,16 +276,20 @@ impl Pipeline {
                 .join(", ");
             return Err(PipelineError::SizeMismatch { sizes });
         }
-        let mut estimate = if missing_cameras.is_empty() && self.params.rig_health_checks {
+        let checked = self.params.rig_health_checks;
+        let mut estimate = if !missing_cameras.is_empty() {
+            let sub = self.rig.subset(&present)?;
+            self.lens
+                .estimate_partial(self.estimator.as_mut(), &sub, &images, self.grid)?
+        } else if checked {
             let estimate =
                 self.lens
                     .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
             self.drift.add(&images, &estimate.range_m)?;
             estimate
         } else {
-            let sub = self.rig.subset(&present)?;
             self.lens
-                .estimate_partial(self.estimator.as_mut(), &sub, &images, self.grid)?
+                .estimate_partial(self.estimator.as_mut(), &self.rig, &images, self.grid)?
         };
         apply_rep117(&mut estimate.range_m, &estimate.confidence, &self.params);
         // Colour source: the reference camera when present, else the first camera present.
@@ -330,12 +334,12 @@ impl Pipeline {
             points,
             confidence: image_msg_from_float(header, &estimate.confidence),
             missing_cameras,
-            lens: if self.params.rig_health_checks {
+            lens: if checked {
                 self.lens.health()
             } else {
                 Vec::new()
             },
-            calibration: if self.params.rig_health_checks {
+            calibration: if checked {
                 self.drift.drift()
             } else {
                 Vec::new()
