@@ -8,7 +8,7 @@
 use crate::common::{TestResult, RIG_PATH};
 use mode360::bag::BagReader;
 use mode360::cli::replay::{replay_bag, ReplayOptions};
-use mode360::cli::rig::refine::{refine, RigRefineArgs};
+use mode360::cli::rig::refine::{refine, RigRefineArgs, REFINE_PASSES};
 use mode360::cli::rig::write_rig;
 use mode360::estimator::{EstimatorKind, EstimatorSpec};
 use mode360::geometry::Rig;
@@ -149,10 +149,12 @@ fn a_knocked_camera_is_warned_by_name_and_refined() -> TestResult {
         out: dir.path().join("refined.yaml"),
         rig: Some(calibration.clone()),
         frames: 6,
+        passes: REFINE_PASSES,
     })?;
     let truth = knock_axis() * KNOCK_DEG.to_radians();
     let found = &summary.corrections[KNOCKED];
     let error_deg = (found.rotation_vector_rig - truth).norm().to_degrees();
+    eprintln!("refine: the knocked camera off by {error_deg:.3} deg");
     assert!(
         error_deg <= REFINE_TOLERANCE_DEG,
         "refine off by {error_deg} deg: {found:?}"
@@ -187,6 +189,7 @@ fn rig_refine_refuses_too_few_frames_and_a_foreign_rig() -> TestResult {
         out: dir.path().join("out.yaml"),
         rig: rig_file.map(Path::to_path_buf),
         frames,
+        passes: REFINE_PASSES,
     };
     let err = refine(&args(6, None))
         .err()
