@@ -114,3 +114,27 @@ pub fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
+
+/// Replaces every variable's random initialisation by a reproducible one: uniform in
+/// `±1/sqrt(fan_in)` (`fan_in`: the elements per output channel, the last axis) from
+/// [`pseudo_random`], for every variable that candle initialises at random (non-constant);
+/// constant ones (a zero bias, a unit scale) stay. Tests whose numbers depend on the weights
+/// use it: candle's own initialisation differs from run to run.
+pub fn seed_weights(varmap: &candle_nn::VarMap, seed: u64) {
+    let data = varmap.data().lock().unwrap();
+    let mut names: Vec<&String> = data.keys().collect();
+    names.sort();
+    for (i, name) in names.into_iter().enumerate() {
+        let var = &data[name];
+        let v = values(var.as_tensor());
+        if v.iter().all(|x| *x == v[0]) {
+            continue;
+        }
+        let dims = var.as_tensor().dims();
+        let fan_in = v.len() / dims.last().copied().unwrap_or(1).max(1);
+        let bound = 1.0 / (fan_in as f64).sqrt();
+        let r = pseudo_random(v.len(), seed.wrapping_mul(1000).wrapping_add(i as u64));
+        let w: Vec<f64> = r.iter().map(|x| bound * x).collect();
+        var.set(&tensor(&w, dims)).expect("set weights");
+    }
+}

@@ -4,7 +4,9 @@
 //! variance volume, variance only with the fused sweep, the ZNCC and position channels) on the
 //! Deep360 rig and on a fisheye rig whose cameras do not see every direction.
 
-use crate::common::{deep360_rig, max_abs_diff, pseudo_random, repo_path, tensor, values};
+use crate::common::{
+    deep360_rig, max_abs_diff, pseudo_random, repo_path, seed_weights, tensor, values,
+};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use mode360::geometry::{HypothesisSpacing, Rig};
@@ -60,29 +62,6 @@ fn assert_close(what: &str, a: &[f64], b: &[f64], floor: f64) {
         err <= REL_TOL * scale,
         "{what}: differs by {err} (scale {scale})"
     );
-}
-
-/// Replaces every variable's random initialisation by a reproducible one: uniform in
-/// `±1/sqrt(fan_in)` (`fan_in`: the elements per output channel, the last axis) from
-/// [`pseudo_random`], for every variable that candle initialises at random (non-constant);
-/// constant ones (a zero bias, a unit scale) stay.
-fn seed_weights(varmap: &VarMap, seed: u64) {
-    let data = varmap.data().lock().unwrap();
-    let mut names: Vec<&String> = data.keys().collect();
-    names.sort();
-    for (i, name) in names.into_iter().enumerate() {
-        let var = &data[name];
-        let v = values(var.as_tensor());
-        if v.iter().all(|x| *x == v[0]) {
-            continue;
-        }
-        let dims = var.as_tensor().dims();
-        let fan_in = v.len() / dims.last().copied().unwrap_or(1).max(1);
-        let bound = 1.0 / (fan_in as f64).sqrt();
-        let r = pseudo_random(v.len(), seed.wrapping_mul(1000).wrapping_add(i as u64));
-        let w: Vec<f64> = r.iter().map(|x| bound * x).collect();
-        var.set(&tensor(&w, dims)).expect("set weights");
-    }
 }
 
 fn kernels_and_composites_agree(cfg: &SsmodeConfig, rig: &Rig) {
