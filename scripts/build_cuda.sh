@@ -1,48 +1,89 @@
 #!/usr/bin/env bash
 # Builds mode360 with the `cuda` feature (SSMODE on NVIDIA GPUs, `--device cuda:N`) on a machine
-# without a CUDA install, from PyPI's CUDA 13.4 wheels:
+# without a CUDA install, from PyPI's CUDA wheels:
 #   1. pip installs the pinned wheels (nvcc, nvvm, crt, runtime, nvrtc, cublas, curand, cccl
-#      headers) into $MODE360_CUDA_DIR/site, once;
-#   2. gathers them under one CUDA_HOME ($MODE360_CUDA_DIR/cuda): bin, include, nvvm and a lib64
-#      with the unversioned names the linker asks for;
+#      headers) of one CUDA release into $MODE360_CUDA_DIR/site-<release>, once;
+#   2. gathers them under one CUDA_HOME ($MODE360_CUDA_DIR/cuda-<release>): bin, include, nvvm
+#      and a lib64 with the unversioned names the linker asks for;
 #   3. builds a link-time stub of libcuda (soname libcuda.so.1, every driver function returning
 #      CUDA_ERROR_STUB_LIBRARY), so that the binary links without an NVIDIA driver; at run time
 #      the GPU host's driver provides the real libcuda.so.1;
-#   4. runs cargo with the feature in its own target dir, so the CPU build is never disturbed.
+#   4. with MODE360_CUDA_KERNELS=network (the default), runs nvcc through a wrapper that leaves
+#      out candle's quantized-model kernels (GGUF matrix products, mixture-of-experts), which
+#      SSMODE never calls: their sources are most of the kernel build's time (87 minutes here
+#      with them). The wrapper writes an empty PTX module for quantized.cu and a static library
+#      of weak stubs for the rest (each aborts with a message if ever called);
+#   5. runs cargo with the feature in its own target dir, so the CPU build is never disturbed.
+#
+# The release must not be newer than the GPU host's driver: candle loads its kernels as PTX,
+# which a driver compiles only when it knows the PTX version. Drivers 580.x (seen on the lent
+# H100/H200 machines) run CUDA 13.0, so 13.0 is the default; 13.4 needs a 595.x driver or newer.
 #
 # Usage: scripts/build_cuda.sh                 cargo build --release --bin mode360 --features cuda
 #        scripts/build_cuda.sh check --tests   cargo check --tests --features cuda (any cargo args)
-# Environment: MODE360_CUDA_DIR (default ~/.cache/mode360-cuda), CUDA_TARGET_DIR (default
-# target-cuda in the repository), CUDA_COMPUTE_CAP (default 90: H100/H200; 87 for Jetson Orin,
-# 89 for Ada, 80 for A100), PYTHON (default python3), CARGO_BUILD_JOBS as usual.
+# Environment: MODE360_CUDA_RELEASE (13.0 or 13.4; default 13.0), MODE360_CUDA_KERNELS (network
+# or all; default network), MODE360_CUDA_DIR (default ~/.cache/mode360-cuda), CUDA_TARGET_DIR
+# (default target-cuda in the repository), CUDA_COMPUTE_CAP (default 90: H100/H200; 87 for
+# Jetson Orin, 89 for Ada, 80 for A100), PYTHON (default python3), CARGO_BUILD_JOBS as usual.
 # Idempotent: a second run reuses the wheels, the CUDA_HOME and the stub, and cargo's build.
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 cuda_dir="${MODE360_CUDA_DIR:-$HOME/.cache/mode360-cuda}"
 target_dir="${CUDA_TARGET_DIR:-$repo/target-cuda}"
 python="${PYTHON:-python3}"
+release="${MODE360_CUDA_RELEASE:-13.0}"
+kernels="${MODE360_CUDA_KERNELS:-network}"
 export CUDA_COMPUTE_CAP="${CUDA_COMPUTE_CAP:-90}"
-# cudarc's bindings for CUDA 13.4, matching the wheels below
-export CUDARC_CUDA_VERSION=13040
-wheels=(
-    nvidia-cuda-nvcc==13.4.92
-    nvidia-nvvm==13.4.92
-    nvidia-cuda-crt==13.4.92
-    nvidia-cuda-runtime==13.4.92
-    nvidia-cuda-nvrtc==13.4.92
-    nvidia-cuda-cccl==13.3.5.0.6
-    nvidia-cublas==13.4.3.11
-    nvidia-curand==10.4.4.72
-)
-site="$cuda_dir/site"
-cuda_home="$cuda_dir/cuda"
+case "$release" in
+13.0)
+    # cudarc's bindings for CUDA 13.0, matching the wheels below
+    export CUDARC_CUDA_VERSION=13000
+    wheels=(
+        nvidia-cuda-nvcc==13.0.88
+        nvidia-nvvm==13.0.88
+        nvidia-cuda-crt==13.0.88
+        nvidia-cuda-runtime==13.0.96
+        nvidia-cuda-nvrtc==13.0.88
+        nvidia-cuda-cccl==13.0.85
+        nvidia-cublas==13.0.2.14
+        nvidia-curand==10.4.0.35
+    )
+    ;;
+13.4)
+    export CUDARC_CUDA_VERSION=13040
+    wheels=(
+        nvidia-cuda-nvcc==13.4.92
+        nvidia-nvvm==13.4.92
+        nvidia-cuda-crt==13.4.92
+        nvidia-cuda-runtime==13.4.92
+        nvidia-cuda-nvrtc==13.4.92
+        nvidia-cuda-cccl==13.3.5.0.6
+        nvidia-cublas==13.4.3.11
+        nvidia-curand==10.4.4.72
+    )
+    ;;
+*)
+    echo "MODE360_CUDA_RELEASE=$release: expected 13.0 or 13.4" >&2
+    exit 2
+    ;;
+esac
+case "$kernels" in
+network | all) ;;
+*)
+    echo "MODE360_CUDA_KERNELS=$kernels: expected network or all" >&2
+    exit 2
+    ;;
+esac
+site="$cuda_dir/site-$release"
+cuda_home="$cuda_dir/cuda-$release"
 wheel_root="$site/nvidia/cu13"
 
 echo "== mode360 CUDA build"
 echo "   wheels:       $site"
 echo "   CUDA_HOME:    $cuda_home"
 echo "   target dir:   $target_dir"
-echo "   compute cap:  $CUDA_COMPUTE_CAP, CUDARC_CUDA_VERSION=$CUDARC_CUDA_VERSION"
+echo "   release:      CUDA $release, CUDARC_CUDA_VERSION=$CUDARC_CUDA_VERSION"
+echo "   compute cap:  $CUDA_COMPUTE_CAP; kernels: $kernels"
 
 # 1. The wheels, once per pinned list.
 stamp="$site/.mode360-wheels"
@@ -92,11 +133,33 @@ fi
 
 export CUDA_HOME="$cuda_home"
 export PATH="$cuda_home/bin:$PATH"
-# libcublas.so needs libcublasLt.so.13: let the linker find it
-export RUSTFLAGS="${RUSTFLAGS:-} -C link-arg=-Wl,-rpath-link,$cuda_home/lib64"
+# libcublas.so needs libcublasLt.so.13: GNU ld looks for a library's needs on LD_LIBRARY_PATH
+# (set here rather than an -rpath-link in RUSTFLAGS, which would rebuild every crate)
+export LD_LIBRARY_PATH="$cuda_home/lib64${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 echo "== $(nvcc --version | grep release)"
 
-# 4. cargo, with the feature, in its own target dir.
+# 4. The nvcc wrapper that leaves out the quantized-model kernels.
+if [[ "$kernels" == network ]]; then
+    kernels_version="$(grep -A1 '^name = "candle-kernels"$' "$repo/Cargo.lock" | sed -n 's/^version = "\(.*\)"$/\1/p')"
+    ffi="$(find "${CARGO_HOME:-$HOME/.cargo}/registry/src" -path "*/candle-kernels-$kernels_version/src/ffi.rs" | head -1)"
+    if [[ -z "$ffi" ]]; then
+        echo "candle-kernels' src/ffi.rs not found under the cargo registry: run cargo fetch first" >&2
+        exit 1
+    fi
+    stubs_c="$cuda_home/candle_quantized_stubs.c"
+    {
+        echo "/* Weak stubs of candle's quantized-model kernels (scripts/build_cuda.sh). */"
+        echo "#include <stdio.h>"
+        echo "#include <stdlib.h>"
+        grep -oE 'pub fn [A-Za-z0-9_]+' "$ffi" | awk '{print $3}' | sort -u |
+            sed 's/.*/__attribute__((weak)) void &(void) { fprintf(stderr, "mode360: & was left out of this CUDA build (MODE360_CUDA_KERNELS=network)\\n"); abort(); }/'
+    } >"$stubs_c"
+    export MODE360_REAL_NVCC="$cuda_home/bin/nvcc" MODE360_QUANTIZED_STUBS="$stubs_c"
+    export NVCC="$repo/scripts/nvcc_network.sh"
+    echo "== nvcc through scripts/nvcc_network.sh (quantized-model kernels left out)"
+fi
+
+# 5. cargo, with the feature, in its own target dir.
 args=("$@")
 if [[ ${#args[@]} -eq 0 ]]; then
     args=(build --release --bin mode360)
@@ -110,6 +173,6 @@ binary="$target_dir/release/mode360"
 if [[ "${args[0]}" == build && -x "$binary" ]]; then
     echo "   $binary: $(du -h "$binary" | cut -f1)"
     echo "   needs: $(readelf -d "$binary" | grep -oE 'lib(cuda|cublas|cublasLt|curand|nvrtc|cudart)\.so[.0-9]*' | sort -u | tr '\n' ' ')"
-    echo "   run it where an NVIDIA driver (CUDA 13.4 or newer) provides libcuda.so.1 and the"
+    echo "   run it where an NVIDIA driver (CUDA $release or newer) provides libcuda.so.1 and the"
     echo "   libraries above are on LD_LIBRARY_PATH (PyTorch's nvidia/cu13/lib has them)."
 fi

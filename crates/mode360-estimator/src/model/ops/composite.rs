@@ -274,7 +274,8 @@ pub fn sweep_variance_composite(
     let mut sum_sq: Option<Tensor> = None;
     for (cam, table) in tables.iter().enumerate() {
         // (B, N, C)
-        let v = table_sample_composite(&features.narrow(0, cam * batch, batch)?, table)?;
+        // the dispatching op: the composite here, the CUDA kernel on a GPU
+        let v = super::table_sample(&features.narrow(0, cam * batch, batch)?, table)?;
         let sq = v.sqr()?;
         sum = Some(match sum {
             Some(s) => (s + v)?,

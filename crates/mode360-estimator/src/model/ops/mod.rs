@@ -6,6 +6,8 @@
 //! - a composite built only from candle ops (matmul, index_select, pad, narrow, reshape), used
 //!   automatically when the tensor does not live on the CPU device (CUDA, Metal), or on the CPU
 //!   inside [`with_composites`] (how the tests check the GPU's path on a machine without one).
+//!   The table gather and its adjoint also have CUDA kernels (`table_cuda`, the `cuda` feature):
+//!   their composites' gradient (`index_add`) is serial over the table on a GPU.
 //!
 //! Every public op below has its composite in [`composite`] (`…_composite`), and the choice
 //! between the two is made in the op itself by [`has_custom_kernels`]; the backward passes of
@@ -31,6 +33,8 @@ mod fused;
 mod linear_axis;
 mod sweep;
 mod table;
+#[cfg(feature = "cuda")]
+mod table_cuda;
 mod types;
 
 pub use composite::{

@@ -12,6 +12,8 @@ use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::composite;
+#[cfg(feature = "cuda")]
+use super::table_cuda;
 use super::types::{
     cpu_slice, dims_of, has_custom_kernels, OpsError, SampleTable, TransposedTable,
 };
@@ -37,9 +39,11 @@ pub fn table_sample(features: &Tensor, table: &SampleTable) -> Result<Tensor> {
         .into());
     }
     table.check_pixels(dims[1] * dims[2], OP)?;
-    if !has_custom_kernels(features.device()) {
+    if !has_custom_kernels(features.device()) && !features.device().is_cuda() {
         return composite::table_sample_composite(features, table);
     }
+    // the CPU kernel, or on a GPU the CUDA kernels of `table_cuda` (a build without the `cuda`
+    // feature has no CUDA device)
     // (B, H, W, C) -> (B, N, C)
     features.contiguous()?.apply_op1(TableSampleOp {
         table: table.clone(),
@@ -90,6 +94,24 @@ impl CustomOp1 for TableSampleOp {
                 });
         }
         Ok((CpuStorage::F32(out), Shape::from((self.batch, n, c))))
+    }
+
+    #[cfg(feature = "cuda")]
+    fn cuda_fwd(
+        &self,
+        storage: &candle_core::CudaStorage,
+        layout: &Layout,
+    ) -> Result<(candle_core::CudaStorage, Shape)> {
+        let out = table_cuda::run(
+            table_cuda::TableKernel::Gather,
+            &self.table,
+            storage,
+            layout,
+            self.batch,
+            self.pixels,
+            self.channels,
+        )?;
+        Ok((out, Shape::from((self.batch, self.table.len(), self.channels))))
     }
 
     fn bwd(&self, _features: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
@@ -204,6 +226,25 @@ impl CustomOp1 for TableSampleTransposeOp {
         }
         let [h, w] = self.image;
         Ok((CpuStorage::F32(out), Shape::from((self.batch, h, w, c))))
+    }
+
+    #[cfg(feature = "cuda")]
+    fn cuda_fwd(
+        &self,
+        storage: &candle_core::CudaStorage,
+        layout: &Layout,
+    ) -> Result<(candle_core::CudaStorage, Shape)> {
+        let out = table_cuda::run(
+            table_cuda::TableKernel::Adjoint,
+            &self.table,
+            storage,
+            layout,
+            self.batch,
+            self.pixels,
+            self.channels,
+        )?;
+        let [h, w] = self.image;
+        Ok((out, Shape::from((self.batch, h, w, self.channels))))
     }
 
     fn bwd(&self, _g: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
