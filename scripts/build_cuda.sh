@@ -164,10 +164,21 @@ args=("$@")
 if [[ ${#args[@]} -eq 0 ]]; then
     args=(build --release --bin mode360)
 fi
-echo "== cargo ${args[*]} --features cuda --target-dir $target_dir"
+# the feature and target dir go before a `--` (whose rest is for the tool, e.g. clippy's -D)
+cargo_args=()
+tool_args=()
+for ((i = 0; i < ${#args[@]}; i++)); do
+    if [[ "${args[i]}" == -- ]]; then
+        tool_args=("${args[@]:i}")
+        break
+    fi
+    cargo_args+=("${args[i]}")
+done
+cargo_args+=(--features cuda --target-dir "$target_dir")
+echo "== cargo ${cargo_args[*]} ${tool_args[*]}"
 start=$(date +%s)
 cd "$repo"
-cargo "${args[@]}" --features cuda --target-dir "$target_dir"
+cargo "${cargo_args[@]}" "${tool_args[@]}"
 echo "== done in $(($(date +%s) - start)) s"
 binary="$target_dir/release/mode360"
 if [[ "${args[0]}" == build && -x "$binary" ]]; then

@@ -255,6 +255,17 @@ pub fn sweep_variance_composite(
     tables: &[SampleTable],
     view_scale: Option<&[f32]>,
 ) -> Result<Tensor> {
+    sweep_variance_with(features, tables, view_scale, table_sample_composite)
+}
+
+/// [`sweep_variance_composite`] with another gather than [`table_sample_composite`] (a GPU's
+/// own kernel).
+pub(super) fn sweep_variance_with(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&[f32]>,
+    sample: impl Fn(&Tensor, &SampleTable) -> Result<Tensor>,
+) -> Result<Tensor> {
     const OP: &str = "sweep_variance_composite";
     let dims = dims_of(features, OP, "features", 4)?;
     let cameras = tables.len();
@@ -274,8 +285,7 @@ pub fn sweep_variance_composite(
     let mut sum_sq: Option<Tensor> = None;
     for (cam, table) in tables.iter().enumerate() {
         // (B, N, C)
-        // the dispatching op: the composite here, the CUDA kernel on a GPU
-        let v = super::table_sample(&features.narrow(0, cam * batch, batch)?, table)?;
+        let v = sample(&features.narrow(0, cam * batch, batch)?, table)?;
         let sq = v.sqr()?;
         sum = Some(match sum {
             Some(s) => (s + v)?,

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 use super::composite;
-use super::table::adjoint_into;
+use super::table::{adjoint_into, table_sample};
 use super::types::{cpu_slice, dims_of, has_custom_kernels, OpsError, SampleTable};
 
 /// Rank of the stacked features `(M B, H, W, C)`.
@@ -301,6 +301,11 @@ fn sweep_variance_impl(
         t.check_pixels(pixels, OP)?;
     }
     let batch = dims[0] / cameras;
+    if features.device().is_cuda() {
+        // the composite around the table gather's CUDA kernel
+        let view_scale = view_scale.map(|s| &s[..]);
+        return composite::sweep_variance_with(features, tables, view_scale, table_sample);
+    }
     if !has_custom_kernels(features.device()) {
         return composite::sweep_variance_composite(features, tables, view_scale.map(|s| &s[..]));
     }
