@@ -35,10 +35,7 @@ fn main() -> anyhow::Result<()> {
     let sampling = SweepSampling::new(&rig, &cfg)?;
     println!("sweep tables: {:.3} s", t.elapsed().as_secs_f64());
     let varmap = VarMap::new();
-    let net = Ssmode::new(
-        &cfg,
-        VarBuilder::from_varmap(&varmap, DType::F32, &device),
-    )?;
+    let net = Ssmode::new(&cfg, VarBuilder::from_varmap(&varmap, DType::F32, &device))?;
     let images: Vec<Tensor> = (0..rig.cameras.len())
         .map(|_| Tensor::rand(0f32, 1f32, (1, cfg.height(), cfg.width, 3), &device))
         .collect::<Result<_, _>>()?;
@@ -84,7 +81,9 @@ fn check_table_kernels(device: &Device) -> anyhow::Result<()> {
     // a fixed pseudo-random table (an LCG: reproducible, no extra dependency)
     let mut state = 12345u64;
     let mut next = move || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (state >> 33) as u32
     };
     let taps: Vec<BilinearTaps> = (0..samples)

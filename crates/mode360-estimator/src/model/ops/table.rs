@@ -111,7 +111,10 @@ impl CustomOp1 for TableSampleOp {
             self.pixels,
             self.channels,
         )?;
-        Ok((out, Shape::from((self.batch, self.table.len(), self.channels))))
+        Ok((
+            out,
+            Shape::from((self.batch, self.table.len(), self.channels)),
+        ))
     }
 
     fn bwd(&self, _features: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
