@@ -184,13 +184,15 @@ fn rig_refine_refuses_too_few_frames_and_a_foreign_rig() -> TestResult {
     let rig = Rig::from_file(RIG_PATH)?;
     let bag = dir.path().join("two.mcap");
     render(&rig, 2, &bag)?;
-    let args = |frames: usize, rig_file: Option<&Path>| RigRefineArgs {
+    let args_passes = |frames: usize, rig_file: Option<&Path>, passes: usize| RigRefineArgs {
         bag: bag.clone(),
         out: dir.path().join("out.yaml"),
         rig: rig_file.map(Path::to_path_buf),
         frames,
-        passes: REFINE_PASSES,
+        passes,
     };
+    let args =
+        |frames: usize, rig_file: Option<&Path>| args_passes(frames, rig_file, REFINE_PASSES);
     let err = refine(&args(6, None))
         .err()
         .ok_or("6 frames from a 2-frame bag")?;
@@ -201,6 +203,8 @@ fn rig_refine_refuses_too_few_frames_and_a_foreign_rig() -> TestResult {
     );
     let err = refine(&args(1, None)).err().ok_or("1 frame")?;
     assert!(format!("{err:#}").contains("at least 2 frames"), "{err:#}");
+    let err = refine(&args_passes(2, None, 0)).err().ok_or("0 passes")?;
+    assert!(format!("{err:#}").contains("--passes 0"), "{err:#}");
     // A calibration whose second camera has another name.
     let mut foreign = rig.clone();
     foreign.cameras[1].name = "front_left".to_string();

@@ -66,6 +66,9 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
             a.frames
         );
     }
+    if a.passes == 0 {
+        bail!("--passes 0: rig refine needs at least 1 depth-and-rotation pass");
+    }
     let reader = RigBagReader::open(&a.bag)?;
     let start = crate::cli::replay::calibration_for(&reader, a.rig.as_deref(), &file)?;
     let mut recorded = Vec::new();
@@ -91,7 +94,7 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
     let mut rig = start.clone();
     let mut first_pass: Option<Vec<CameraCorrection>> = None;
     let mut last_pass = Vec::new();
-    for _pass in 0..a.passes.max(1) {
+    for _pass in 0..a.passes {
         // Depth with the calibration as refined so far: a turned camera bends the sweep's
         // depth towards agreeing with it, so each pass starts from better depth.
         let check = RotationCheck::new(&rig, cfg.clone())?;
