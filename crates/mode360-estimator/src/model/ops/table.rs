@@ -102,19 +102,10 @@ impl CustomOp1 for TableSampleOp {
         storage: &candle_core::CudaStorage,
         layout: &Layout,
     ) -> Result<(candle_core::CudaStorage, Shape)> {
-        let out = table_cuda::run(
-            table_cuda::TableKernel::Gather,
-            &self.table,
-            storage,
-            layout,
-            self.batch,
-            self.pixels,
-            self.channels,
-        )?;
-        Ok((
-            out,
-            Shape::from((self.batch, self.table.len(), self.channels)),
-        ))
+        let (b, n, c) = (self.batch, self.table.len(), self.channels);
+        let kernel = table_cuda::TableKernel::Gather;
+        let out = table_cuda::run(kernel, &self.table, storage, layout, b, self.pixels, c)?;
+        Ok((out, Shape::from((b, n, c))))
     }
 
     fn bwd(&self, _features: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {
@@ -237,17 +228,10 @@ impl CustomOp1 for TableSampleTransposeOp {
         storage: &candle_core::CudaStorage,
         layout: &Layout,
     ) -> Result<(candle_core::CudaStorage, Shape)> {
-        let out = table_cuda::run(
-            table_cuda::TableKernel::Adjoint,
-            &self.table,
-            storage,
-            layout,
-            self.batch,
-            self.pixels,
-            self.channels,
-        )?;
-        let [h, w] = self.image;
-        Ok((out, Shape::from((self.batch, h, w, self.channels))))
+        let ([h, w], b, c) = (self.image, self.batch, self.channels);
+        let kernel = table_cuda::TableKernel::Adjoint;
+        let out = table_cuda::run(kernel, &self.table, storage, layout, b, self.pixels, c)?;
+        Ok((out, Shape::from((b, h, w, c))))
     }
 
     fn bwd(&self, _g: &Tensor, _out: &Tensor, grad_out: &Tensor) -> Result<Option<Tensor>> {

@@ -26,39 +26,45 @@ const MODULE: &str = "mode360_table";
 /// CUDA C source of both kernels; `TAPS` is [`SampleTable::TAPS`].
 const SOURCE: &str = r#"
 #define TAPS 4
-extern "C" __global__ void table_gather(
-    const float *f, const unsigned int *index, const float *weight, float *out,
-    unsigned long long batch, unsigned long long samples, unsigned long long pixels,
-    unsigned long long channels) {
-    const unsigned long long total = batch * samples * channels;
-    for (unsigned long long i = blockIdx.x * (unsigned long long)blockDim.x + threadIdx.x;
-         i < total; i += (unsigned long long)blockDim.x * gridDim.x) {
-        const unsigned long long c = i % channels;
-        const unsigned long long n = (i / channels) % samples;
-        const unsigned long long b = i / (channels * samples);
-        const float *fb = f + b * pixels * channels + c;
+typedef unsigned long long u64;
+
+// Element i of a (batch, samples, channels) array: its sample `n`, and the offset of its batch
+// item and channel in a (batch, pixels, channels) array.
+__device__ inline void element(u64 i, u64 samples, u64 pixels, u64 channels, u64 *n,
+                               u64 *image_offset) {
+    const u64 c = i % channels;
+    const u64 b = i / (channels * samples);
+    *n = (i / channels) % samples;
+    *image_offset = b * pixels * channels + c;
+}
+
+extern "C" __global__ void table_gather(const float *f, const unsigned int *index,
+                                        const float *weight, float *out, u64 batch,
+                                        u64 samples, u64 pixels, u64 channels) {
+    const u64 total = batch * samples * channels;
+    for (u64 i = blockIdx.x * (u64)blockDim.x + threadIdx.x; i < total;
+         i += (u64)blockDim.x * gridDim.x) {
+        u64 n, offset;
+        element(i, samples, pixels, channels, &n, &offset);
         float acc = 0.0f;
         for (int k = 0; k < TAPS; ++k) {
-            acc += weight[n * TAPS + k] * fb[(unsigned long long)index[n * TAPS + k] * channels];
+            acc += weight[n * TAPS + k] * f[offset + (u64)index[n * TAPS + k] * channels];
         }
         out[i] = acc;
     }
 }
 
-extern "C" __global__ void table_adjoint(
-    const float *g, const unsigned int *index, const float *weight, float *out,
-    unsigned long long batch, unsigned long long samples, unsigned long long pixels,
-    unsigned long long channels) {
-    const unsigned long long total = batch * samples * channels;
-    for (unsigned long long i = blockIdx.x * (unsigned long long)blockDim.x + threadIdx.x;
-         i < total; i += (unsigned long long)blockDim.x * gridDim.x) {
-        const unsigned long long c = i % channels;
-        const unsigned long long n = (i / channels) % samples;
-        const unsigned long long b = i / (channels * samples);
+extern "C" __global__ void table_adjoint(const float *g, const unsigned int *index,
+                                         const float *weight, float *out, u64 batch,
+                                         u64 samples, u64 pixels, u64 channels) {
+    const u64 total = batch * samples * channels;
+    for (u64 i = blockIdx.x * (u64)blockDim.x + threadIdx.x; i < total;
+         i += (u64)blockDim.x * gridDim.x) {
+        u64 n, offset;
+        element(i, samples, pixels, channels, &n, &offset);
         const float v = g[i];
-        float *ob = out + b * pixels * channels + c;
         for (int k = 0; k < TAPS; ++k) {
-            atomicAdd(ob + (unsigned long long)index[n * TAPS + k] * channels,
+            atomicAdd(out + offset + (u64)index[n * TAPS + k] * channels,
                       weight[n * TAPS + k] * v);
         }
     }
