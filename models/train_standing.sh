@@ -21,6 +21,8 @@
 # width 256 for W256_STEPS steps into runs/standing_w256/ (fresh each time; a rig pool of 6, as
 # sweep tables at 256 take about 0.8 GiB per rig with their transposes): the weights to
 # evaluate and ship (training at 128 alone costs accuracy at 256, models/README.md).
+# A session with a GPU runs the same fine-tune there instead, about 1,000 steps in one device call
+# (models/train_gpu.sh; 0.56 s per step on an H200 against about 5 s here).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of a fresh run),
 # STEPS (115000), W256_STEPS (300)
