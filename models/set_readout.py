@@ -1,10 +1,12 @@
 #!/usr/bin/env python3
-"""Sets the readout of an SSMODE weights file in place: `far_parallax_cells` and
-`far_plane_probability` in its `mode360.config` header metadata. The tensors are left byte for
-byte as they are (only the header is rewritten), so the network computes the same logits and
-only the far-plane test of the readout changes (models/README.md, "Readout").
+"""Sets the readout of an SSMODE weights file in place: `far_parallax_cells`,
+`far_plane_probability` and `refine_radius_cells` in its `mode360.config` header metadata. The
+tensors are left byte for byte as they are (only the header is rewritten), so the network
+computes the same logits and only the readout changes: the far-plane test (models/README.md,
+"Readout") and the edge refinement ("Edge refinement"; 0 turns it off).
 
     models/set_readout.py WEIGHTS [--far-parallax-cells 0.25] [--far-plane-probability 0.5]
+                                  [--refine-radius-cells 2]
 """
 import argparse
 import json
@@ -21,6 +23,7 @@ def main() -> int:
     ap.add_argument("weights")
     ap.add_argument("--far-parallax-cells", type=float, default=0.25)
     ap.add_argument("--far-plane-probability", type=float, default=0.5)
+    ap.add_argument("--refine-radius-cells", type=int, default=2)
     args = ap.parse_args()
     with open(args.weights, "rb") as f:
         data = f.read()
@@ -32,9 +35,11 @@ def main() -> int:
         cfg = json.loads(header["__metadata__"][CONFIG_KEY])
     except (ValueError, KeyError) as e:
         sys.exit(f"{args.weights}: no readable '{CONFIG_KEY}' header metadata ({e})")
-    before = (cfg.get("far_parallax_cells"), cfg.get("far_plane_probability"))
+    keys = ("far_parallax_cells", "far_plane_probability", "refine_radius_cells")
+    before = {k: cfg.get(k) for k in keys}
     cfg["far_parallax_cells"] = args.far_parallax_cells
     cfg["far_plane_probability"] = args.far_plane_probability
+    cfg["refine_radius_cells"] = args.refine_radius_cells
     header["__metadata__"][CONFIG_KEY] = json.dumps(cfg, separators=(",", ":"))
     raw = json.dumps(header, separators=(",", ":")).encode()
     raw += b" " * ((HEADER_ALIGN - len(raw) % HEADER_ALIGN) % HEADER_ALIGN)
@@ -42,10 +47,8 @@ def main() -> int:
     with open(tmp, "wb") as f:
         f.write(struct.pack("<Q", len(raw)) + raw + data[8 + n :])
     os.replace(tmp, args.weights)
-    print(
-        f"{args.weights}: far_parallax_cells {before[0]} -> {args.far_parallax_cells}, "
-        f"far_plane_probability {before[1]} -> {args.far_plane_probability}"
-    )
+    changes = ", ".join(f"{k} {before[k]} -> {cfg[k]}" for k in keys)
+    print(f"{args.weights}: {changes}")
     return 0
 
 

@@ -9,6 +9,7 @@ use mode360_core::geometry::{ErpGrid, Rig};
 
 pub mod calibration;
 pub mod calibration_drift;
+pub mod edge_refine;
 pub mod guided_upsample;
 pub mod lens_health;
 pub mod lens_mask;

@@ -2,14 +2,16 @@
 //! the network's width (bilinear, longitude wraps; fisheye images are first resampled into
 //! panoramas of their own frame, [`RigRemap`], and the sweep aggregates only the cameras that
 //! see each point; confidence is scaled by the share of spheres that two cameras see), runs the
-//! forward pass on the CPU or a CUDA GPU ([`ComputeDevice`]) and resizes the range back to the
-//! requested output grid (guided by the reference image where the output is finer,
-//! [`super::guided_upsample`]). Sweep tables are cached per rig.
+//! forward pass on the CPU or a CUDA GPU ([`ComputeDevice`]), cleans the range's edges with a
+//! confidence-weighted median ([`super::edge_refine`], where the reference image is the output
+//! frame's) and resizes the range back to the requested output grid (guided by the reference
+//! image where the output is finer, [`super::guided_upsample`]). Sweep tables are cached per rig.
 
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
 
+use super::edge_refine::{self, weighted_median_refine, EdgeRefineParams};
 use super::guided_upsample::{grey_on_grid, guided_upsample};
 use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
@@ -221,6 +223,19 @@ impl SsmodeEstimator {
 /// camera's.
 const SAME_FRAME_TOLERANCE: f64 = 1e-9;
 
+/// The reference camera's image when the output frame is that camera's own and the image is
+/// ERP (so a network cell and an image pixel look the same way); `None` otherwise.
+fn reference_in_output_frame<'a>(rig: &Rig, images: &'a [RgbImage]) -> Option<&'a RgbImage> {
+    let reference = rig.cameras.get(rig.reference)?;
+    let offset = reference.rig_from_cam.inverse() * rig.rig_from_output;
+    let same_frame = offset.translation.vector.norm() < SAME_FRAME_TOLERANCE
+        && offset.rotation.angle() < SAME_FRAME_TOLERANCE;
+    if !same_frame || !reference.projection.is_equirectangular() {
+        return None;
+    }
+    images.get(rig.reference)
+}
+
 /// The guides of [`guided_upsample`] (the reference camera's grey image on the network's and on
 /// the output grid), when the output is finer than the network and the output frame is an ERP
 /// reference camera's own; `None` otherwise (plain bilinear upsampling).
@@ -230,14 +245,10 @@ fn guide_images(
     net: ErpGrid,
     output: ErpGrid,
 ) -> Option<(Vec<f32>, Vec<f32>)> {
-    let reference = rig.cameras.get(rig.reference)?;
-    let offset = reference.rig_from_cam.inverse() * rig.rig_from_output;
-    let same_frame = offset.translation.vector.norm() < SAME_FRAME_TOLERANCE
-        && offset.rotation.angle() < SAME_FRAME_TOLERANCE;
-    if output.width() <= net.width() || !same_frame || !reference.projection.is_equirectangular() {
+    if output.width() <= net.width() {
         return None;
     }
-    let image = images.get(rig.reference)?;
+    let image = reference_in_output_frame(rig, images)?;
     Some((grey_on_grid(image, net)?, grey_on_grid(image, output)?))
 }
 
@@ -312,7 +323,16 @@ impl DepthEstimator for SsmodeEstimator {
                 .and_then(|f| f.to_vec1::<f32>())
                 .map_err(model_err)
         };
-        let range = to_vec(final_range)?;
+        let mut range = to_vec(final_range)?;
+        if cfg.refine_radius_cells > 0 {
+            if let Some(rgb) = reference_in_output_frame(rig, images)
+                .and_then(|image| edge_refine::rgb_on_grid(image, net_grid))
+            {
+                let params = EdgeRefineParams::with_radius(cfg.refine_radius_cells);
+                let conf_net = to_vec(&out.confidence)?;
+                range = weighted_median_refine(&range, &conf_net, &rgb, net_grid, &params);
+            }
+        }
         let range = match guide_images(rig, images, net_grid, output) {
             Some((guide_net, guide_out)) => {
                 guided_upsample(&range, &guide_net, net_grid, &guide_out, output)

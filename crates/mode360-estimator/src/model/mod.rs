@@ -19,15 +19,17 @@ pub mod logit_prior;
 pub mod ops;
 pub mod photometric_cost;
 pub mod position_channels;
+pub mod presets;
 pub mod regression;
 pub mod sphere_conv;
 pub mod ssmode;
 pub mod sweep_sampling;
 pub mod weights;
 
-pub use config::{Preset, SsmodeConfig};
+pub use config::SsmodeConfig;
 pub use device::{ComputeDevice, DeviceError};
 pub use input::input_tensor;
+pub use presets::Preset;
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use sweep_sampling::SweepSampling;
 pub use weights::{load_weights, read_config, save_weights};

@@ -138,16 +138,28 @@ mod tests {
         let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
         let err = read_config(&path).unwrap_err().to_string();
         assert!(err.contains("far_parallax_cells"), "{err}");
+        let bad = SsmodeConfig {
+            refine_radius_cells: super::super::config::MAX_REFINE_RADIUS_CELLS + 1,
+            ..SsmodeConfig::parallax_zncc()
+        };
+        let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
+        let err = read_config(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("weights.safetensors") && err.contains("refine_radius_cells"),
+            "{err}"
+        );
     }
 
-    /// A file written before the far field (no `far_parallax_cells`) reads the default one,
-    /// and keeps its own far-plane probability.
+    /// A file written before the far field and the edge refinement (no `far_parallax_cells`,
+    /// no `refine_radius_cells`) reads the default ones, and keeps its own far-plane
+    /// probability.
     #[test]
     fn files_without_the_far_field_get_the_default() {
         let dir = tempfile::tempdir().unwrap();
         let mut json: serde_json::Value =
             serde_json::to_value(SsmodeConfig::parallax_zncc()).unwrap();
         json.as_object_mut().unwrap().remove("far_parallax_cells");
+        json.as_object_mut().unwrap().remove("refine_radius_cells");
         json["far_plane_probability"] = serde_json::json!(0.8);
         let cfg = read_config(file_with_config(dir.path(), &json.to_string())).unwrap();
         assert_eq!(
@@ -155,5 +167,9 @@ mod tests {
             super::super::config::DEFAULT_FAR_PARALLAX_CELLS
         );
         assert_eq!(cfg.far_plane_probability, 0.8);
+        assert_eq!(
+            cfg.refine_radius_cells,
+            super::super::config::DEFAULT_REFINE_RADIUS_CELLS
+        );
     }
 }
