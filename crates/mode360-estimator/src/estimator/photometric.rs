@@ -117,10 +117,7 @@ impl Default for PhotometricConfig {
             variance_floor: 1e-6,
             mean_weight: 0.3,
             mean_scale: 0.03,
-            best_pair_fraction: std::env::var("XBEST")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(0.5),
+            best_pair_fraction: 0.5,
             parallax_exponent: 1.0,
             aggregation: AggregationConfig::default(),
             far_prior: 0.02,
