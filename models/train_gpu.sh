@@ -18,21 +18,23 @@
 #   3. `bench-model` of the standing weights on cuda:0 at 256 and 512 -> $OUT/bench_gpu.json
 #      (BENCH=0 leaves it out);
 #   4. a short probe of the fine-tune for its time per step, then the fine-tune proper: the
-#      latest standing checkpoint (runs/standing/checkpoint) at width 256 with the standing
-#      job's data mix, as many steps as fit before the deadline, so that the cosine schedule
+#      latest standing checkpoint at 256 (runs/standing_w256_ship/checkpoint, else the
+#      shipped weights' source, runs/gpu_w256/) at width 256 with the standing job's data mix, as many steps as fit before the deadline, so that the cosine schedule
 #      ends there -> $OUT: the weights, state.json, train.csv, val.csv, curves.png.
 # Each stage is bounded by `timeout`, and a failed stage leaves the later ones to run, so one
 # call always brings back what it could measure.
 #
 # env: BUDGET_S (seconds from start to the end of the fine-tune, 540), INIT (start weights,
-# runs/standing/checkpoint/model.safetensors), WIDTH (256), LR (1e-4), MAX_STEPS (6000),
+# as in 4; the eighth session's call started from the 128 stage's runs/standing/checkpoint),
+# WIDTH (256), LR (1e-4), MAX_STEPS (6000),
 # DEVICE (cuda:0), BIN (a binary to use instead of unpacking one: a dry run here takes
 # BIN=target/release/mode360 DEVICE=cpu WIDTH=128 BUDGET_S=150 OUT=/tmp/dry)
 set -uo pipefail
 start=$(date +%s)
 budget_s="${BUDGET_S:-540}"
 deadline=$((start + budget_s))
-init="${INIT:-runs/standing/checkpoint/model.safetensors}"
+init="${INIT:-runs/standing_w256_ship/checkpoint/model.safetensors}"
+[[ -f "$init" ]] || init=runs/gpu_w256/ssmode_parallax_zncc_log.safetensors
 width="${WIDTH:-256}"
 lr="${LR:-1e-4}"
 max_steps="${MAX_STEPS:-6000}"

@@ -1,42 +1,61 @@
 #!/usr/bin/env bash
 # Issue 19's standing training job: start it in the background at the beginning of every
-# session while the issue is open; it resumes runs/standing/ where the last session stopped
-# (checkpoint every 250 steps and every 5 minutes, so a stopped session loses little), and
-# commit runs/standing/{checkpoint,train.csv,val.csv,curves.png} every half hour or so.
+# session while the issue is open; it resumes where the last session stopped (checkpoints every
+# 50 or 250 steps and every 5 minutes, so a stopped session loses little), and commit the run's
+# {checkpoint,train.csv,val.csv,curves.png} every half hour or so.
 #
 #   nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #
-# The run: preset parallax_zncc_log (the ablation's winner, models/README.md) at width 128 (the
-# cheap width; the deployable weights get a short fine-tune at 256, see below), one rendered
-# sample per step, towards the paper's budget of about 115,000 steps (the cosine schedule runs
-# over that, so the learning rate stays near its peak for many sessions). The data: varied
-# streets with a quarter of random objects, 30 % soiled, a fifth of the samples on fisheye
-# racks, every rig layout (roof racks, vertical masts, turned cameras at mixed heights, car
-# body corners), a fifth with one lens 5 to 40 % blocked, and random rigs from a pool of 16
-# renewed every 400 samples, so that sweep tables are built once per pool rig, not per step.
-# It started from the ablation's parallax_zncc_log weights at step 500 (a fresh run of this
-# script needs them at INIT).
+# Two stages; the data is the same in both: varied streets with a quarter of random objects,
+# 30 % soiled, a fifth of the samples on fisheye racks, every rig layout (roof racks, vertical
+# masts, turned cameras at mixed heights, car body corners), a fifth with one lens 5 to 40 %
+# blocked, and random rigs from a pool renewed every 400 samples, so that sweep tables are built
+# once per pool rig, not per step.
 #
-# With a second argument `fine-tune`, it instead fine-tunes the latest standing weights at
-# width 256 for W256_STEPS steps into runs/standing_w256/ (fresh each time; a rig pool of 6, as
-# sweep tables at 256 take about 0.8 GiB per rig with their transposes): the weights to
-# evaluate and ship (training at 128 alone costs accuracy at 256, models/README.md).
-# A session with a GPU runs the same fine-tune there instead, about 1,000 steps in one device call
-# (models/train_gpu.sh; 0.56 s per step on an H200 against about 5 s here).
+# `w256` (the default since 2026-11-27, ninth session) -> runs/standing_w256_ship/: continues the
+# shipped weights (the 128 stage's step 17,932 plus 971 steps at 256 on an H200,
+# runs/gpu_w256/) at the deployable width 256 on fresh samples (data seed 2), lr 5e-5 after 50 warm-up steps on a cosine over
+# W256_STEPS (20,000, so that it stays near its peak for many sessions), a rig pool of 6 (sweep
+# tables at 256 take about 0.8 GiB per rig with their transposes), validation at 256 every 250
+# steps. Why: at 128 the validation δ1 stopped rising (92.58 to 92.99 between steps 16,500 and
+# 23,000), while 971 steps at 256 took it from 93.0 to 95.6 at 256 (models/README.md, "Standing
+# training job").
 #
-# env: MODE360_BIN (target/release/mode360), INIT (start weights of a fresh run),
-# STEPS (115000), W256_STEPS (300)
+# `w128` -> runs/standing/: the bulk run, preset parallax_zncc_log at width 128 (the cheap
+# width), one rendered sample per step, towards the paper's budget of about 115,000 steps (the
+# cosine schedule runs over that), a rig pool of 16. It started from the ablation's
+# parallax_zncc_log weights at step 500 (a fresh run needs them at INIT); it stands at step
+# 23,500.
+#
+# `fine-tune` instead fine-tunes the latest w128 weights at width 256 for W256_STEPS (300) steps
+# into runs/standing_w256/ (fresh each time). A session with a GPU runs a fine-tune at 256 there
+# instead, about 1,000 steps in one device call (models/train_gpu.sh; 0.56 s per step on an H200
+# against about 5 s here).
+#
+# env: MODE360_BIN (target/release/mode360), INIT (start weights of a fresh run), STEPS (115000,
+# w128), W256_STEPS (20000 for w256, 300 for fine-tune)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-runs/ablation/parallax_zncc_log/ssmode_parallax_zncc_log_step500.safetensors}"
 steps="${STEPS:-115000}"
 mix=(--objects-fraction 0.25 --street varied --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50)
-if [[ "${1:-}" == fine-tune ]]; then
+stage="${1:-w256}"
+if [[ "$stage" == w256 ]]; then
+  exec "$bin" train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" --lr 5e-5 \
+    --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 250 --checkpoint-every 50 --resume --seed 2 \
+    --init-weights "${INIT:-runs/gpu_w256/ssmode_parallax_zncc_log.safetensors}" \
+    --out runs/standing_w256_ship
+fi
+if [[ "$stage" == fine-tune ]]; then
   rm -rf runs/standing_w256
   exec "$bin" train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-300}" --lr 1e-4 \
     --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 100 --checkpoint-every 50 \
     --init-weights runs/standing/checkpoint/model.safetensors --out runs/standing_w256
+fi
+if [[ "$stage" != w128 ]]; then
+  echo "unknown stage '$stage' (w256, w128 or fine-tune)" >&2
+  exit 2
 fi
 exec "$bin" train --preset parallax_zncc_log --width 128 --steps "$steps" --lr 2e-4 \
   --warmup-steps 100 "${mix[@]}" --rig-pool 16 --val-every 500 --checkpoint-every 250 --resume \
