@@ -16,9 +16,10 @@
 //! range of the neighbour with the largest weight, the side of the edge whose colour the pixel
 //! shares. Longitude wraps, latitude clamps, as in [`mode360_core::geometry::ErpGrid::bilinear_taps`].
 
-use crate::matching::{luma, INTENSITY_SCALE};
+use super::edge_refine::rgb_on_grid;
+use crate::matching::luma;
 use mode360_core::frame::RgbImage;
-use mode360_core::geometry::{resample_erp, ErpGrid, PixelCoord};
+use mode360_core::geometry::{ErpGrid, PixelCoord};
 use rayon::prelude::*;
 
 /// Colour scale of the guide weight (grey levels in [0, 1]).
@@ -30,15 +31,10 @@ const MIN_WEIGHT: f32 = 1e-6;
 
 /// Grey levels in [0, 1] of an ERP image resampled (bilinear) to `grid`.
 pub fn grey_on_grid(image: &RgbImage, grid: ErpGrid) -> Option<Vec<f32>> {
-    let src = ErpGrid::new(image.width() as usize).ok()?;
-    if src.height() != image.height() as usize {
-        return None;
-    }
-    let rgb: Vec<f32> = image.as_raw().iter().map(|&b| f32::from(b)).collect();
-    let rgb = resample_erp(&rgb, 3, src, grid);
     Some(
-        rgb.chunks_exact(3)
-            .map(|p| luma([p[0], p[1], p[2]]) * INTENSITY_SCALE)
+        rgb_on_grid(image, grid)?
+            .chunks_exact(3)
+            .map(|p| luma([p[0], p[1], p[2]]))
             .collect(),
     )
 }
@@ -96,6 +92,7 @@ pub fn guided_upsample(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mode360_core::geometry::resample_erp;
 
     /// A 1000 m sky above a 30 m facade, the edge between network rows: bilinear upsampling
     /// invents ranges on the edge's output rows, the guided one keeps every pixel at 30 or
