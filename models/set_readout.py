@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
-"""Sets the readout of an SSMODE weights file in place: `far_parallax_cells`,
-`far_plane_probability` and `refine_radius_cells` in its `mode360.config` header metadata. The
-tensors are left byte for byte as they are (only the header is rewritten), so the network
-computes the same logits and only the readout changes: the far-plane test (models/README.md,
-"Readout") and the edge refinement ("Edge refinement"; 0 turns it off).
+"""Sets the inference choices of an SSMODE weights file in place: `far_parallax_cells`,
+`far_plane_probability`, `refine_radius_cells` and `seam_pad_cells` in its `mode360.config`
+header metadata. The tensors are left byte for byte as they are (only the header is rewritten);
+what changes is how they are applied: the far-plane test (models/README.md, "Readout"), the
+edge refinement ("Edge refinement"; 0 turns it off) and the aggregation's longitude wrap
+("Longitude seam"; 0 turns it off).
 
     models/set_readout.py WEIGHTS [--far-parallax-cells 0.25] [--far-plane-probability 0.5]
-                                  [--refine-radius-cells 2]
+                                  [--refine-radius-cells 2] [--seam-pad-cells N]
 """
 import argparse
 import json
@@ -24,6 +25,8 @@ def main() -> int:
     ap.add_argument("--far-parallax-cells", type=float, default=0.25)
     ap.add_argument("--far-plane-probability", type=float, default=0.5)
     ap.add_argument("--refine-radius-cells", type=int, default=2)
+    ap.add_argument("--seam-pad-cells", type=int, default=None,
+                    help="default: as the file has it (missing: 0, no wrap)")
     args = ap.parse_args()
     with open(args.weights, "rb") as f:
         data = f.read()
@@ -35,11 +38,13 @@ def main() -> int:
         cfg = json.loads(header["__metadata__"][CONFIG_KEY])
     except (ValueError, KeyError) as e:
         sys.exit(f"{args.weights}: no readable '{CONFIG_KEY}' header metadata ({e})")
-    keys = ("far_parallax_cells", "far_plane_probability", "refine_radius_cells")
+    keys = ("far_parallax_cells", "far_plane_probability", "refine_radius_cells", "seam_pad_cells")
     before = {k: cfg.get(k) for k in keys}
     cfg["far_parallax_cells"] = args.far_parallax_cells
     cfg["far_plane_probability"] = args.far_plane_probability
     cfg["refine_radius_cells"] = args.refine_radius_cells
+    if args.seam_pad_cells is not None:
+        cfg["seam_pad_cells"] = args.seam_pad_cells
     header["__metadata__"][CONFIG_KEY] = json.dumps(cfg, separators=(",", ":"))
     raw = json.dumps(header, separators=(",", ":")).encode()
     raw += b" " * ((HEADER_ALIGN - len(raw) % HEADER_ALIGN) % HEADER_ALIGN)

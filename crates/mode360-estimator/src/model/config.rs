@@ -109,6 +109,13 @@ pub struct SsmodeConfig {
     /// files without it get the default.
     #[serde(default = "default_refine_radius_cells")]
     pub refine_radius_cells: usize,
+    /// Cost-volume cells copied across the longitude seam to each side before the 3-D
+    /// aggregation, whose convolutions pad with zeros, so that cells near longitude ±180° are
+    /// aggregated with their true neighbours ([`super::seam`]); 0 turns it off. Twice it must be
+    /// a multiple of `4 aggregation_stride`. Files without it get 0, the zero padding they were
+    /// trained with; the presets train with [`DEFAULT_SEAM_PAD_CELLS`].
+    #[serde(default)]
+    pub seam_pad_cells: usize,
     /// Append the learning-free sweep's windowed-ZNCC matching cost as one more cost-volume
     /// channel ([`super::photometric_cost`]; files without it: no). Needs `cost_downsample` 1.
     #[serde(default)]
@@ -159,6 +166,11 @@ pub const MAX_REFINE_RADIUS_CELLS: usize = 8;
 fn default_refine_radius_cells() -> usize {
     DEFAULT_REFINE_RADIUS_CELLS
 }
+
+/// [`SsmodeConfig::seam_pad_cells`] of the presets: 8 cells (11° at the network's 256), the
+/// cheaper of 8 and 16, which gain the same on the validation seed at 512 with weights trained
+/// without it (models/README.md, "Longitude seam").
+pub const DEFAULT_SEAM_PAD_CELLS: usize = 8;
 
 impl SsmodeConfig {
     /// Input height, `width / 2`.
@@ -333,6 +345,27 @@ impl SsmodeConfig {
                 format!(
                     "{} is above the largest accepted, {MAX_REFINE_RADIUS_CELLS}",
                     self.refine_radius_cells
+                ),
+            );
+        }
+        // The padded volume must stay a multiple of the divisor, the crop a whole cell count.
+        let pad = self.seam_pad_cells;
+        if !(2 * pad).is_multiple_of(divisor) || !pad.is_multiple_of(self.aggregation_stride) {
+            return bad(
+                "seam_pad_cells",
+                format!(
+                    "{pad}: twice it must be a multiple of {divisor} and it a multiple of the \
+                     aggregation stride {}",
+                    self.aggregation_stride
+                ),
+            );
+        }
+        if pad > self.cost_width() {
+            return bad(
+                "seam_pad_cells",
+                format!(
+                    "{pad} is wider than the cost volume ({})",
+                    self.cost_width()
                 ),
             );
         }

@@ -5,7 +5,8 @@
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
-//! [`position_channels`] (sphere and latitude as cost-volume channels),
+//! [`position_channels`] (sphere and latitude as cost-volume channels), [`seam`] (the
+//! aggregation's longitude wrap),
 //! [`weights`] (safetensors with the config in the header), [`config`] (presets),
 //! [`sweep_sampling`] (per-rig sampling tables), [`device`] (the CPU or a CUDA GPU).
 
@@ -21,6 +22,7 @@ pub mod photometric_cost;
 pub mod position_channels;
 pub mod presets;
 pub mod regression;
+pub mod seam;
 pub mod sphere_conv;
 pub mod ssmode;
 pub mod sweep_sampling;

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::config::{
     CostKind, SsmodeConfig, DEFAULT_FAR_PARALLAX_CELLS, DEFAULT_FAR_PLANE_PROBABILITY,
-    DEFAULT_REFINE_RADIUS_CELLS, FEATURE_DOWNSAMPLE,
+    DEFAULT_REFINE_RADIUS_CELLS, DEFAULT_SEAM_PAD_CELLS, FEATURE_DOWNSAMPLE,
 };
 use super::ModelError;
 use mode360_core::geometry::HypothesisSpacing;
@@ -133,6 +133,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
+            seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -163,6 +164,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
+            seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -194,6 +196,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
+            seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,
@@ -222,6 +225,7 @@ impl SsmodeConfig {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
             refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
+            seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
             position_channels: false,

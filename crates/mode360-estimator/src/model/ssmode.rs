@@ -6,8 +6,9 @@
 //! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
 //! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
 //! position_channels         -> (B, D, h, w, C'' + 2)      optional sphere and latitude
-//! aggregation               -> K x (B, D/s, h/s, w/s, Ch) stacked hourglasses, entry stride s
-//! classif{k}                -> K x (B, D/s, h/s, w/s)
+//! seam                      -> (B, D, h, w + 2 p, C'')   p cells across the longitude seam
+//! aggregation               -> K x (B, D/s, h/s, (w + 2 p)/s, Ch) stacked hourglasses, stride s
+//! classif{k}, crop          -> K x (B, D/s, h/s, w/s)
 //! logit_prior               -> K x (B, D/s, h/s, w/s)    optional prior by latitude
 //! regression                -> K x (B, H, W) range, index; confidence of the last
 //! ```
@@ -25,6 +26,7 @@ use super::logit_prior::LogitPrior;
 use super::photometric_cost::photometric_cost;
 use super::position_channels::position_channels;
 use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
+use super::seam::{crop_longitude, wrap_longitude};
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{flop_count, OpsError};
 use mode360_core::geometry::DepthHypotheses;
@@ -143,6 +145,11 @@ impl Ssmode {
     }
 
     /// A regression head's cost with the logit prior, when the network has one.
+    /// `(B, D/s, h/s, (w + 2 p)/s)` -> `(B, D/s, h/s, w/s)`: the sphere's own columns.
+    fn crop_seam(&self, cost: Tensor) -> Result<Tensor> {
+        crop_longitude(&cost, self.cfg.seam_pad_cells, self.cfg.aggregation_stride)
+    }
+
     fn with_prior(&self, cost: Tensor) -> Result<Tensor> {
         match &self.logit_prior {
             Some(prior) => prior.forward(&cost),
@@ -257,8 +264,10 @@ impl Ssmode {
         } else {
             volume
         };
+        // (B, D, h, w + 2 p, C'') with p columns from across the longitude seam on each side
+        let volume = wrap_longitude(&volume, self.cfg.seam_pad_cells)?;
         mark("cost_volume");
-        // K x (B, D/s, h/s, w/s, Ch)
+        // K x (B, D/s, h/s, (w + 2 p)/s, Ch)
         let aggregated = self.aggregation.forward(&volume)?;
         drop(volume);
         mark("aggregation");
@@ -273,7 +282,7 @@ impl Ssmode {
                     what: "no hourglass stages".to_string(),
                 })?;
             // (B, D/s, h/s, w/s)
-            let cost = self.with_prior(head.forward(x)?)?;
+            let cost = self.with_prior(self.crop_seam(head.forward(x)?)?)?;
             drop(aggregated);
             // (B, H, W) each
             let r = regress_inference(
@@ -299,7 +308,7 @@ impl Ssmode {
         let mut last_probabilities = None;
         for (head, x) in self.classif.iter().zip(&aggregated) {
             // (B, D/s, h/s, w/s)
-            let cost = self.with_prior(head.forward(x)?)?;
+            let cost = self.with_prior(self.crop_seam(head.forward(x)?)?)?;
             // (B, H, W)
             let r = regress(
                 &cost,

@@ -148,11 +148,26 @@ mod tests {
             err.contains("weights.safetensors") && err.contains("refine_radius_cells"),
             "{err}"
         );
+        // 2 x 3 is not a multiple of the aggregation's divisor 8
+        for (seam_pad_cells, problem) in [(3, "multiple"), (1024, "wider")] {
+            let bad = SsmodeConfig {
+                seam_pad_cells,
+                ..SsmodeConfig::parallax_zncc()
+            };
+            let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
+            let err = read_config(&path).unwrap_err().to_string();
+            assert!(
+                err.contains("weights.safetensors")
+                    && err.contains("seam_pad_cells")
+                    && err.contains(problem),
+                "{err}"
+            );
+        }
     }
 
-    /// A file written before the far field and the edge refinement (no `far_parallax_cells`,
-    /// no `refine_radius_cells`) reads the default ones, and keeps its own far-plane
-    /// probability.
+    /// A file written before the far field, the edge refinement and the seam wrap (no
+    /// `far_parallax_cells`, `refine_radius_cells` or `seam_pad_cells`) reads the default ones
+    /// (no seam wrap), and keeps its own far-plane probability.
     #[test]
     fn files_without_the_far_field_get_the_default() {
         let dir = tempfile::tempdir().unwrap();
@@ -160,6 +175,7 @@ mod tests {
             serde_json::to_value(SsmodeConfig::parallax_zncc()).unwrap();
         json.as_object_mut().unwrap().remove("far_parallax_cells");
         json.as_object_mut().unwrap().remove("refine_radius_cells");
+        json.as_object_mut().unwrap().remove("seam_pad_cells");
         json["far_plane_probability"] = serde_json::json!(0.8);
         let cfg = read_config(file_with_config(dir.path(), &json.to_string())).unwrap();
         assert_eq!(
@@ -171,5 +187,7 @@ mod tests {
             cfg.refine_radius_cells,
             super::super::config::DEFAULT_REFINE_RADIUS_CELLS
         );
+        // trained with the 3-D convolutions' zero padding at the seam: kept so
+        assert_eq!(cfg.seam_pad_cells, 0);
     }
 }
