@@ -1,8 +1,8 @@
 //! 3-D stacked hourglass cost aggregation (PSMNet style), channels-last.
 //!
 //! ```text
-//! volume (B, D, H, W, C') -> dres0: 2 convs (the first with stride s) -> dres1: residual pair
-//!                                                                         (B, D/s, H/s, W/s, Ch)
+//! volume (B, D, H, W, C') -> dres0: 2 convs (the first with stride s; the seam wrap of p / s
+//!                            columns between them) -> dres1: residual pair (B, D/s, H/s, W'/s, Ch)
 //! hourglass k: conv1 s2 -> conv2 -> conv3 s2 -> conv4                      (B, D/4, H/4, W/4, 2 Ch)
 //!              conv5 deconv x2 (+ conv2 output) -> conv6 deconv x2 (+ input) (B, D, H, W, Ch)
 //! ```
@@ -11,6 +11,7 @@ use candle_core::{Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
 use super::config::SsmodeConfig;
+use super::seam::wrap_longitude;
 use crate::model::ops::{
     conv3d, conv3d_fused, conv_transpose3d, conv_transpose3d_x2_fused, is_inference, Epilogue,
 };
@@ -194,11 +195,16 @@ impl CostAggregation {
         })
     }
 
-    /// volume `(B, D, H, W, C')` -> one `(B, D/s, H/s, W/s, Ch)` per hourglass, `s` the entry
-    /// stride.
-    pub fn forward(&self, volume: &Tensor) -> Result<Vec<Tensor>> {
+    /// volume `(B, D, H, W, C')` -> one `(B, D/s, H/s, (W + 2 p)/s, Ch)` per hourglass, `s` the
+    /// entry stride, `p` = `seam_pad_cells`: after the entry convolution `p / s` columns from
+    /// across the longitude seam are copied to each side ([`super::seam`]), so every later
+    /// layer aggregates the seam with its true neighbours (the entry convolution's own zero
+    /// padding reaches one column).
+    pub fn forward(&self, volume: &Tensor, seam_pad_cells: usize) -> Result<Vec<Tensor>> {
         // (B, D/s, H/s, W/s, Ch)
         let x = self.dres0[0].forward_then(volume, self.entry_stride, None, true)?;
+        // (B, D/s, H/s, (W + 2 p)/s, Ch)
+        let x = wrap_longitude(&x, seam_pad_cells / self.entry_stride[2])?;
         let x = self.dres0[1].forward_then(&x, UNIT, None, true)?;
         let y = self.dres1[0].forward_then(&x, UNIT, None, true)?;
         let mut x = self.dres1[1].forward_then(&y, UNIT, Some(&x), false)?;

@@ -2,17 +2,19 @@
 //!
 //! The planar feature convolutions pad the ERP circularly in longitude ([`super::feature`]), but
 //! the 3-D convolutions of the aggregation pad every axis with zeros, so cells near longitude
-//! ±180° are aggregated as if the sphere ended there. Before the aggregation the cost volume is
-//! therefore widened by `p` cells copied across the seam on each side,
+//! ±180° would be aggregated as if the sphere ended there. After its entry convolution (stride
+//! `s`, at `1 / s` of the cost volume's size, so the copy is `s³` times smaller than the
+//! volume's) the aggregation's input is widened by `q = p / s` columns copied across the seam on
+//! each side,
 //!
 //! ```text
-//! padded[.., u, ..] = volume[.., (u − p) mod W, ..]      u = 0 .. W + 2 p
+//! padded[.., u, ..] = x[.., (u − q) mod W, ..]      u = 0 .. W + 2 q
 //! ```
 //!
-//! and each regression head's cost is cropped back to the `W / s` columns of the original
-//! sphere (`s` the aggregation's entry stride). Inside `p` cells of the padded border the
-//! aggregation still meets its zeros, but those cells are cropped away; at the seam itself
-//! every cell now has `p` true neighbours on each side. The presets train with it
+//! and each regression head's cost is cropped back to the sphere's own `W` columns. Inside `q`
+//! columns of the padded border the layers still meet their zeros, but those cells are cropped
+//! away; at the seam every cell has `q` true neighbours on each side (only the entry
+//! convolution's first column saw one zero column). The presets train with it
 //! ([`super::config::DEFAULT_SEAM_PAD_CELLS`]); weights files without the field keep the zero
 //! padding they were trained with. Measured with weights trained without it (models/README.md,
 //! "Longitude seam"): random objects +0.7 δ1 points on the validation seed at `p = 8`, other
@@ -22,8 +24,8 @@ use candle_core::{Result, Tensor};
 
 use crate::model::ops::OpsError;
 
-/// Axis of longitude in the cost volume `(B, D, H, W, C)` and in the aggregated cost
-/// `(B, D/s, H/s, W/s)`.
+/// Axis of longitude in the aggregation's volumes `(B, D, H, W, C)` and in the aggregated cost
+/// `(B, D, H, W)`.
 const LONGITUDE_AXIS: usize = 3;
 
 /// `(B, D, H, W, C)` -> `(B, D, H, W + 2 p, C)`: `p` columns from each side of the seam copied to
@@ -45,8 +47,9 @@ pub fn wrap_longitude(volume: &Tensor, pad_cells: usize) -> Result<Tensor> {
     Tensor::cat(&[&left, volume, &right], LONGITUDE_AXIS)
 }
 
-/// The aggregated cost `(B, D/s, H/s, (W + 2 p) / s)` of a volume widened by
-/// [`wrap_longitude`] -> `(B, D/s, H/s, W/s)`: the columns of the original sphere.
+/// The aggregated cost `(B, D/s, H/s, W/s + 2 p/s)` of an aggregation widened by `p / s`
+/// columns ([`wrap_longitude`] after its entry stride `s`) -> `(B, D/s, H/s, W/s)`: the columns
+/// of the sphere itself.
 pub fn crop_longitude(cost: &Tensor, pad_cells: usize, stride: usize) -> Result<Tensor> {
     if pad_cells == 0 {
         return Ok(cost.clone());

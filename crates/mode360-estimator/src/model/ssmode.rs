@@ -6,8 +6,8 @@
 //! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
 //! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
 //! position_channels         -> (B, D, h, w, C'' + 2)      optional sphere and latitude
-//! seam                      -> (B, D, h, w + 2 p, C'')   p cells across the longitude seam
-//! aggregation               -> K x (B, D/s, h/s, (w + 2 p)/s, Ch) stacked hourglasses, stride s
+//! aggregation               -> K x (B, D/s, h/s, (w + 2 p)/s, Ch) stacked hourglasses, entry
+//!                              stride s, then p/s columns copied across the longitude seam
 //! classif{k}, crop          -> K x (B, D/s, h/s, w/s)
 //! logit_prior               -> K x (B, D/s, h/s, w/s)    optional prior by latitude
 //! regression                -> K x (B, H, W) range, index; confidence of the last
@@ -26,7 +26,7 @@ use super::logit_prior::LogitPrior;
 use super::photometric_cost::photometric_cost;
 use super::position_channels::position_channels;
 use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
-use super::seam::{crop_longitude, wrap_longitude};
+use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{flop_count, OpsError};
 use mode360_core::geometry::DepthHypotheses;
@@ -264,11 +264,9 @@ impl Ssmode {
         } else {
             volume
         };
-        // (B, D, h, w + 2 p, C'') with p columns from across the longitude seam on each side
-        let volume = wrap_longitude(&volume, self.cfg.seam_pad_cells)?;
         mark("cost_volume");
-        // K x (B, D/s, h/s, (w + 2 p)/s, Ch)
-        let aggregated = self.aggregation.forward(&volume)?;
+        // K x (B, D/s, h/s, (w + 2 p)/s, Ch), p columns from across the longitude seam each side
+        let aggregated = self.aggregation.forward(&volume, self.cfg.seam_pad_cells)?;
         drop(volume);
         mark("aggregation");
         if !train {
