@@ -27,7 +27,7 @@ use super::lens_health::{
     BLOCKED_VOTE, MIN_REGION_FRACTION,
 };
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use mode360_core::frame::RgbImage;
+use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, Rig};
 
 /// Cells (of the analysis grid, about 2.8° each) by which a blocked region is grown.
@@ -211,21 +211,53 @@ impl LensGuard {
         images: &[RgbImage],
         output: ErpGrid,
     ) -> Result<DepthEstimate, EstimatorError> {
-        let first = self.window.frames().next().is_none();
-        estimator.set_lens_masks(&self.masks);
-        let mut estimate = estimator.estimate(rig, images, output)?;
-        self.window.add(lens_votes(rig, images, &estimate.range_m)?);
-        if self.masking {
-            let masks = lens_masks(self.window.frames());
-            if masks != self.masks {
-                self.masks = masks;
-                if first && self.masks.iter().any(Option::is_some) {
-                    estimator.set_lens_masks(&self.masks);
-                    estimate = estimator.estimate(rig, images, output)?;
-                }
-            }
+        let first = !self.has_checked();
+        let mut estimate = self.estimate_masked(estimator, rig, images, output)?;
+        let changed = self.check(rig, images, &estimate.range_m)?;
+        if changed && first && self.masks.iter().any(Option::is_some) {
+            estimator.set_lens_masks(&self.masks);
+            estimate = estimator.estimate(rig, images, output)?;
         }
         Ok(estimate)
+    }
+
+    /// Estimates with the masks the check has found so far, leaving this frame's check to
+    /// [`Self::check`] (the node runs it after publishing, off the latency path).
+    pub fn estimate_masked(
+        &self,
+        estimator: &mut dyn DepthEstimator,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        estimator.set_lens_masks(&self.masks);
+        estimator.estimate(rig, images, output)
+    }
+
+    /// The lens check of one complete group: adds its votes (from the images and the range
+    /// estimated from them) to the window and, when masking, renews the masks the next
+    /// estimates get. Returns whether the masks changed.
+    pub fn check(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        range_m: &FloatImage,
+    ) -> Result<bool, EstimatorError> {
+        self.window.add(lens_votes(rig, images, range_m)?);
+        if !self.masking {
+            return Ok(false);
+        }
+        let masks = lens_masks(self.window.frames());
+        if masks == self.masks {
+            return Ok(false);
+        }
+        self.masks = masks;
+        Ok(true)
+    }
+
+    /// Whether the check has seen a frame.
+    pub fn has_checked(&self) -> bool {
+        self.window.frames().next().is_some()
     }
 
     /// Estimates without masks and without a lens check: a partial group (`rig` a subset of the

@@ -183,6 +183,16 @@ pub struct Pipeline {
     /// The lens check, whose masks the estimator gets.
     lens: LensGuard,
     drift: CalibrationDriftMonitor,
+    /// The last group's lens and drift checks when [`Self::process_deferred`] left them to
+    /// [`Self::run_deferred_checks`].
+    deferred: Option<DeferredChecks>,
+}
+
+/// What the rig health checks of one complete group read.
+struct DeferredChecks {
+    images: Vec<RgbImage>,
+    /// The estimate before REP 117.
+    range_m: FloatImage,
 }
 
 impl Pipeline {
@@ -200,6 +210,7 @@ impl Pipeline {
             params,
             grid,
             lens: LensGuard::new(LENS_WINDOW_FRAMES, true),
+            deferred: None,
         })
     }
 
@@ -235,6 +246,63 @@ impl Pipeline {
         stamp_ns: u64,
         want: OutputRequest,
     ) -> Result<PipelineOutput, PipelineError> {
+        self.process_inner(group, stamp_ns, want, false)
+    }
+
+    /// [`Self::process_with`] for the live node: the lens and calibration drift checks of a
+    /// complete group (but the first) are left to [`Self::run_deferred_checks`], which the node
+    /// runs after publishing, so they stay off the latency path. The outputs are the same: the
+    /// masks a check finds apply from the next group either way. The output's `lens` and
+    /// `calibration` are then as of the previous group; [`Self::lens_health`] and
+    /// [`Self::calibration_drift`] give them after the checks.
+    pub fn process_deferred(
+        &mut self,
+        group: Vec<Option<RgbImage>>,
+        stamp_ns: u64,
+        want: OutputRequest,
+    ) -> Result<PipelineOutput, PipelineError> {
+        self.process_inner(group, stamp_ns, want, true)
+    }
+
+    /// Runs the checks [`Self::process_deferred`] left for its last group (nothing when none
+    /// are pending).
+    pub fn run_deferred_checks(&mut self) -> Result<(), PipelineError> {
+        let Some(d) = self.deferred.take() else {
+            return Ok(());
+        };
+        self.lens.check(&self.rig, &d.images, &d.range_m)?;
+        self.drift.add(&d.images, &d.range_m)?;
+        Ok(())
+    }
+
+    /// Each camera's lens health (rig order; empty with the checks off or before the first).
+    pub fn lens_health(&self) -> Vec<LensHealth> {
+        if self.params.rig_health_checks {
+            self.lens.health()
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// Each camera's calibration as the drift check sees it (rig order; empty with the checks
+    /// off or before the first check).
+    pub fn calibration_drift(&self) -> Vec<CalibrationDrift> {
+        if self.params.rig_health_checks {
+            self.drift.drift()
+        } else {
+            Vec::new()
+        }
+    }
+
+    fn process_inner(
+        &mut self,
+        group: Vec<Option<RgbImage>>,
+        stamp_ns: u64,
+        want: OutputRequest,
+        defer: bool,
+    ) -> Result<PipelineOutput, PipelineError> {
+        // The checks of the previous group come first: its masks apply to this one.
+        self.run_deferred_checks()?;
         let t0 = Instant::now();
         if group.len() != self.rig.cameras.len() {
             return Err(PipelineError::GroupSize {
@@ -281,7 +349,20 @@ impl Pipeline {
             let sub = self.rig.subset(&present)?;
             self.lens
                 .estimate_partial(self.estimator.as_mut(), &sub, &images, self.grid)?
+        } else if checked && defer && self.lens.has_checked() {
+            let estimate = self.lens.estimate_masked(
+                self.estimator.as_mut(),
+                &self.rig,
+                &images,
+                self.grid,
+            )?;
+            self.deferred = Some(DeferredChecks {
+                images: images.clone(),
+                range_m: estimate.range_m.clone(),
+            });
+            estimate
         } else if checked {
+            // The first group is checked at once: a blocked lens found there is masked in it.
             let estimate =
                 self.lens
                     .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
@@ -334,16 +415,8 @@ impl Pipeline {
             points,
             confidence: image_msg_from_float(header, &estimate.confidence),
             missing_cameras,
-            lens: if checked {
-                self.lens.health()
-            } else {
-                Vec::new()
-            },
-            calibration: if checked {
-                self.drift.drift()
-            } else {
-                Vec::new()
-            },
+            lens: self.lens_health(),
+            calibration: self.calibration_drift(),
             latency: t0.elapsed(),
         })
     }

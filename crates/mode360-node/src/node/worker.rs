@@ -78,8 +78,9 @@ pub(super) struct OutputPublishers {
     pub(super) confidence: Publisher<Image>,
 }
 
-/// The inference thread: takes the newest group until shutdown, runs the pipeline, publishes
-/// and updates the health counters.
+/// The inference thread: takes the newest group until shutdown, runs the pipeline, publishes,
+/// runs the group's lens and drift checks (after publishing: off the latency path) and updates
+/// the health counters.
 pub(super) fn worker_main(
     mut pipeline: Pipeline,
     publishers: OutputPublishers,
@@ -121,7 +122,7 @@ pub(super) fn worker_main(
                 && (shared.compressed_depth_wanted.load(Ordering::Relaxed)
                     || live.is_some_and(|l| l.compressed_depth.wanted())),
         };
-        match pipeline.process_with(images, group.stamp_ns, want) {
+        match pipeline.process_deferred(images, group.stamp_ns, want) {
             Ok(out) => {
                 if let Some(live) = live {
                     live.depth.log(&out.depth);
@@ -155,11 +156,16 @@ pub(super) fn worker_main(
                         errors.push(format!("publishing confidence: {e:?}"));
                     }
                 }
+                // The lens and drift checks of this group, after its messages are out.
+                if let Err(e) = pipeline.run_deferred_checks() {
+                    errors.push(format!("rig health checks: {e}"));
+                }
+                let (lens, calibration) = (pipeline.lens_health(), pipeline.calibration_drift());
                 let ms = out.latency.as_secs_f64() * 1e3;
                 let mut h = lock(&shared.health);
                 h.groups_processed += 1;
-                h.record_lens(&out.lens);
-                h.record_calibration(&out.calibration);
+                h.record_lens(&lens);
+                h.record_calibration(&calibration);
                 if skipped_points {
                     h.clouds_skipped += 1;
                 }

@@ -292,3 +292,65 @@ fn rig_health_checks_off_skip_the_lens_and_drift_checks() {
         width * width / 2
     );
 }
+
+/// The live node's deferred checks (after publishing) give the same messages as checking at
+/// once, and the same lens health and drift once they have run; before that the output
+/// carries the previous group's.
+#[test]
+fn deferred_checks_match_checks_at_once() {
+    let width = 256;
+    // Camera k: a texture of its own that changes per group; camera 3's lower half flat grey.
+    let group = |p: &Pipeline, g: u32| -> Vec<Option<RgbImage>> {
+        (0..p.rig().cameras.len() as u32)
+            .map(|k| {
+                Some(RgbImage::from_fn(width as u32, width as u32 / 2, |u, v| {
+                    if k == 2 && v > width as u32 / 4 {
+                        return image::Rgb([128, 128, 128]);
+                    }
+                    let t = (u * 7 + v * 13 + k * 31 + g * 17) % 251;
+                    image::Rgb([t as u8, (t * 3 % 256) as u8, (u ^ v) as u8])
+                }))
+            })
+            .collect()
+    };
+    let mut at_once = pipeline(width);
+    let mut deferred = pipeline(width);
+    let mut previous: Option<(Vec<LensHealth>, Vec<CalibrationDrift>)> = None;
+    for g in 0..4 {
+        let a = at_once
+            .process(group(&at_once, g), 10 + u64::from(g))
+            .unwrap();
+        let d = deferred
+            .process_deferred(group(&deferred, g), 10 + u64::from(g), OutputRequest::ALL)
+            .unwrap();
+        assert_eq!(a.depth.data, d.depth.data, "group {g}: depth");
+        assert_eq!(
+            a.points.as_ref().map(|p| &p.data),
+            d.points.as_ref().map(|p| &p.data),
+            "group {g}: points"
+        );
+        match &previous {
+            // the first group is checked at once in both
+            None => assert_eq!((&a.lens, &a.calibration), (&d.lens, &d.calibration)),
+            Some((lens, calibration)) => {
+                assert_eq!((&d.lens, &d.calibration), (lens, calibration), "group {g}")
+            }
+        }
+        deferred.run_deferred_checks().unwrap();
+        assert_eq!(deferred.lens_health(), a.lens, "group {g}: lens health");
+        assert_eq!(
+            deferred.calibration_drift(),
+            a.calibration,
+            "group {g}: drift"
+        );
+        assert_eq!(a.lens.len(), at_once.rig().cameras.len());
+        if let Some((lens, _)) = &previous {
+            // each group's votes move the health, so a stale figure would show
+            assert_ne!(&a.lens, lens, "group {g}: the health moved");
+        }
+        previous = Some((a.lens.clone(), a.calibration.clone()));
+    }
+    // nothing pending: a second run is a no-op
+    deferred.run_deferred_checks().unwrap();
+    assert_eq!(deferred.lens_health(), previous.unwrap().0);
+}
