@@ -124,6 +124,20 @@ pub(super) fn worker_main(
         };
         match pipeline.process_deferred(images, group.stamp_ns, want) {
             Ok(out) => {
+                // Counted before the messages go out, so that whoever receives them sees them
+                // counted.
+                let skipped_points = out.points.is_none();
+                let ms = out.latency.as_secs_f64() * 1e3;
+                total_ms += ms;
+                {
+                    let mut h = lock(&shared.health);
+                    h.groups_processed += 1;
+                    if skipped_points {
+                        h.clouds_skipped += 1;
+                    }
+                    h.last_latency_ms = Some(ms);
+                    h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);
+                }
                 if let Some(live) = live {
                     live.depth.log(&out.depth);
                     if let Some(m) = &out.compressed_depth {
@@ -145,7 +159,6 @@ pub(super) fn worker_main(
                         errors.push(format!("publishing depth/compressedDepth: {e:?}"));
                     }
                 }
-                let skipped_points = out.points.is_none();
                 if let Some(points) = out.points {
                     if let Err(e) = publishers.points.publish(points) {
                         errors.push(format!("publishing points: {e:?}"));
@@ -161,17 +174,9 @@ pub(super) fn worker_main(
                     errors.push(format!("rig health checks: {e}"));
                 }
                 let (lens, calibration) = (pipeline.lens_health(), pipeline.calibration_drift());
-                let ms = out.latency.as_secs_f64() * 1e3;
                 let mut h = lock(&shared.health);
-                h.groups_processed += 1;
                 h.record_lens(&lens);
                 h.record_calibration(&calibration);
-                if skipped_points {
-                    h.clouds_skipped += 1;
-                }
-                total_ms += ms;
-                h.last_latency_ms = Some(ms);
-                h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);
                 if let Some(e) = errors.pop() {
                     h.pipeline_errors += 1;
                     h.last_pipeline_error = Some(e);
