@@ -109,9 +109,10 @@ pub struct SsmodeConfig {
     /// files without it get the default.
     #[serde(default = "default_refine_radius_cells")]
     pub refine_radius_cells: usize,
-    /// Cost-volume cells copied across the longitude seam to each side before the 3-D
-    /// aggregation, whose convolutions pad with zeros, so that cells near longitude ±180° are
-    /// aggregated with their true neighbours ([`super::seam`]); 0 turns it off. Twice it must be
+    /// Cost-volume cells copied across the longitude seam to each side in the 3-D aggregation
+    /// (after its entry convolution, at `1 / aggregation_stride` of them), whose convolutions pad
+    /// with zeros, so that cells near longitude ±180° are aggregated with their true neighbours
+    /// ([`super::seam`]); 0 turns it off. Twice it must be
     /// a multiple of `4 aggregation_stride`. Files without it get 0, the zero padding they were
     /// trained with; the presets train with [`DEFAULT_SEAM_PAD_CELLS`].
     #[serde(default)]

@@ -144,12 +144,13 @@ impl Ssmode {
         })
     }
 
-    /// A regression head's cost with the logit prior, when the network has one.
-    /// `(B, D/s, h/s, (w + 2 p)/s)` -> `(B, D/s, h/s, w/s)`: the sphere's own columns.
+    /// A regression head's cost `(B, D/s, h/s, (w + 2 p)/s)` -> `(B, D/s, h/s, w/s)`: the
+    /// sphere's own columns, without the seam wrap's.
     fn crop_seam(&self, cost: Tensor) -> Result<Tensor> {
         crop_longitude(&cost, self.cfg.seam_pad_cells, self.cfg.aggregation_stride)
     }
 
+    /// A regression head's cost with the logit prior, when the network has one.
     fn with_prior(&self, cost: Tensor) -> Result<Tensor> {
         match &self.logit_prior {
             Some(prior) => prior.forward(&cost),
