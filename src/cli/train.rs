@@ -53,6 +53,15 @@ pub struct TrainArgs {
     /// instead of a random initialisation. Ignored when --resume finds a checkpoint.
     #[arg(long)]
     pub init_weights: Option<PathBuf>,
+    /// Start a new run from another run's folder (or its checkpoint/): its weights, optimizer
+    /// moments, step and sample position, with this run's seed and data options (an ablation of
+    /// the data mix at equal steps). Ignored when --resume finds a checkpoint.
+    #[arg(long, conflicts_with = "init_weights")]
+    pub fork_from: Option<PathBuf>,
+    /// Stop after this step; the learning-rate schedule still runs over --steps (the arms of
+    /// an ablation stop at the same step).
+    #[arg(long)]
+    pub until_step: Option<usize>,
     /// Fraction of rendered samples that are random-objects scenes (1: pretraining for
     /// matching; the rest are streets).
     #[arg(long, default_value_t = 0.0)]
@@ -109,6 +118,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         deep360_disk: a.deep360,
         deep360_disk_fraction: a.deep360_fraction,
         init_weights: a.init_weights,
+        fork_from: a.fork_from,
+        until_step: a.until_step,
         objects_fraction: a.objects_fraction,
         street: a.street,
         fisheye_fraction: a.fisheye_fraction,

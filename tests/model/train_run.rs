@@ -25,6 +25,8 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         deep360_disk: None,
         deep360_disk_fraction: 1.0,
         init_weights: None,
+        fork_from: None,
+        until_step: None,
         objects_fraction: 0.5,
         street: mode360::synth::StreetStyle::Varied,
         fisheye_fraction: 0.25,
@@ -183,6 +185,110 @@ fn init_weights_start_a_run_from_a_weights_file() {
     let err = run_training(&wrong).unwrap_err().to_string();
     assert!(
         err.contains("init_weights") && err.contains("'tiny'"),
+        "{err}"
+    );
+}
+
+/// The arms of a data-mix ablation: `until_step` stops a run where a resumed one then goes on
+/// exactly (the schedule follows `steps`), and a fork of a checkpoint with the same options
+/// continues it exactly too, while one with another data mix is accepted where a resume is
+/// refused, and one of another network is refused naming the field. One-thread pool, as above.
+#[test]
+fn forks_and_until_step_continue_a_run_exactly() {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(forks_and_until_step_body);
+}
+
+fn forks_and_until_step_body() {
+    let full_dir = tempfile::tempdir().unwrap();
+    let full = run_training(&opts(full_dir.path(), 4)).unwrap();
+
+    // until_step 2 of a 4-step schedule, then resumed to the end
+    let stop_dir = tempfile::tempdir().unwrap();
+    let stopped = run_training(&TrainOptions {
+        until_step: Some(2),
+        ..opts(stop_dir.path(), 4)
+    })
+    .unwrap();
+    assert_eq!((stopped.start_step, stopped.final_step), (0, 2));
+    let resumed = run_training(&TrainOptions {
+        resume: true,
+        ..opts(stop_dir.path(), 4)
+    })
+    .unwrap();
+    assert_eq!((resumed.start_step, resumed.final_step), (2, 4));
+    assert_eq!(
+        weights(&resumed.weights_path),
+        weights(&full.weights_path),
+        "until_step 2 + resume differs from 4 steps at once"
+    );
+
+    // a fork of a step-2 checkpoint with the same options
+    let again = tempfile::tempdir().unwrap();
+    run_training(&TrainOptions {
+        until_step: Some(2),
+        ..opts(again.path(), 4)
+    })
+    .unwrap();
+    let fork_dir = tempfile::tempdir().unwrap();
+    let forked = run_training(&TrainOptions {
+        fork_from: Some(again.path().to_path_buf()),
+        ..opts(fork_dir.path(), 4)
+    })
+    .unwrap();
+    assert_eq!((forked.start_step, forked.final_step), (2, 4));
+    assert_eq!(
+        weights(&forked.weights_path),
+        weights(&full.weights_path),
+        "a same-options fork differs from the run it forked"
+    );
+    let train = Csv::read(&fork_dir.path().join(TRAIN_CSV));
+    assert_eq!(train.column("step"), vec![3.0, 4.0]);
+
+    // another data mix: a resume refuses it, a fork takes it and trains on other samples
+    let other_mix = |o: TrainOptions| TrainOptions {
+        objects_fraction: 0.0,
+        street: mode360::synth::StreetStyle::Regular,
+        ..o
+    };
+    let err = run_training(&other_mix(TrainOptions {
+        resume: true,
+        ..opts(again.path(), 4)
+    }))
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("objects_fraction"), "{err}");
+    let mix_dir = tempfile::tempdir().unwrap();
+    let mixed = run_training(&other_mix(TrainOptions {
+        fork_from: Some(again.path().join(CHECKPOINT_DIR)),
+        ..opts(mix_dir.path(), 4)
+    }))
+    .unwrap();
+    assert_eq!((mixed.start_step, mixed.final_step), (2, 4));
+    assert_ne!(weights(&mixed.weights_path), weights(&full.weights_path));
+
+    // another network: refused naming the preset; no checkpoint at all: refused naming the folder
+    let wrong_dir = tempfile::tempdir().unwrap();
+    let err = run_training(&TrainOptions {
+        preset: mode360::model::Preset::Compact,
+        fork_from: Some(again.path().to_path_buf()),
+        ..opts(wrong_dir.path(), 4)
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("'preset' was tiny"), "{err}");
+    let empty = tempfile::tempdir().unwrap();
+    let err = run_training(&TrainOptions {
+        fork_from: Some(empty.path().to_path_buf()),
+        ..opts(wrong_dir.path(), 4)
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("fork_from") && err.contains("no checkpoint"),
         "{err}"
     );
 }

@@ -131,13 +131,25 @@ pub(super) fn find_checkpoint(out_dir: &Path) -> Option<PathBuf> {
     .find(|d| d.join(STATE_FILE).is_file())
 }
 
+/// What a run takes over from a saved checkpoint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Restore {
+    /// The same run continues: every option (network, seed, data mix) must match.
+    Resume,
+    /// A new run continues from another run's checkpoint with its own seed and data mix: only
+    /// the network (preset, width) and the batch size must match.
+    Fork,
+}
+
 /// Restores weights, optimizer moments and bookkeeping from `dir`, checking that the run's
-/// options match.
+/// options match (all of them for [`Restore::Resume`], the network's for [`Restore::Fork`]).
+/// A fork keeps `expected`'s options and takes the step, sample position and training time.
 pub(super) fn load_checkpoint(
     dir: &Path,
     varmap: &mut VarMap,
     opt: &mut AdamW,
     expected: &CheckpointState,
+    restore: Restore,
     device: &Device,
 ) -> Result<CheckpointState, TrainError> {
     let state_path = dir.join(STATE_FILE);
@@ -147,9 +159,13 @@ pub(super) fn load_checkpoint(
             path: state_path.display().to_string(),
             problem: format!("malformed: {e}"),
         })?;
+    let advice = match restore {
+        Restore::Resume => "; use a new out_dir",
+        Restore::Fork => "",
+    };
     let mismatch = |field: &str, saved: String, now: String| TrainError::Checkpoint {
         path: state_path.display().to_string(),
-        problem: format!("'{field}' was {saved} but this run uses {now}; use a new out_dir"),
+        problem: format!("'{field}' was {saved} but this run uses {now}{advice}"),
     };
     if state.version != STATE_VERSION {
         return Err(mismatch(
@@ -172,13 +188,6 @@ pub(super) fn load_checkpoint(
             expected.width.to_string(),
         ));
     }
-    if state.seed != expected.seed {
-        return Err(mismatch(
-            "seed",
-            state.seed.to_string(),
-            expected.seed.to_string(),
-        ));
-    }
     if state.batch_size != expected.batch_size {
         return Err(mismatch(
             "batch_size",
@@ -186,54 +195,63 @@ pub(super) fn load_checkpoint(
             expected.batch_size.to_string(),
         ));
     }
-    if state.objects_fraction != expected.objects_fraction {
-        return Err(mismatch(
-            "objects_fraction",
-            state.objects_fraction.to_string(),
-            expected.objects_fraction.to_string(),
-        ));
-    }
-    if state.fisheye_fraction != expected.fisheye_fraction {
-        return Err(mismatch(
-            "fisheye_fraction",
-            state.fisheye_fraction.to_string(),
-            expected.fisheye_fraction.to_string(),
-        ));
-    }
-    if state.rig_layouts != expected.rig_layouts {
-        return Err(mismatch(
-            "rig_layouts",
-            state.rig_layouts.as_str().to_string(),
-            expected.rig_layouts.as_str().to_string(),
-        ));
-    }
-    if state.rig_pool != expected.rig_pool {
-        return Err(mismatch(
-            "rig_pool",
-            state.rig_pool.to_string(),
-            expected.rig_pool.to_string(),
-        ));
-    }
-    if state.blocked_fraction != expected.blocked_fraction {
-        return Err(mismatch(
-            "blocked_fraction",
-            state.blocked_fraction.to_string(),
-            expected.blocked_fraction.to_string(),
-        ));
-    }
-    if state.street != expected.street {
-        return Err(mismatch(
-            "street",
-            state.street.as_str().to_string(),
-            expected.street.as_str().to_string(),
-        ));
-    }
-    if state.deep360_disk != expected.deep360_disk {
-        return Err(mismatch(
-            "deep360_disk",
-            format!("{:?}", state.deep360_disk),
-            format!("{:?}", expected.deep360_disk),
-        ));
+    if restore == Restore::Resume {
+        if state.seed != expected.seed {
+            return Err(mismatch(
+                "seed",
+                state.seed.to_string(),
+                expected.seed.to_string(),
+            ));
+        }
+        if state.objects_fraction != expected.objects_fraction {
+            return Err(mismatch(
+                "objects_fraction",
+                state.objects_fraction.to_string(),
+                expected.objects_fraction.to_string(),
+            ));
+        }
+        if state.fisheye_fraction != expected.fisheye_fraction {
+            return Err(mismatch(
+                "fisheye_fraction",
+                state.fisheye_fraction.to_string(),
+                expected.fisheye_fraction.to_string(),
+            ));
+        }
+        if state.rig_layouts != expected.rig_layouts {
+            return Err(mismatch(
+                "rig_layouts",
+                state.rig_layouts.as_str().to_string(),
+                expected.rig_layouts.as_str().to_string(),
+            ));
+        }
+        if state.rig_pool != expected.rig_pool {
+            return Err(mismatch(
+                "rig_pool",
+                state.rig_pool.to_string(),
+                expected.rig_pool.to_string(),
+            ));
+        }
+        if state.blocked_fraction != expected.blocked_fraction {
+            return Err(mismatch(
+                "blocked_fraction",
+                state.blocked_fraction.to_string(),
+                expected.blocked_fraction.to_string(),
+            ));
+        }
+        if state.street != expected.street {
+            return Err(mismatch(
+                "street",
+                state.street.as_str().to_string(),
+                expected.street.as_str().to_string(),
+            ));
+        }
+        if state.deep360_disk != expected.deep360_disk {
+            return Err(mismatch(
+                "deep360_disk",
+                format!("{:?}", state.deep360_disk),
+                format!("{:?}", expected.deep360_disk),
+            ));
+        }
     }
     let model_path = dir.join(MODEL_FILE);
     varmap
@@ -253,5 +271,13 @@ pub(super) fn load_checkpoint(
             path: opt_path.display().to_string(),
             problem,
         })?;
-    Ok(state)
+    Ok(match restore {
+        Restore::Resume => state,
+        Restore::Fork => CheckpointState {
+            step: state.step,
+            next_sample_index: state.next_sample_index,
+            train_s: state.train_s,
+            ..expected.clone()
+        },
+    })
 }

@@ -96,9 +96,24 @@ pub struct TrainOptions {
     /// Start a new run (not a resumed one) from these weights instead of the random
     /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
     pub init_weights: Option<PathBuf>,
+    /// Start a new run from another run's checkpoint folder (its `checkpoint/` or the folder
+    /// itself): its weights, optimizer moments, step and sample position, with this run's data
+    /// options. The arms of a data-mix ablation fork one checkpoint and compare at equal steps.
+    /// Only the network (preset, width) and the batch size must match.
+    pub fork_from: Option<PathBuf>,
+    /// Stop after this step although the learning-rate schedule runs over `steps` (an
+    /// ablation arm stops where the others do; `None`: run to `steps`).
+    pub until_step: Option<usize>,
     /// Where the network trains (the CPU, or a CUDA GPU with the `cuda` feature).
     pub device: ComputeDevice,
     pub show_progress: bool,
+}
+
+impl TrainOptions {
+    /// The step a run stops after: `steps`, or `until_step` when that comes first.
+    pub fn last_step(&self) -> usize {
+        self.until_step.map_or(self.steps, |u| u.min(self.steps))
+    }
 }
 
 impl Default for TrainOptions {
@@ -130,6 +145,8 @@ impl Default for TrainOptions {
             rig_pool: 0,
             max_grad_norm: None,
             init_weights: None,
+            fork_from: None,
+            until_step: None,
             device: ComputeDevice::Cpu,
             show_progress: true,
         }

@@ -5,8 +5,8 @@
 //! `Trainer::new(opts)?.run()`.
 
 use super::checkpoint::{
-    find_checkpoint, load_checkpoint, write_checkpoint, CheckpointState, Deep360DiskState,
-    STATE_VERSION,
+    find_checkpoint, load_checkpoint, write_checkpoint, CheckpointState, Deep360DiskState, Restore,
+    STATE_FILE, STATE_VERSION,
 };
 use super::data::{
     render_sample, validation_specs, DataConfig, Deep360Mix, SampleStream, TrainSample,
@@ -109,12 +109,37 @@ impl Trainer {
         let mut resumed = false;
         if opts.resume {
             if let Some(dir) = find_checkpoint(&opts.out_dir) {
-                state = load_checkpoint(&dir, &mut varmap, &mut opt, &state, &device)?;
+                state = load_checkpoint(
+                    &dir,
+                    &mut varmap,
+                    &mut opt,
+                    &state,
+                    Restore::Resume,
+                    &device,
+                )?;
                 resumed = true;
             }
         }
-        if let (false, Some(init)) = (resumed, &opts.init_weights) {
-            load_init_weights(init, &cfg, &mut varmap)?;
+        match (resumed, &opts.init_weights, &opts.fork_from) {
+            (true, _, _) | (false, None, None) => {}
+            (false, Some(init), None) => load_init_weights(init, &cfg, &mut varmap)?,
+            (false, None, Some(run)) => {
+                let dir = find_checkpoint(run)
+                    .or_else(|| run.join(STATE_FILE).is_file().then(|| run.clone()))
+                    .ok_or_else(|| TrainError::Option {
+                        option: "fork_from",
+                        problem: format!("no checkpoint in {}", run.display()),
+                    })?;
+                state =
+                    load_checkpoint(&dir, &mut varmap, &mut opt, &state, Restore::Fork, &device)?;
+            }
+            (false, Some(_), Some(_)) => {
+                return Err(TrainError::Option {
+                    option: "fork_from",
+                    problem: "a run starts from init_weights or forks a checkpoint, not both"
+                        .into(),
+                })
+            }
         }
         let train_csv = opts.out_dir.join(TRAIN_CSV);
         let val_csv = opts.out_dir.join(VAL_CSV);
@@ -172,7 +197,7 @@ impl Trainer {
         bar.set_position(start_step as u64);
         let run_start = Instant::now();
         let last_checkpoint = Instant::now();
-        let stream = if start_step < opts.steps {
+        let stream = if start_step < opts.last_step() {
             Some(SampleStream::start(
                 data_cfg.clone(),
                 state.next_sample_index,
@@ -219,9 +244,9 @@ impl Trainer {
         self.start_step
     }
 
-    /// Whether all `opts.steps` steps are done.
+    /// Whether all `opts.steps` steps are done, or the run reached `opts.until_step`.
     pub fn is_finished(&self) -> bool {
-        self.state.step >= self.opts.steps
+        self.state.step >= self.opts.last_step()
     }
 
     /// One optimizer step: `batch_size` forward/backward passes on the next samples of the
