@@ -345,6 +345,9 @@ impl Pipeline {
             return Err(PipelineError::SizeMismatch { sizes });
         }
         let checked = self.params.rig_health_checks;
+        // The estimate before REP 117 that a deferred check reads (with the images, moved in
+        // once the point cloud is built).
+        let mut deferred_range_m = None;
         let mut estimate = if !missing_cameras.is_empty() {
             let sub = self.rig.subset(&present)?;
             self.lens
@@ -356,10 +359,7 @@ impl Pipeline {
                 &images,
                 self.grid,
             )?;
-            self.deferred = Some(DeferredChecks {
-                images: images.clone(),
-                range_m: estimate.range_m.clone(),
-            });
+            deferred_range_m = Some(estimate.range_m.clone());
             estimate
         } else if checked {
             // The first group is checked at once: a blocked lens found there is masked in it.
@@ -409,6 +409,9 @@ impl Pipeline {
         } else {
             None
         };
+        if let Some(range_m) = deferred_range_m {
+            self.deferred = Some(DeferredChecks { images, range_m });
+        }
         Ok(PipelineOutput {
             depth: image_msg_from_float(header.clone(), &estimate.range_m),
             compressed_depth,
