@@ -12,12 +12,14 @@
 # blocked, and random rigs from a pool renewed every 400 samples, so that sweep tables are built
 # once per pool rig, not per step.
 #
-# `w256` (the default since 2026-11-27, ninth session) -> runs/standing_w256_ship/: continues the
-# shipped weights (the 128 stage's step 17,932 plus 971 steps at 256 on an H200,
+# `w256` (the default since 2026-11-27, ninth session) -> runs/standing_w256_ship/: started from the
+# weights shipped then (the 128 stage's step 17,932 plus 971 steps at 256 on an H200,
 # runs/gpu_w256/) at the deployable width 256 on fresh samples (data seed 2), lr 5e-5 after 50 warm-up steps on a cosine over
 # W256_STEPS (20,000, so that it stays near its peak for many sessions), a rig pool of 6 (sweep
 # tables at 256 take about 0.8 GiB per rig with their transposes), validation at 256 every 250
-# steps. Why: at 128 the validation δ1 stopped rising (92.58 to 92.99 between steps 16,500 and
+# steps. Since the eleventh session the shipped file is the mean of this run's step 2,000 and a
+# fork of its step 1,650 trained side by side (models/ablation_objects.sh,
+# models/average_weights.py); this run continues the first. Why: at 128 the validation δ1 stopped rising (92.58 to 92.99 between steps 16,500 and
 # 23,000), while 971 steps at 256 took it from 93.0 to 95.6 at 256 (models/README.md, "Standing
 # training job").
 #

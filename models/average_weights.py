@@ -1,0 +1,97 @@
+#!/usr/bin/env python3
+"""Averages SSMODE weights files tensor by tensor (a "model soup"): runs forked from one
+checkpoint and trained side by side on this 2-core machine, one thread each, give one set of
+weights. The files must hold the same tensors (names, shapes, F32) and the same `mode360.config`
+header metadata, which the output keeps; anything else is an error naming the file and tensor.
+
+    models/average_weights.py A.safetensors B.safetensors [...] --out SOUP.safetensors
+"""
+import argparse
+import json
+import struct
+import sys
+from array import array
+
+HEADER_ALIGN = 8
+METADATA = "__metadata__"
+
+
+def read(path):
+    """(header dict, data bytes after the header) of a safetensors file."""
+    with open(path, "rb") as f:
+        data = f.read()
+    if len(data) < 8:
+        sys.exit(f"{path}: not a safetensors file (shorter than its length prefix)")
+    (n,) = struct.unpack("<Q", data[:8])
+    try:
+        header = json.loads(data[8 : 8 + n])
+    except ValueError as e:
+        sys.exit(f"{path}: unreadable safetensors header ({e})")
+    return header, data[8 + n :]
+
+
+def tensor(path, header, body, name):
+    info = header[name]
+    if info.get("dtype") != "F32":
+        sys.exit(f"{path}: tensor {name} is {info.get('dtype')}, only F32 is averaged")
+    start, end = info["data_offsets"]
+    values = array("f")
+    values.frombytes(body[start:end])
+    if sys.byteorder != "little":
+        values.byteswap()
+    return values
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("weights", nargs="+")
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args()
+    if len(args.weights) < 2:
+        sys.exit("average_weights: give at least two weights files")
+    files = [(p, *read(p)) for p in args.weights]
+    first_path, first_header, _ = files[0]
+    names = sorted(k for k in first_header if k != METADATA)
+    for path, header, _ in files[1:]:
+        if header.get(METADATA) != first_header.get(METADATA):
+            sys.exit(f"{path}: header metadata (the network's config) differs from {first_path}")
+        other = sorted(k for k in header if k != METADATA)
+        if other != names:
+            missing = sorted(set(names) ^ set(other))
+            sys.exit(f"{path}: tensors differ from {first_path}: {', '.join(missing[:5])}")
+        for name in names:
+            if header[name]["shape"] != first_header[name]["shape"]:
+                sys.exit(
+                    f"{path}: tensor {name} has shape {header[name]['shape']}, "
+                    f"{first_path} {first_header[name]['shape']}"
+                )
+    out_header = {METADATA: first_header[METADATA]} if METADATA in first_header else {}
+    chunks = []
+    offset = 0
+    scale = 1.0 / len(files)
+    for name in names:
+        sums = None
+        for path, header, body in files:
+            values = tensor(path, header, body, name)
+            sums = values if sums is None else array("f", (a + b for a, b in zip(sums, values)))
+        mean = array("f", (v * scale for v in sums))
+        if sys.byteorder != "little":
+            mean.byteswap()
+        raw = mean.tobytes()
+        out_header[name] = {
+            "dtype": "F32",
+            "shape": first_header[name]["shape"],
+            "data_offsets": [offset, offset + len(raw)],
+        }
+        chunks.append(raw)
+        offset += len(raw)
+    head = json.dumps(out_header, separators=(",", ":")).encode()
+    head += b" " * ((HEADER_ALIGN - len(head) % HEADER_ALIGN) % HEADER_ALIGN)
+    with open(args.out, "wb") as f:
+        f.write(struct.pack("<Q", len(head)) + head + b"".join(chunks))
+    print(f"{args.out}: mean of {len(files)} files, {len(names)} tensors, {offset // 4} values")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
