@@ -163,95 +163,73 @@ pub(super) fn load_checkpoint(
         Restore::Resume => "; use a new out_dir",
         Restore::Fork => "",
     };
-    let mismatch = |field: &str, saved: String, now: String| TrainError::Checkpoint {
-        path: state_path.display().to_string(),
-        problem: format!("'{field}' was {saved} but this run uses {now}{advice}"),
-    };
-    if state.version != STATE_VERSION {
-        return Err(mismatch(
+    // (field, saved, this run's), compared as text: Rust prints a float so that it reads back
+    // exactly, so equal text is equal value.
+    let network = [
+        (
             "version",
             state.version.to_string(),
             STATE_VERSION.to_string(),
-        ));
-    }
-    if state.preset != expected.preset {
-        return Err(mismatch(
-            "preset",
-            state.preset.clone(),
-            expected.preset.clone(),
-        ));
-    }
-    if state.width != expected.width {
-        return Err(mismatch(
-            "width",
-            state.width.to_string(),
-            expected.width.to_string(),
-        ));
-    }
-    if state.batch_size != expected.batch_size {
-        return Err(mismatch(
+        ),
+        ("preset", state.preset.clone(), expected.preset.clone()),
+        ("width", state.width.to_string(), expected.width.to_string()),
+        (
             "batch_size",
             state.batch_size.to_string(),
             expected.batch_size.to_string(),
-        ));
-    }
-    if restore == Restore::Resume {
-        if state.seed != expected.seed {
-            return Err(mismatch(
-                "seed",
-                state.seed.to_string(),
-                expected.seed.to_string(),
-            ));
-        }
-        if state.objects_fraction != expected.objects_fraction {
-            return Err(mismatch(
-                "objects_fraction",
-                state.objects_fraction.to_string(),
-                expected.objects_fraction.to_string(),
-            ));
-        }
-        if state.fisheye_fraction != expected.fisheye_fraction {
-            return Err(mismatch(
-                "fisheye_fraction",
-                state.fisheye_fraction.to_string(),
-                expected.fisheye_fraction.to_string(),
-            ));
-        }
-        if state.rig_layouts != expected.rig_layouts {
-            return Err(mismatch(
-                "rig_layouts",
-                state.rig_layouts.as_str().to_string(),
-                expected.rig_layouts.as_str().to_string(),
-            ));
-        }
-        if state.rig_pool != expected.rig_pool {
-            return Err(mismatch(
-                "rig_pool",
-                state.rig_pool.to_string(),
-                expected.rig_pool.to_string(),
-            ));
-        }
-        if state.blocked_fraction != expected.blocked_fraction {
-            return Err(mismatch(
-                "blocked_fraction",
-                state.blocked_fraction.to_string(),
-                expected.blocked_fraction.to_string(),
-            ));
-        }
-        if state.street != expected.street {
-            return Err(mismatch(
-                "street",
-                state.street.as_str().to_string(),
-                expected.street.as_str().to_string(),
-            ));
-        }
-        if state.deep360_disk != expected.deep360_disk {
-            return Err(mismatch(
-                "deep360_disk",
-                format!("{:?}", state.deep360_disk),
-                format!("{:?}", expected.deep360_disk),
-            ));
-        }
+        ),
+    ];
+    let data = [
+        ("seed", state.seed.to_string(), expected.seed.to_string()),
+        (
+            "objects_fraction",
+            state.objects_fraction.to_string(),
+            expected.objects_fraction.to_string(),
+        ),
+        (
+            "fisheye_fraction",
+            state.fisheye_fraction.to_string(),
+            expected.fisheye_fraction.to_string(),
+        ),
+        (
+            "rig_layouts",
+            state.rig_layouts.as_str().to_string(),
+            expected.rig_layouts.as_str().to_string(),
+        ),
+        (
+            "rig_pool",
+            state.rig_pool.to_string(),
+            expected.rig_pool.to_string(),
+        ),
+        (
+            "blocked_fraction",
+            state.blocked_fraction.to_string(),
+            expected.blocked_fraction.to_string(),
+        ),
+        (
+            "street",
+            state.street.as_str().to_string(),
+            expected.street.as_str().to_string(),
+        ),
+        (
+            "deep360_disk",
+            format!("{:?}", state.deep360_disk),
+            format!("{:?}", expected.deep360_disk),
+        ),
+    ];
+    let data_checked: &[_] = match restore {
+        Restore::Resume => &data,
+        Restore::Fork => &[],
+    };
+    if let Some((field, saved, now)) = network
+        .iter()
+        .chain(data_checked)
+        .find(|(_, saved, now)| saved != now)
+    {
+        return Err(TrainError::Checkpoint {
+            path: state_path.display().to_string(),
+            problem: format!("'{field}' was {saved} but this run uses {now}{advice}"),
+        });
     }
     let model_path = dir.join(MODEL_FILE);
     varmap
