@@ -6,13 +6,22 @@
 #
 #   nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #
-# Two stages; the data is the same in both: varied streets with a quarter of random objects,
+# Stages; the data is the same in all: varied streets with a quarter of random objects,
 # 30 % soiled, a fifth of the samples on fisheye racks, every rig layout (roof racks, vertical
 # masts, turned cameras at mixed heights, car body corners), a fifth with one lens 5 to 40 %
 # blocked, and random rigs from a pool renewed every 400 samples, so that sweep tables are built
 # once per pool rig, not per step.
 #
-# `w256` (the default since 2026-11-27, ninth session) -> runs/standing_w256_ship/: started from the
+# `pair` (the default since 2026-11-27, eleventh session): the `w256` run below and a second arm,
+# runs/standing_w256_b/, forked from its checkpoint (step 2,050) with data seed 3, side by side
+# with one thread each. On this 2-core machine two one-thread runs took 6 to 7 s per step each,
+# where one two-thread run takes 5 to 7 s (models/README.md, the shipped section): twice the
+# samples per hour. A candidate for shipping is the mean of the two arms' weights at equal steps
+# (models/average_weights.py; both checkpoint every 50 steps), measured on the validation seed
+# at 512. Start it without thread settings of your own:
+#   nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
+#
+# `w256` (the default from the ninth session to the tenth) -> runs/standing_w256_ship/: started from the
 # weights shipped then (the 128 stage's step 17,932 plus 971 steps at 256 on an H200,
 # runs/gpu_w256/) at the deployable width 256 on fresh samples (data seed 2), lr 5e-5 after 50 warm-up steps on a cosine over
 # W256_STEPS (20,000, so that it stays near its peak for many sessions), a rig pool of 6 (sweep
@@ -42,12 +51,28 @@ init="${INIT:-runs/ablation/parallax_zncc_log/ssmode_parallax_zncc_log_step500.s
 steps="${STEPS:-115000}"
 mix=(--objects-fraction 0.25 --street varied --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50)
-stage="${1:-w256}"
+stage="${1:-pair}"
+w256=(train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" --lr 5e-5
+  --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 250 --checkpoint-every 50 --resume)
 if [[ "$stage" == w256 ]]; then
-  exec "$bin" train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" --lr 5e-5 \
-    --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 250 --checkpoint-every 50 --resume --seed 2 \
+  exec "$bin" "${w256[@]}" --seed 2 \
     --init-weights "${INIT:-runs/gpu_w256/ssmode_parallax_zncc_log.safetensors}" \
     --out runs/standing_w256_ship
+fi
+if [[ "$stage" == pair ]]; then
+  # One thread each: two processes make about twice the steps of one with two threads here.
+  export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
+  # The second arm forks the first's checkpoint once (later sessions resume its own); it starts
+  # first, so that it reads that checkpoint before the first arm writes the next.
+  "$bin" "${w256[@]}" --seed 3 --fork-from runs/standing_w256_ship --out runs/standing_w256_b &
+  b=$!
+  sleep 30
+  "$bin" "${w256[@]}" --seed 2 \
+    --init-weights "${INIT:-runs/gpu_w256/ssmode_parallax_zncc_log.safetensors}" \
+    --out runs/standing_w256_ship &
+  a=$!
+  wait "$a" "$b"
+  exit
 fi
 if [[ "$stage" == fine-tune ]]; then
   rm -rf runs/standing_w256
@@ -56,7 +81,7 @@ if [[ "$stage" == fine-tune ]]; then
     --init-weights runs/standing/checkpoint/model.safetensors --out runs/standing_w256
 fi
 if [[ "$stage" != w128 ]]; then
-  echo "unknown stage '$stage' (w256, w128 or fine-tune)" >&2
+  echo "unknown stage '$stage' (pair, w256, w128 or fine-tune)" >&2
   exit 2
 fi
 exec "$bin" train --preset parallax_zncc_log --width 128 --steps "$steps" --lr 2e-4 \
