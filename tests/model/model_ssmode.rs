@@ -222,8 +222,19 @@ fn index_of_range(cfg: &SsmodeConfig, r: f32) -> f32 {
     ((inv - lo) / (hi - lo)).clamp(0.0, 1.0) as f32
 }
 
+/// In a one-thread pool: the CPU kernels' multi-threaded reductions sum in another order with
+/// every thread count, and over 30 steps at this learning rate that moved the final loss from
+/// 0.07 to 0.27 of the first between runs of the full suite (tenth session).
 #[test]
 fn tiny_network_overfits_one_synthetic_frame() {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(tiny_network_overfits_body);
+}
+
+fn tiny_network_overfits_body() {
     let cfg = SsmodeConfig::tiny();
     let rig = rig();
     let renderer = SynthRenderer::new(SynthConfig {
@@ -370,8 +381,19 @@ fn bench_profile_flops_scale_with_pixels() {
             l.gflop
         );
     }
-    let stage_sum: f64 = small.stages.iter().map(|s| s.median_s).sum();
-    assert!(small.network_median_s > 0.0 && stage_sum <= small.network_median_s * 1.01);
+    // Every run's stage is part of that run's network time (the profiler starts a moment before
+    // the clock: 1 % slack), so each stage's median is at most the network's; the sum of the
+    // medians is not bounded so (it failed on a loaded machine).
+    assert!(small.network_median_s > 0.0);
+    for s in &small.stages {
+        assert!(
+            s.median_s > 0.0 && s.median_s <= small.network_median_s * 1.01,
+            "{}: median {} s, network {} s",
+            s.stage,
+            s.median_s,
+            small.network_median_s
+        );
+    }
     assert!(small.peak_rss_mib >= small.rss_start_mib || !small.peak_reset);
 }
 
