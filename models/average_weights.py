@@ -7,27 +7,12 @@ header metadata, which the output keeps; anything else is an error naming the fi
     models/average_weights.py A.safetensors B.safetensors [...] --out SOUP.safetensors
 """
 import argparse
-import json
-import struct
 import sys
 from array import array
 
-HEADER_ALIGN = 8
+from safetensors_file import read, write
+
 METADATA = "__metadata__"
-
-
-def read(path):
-    """(header dict, data bytes after the header) of a safetensors file."""
-    with open(path, "rb") as f:
-        data = f.read()
-    if len(data) < 8:
-        sys.exit(f"{path}: not a safetensors file (shorter than its length prefix)")
-    (n,) = struct.unpack("<Q", data[:8])
-    try:
-        header = json.loads(data[8 : 8 + n])
-    except ValueError as e:
-        sys.exit(f"{path}: unreadable safetensors header ({e})")
-    return header, data[8 + n :]
 
 
 def tensor(path, header, body, name):
@@ -85,10 +70,7 @@ def main() -> int:
         }
         chunks.append(raw)
         offset += len(raw)
-    head = json.dumps(out_header, separators=(",", ":")).encode()
-    head += b" " * ((HEADER_ALIGN - len(head) % HEADER_ALIGN) % HEADER_ALIGN)
-    with open(args.out, "wb") as f:
-        f.write(struct.pack("<Q", len(head)) + head + b"".join(chunks))
+    write(args.out, out_header, b"".join(chunks))
     print(f"{args.out}: mean of {len(files)} files, {len(names)} tensors, {offset // 4} values")
     return 0
 

@@ -11,12 +11,11 @@ edge refinement ("Edge refinement"; 0 turns it off) and the aggregation's longit
 """
 import argparse
 import json
-import os
-import struct
 import sys
 
+from safetensors_file import read, write
+
 CONFIG_KEY = "mode360.config"
-HEADER_ALIGN = 8
 
 
 def main() -> int:
@@ -28,13 +27,8 @@ def main() -> int:
     ap.add_argument("--seam-pad-cells", type=int, default=None,
                     help="default: as the file has it (missing: 0, no wrap)")
     args = ap.parse_args()
-    with open(args.weights, "rb") as f:
-        data = f.read()
-    if len(data) < 8:
-        sys.exit(f"{args.weights}: not a safetensors file (shorter than its length prefix)")
-    (n,) = struct.unpack("<Q", data[:8])
+    header, body = read(args.weights)
     try:
-        header = json.loads(data[8 : 8 + n])
         cfg = json.loads(header["__metadata__"][CONFIG_KEY])
     except (ValueError, KeyError) as e:
         sys.exit(f"{args.weights}: no readable '{CONFIG_KEY}' header metadata ({e})")
@@ -46,12 +40,7 @@ def main() -> int:
     if args.seam_pad_cells is not None:
         cfg["seam_pad_cells"] = args.seam_pad_cells
     header["__metadata__"][CONFIG_KEY] = json.dumps(cfg, separators=(",", ":"))
-    raw = json.dumps(header, separators=(",", ":")).encode()
-    raw += b" " * ((HEADER_ALIGN - len(raw) % HEADER_ALIGN) % HEADER_ALIGN)
-    tmp = args.weights + ".tmp"
-    with open(tmp, "wb") as f:
-        f.write(struct.pack("<Q", len(raw)) + raw + data[8 + n :])
-    os.replace(tmp, args.weights)
+    write(args.weights, header, body)
     changes = ", ".join(f"{k} {before[k]} -> {cfg[k]}" for k in keys)
     print(f"{args.weights}: {changes}")
     return 0
