@@ -103,7 +103,7 @@ fn drift(bag: &str, rig: &Rig) -> Result<(), Box<dyn std::error::Error>> {
         let grid = ErpGrid::new(frame.images[0].width() as usize)?;
         let range = sweep.estimate(rig, &frame.images, grid)?.range_m;
         let t0 = std::time::Instant::now();
-        if monitor.add(&frame.images, &range)? {
+        if monitor.add(&frame.images, &range, &[])? {
             check_s += t0.elapsed().as_secs_f64();
             checks += 1;
         }

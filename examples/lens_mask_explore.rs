@@ -8,8 +8,8 @@
 //! asserted here: the tests in tests/model/lens_mask.rs are.
 
 use mode360::bag::RigBagReader;
-use mode360::estimator::lens_health::LENS_WINDOW_FRAMES;
-use mode360::estimator::lens_mask::LensGuard;
+use mode360::estimator::lens_guard::LensGuard;
+use mode360::estimator::lens_window::LENS_WINDOW_FRAMES;
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use mode360::geometry::ErpGrid;

@@ -22,8 +22,8 @@ use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{ErpGrid, GeerPair};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
 use mode360_core::progress::frames_bar;
-use mode360_estimator::estimator::lens_health::LENS_WINDOW_FRAMES;
-use mode360_estimator::estimator::lens_mask::LensGuard;
+use mode360_estimator::estimator::lens_guard::LensGuard;
+use mode360_estimator::estimator::lens_window::LENS_WINDOW_FRAMES;
 use mode360_estimator::estimator::DepthEstimator;
 use mode360_io::bag::{
     RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,

@@ -7,8 +7,8 @@
 
 use crate::common::deep360_rig;
 use crate::photometric_scene::scores;
-use mode360::estimator::lens_health::LENS_WINDOW_FRAMES;
-use mode360::estimator::lens_mask::LensGuard;
+use mode360::estimator::lens_guard::LensGuard;
+use mode360::estimator::lens_window::LENS_WINDOW_FRAMES;
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::ssmode::{default_weights_path, SsmodeEstimator};
 use mode360::estimator::DepthEstimator;

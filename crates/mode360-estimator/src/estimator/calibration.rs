@@ -28,6 +28,7 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use super::lens_health::ranges_on;
+use super::lens_mask::LensMask;
 use super::photometric::sampling::{bilinear_wrapped, CameraSampler};
 use super::EstimatorError;
 use crate::matching::zncc::box_mean;
@@ -130,6 +131,22 @@ pub struct CheckFrame {
 }
 
 impl CheckFrame {
+    /// Leaves out the blocked part of each camera's view (`masks` in rig order, `None` or
+    /// missing where nothing is blocked): mud agrees with nothing at any turn, and where it
+    /// covers a part seen by few cameras it pulls the best turn off.
+    pub fn mask_lenses(&mut self, masks: &[Option<LensMask>]) {
+        for (pano, mask) in self.grey.iter_mut().zip(masks) {
+            let Some(mask) = mask else { continue };
+            let blocked = mask.blocked_on(pano.grid);
+            let valid = pano.valid.get_or_insert_with(|| vec![1.0; blocked.len()]);
+            for (v, b) in valid.iter_mut().zip(blocked) {
+                if b {
+                    *v = 0.0;
+                }
+            }
+        }
+    }
+
     /// The range camera `c` is checked at: estimated without it where that was given.
     fn ranges_for(&self, c: usize) -> &[f32] {
         self.ranges_without_m.get(c).unwrap_or(&self.ranges_m)

@@ -8,6 +8,7 @@
 use std::collections::VecDeque;
 
 use super::calibration::{CameraCorrection, CheckFrame, RotationCheck, RotationCheckConfig};
+use super::lens_mask::LensMask;
 use super::EstimatorError;
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::Rig;
@@ -61,13 +62,15 @@ impl CalibrationDriftMonitor {
         })
     }
 
-    /// Takes one complete frame (`images` in rig order, `range_m` its estimated range); every
+    /// Takes one complete frame (`images` in rig order, `range_m` its estimated range, `masks`
+    /// the lens check's masks, whose blocked parts the check leaves out); every
     /// [`DRIFT_CHECK_EVERY`] frames it runs a check, unless an image is narrower than
     /// [`DRIFT_MIN_IMAGE_WIDTH`]. Returns whether it did.
     pub fn add(
         &mut self,
         images: &[RgbImage],
         range_m: &FloatImage,
+        masks: &[Option<LensMask>],
     ) -> Result<bool, EstimatorError> {
         if images.iter().any(|img| img.width() < DRIFT_MIN_IMAGE_WIDTH) {
             return Ok(false);
@@ -77,7 +80,8 @@ impl CalibrationDriftMonitor {
         if !due {
             return Ok(false);
         }
-        let frame: CheckFrame = self.check.frame(images, range_m)?;
+        let mut frame: CheckFrame = self.check.frame(images, range_m)?;
+        frame.mask_lenses(masks);
         let corrections = self.check.quick_corrections(
             std::slice::from_ref(&frame),
             DRIFT_NEWTON_STEPS,

@@ -16,18 +16,15 @@
 //! soiled one, whose dirt dims and veils the scene but keeps its structure.
 //!
 //! Camera `c` is *the odd one out* at `k` when it matches no other camera while two other
-//! cameras match each other there (so at least three cameras must see `k`: a two-camera rig
-//! cannot tell which lens is blocked, and its fractions stay 0). Directions where no two other
-//! cameras agree (occlusions, depth errors) are undecided for `c`, and so are directions with
-//! two odd ones out (where the estimated depth is likely wrong).
+//! cameras match each other there (so at least three cameras must see `k`). Directions where
+//! no two other cameras agree (occlusions, depth errors) are undecided for `c`, and so are
+//! directions with two odd ones out (where the estimated depth is likely wrong).
 //!
-//! Over a window of frames ([`LensHealthAccumulator`]), a direction counts as blocked for `c`
-//! when `c` was the odd one out in at least [`BLOCKED_VOTE`] of the frames that decided it; the
-//! blocked fraction is the solid angle (`cos(lat)` weights) of those directions, in connected
-//! regions of at least [`MIN_REGION_FRACTION`] of the sphere, over the solid angle of the
-//! decided ones. A blocker stays in place from frame to frame, while the chance
-//! mismatches of a clean camera (a reflection, an occlusion edge, a depth error) move: the vote
-//! keeps the second out.
+//! Each frame's votes ([`LensVotes`]) also keep where each vote lands on the camera's own
+//! panorama, that panorama's grey and the estimated inverse range of each of its cells, for
+//! the temporal cue ([`super::lens_motion`]: a blocker stays still while the scene behind it
+//! moves, which one other camera is enough to see). [`super::lens_window`] counts both over a
+//! window of frames, on each camera's own view, into the blocked fraction and the lens masks.
 
 use super::photometric::sampling::{bilinear_wrapped, CameraSampler};
 use super::EstimatorError;
@@ -54,8 +51,6 @@ pub const BLOCKED_VOTE: f64 = 0.5;
 /// region, while the scattered spots of lens soiling (drops, small mud spots, glare) and chance
 /// mismatches are small.
 pub const MIN_REGION_FRACTION: f64 = 0.04;
-/// Frames a [`LensHealthWindow`] keeps by default (the node's and replay's window).
-pub const LENS_WINDOW_FRAMES: usize = 10;
 /// Nearest range used when sampling, metres (closer estimates are clamped).
 const MIN_RANGE_M: f32 = 0.3;
 
@@ -69,6 +64,13 @@ pub struct LensVotes {
     /// direction `k`'s estimated point (`None` where its lens does not see it): where a vote
     /// lands on the lens, for [`super::lens_mask`].
     pub cells: Vec<Vec<Option<u32>>>,
+    /// `[camera][j]`: the camera's own panorama on the analysis grid, grey in `[0, 1]` (the
+    /// mean of the pixels in the cell; `None` where the lens does not see), for the temporal
+    /// cue ([`super::lens_motion`]).
+    pub grey: Vec<Vec<Option<f32>>>,
+    /// `[camera][j]`: inverse distance from the camera to the estimated point its own cell `j`
+    /// sees (the mean over the directions that land there), 1/m; `None` where none lands.
+    pub inv_range: Vec<Vec<Option<f32>>>,
 }
 
 /// Odd-one-out votes of one frame: `images` in rig order, `range_m` the estimated range of the
@@ -99,6 +101,8 @@ pub fn lens_votes(
     // Each camera's grey panorama sampled at every direction's estimated point.
     let mut warped = Vec::with_capacity(n);
     let mut cells = Vec::with_capacity(n);
+    let mut own_grey = Vec::with_capacity(n);
+    let mut inv_ranges = Vec::with_capacity(n);
     for (c, pano) in panoramas.iter().enumerate() {
         let (w, h) = (pano.width() as usize, pano.height() as usize);
         let camera_grid = ErpGrid::new(w).map_err(|_| EstimatorError::BadImageSize {
@@ -112,6 +116,7 @@ pub fn lens_votes(
             .collect();
         let sampler = CameraSampler::new(grid, &pano_rig.cam_from_output(c), camera_grid);
         let sees = validity[c].as_ref();
+        own_grey.push(grey_on_grid(grid, &grey, w, h, sees));
         let (samples, lens_cells): (Vec<Option<f32>>, Vec<Option<u32>>) = (0..grid.len())
             .map(|k| {
                 let [u, v] = sampler.pixel(k, ranges[k]);
@@ -132,6 +137,26 @@ pub fn lens_votes(
                 )
             })
             .unzip();
+        let cam_from_output = pano_rig.cam_from_output(c);
+        let mut inv_sum = vec![(0.0f32, 0u32); grid.len()];
+        for (k, cell) in lens_cells.iter().enumerate() {
+            if let Some(j) = cell {
+                let dir = grid.dir_from_pixel(PixelCoord {
+                    u: (k % grid.width()) as f64,
+                    v: (k / grid.width()) as f64,
+                });
+                let p = cam_from_output * nalgebra::Point3::from(dir * f64::from(ranges[k]));
+                let e = &mut inv_sum[*j as usize];
+                e.0 += 1.0 / p.coords.norm().max(1e-3) as f32;
+                e.1 += 1;
+            }
+        }
+        inv_ranges.push(
+            inv_sum
+                .iter()
+                .map(|&(sum, count)| (count > 0).then(|| sum / count as f32))
+                .collect(),
+        );
         warped.push(samples);
         cells.push(lens_cells);
     }
@@ -153,7 +178,44 @@ pub fn lens_votes(
             }
         }
     }
-    Ok(LensVotes { votes, cells })
+    Ok(LensVotes {
+        votes,
+        cells,
+        grey: own_grey,
+        inv_range: inv_ranges,
+    })
+}
+
+/// A `w x h` grey panorama on `grid`: the mean of the pixels in each cell (the nearest pixel
+/// when the panorama is coarser), `None` where `valid` (on the panorama's pixels) says the lens
+/// does not see the cell's centre.
+fn grey_on_grid(
+    grid: ErpGrid,
+    grey: &[f32],
+    w: usize,
+    h: usize,
+    valid: Option<&Vec<f32>>,
+) -> Vec<Option<f32>> {
+    let span = |i: usize, n: usize, cells: usize| {
+        let lo = (i * n / cells).min(n - 1);
+        (lo, ((i + 1) * n / cells).clamp(lo + 1, n))
+    };
+    (0..grid.len())
+        .map(|k| {
+            let (u, v) = (k % grid.width(), k / grid.width());
+            let (u0, u1) = span(u, w, grid.width());
+            let (v0, v1) = span(v, h, grid.height());
+            let centre = ((v0 + v1) / 2) * w + (u0 + u1) / 2;
+            if valid.is_some_and(|m| m.get(centre).is_none_or(|&x| x <= 0.5)) {
+                return None;
+            }
+            let mut sum = 0.0;
+            for row in grey[v0 * w..v1 * w].chunks_exact(w) {
+                sum += row[u0..u1].iter().sum::<f32>();
+            }
+            Some(sum / ((u1 - u0) * (v1 - v0)) as f32)
+        })
+        .collect()
 }
 
 /// The analysis grid.
@@ -240,141 +302,16 @@ fn odd_one_out(warped: &[Vec<Option<f32>>], grid: ErpGrid, c: usize, k: usize) -
     Some(!others.iter().any(|o| windows_match(&own, o)))
 }
 
-/// Blocked fractions over a window of frames (see the module docs).
-#[derive(Clone, Debug, Default)]
-pub struct LensHealthAccumulator {
-    /// `[camera][k]`: frames in which the camera was the odd one out, and frames that decided.
-    odd: Vec<Vec<u32>>,
-    decided: Vec<Vec<u32>>,
-}
-
-/// The lens health over the newest `capacity` frames (older votes fall out, so a lens that is
-/// cleaned reads clean again within a window).
-#[derive(Clone, Debug)]
-pub struct LensHealthWindow {
-    capacity: usize,
-    frames: std::collections::VecDeque<LensVotes>,
-}
-
-impl LensHealthWindow {
-    /// A window of `capacity` frames (at least one).
-    pub fn new(capacity: usize) -> Self {
-        Self {
-            capacity: capacity.max(1),
-            frames: std::collections::VecDeque::new(),
-        }
-    }
-
-    /// Adds one frame's votes, dropping the oldest beyond the capacity (and every older frame
-    /// when the number of cameras changes).
-    pub fn add(&mut self, votes: LensVotes) {
-        if self
-            .frames
-            .front()
-            .is_some_and(|f| f.votes.len() != votes.votes.len())
-        {
-            self.frames.clear();
-        }
-        if self.frames.len() == self.capacity {
-            self.frames.pop_front();
-        }
-        self.frames.push_back(votes);
-    }
-
-    /// The frames in the window, oldest first.
-    pub fn frames(&self) -> impl Iterator<Item = &LensVotes> {
-        self.frames.iter()
-    }
-
-    /// Each camera's health over the window (empty before the first frame).
-    pub fn health(&self) -> Vec<LensHealth> {
-        let mut acc = LensHealthAccumulator::default();
-        for votes in &self.frames {
-            acc.add(votes);
-        }
-        acc.health()
-    }
-}
-
-impl Default for LensHealthWindow {
-    fn default() -> Self {
-        Self::new(LENS_WINDOW_FRAMES)
-    }
-}
-
-/// One camera's lens health over the accumulated frames.
+/// One camera's lens health over a window of frames ([`super::lens_window`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LensHealth {
-    /// Share of the decided view found blocked, 0 to 1.
+    /// Share of the decided view found blocked, 0 to 1 (each part weighted by its share of the
+    /// camera's view: solid angle for an ERP camera, image pixels for a fisheye).
     pub blocked_fraction: f64,
     /// Share of the camera's view that was decided (how much the fraction rests on).
     pub decided_fraction: f64,
     /// Where the blocked part lies, e.g. "lower left" (`None` when nothing is blocked).
     pub region: Option<String>,
-}
-
-impl LensHealthAccumulator {
-    /// Adds one frame's votes.
-    pub fn add(&mut self, votes: &LensVotes) {
-        let cells = analysis_grid().len();
-        if self.odd.len() != votes.votes.len() {
-            self.odd = vec![vec![0; cells]; votes.votes.len()];
-            self.decided = vec![vec![0; cells]; votes.votes.len()];
-        }
-        for (c, camera) in votes.votes.iter().enumerate() {
-            for (k, vote) in camera.iter().enumerate() {
-                if let Some(odd) = vote {
-                    self.decided[c][k] += 1;
-                    self.odd[c][k] += u32::from(*odd);
-                }
-            }
-        }
-    }
-
-    /// Each camera's health over the frames added so far.
-    pub fn health(&self) -> Vec<LensHealth> {
-        let grid = analysis_grid();
-        let weight = |k: usize| cell_weight(grid, k);
-        self.odd
-            .iter()
-            .zip(&self.decided)
-            .map(|(odd, decided)| {
-                let (mut seen, mut all) = (0.0, 0.0);
-                let mut candidate = vec![false; grid.len()];
-                for k in 0..grid.len() {
-                    all += weight(k);
-                    if decided[k] == 0 {
-                        continue;
-                    }
-                    seen += weight(k);
-                    candidate[k] = f64::from(odd[k]) >= BLOCKED_VOTE * f64::from(decided[k]);
-                }
-                let (mut blocked, mut centre) = (0.0, [0.0f64; 2]);
-                for region in regions(grid, &candidate) {
-                    let area: f64 = region.iter().map(|&k| weight(k)).sum();
-                    if area < MIN_REGION_FRACTION * all {
-                        continue;
-                    }
-                    blocked += area;
-                    for &k in &region {
-                        centre[0] += weight(k) * (k % grid.width()) as f64;
-                        centre[1] += weight(k) * (k / grid.width()) as f64;
-                    }
-                }
-                let blocked_fraction = if seen > 0.0 { blocked / seen } else { 0.0 };
-                LensHealth {
-                    blocked_fraction,
-                    decided_fraction: if all > 0.0 { seen / all } else { 0.0 },
-                    region: (blocked > 0.0).then(|| {
-                        describe_region(
-                            centre[0] / blocked / grid.width() as f64,
-                            centre[1] / blocked / grid.height() as f64,
-                        )
-                    }),
-                }
-            })
-            .collect()
-    }
 }
 
 /// Solid-angle weight `cos(lat)` of cell `k` of `grid`.
@@ -387,10 +324,10 @@ pub(super) fn cell_weight(grid: ErpGrid, k: usize) -> f64 {
     .cos()
 }
 
-/// Where in the output panorama a region's centre lies (`u`, `v` in `[0, 1]`): "upper",
-/// "middle" or "lower", then the side as seen in the panorama ("left", "centre", "right",
-/// "back" at the seam).
-fn describe_region(u: f64, v: f64) -> String {
+/// Where in a camera's own panorama a region's centre lies (`u`, `v` in `[0, 1]`): "upper",
+/// "middle" or "lower", then the side ("front" along the camera's forward axis, the optical
+/// axis of a fisheye; "left", "right", "back" at the seam).
+pub(super) fn describe_region(u: f64, v: f64) -> String {
     let height = if v < 1.0 / 3.0 {
         "upper"
     } else if v < 2.0 / 3.0 {

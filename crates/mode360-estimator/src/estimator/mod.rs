@@ -11,8 +11,11 @@ pub mod calibration;
 pub mod calibration_drift;
 pub mod edge_refine;
 pub mod guided_upsample;
+pub mod lens_guard;
 pub mod lens_health;
 pub mod lens_mask;
+pub mod lens_motion;
+pub mod lens_window;
 pub mod photometric;
 pub mod ssmode;
 

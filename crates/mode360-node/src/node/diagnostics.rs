@@ -220,7 +220,7 @@ fn lens_status(cam: &CameraHealth, warn_fraction: f64) -> Option<(u8, String)> {
     Some((
         level,
         format!(
-            "lens looks blocked or soiled: {:.0} % of its view ({} of the panorama)",
+            "lens looks blocked or soiled: {:.0} % of its view ({} of its view)",
             100.0 * lens.blocked_fraction,
             lens.region.as_deref().unwrap_or("unknown part")
         ),

@@ -22,8 +22,9 @@ use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::rig::MIN_CAMERAS;
 use mode360_core::geometry::{ErpGrid, GeometryError, Rig, RigError};
 use mode360_estimator::estimator::calibration_drift::{CalibrationDrift, CalibrationDriftMonitor};
-use mode360_estimator::estimator::lens_health::{LensHealth, LENS_WINDOW_FRAMES};
-use mode360_estimator::estimator::lens_mask::LensGuard;
+use mode360_estimator::estimator::lens_guard::LensGuard;
+use mode360_estimator::estimator::lens_health::LensHealth;
+use mode360_estimator::estimator::lens_window::LENS_WINDOW_FRAMES;
 use mode360_estimator::estimator::{DepthEstimator, EstimatorError};
 use mode360_io::msgs::compressed_depth::{
     encode_compressed_depth, CompressedDepthError, DEFAULT_DEPTH_QUANTIZATION,
@@ -271,7 +272,7 @@ impl Pipeline {
             return Ok(());
         };
         self.lens.check(&self.rig, &d.images, &d.range_m)?;
-        self.drift.add(&d.images, &d.range_m)?;
+        self.drift.add(&d.images, &d.range_m, self.lens.masks())?;
         Ok(())
     }
 
@@ -366,7 +367,8 @@ impl Pipeline {
             let estimate =
                 self.lens
                     .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
-            self.drift.add(&images, &estimate.range_m)?;
+            self.drift
+                .add(&images, &estimate.range_m, self.lens.masks())?;
             estimate
         } else {
             self.lens
