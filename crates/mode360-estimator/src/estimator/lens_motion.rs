@@ -34,6 +34,7 @@ use super::lens_health::{analysis_grid, LensVotes};
 use mode360_core::geometry::panorama::{panorama_rig, rig_panoramas};
 use mode360_core::geometry::{ErpGrid, PixelCoord, Projection, Rig};
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 /// A cell whose grey (in `[0, 1]`) changes by at most this from frame to frame is still.
 pub const STILL_MAX: f32 = 0.01;
@@ -66,7 +67,7 @@ pub struct LensGeometry {
 }
 
 impl LensGeometry {
-    /// The tables of `rig` (a few tens of milliseconds per camera).
+    /// The tables of `rig` (about a second on this 2-core machine, once per rig).
     pub fn new(rig: &Rig) -> Self {
         let grid = analysis_grid();
         let pano_rig = panorama_rig(rig);
@@ -90,21 +91,23 @@ impl LensGeometry {
         let mut ray_cells = Vec::with_capacity(n);
         for c in 0..n {
             let rig_from_c = pano_rig.cameras[c].rig_from_cam;
-            let mut offsets = Vec::with_capacity(grid.len() + 1);
-            let mut cells: Vec<RaySample> = Vec::new();
-            offsets.push(0);
-            for (k, &seen) in sees[c].iter().enumerate() {
-                if seen {
+            let per_cell: Vec<Vec<RaySample>> = (0..grid.len())
+                .into_par_iter()
+                .map(|k| {
+                    let mut cells = Vec::new();
+                    if !sees[c][k] {
+                        return cells;
+                    }
                     let dir_rig = rig_from_c.rotation * grid.dir_from_pixel(cell_centre(grid, k));
                     for d in (0..n).filter(|&d| d != c) {
-                        let c_from_d = pano_rig.cameras[d].rig_from_cam.inverse();
+                        let d_from_rig = pano_rig.cameras[d].rig_from_cam.inverse();
                         // q(s) = s a + b: the ray's point at range 1/s, in d's panorama frame
                         // and scaled by s.
-                        let a = c_from_d.transform_vector(
+                        let a = d_from_rig.transform_vector(
                             &(rig_from_c.translation.vector
                                 - pano_rig.cameras[d].rig_from_cam.translation.vector),
                         );
-                        let b = c_from_d.transform_vector(&dir_rig);
+                        let b = d_from_rig.transform_vector(&dir_rig);
                         let mut last = None;
                         ray_cells_of(grid, &a, &b, &sees[d], |s_inv, j| {
                             let packed = (d * grid.len() + j) as u32;
@@ -117,7 +120,14 @@ impl LensGeometry {
                             }
                         });
                     }
-                }
+                    cells
+                })
+                .collect();
+            let mut offsets = Vec::with_capacity(grid.len() + 1);
+            offsets.push(0);
+            let mut cells = Vec::with_capacity(per_cell.iter().map(Vec::len).sum());
+            for list in per_cell {
+                cells.extend(list);
                 offsets.push(cells.len() as u32);
             }
             ray_offsets.push(offsets);
@@ -232,37 +242,55 @@ fn cell_weights(grid: ErpGrid, projection: &Projection, sees: &[bool]) -> Vec<f6
         .rotation
         .inverse();
     let size = model.image_size();
-    let mut weights = vec![0.0; grid.len()];
-    for v in 0..size.height {
-        for u in 0..size.width {
-            let px = PixelCoord {
-                u: f64::from(u),
-                v: f64::from(v),
-            };
-            if let Some(ray) = model.unproject(px) {
-                let j = cell_of(grid, &(panorama_from_cam * ray.into_inner()));
-                if sees[j] {
-                    weights[j] += 1.0;
+    (0..size.height)
+        .into_par_iter()
+        .fold(
+            || vec![0.0; grid.len()],
+            |mut weights, v| {
+                for u in 0..size.width {
+                    let px = PixelCoord {
+                        u: f64::from(u),
+                        v: f64::from(v),
+                    };
+                    if let Some(ray) = model.unproject(px) {
+                        let j = cell_of(grid, &(panorama_from_cam * ray.into_inner()));
+                        if sees[j] {
+                            weights[j] += 1.0;
+                        }
+                    }
                 }
-            }
-        }
-    }
-    weights
+                weights
+            },
+        )
+        .reduce(
+            || vec![0.0; grid.len()],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x += y;
+                }
+                a
+            },
+        )
 }
 
-/// Per camera and own cell over `frames` (oldest first): `Some(true)` still while the scene
-/// along its ray moves (blocked), `Some(false)` it sees change (clear), `None` undecided (see
-/// the module docs). Empty when the frames do not fit `geometry`'s cameras.
-pub fn motion_votes(geometry: &LensGeometry, frames: &[&LensVotes]) -> Vec<Vec<Option<bool>>> {
+/// Per camera and own cell over `frames` (oldest first), given their `change`
+/// ([`cell_changes`]): `Some(true)` still while the scene along its ray moves (blocked),
+/// `Some(false)` it sees change (clear), `None` undecided (see the module docs). Empty when the
+/// frames do not fit `geometry`'s cameras.
+pub fn motion_votes(
+    geometry: &LensGeometry,
+    frames: &[&LensVotes],
+    change: &[Vec<Option<f32>>],
+) -> Vec<Vec<Option<bool>>> {
     let n = geometry.weights.len();
-    if frames.iter().any(|f| f.grey.len() != n) {
+    if change.len() != n || frames.iter().any(|f| f.grey.len() != n) {
         return Vec::new();
     }
     let cells = analysis_grid().len();
-    let change = cell_changes(frames);
     (0..n)
         .map(|c| {
             (0..cells)
+                .into_par_iter()
                 .map(|j| {
                     let own = change[c][j]?;
                     if own >= CHANGE_MIN {
@@ -295,6 +323,7 @@ pub fn cell_changes(frames: &[&LensVotes]) -> Vec<Vec<Option<f32>>> {
     (0..n)
         .map(|c| {
             (0..analysis_grid().len())
+                .into_par_iter()
                 .map(|j| cell_change(frames, c, j))
                 .collect()
         })

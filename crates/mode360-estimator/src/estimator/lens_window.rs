@@ -164,14 +164,14 @@ impl LensHealthWindow {
     /// Every camera's cells over the window (see the module docs).
     fn count_cells(&self) -> Vec<CameraCells> {
         let frames: Vec<&LensVotes> = self.frames.iter().collect();
+        let changes = cell_changes(&frames);
         let motion = self
             .geometry
             .as_ref()
-            .map(|g| motion_votes(g, &frames))
+            .map(|g| motion_votes(g, &frames, &changes))
             .unwrap_or_default();
         let grid = analysis_grid();
         let all: f64 = (0..grid.len()).map(|k| cell_weight(grid, k)).sum();
-        let changes = cell_changes(&frames);
         let greys = mean_greys(&frames);
         splat_counts(&frames)
             .into_iter()
@@ -255,16 +255,21 @@ fn grow_blocked(
 /// `[camera][j]`: each own cell's mean grey over the frames (`None` where never seen).
 fn mean_greys(frames: &[&LensVotes]) -> Vec<Vec<Option<f32>>> {
     let n = frames.first().map_or(0, |f| f.grey.len());
+    let cells = analysis_grid().len();
     (0..n)
         .map(|c| {
-            (0..analysis_grid().len())
-                .map(|j| {
-                    let seen: Vec<f32> = frames
-                        .iter()
-                        .filter_map(|f| f.grey.get(c)?.get(j).copied()?)
-                        .collect();
-                    (!seen.is_empty()).then(|| seen.iter().sum::<f32>() / seen.len() as f32)
-                })
+            let mut sum = vec![(0.0f32, 0u32); cells];
+            for frame in frames {
+                let Some(grey) = frame.grey.get(c) else { continue };
+                for (acc, g) in sum.iter_mut().zip(grey) {
+                    if let Some(g) = g {
+                        acc.0 += g;
+                        acc.1 += 1;
+                    }
+                }
+            }
+            sum.iter()
+                .map(|&(s, count)| (count > 0).then(|| s / count as f32))
                 .collect()
         })
         .collect()
