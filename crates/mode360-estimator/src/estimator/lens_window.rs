@@ -260,7 +260,9 @@ fn mean_greys(frames: &[&LensVotes]) -> Vec<Vec<Option<f32>>> {
         .map(|c| {
             let mut sum = vec![(0.0f32, 0u32); cells];
             for frame in frames {
-                let Some(grey) = frame.grey.get(c) else { continue };
+                let Some(grey) = frame.grey.get(c) else {
+                    continue;
+                };
                 for (acc, g) in sum.iter_mut().zip(grey) {
                     if let Some(g) = g {
                         acc.0 += g;
