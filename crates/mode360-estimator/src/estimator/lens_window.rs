@@ -31,7 +31,7 @@ use super::lens_health::{
     MIN_REGION_FRACTION,
 };
 use super::lens_mask::{dilate, LensMask};
-use super::lens_motion::{cell_changes, motion_votes, LensGeometry, STILL_MAX};
+use super::lens_motion::{cell_changes, motion_votes, LensGeometry, CHANGE_MIN, STILL_MAX};
 use mode360_core::geometry::{ErpGrid, Rig};
 use std::collections::VecDeque;
 
@@ -197,7 +197,10 @@ impl LensHealthWindow {
                         }
                     }
                 }
-                if let (Some(change), Some(grey)) = (changes.get(c), greys.get(c)) {
+                let moving = changes.get(c).is_some_and(|change| {
+                    moving_share(change, |k| self.weight(c, k)) >= MIN_MOVING_SHARE
+                });
+                if let (true, Some(change), Some(grey)) = (moving, changes.get(c), greys.get(c)) {
                     grow_blocked(grid, &mut blocked, &mut decided, change, grey);
                 }
                 CameraCells { blocked, decided }
@@ -216,11 +219,34 @@ impl Default for LensHealthWindow {
 /// of the blocked cells for the blocked region to take it in.
 pub const GROW_GREY_DIFF: f32 = 0.08;
 
+/// Share of a camera's view (by weight) that must change over the window for its blocked
+/// regions to grow: on a parked rig everything is still, and stillness says nothing.
+pub const MIN_MOVING_SHARE: f64 = 0.1;
+
+/// Share of the seen weight whose cells change by at least [`CHANGE_MIN`] over the window.
+fn moving_share(change: &[Option<f32>], weight: impl Fn(usize) -> f64) -> f64 {
+    let (mut moving, mut seen) = (0.0, 0.0);
+    for (k, x) in change.iter().enumerate() {
+        if let Some(x) = x {
+            seen += weight(k);
+            if *x >= CHANGE_MIN {
+                moving += weight(k);
+            }
+        }
+    }
+    if seen > 0.0 {
+        moving / seen
+    } else {
+        0.0
+    }
+}
+
 /// Grows the blocked regions into neighbouring cells that neither cue decided, that stay still
 /// over the window and look like the blocker (grey within [`GROW_GREY_DIFF`] of the blocked
 /// cells' median): where a blocker covers a part of the view that fewer than three cameras see
 /// and whose scene is still too (the sky, far facades), neither cue can decide, but the
-/// blocker's own look continues there. Grown cells count as blocked and decided.
+/// blocker's own look continues there. Grown cells count as blocked and decided. Only on a
+/// moving rig (at least [`MIN_MOVING_SHARE`] of the view changing).
 fn grow_blocked(
     grid: ErpGrid,
     blocked: &mut [bool],
@@ -382,5 +408,53 @@ mod tests {
         let big = block(40, 10, 20, 30);
         let frames = vec![frame(&big), frame(&[]), frame(&[])];
         assert!(window(frames).masks().iter().all(Option::is_none));
+    }
+
+    #[test]
+    fn a_blocked_region_grows_into_still_look_alike_cells_only_on_a_moving_rig() {
+        let n = analysis_grid().len();
+        let big = block(40, 10, 20, 30);
+        // Beside it, cells no vote decides (as where fewer than three cameras see).
+        let beside = block(40, 40, 20, 20);
+        let frames = |moving: bool| -> Vec<LensVotes> {
+            (0..3)
+                .map(|t| {
+                    let mut f = frame(&big);
+                    for &k in &beside {
+                        f.votes[1][k] = None;
+                    }
+                    // Camera 1's own view: the blocker dark and still, the cells beside it
+                    // still and nearly as dark, the rest of the scene changing from frame to
+                    // frame when the rig moves.
+                    f.grey[1] = (0..n)
+                        .map(|k| {
+                            Some(if big.contains(&k) {
+                                0.1
+                            } else if beside.contains(&k) {
+                                0.12
+                            } else if moving {
+                                0.3 + 0.2 * t as f32
+                            } else {
+                                0.5
+                            })
+                        })
+                        .collect();
+                    f
+                })
+                .collect()
+        };
+        let moving = window(frames(true));
+        let parked = window(frames(false));
+        let masked =
+            |w: &LensHealthWindow, k: usize| w.masks()[1].as_ref().is_some_and(|m| m.cells()[k]);
+        // Away from the dilated edge of the big region.
+        let inner_beside = block(45, 50, 10, 5);
+        assert!(inner_beside.iter().all(|&k| masked(&moving, k)));
+        assert!(inner_beside.iter().all(|&k| !masked(&parked, k)));
+        let (fm, fp) = (
+            moving.health()[1].blocked_fraction,
+            parked.health()[1].blocked_fraction,
+        );
+        assert!(fm > fp + 0.01, "moving {fm} vs parked {fp}");
     }
 }
