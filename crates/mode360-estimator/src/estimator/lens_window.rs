@@ -20,7 +20,9 @@
 //!
 //! and blocked cells count only in connected regions of at least [`MIN_REGION_FRACTION`] of
 //! the sphere: a blocker is one large region, while the scattered spots of lens soiling and
-//! chance mismatches are small. The blocked fraction is the weight of those regions over the
+//! chance mismatches are small. On a moving rig those regions then grow into the still,
+//! undecided cells around them that look like the blocker (`grow_blocked`). The blocked
+//! fraction is the weight of those regions over the
 //! weight of the decided cells, with each cell weighted by its share of the camera's view
 //! ([`LensGeometry::weights`]: solid angle for an ERP camera, image pixels for a fisheye). The
 //! mask is the regions grown by [`MASK_DILATION_CELLS`] cells, since matching windows that
