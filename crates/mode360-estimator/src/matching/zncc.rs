@@ -12,6 +12,9 @@
 //! The variance floor `eps` sends flat windows to `zncc = 0` (cost 1/2, undecided) rather than to
 //! noise; the mean term separates flat regions of different brightness. The pixel's cost is the
 //! mean of its `k` smallest pair costs: a camera that is occluded spoils only its own pairs.
+//!
+//! The functions are `#[inline(always)]` so that a caller compiled for AVX2 (SSMODE's
+//! photometric channel, [`crate::cpu`]) gets them in 8-wide vectors too.
 
 /// Cost of a pair that cannot tell hypotheses apart.
 pub(crate) const UNDECIDED_COST: f32 = 0.5;
@@ -24,6 +27,7 @@ const SEEN_THRESHOLD: f32 = 0.5;
 ///
 /// `out[v][u] = mean_{|dv|<=r, |du|<=r} in[clamp(v+dv)][(u+du) mod W]`; `tmp` is scratch of
 /// the same size.
+#[inline(always)]
 pub(crate) fn box_mean(
     input: &[f32],
     w: usize,
@@ -91,6 +95,7 @@ pub(crate) struct ViewStats {
 }
 
 impl ViewStats {
+    #[inline(always)]
     pub fn new(image: Vec<f32>, w: usize, h: usize, r: usize, tmp: &mut [f32]) -> Self {
         let mut mean = vec![0.0; image.len()];
         box_mean(&image, w, h, r, tmp, &mut mean);
@@ -115,6 +120,7 @@ impl ViewStats {
 /// `cost' = w cost + (1 - w) / 2`. `seen[c]` (per pixel, `None`: everywhere) says where camera
 /// `c` sees the sphere's point; a pair counts only where both see it, and a pixel no pair
 /// sees is undecided.
+#[inline(always)]
 pub(crate) fn sphere_cost(
     views: &[&ViewStats],
     seen: &[Option<Vec<f32>>],
@@ -172,6 +178,7 @@ pub(crate) fn sphere_cost(
 /// Per pixel, the mean of the smallest of the pair costs that were seen (an unseen pair is
 /// [`UNSEEN_COST`]): `ceil(best S / P)` of the `S` seen of the `P` pairs, the same share as
 /// `best` of all pairs; undecided where no pair was seen.
+#[inline(always)]
 fn combine_best(mut pair_costs: Vec<Vec<f32>>, n: usize, best: usize) -> Vec<f32> {
     let pairs = pair_costs.len();
     if pairs == 0 {

@@ -70,6 +70,7 @@ fn grey_images(images: &[Tensor], b: usize) -> Result<Vec<Vec<f32>>> {
 
 /// Samples `grey` through `table` for the cells `first .. first + out.len()`; returns the
 /// per-cell tap weight (1 where the camera sees the sample, 0 where it does not).
+#[inline(always)]
 fn warp(grey: &[f32], table: &SampleTable, first: usize, out: &mut [f32], seen: &mut [f32]) {
     let (index, weight) = (table.flat_indices(), table.flat_weights());
     for (k, (o, s)) in out.iter_mut().zip(seen.iter_mut()).enumerate() {
@@ -83,6 +84,79 @@ fn warp(grey: &[f32], table: &SampleTable, first: usize, out: &mut [f32], seen: 
         *o = value;
         *s = total;
     }
+}
+
+/// A camera's warped view statistics and, on rigs where not every camera sees every sample,
+/// where it sees the sphere.
+type WarpedView = (ViewStats, Option<Vec<f32>>);
+
+/// What one sphere's channel is computed from (one batch item).
+struct SphereInputs<'a> {
+    grey: &'a [Vec<f32>],
+    tables: &'a [&'a SampleTable],
+    /// Per camera, its statistics when it is the output frame (the same on every sphere).
+    fixed: &'a [Option<WarpedView>],
+    pair_weights: &'a [Vec<f32>],
+    track_seen: bool,
+    params: PairCostParams,
+    w: usize,
+    h: usize,
+}
+
+impl SphereInputs<'_> {
+    /// [`Self::channel`] compiled for AVX2 and FMA (8-wide vectors).
+    ///
+    /// # Safety
+    /// The CPU must run AVX2 and FMA ([`crate::cpu::avx2_fma`]).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn channel_avx2(&self, d: usize) -> Vec<f32> {
+        self.channel(d)
+    }
+
+    /// Sphere `d`'s channel `(H W)`, in `[-1, 1]`.
+    #[inline(always)]
+    fn channel(&self, d: usize) -> Vec<f32> {
+        let (w, h) = (self.w, self.h);
+        let cells = w * h;
+        let mut tmp = vec![0.0f32; cells];
+        let owned: Vec<Option<WarpedView>> = self
+            .grey
+            .iter()
+            .zip(self.tables)
+            .zip(self.fixed)
+            .map(|((g, table), fixed)| {
+                fixed.is_none().then(|| {
+                    let mut warped = vec![0.0f32; cells];
+                    let mut weight = vec![0.0f32; cells];
+                    warp(g, table, d * cells, &mut warped, &mut weight);
+                    let stats =
+                        ViewStats::new(warped, w, h, self.params.window_radius_px, &mut tmp);
+                    (stats, self.track_seen.then(|| seen_mask(&weight)))
+                })
+            })
+            .collect();
+        let per_camera: Vec<&WarpedView> = owned
+            .iter()
+            .zip(self.fixed)
+            .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
+            .collect();
+        let views: Vec<&ViewStats> = per_camera.iter().map(|(v, _)| v).collect();
+        let seen: Vec<Option<Vec<f32>>> = per_camera.iter().map(|(_, s)| s.clone()).collect();
+        sphere_cost(&views, &seen, self.pair_weights, w, h, &self.params)
+            .into_iter()
+            .map(|c| (UNDECIDED_COST - c) / UNDECIDED_COST)
+            .collect()
+    }
+}
+
+/// 1 where a camera's tap weight says it sees the sample, else 0.
+#[inline(always)]
+fn seen_mask(weight: &[f32]) -> Vec<f32> {
+    weight
+        .iter()
+        .map(|&x| if x >= SEEN_WEIGHT { 1.0 } else { 0.0 })
+        .collect()
 }
 
 /// The photometric cost channel `(B, D, H, W, 1)` of `images` (one `(B, H, W, 3)` tensor in
@@ -121,18 +195,12 @@ pub fn photometric_cost(images: &[Tensor], sampling: &SweepSampling) -> Result<T
     let track_seen = sampling.view_scale().is_some();
     let params = pair_params(cameras);
     let mut out = Vec::with_capacity(batch * spheres * cells);
-    let seen_mask = |weight: &[f32]| -> Vec<f32> {
-        weight
-            .iter()
-            .map(|&x| if x >= SEEN_WEIGHT { 1.0 } else { 0.0 })
-            .collect()
-    };
     for b in 0..batch {
         let grey = grey_images(images, b)?;
         // A camera that is the output frame looks the same on every sphere: its statistics
         // are computed once.
         let mut tmp = vec![0.0f32; cells];
-        let fixed: Vec<Option<(ViewStats, Option<Vec<f32>>)>> = grey
+        let fixed: Vec<Option<WarpedView>> = grey
             .iter()
             .zip(&tables)
             .enumerate()
@@ -145,37 +213,27 @@ pub fn photometric_cost(images: &[Tensor], sampling: &SweepSampling) -> Result<T
                 })
             })
             .collect();
+        let sphere = SphereInputs {
+            grey: &grey,
+            tables: &tables,
+            fixed: &fixed,
+            pair_weights,
+            track_seen,
+            params,
+            w,
+            h,
+        };
+        let avx2_fma = crate::cpu::avx2_fma();
         let slices: Vec<Vec<f32>> = (0..spheres)
             .into_par_iter()
             .map(|d| {
-                let mut tmp = vec![0.0f32; cells];
-                let owned: Vec<Option<(ViewStats, Option<Vec<f32>>)>> = grey
-                    .iter()
-                    .zip(&tables)
-                    .zip(&fixed)
-                    .map(|((g, table), fixed)| {
-                        fixed.is_none().then(|| {
-                            let mut warped = vec![0.0f32; cells];
-                            let mut weight = vec![0.0f32; cells];
-                            warp(g, table, d * cells, &mut warped, &mut weight);
-                            let stats =
-                                ViewStats::new(warped, w, h, params.window_radius_px, &mut tmp);
-                            (stats, track_seen.then(|| seen_mask(&weight)))
-                        })
-                    })
-                    .collect();
-                let per_camera: Vec<&(ViewStats, Option<Vec<f32>>)> = owned
-                    .iter()
-                    .zip(&fixed)
-                    .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
-                    .collect();
-                let views: Vec<&ViewStats> = per_camera.iter().map(|(v, _)| v).collect();
-                let seen: Vec<Option<Vec<f32>>> =
-                    per_camera.iter().map(|(_, s)| s.clone()).collect();
-                sphere_cost(&views, &seen, pair_weights, w, h, &params)
-                    .into_iter()
-                    .map(|c| (UNDECIDED_COST - c) / UNDECIDED_COST)
-                    .collect()
+                #[cfg(target_arch = "x86_64")]
+                if avx2_fma {
+                    // SAFETY: the CPU runs AVX2 and FMA (`crate::cpu::avx2_fma`).
+                    return unsafe { sphere.channel_avx2(d) };
+                }
+                let _ = avx2_fma;
+                sphere.channel(d)
             })
             .collect();
         for s in slices {

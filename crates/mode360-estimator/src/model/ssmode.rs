@@ -28,7 +28,7 @@ use super::position_channels::position_channels;
 use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
 use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
-use crate::model::ops::{flop_count, OpsError};
+use crate::model::ops::{append_channels, flop_count, OpsError};
 use mode360_core::geometry::DepthHypotheses;
 
 /// Image channels (RGB).
@@ -253,7 +253,7 @@ impl Ssmode {
         // (B, D, h, w, C' + 1) with the photometric cost channel
         let volume = if self.cfg.photometric_cost {
             let photometric = photometric_cost(images, sampling)?;
-            Tensor::cat(&[&volume, &photometric], 4)?
+            append_channels(&volume, &photometric)?
         } else {
             volume
         };
@@ -261,7 +261,7 @@ impl Ssmode {
         let volume = if self.cfg.position_channels {
             let (b, d, h, w, _) = volume.dims5()?;
             let position = position_channels(b, d, h, w, volume.device())?;
-            Tensor::cat(&[&volume, &position], 4)?
+            append_channels(&volume, &position)?
         } else {
             volume
         };

@@ -21,10 +21,12 @@
 //! | [`conv_transpose3d`] | x `(B, D, H, W, Cin)`, w `(kD, kH, kW, Cin, Cout)` | `(B, Do, Ho, Wo, Cout)` |
 //! | [`conv3d_fused`], [`conv_transpose3d_x2_fused`] | as above, plus bias, residual, ReLU (inference only) | as above |
 //! | [`table_sample`] | features `(B, H, W, C)`, [`SampleTable`] of N taps | `(B, N, C)` |
+//! | [`append_channels`] | a `(…, C1)`, b `(…, C2)` | `(…, C1 + C2)` (`cat` on the last axis) |
 //! | [`sweep_variance`] | features `(M B, H, W, C)`, M tables of N samples | `(B, N, C)` |
 //! | [`upsample_trilinear`] | cost volume `(B, D, H, W)` | `(B, Do, Ho, Wo)` |
 //! | [`resample_linear_axis`] | any tensor, one axis | same rank, that axis resized |
 
+mod append;
 pub mod composite;
 mod conv3d;
 mod conv3d_direct;
@@ -37,6 +39,7 @@ mod table;
 mod table_cuda;
 mod types;
 
+pub use append::append_channels;
 pub use composite::{
     conv3d_composite, conv3d_fused_composite, conv3d_input_grad_composite,
     conv3d_weight_grad_composite, conv_transpose3d_composite, conv_transpose3d_x2_fused_composite,

@@ -112,48 +112,15 @@ impl SweepShape {
             .iter()
             .map(|t| (t.flat_indices(), t.flat_weights()))
             .collect();
-        let sample = |n: usize, m: &mut [f32; C], sq: &mut [f32; C]| {
-            *m = [0.0; C];
-            *sq = [0.0; C];
-            for (plane, (index, weight)) in planes.iter().zip(&tables) {
-                let s = n * SampleTable::TAPS;
-                let (i, w) = (
-                    &index[s..s + SampleTable::TAPS],
-                    &weight[s..s + SampleTable::TAPS],
-                );
-                let px = |k: usize| -> &[f32; C] {
-                    let o = i[k] as usize * C;
-                    plane[o..o + C].try_into().unwrap_or(&[0.0; C])
-                };
-                let (p0, p1, p2, p3) = (px(0), px(1), px(2), px(3));
-                for j in 0..C {
-                    let v = w[0] * p0[j] + w[1] * p1[j] + w[2] * p2[j] + w[3] * p3[j];
-                    m[j] += v;
-                    sq[j] += v * v;
-                }
+        let avx2_fma = crate::cpu::avx2_fma();
+        let run = |t: usize, mean_t: Option<&mut [f32]>, var_t: Option<&mut [f32]>| {
+            #[cfg(target_arch = "x86_64")]
+            if avx2_fma {
+                // SAFETY: the CPU runs AVX2 and FMA (`crate::cpu::avx2_fma`).
+                return unsafe { self.moments_task_avx2::<C>(&planes, &tables, t, mean_t, var_t) };
             }
-            let inv_m = self.scale(n);
-            for j in 0..C {
-                m[j] *= inv_m;
-                sq[j] = sq[j] * inv_m - m[j] * m[j];
-            }
-        };
-        // samples t·SAMPLES_PER_TASK.. of one task into its chunks of the outputs
-        let run = |t: usize, mut mean_t: Option<&mut [f32]>, mut var_t: Option<&mut [f32]>| {
-            let len = mean_t
-                .as_deref()
-                .or(var_t.as_deref())
-                .map_or(0, <[f32]>::len);
-            let (mut m, mut sq) = ([0f32; C], [0f32; C]);
-            for j in 0..len / C {
-                sample(t * SAMPLES_PER_TASK + j, &mut m, &mut sq);
-                if let Some(mo) = mean_t.as_deref_mut() {
-                    mo[j * C..(j + 1) * C].copy_from_slice(&m);
-                }
-                if let Some(vo) = var_t.as_deref_mut() {
-                    vo[j * C..(j + 1) * C].copy_from_slice(&sq);
-                }
-            }
+            let _ = avx2_fma;
+            self.moments_task::<C>(&planes, &tables, t, mean_t, var_t)
         };
         let task = SAMPLES_PER_TASK * C;
         match (mean_b, var_b) {
@@ -171,6 +138,72 @@ impl SweepShape {
                 .enumerate()
                 .for_each(|(t, v)| run(t, None, Some(v))),
             (None, None) => {}
+        }
+    }
+
+    /// [`Self::moments_task`] compiled for AVX2 and FMA (8-wide vectors).
+    ///
+    /// # Safety
+    /// The CPU must run AVX2 and FMA ([`crate::cpu::avx2_fma`]).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn moments_task_avx2<const C: usize>(
+        &self,
+        planes: &[&[f32]],
+        tables: &[(&[u32], &[f32])],
+        t: usize,
+        mean_t: Option<&mut [f32]>,
+        var_t: Option<&mut [f32]>,
+    ) {
+        self.moments_task::<C>(planes, tables, t, mean_t, var_t)
+    }
+
+    /// Samples `t·SAMPLES_PER_TASK ..` of one rayon task (camera planes `(H W, C)` of one batch
+    /// item, each camera's table) into the task's chunks of the outputs.
+    #[inline(always)]
+    fn moments_task<const C: usize>(
+        &self,
+        planes: &[&[f32]],
+        tables: &[(&[u32], &[f32])],
+        t: usize,
+        mut mean_t: Option<&mut [f32]>,
+        mut var_t: Option<&mut [f32]>,
+    ) {
+        const TAPS: usize = SampleTable::TAPS;
+        let len = mean_t
+            .as_deref()
+            .or(var_t.as_deref())
+            .map_or(0, <[f32]>::len);
+        for j in 0..len / C {
+            let n = t * SAMPLES_PER_TASK + j;
+            let (mut m, mut sq) = ([0f32; C], [0f32; C]);
+            let s = n * TAPS;
+            for (plane, (index, weight)) in planes.iter().zip(tables) {
+                let (i, w) = (&index[s..s + TAPS], &weight[s..s + TAPS]);
+                let mut v = [0f32; C];
+                for k in 0..TAPS {
+                    let o = i[k] as usize * C;
+                    let p: &[f32; C] = plane[o..o + C].try_into().unwrap_or(&[0.0; C]);
+                    for c in 0..C {
+                        v[c] += w[k] * p[c];
+                    }
+                }
+                for c in 0..C {
+                    m[c] += v[c];
+                    sq[c] += v[c] * v[c];
+                }
+            }
+            let inv_m = self.scale(n);
+            for c in 0..C {
+                m[c] *= inv_m;
+                sq[c] = sq[c] * inv_m - m[c] * m[c];
+            }
+            if let Some(mo) = mean_t.as_deref_mut() {
+                mo[j * C..(j + 1) * C].copy_from_slice(&m);
+            }
+            if let Some(vo) = var_t.as_deref_mut() {
+                vo[j * C..(j + 1) * C].copy_from_slice(&sq);
+            }
         }
     }
 
