@@ -1,0 +1,138 @@
+//! [`CheckFrame`]: one frame prepared for the calibration check.
+
+use super::check::RotationCheck;
+use crate::estimator::lens_health::ranges_on;
+use crate::estimator::lens_mask::LensMask;
+use crate::estimator::photometric::sampling::bilinear_wrapped;
+use crate::estimator::EstimatorError;
+use crate::matching::{luma, INTENSITY_SCALE};
+use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::geometry::panorama::RigRemap;
+use mode360_core::geometry::ErpGrid;
+
+/// One frame, prepared for the check: each camera's grey panorama and where it sees, and the
+/// estimated range on the analysis grid.
+#[derive(Clone, Debug)]
+pub struct CheckFrame {
+    pub(super) grey: Vec<Panorama>,
+    pub(super) ranges_m: Vec<f32>,
+    /// Per camera, the range estimated without it (empty: `ranges_m` for every camera).
+    pub(super) ranges_without_m: Vec<Vec<f32>>,
+}
+
+impl CheckFrame {
+    /// Leaves out the blocked part of each camera's view (`masks` in rig order, `None` or
+    /// missing where nothing is blocked): mud agrees with nothing at any turn, and where it
+    /// covers a part seen by few cameras it pulls the best turn off.
+    pub fn mask_lenses(&mut self, masks: &[Option<LensMask>]) {
+        for (pano, mask) in self.grey.iter_mut().zip(masks) {
+            let Some(mask) = mask else { continue };
+            let blocked = mask.blocked_on(pano.grid);
+            let valid = pano.valid.get_or_insert_with(|| vec![1.0; blocked.len()]);
+            for (v, b) in valid.iter_mut().zip(blocked) {
+                if b {
+                    *v = 0.0;
+                }
+            }
+        }
+    }
+
+    /// The range camera `c` is checked at: estimated without it where that was given.
+    pub(super) fn ranges_for(&self, c: usize) -> &[f32] {
+        self.ranges_without_m.get(c).unwrap_or(&self.ranges_m)
+    }
+}
+
+#[derive(Clone, Debug)]
+pub(super) struct Panorama {
+    pub(super) grid: ErpGrid,
+    grey: Vec<f32>,
+    /// Per panorama pixel, whether the camera sees it (`None`: everywhere).
+    valid: Option<Vec<f32>>,
+}
+
+impl Panorama {
+    /// Grey value at panorama pixel `[u, v]`, or `None` where the camera does not see.
+    pub(super) fn sample(&self, [u, v]: [f32; 2]) -> Option<f32> {
+        let (w, h) = (self.grid.width(), self.grid.height());
+        if let Some(valid) = &self.valid {
+            let ui = (u.round() as i64).rem_euclid(w as i64) as usize;
+            let vi = (v.round() as i64).clamp(0, h as i64 - 1) as usize;
+            if valid[vi * w + ui] <= 0.5 {
+                return None;
+            }
+        }
+        Some(bilinear_wrapped(&self.grey, w, h, u, v))
+    }
+}
+
+impl RotationCheck {
+    /// Prepares one frame: `images` in rig order, `range_m` the estimated range of the output
+    /// frame (any ERP width; NaN or infinite ranges count as the farthest estimate).
+    pub fn frame(
+        &self,
+        images: &[RgbImage],
+        range_m: &FloatImage,
+    ) -> Result<CheckFrame, EstimatorError> {
+        if images.len() != self.rig.cameras.len() {
+            return Err(EstimatorError::ImageCount {
+                got: images.len(),
+                expected: self.rig.cameras.len(),
+            });
+        }
+        let remap = RigRemap::new(&self.rig, self.grid);
+        let panoramas =
+            remap
+                .panoramas(images)
+                .map_err(|(camera, e)| EstimatorError::BadImage {
+                    camera,
+                    problem: e.to_string(),
+                })?;
+        let validity = remap.validity();
+        let grey = panoramas
+            .iter()
+            .zip(validity)
+            .zip(&self.rig.cameras)
+            .map(|((pano, valid), cam)| {
+                let (w, h) = (pano.width() as usize, pano.height() as usize);
+                let grid = ErpGrid::new(w).map_err(|_| EstimatorError::BadImageSize {
+                    camera: cam.name.clone(),
+                    width: w as u32,
+                    height: h as u32,
+                })?;
+                let grey = pano
+                    .pixels()
+                    .map(|p| {
+                        luma([f32::from(p[0]), f32::from(p[1]), f32::from(p[2])]) * INTENSITY_SCALE
+                    })
+                    .collect();
+                Ok(Panorama { grid, grey, valid })
+            })
+            .collect::<Result<Vec<_>, EstimatorError>>()?;
+        Ok(CheckFrame {
+            grey,
+            ranges_m: ranges_on(self.grid, range_m),
+            ranges_without_m: Vec::new(),
+        })
+    }
+
+    /// [`Self::frame`] with, per camera, the range estimated from the other cameras only: a
+    /// turned camera pulls a joint estimate towards agreeing with it (which hides part of its
+    /// turn), an estimate without it cannot. `without_m` is in rig order, one per camera.
+    pub fn frame_with_exclusions(
+        &self,
+        images: &[RgbImage],
+        range_m: &FloatImage,
+        without_m: &[FloatImage],
+    ) -> Result<CheckFrame, EstimatorError> {
+        if without_m.len() != self.rig.cameras.len() {
+            return Err(EstimatorError::ImageCount {
+                got: without_m.len(),
+                expected: self.rig.cameras.len(),
+            });
+        }
+        let mut frame = self.frame(images, range_m)?;
+        frame.ranges_without_m = without_m.iter().map(|r| ranges_on(self.grid, r)).collect();
+        Ok(frame)
+    }
+}

@@ -1,0 +1,75 @@
+//! [`refine_rotations`]: the rig's rotations corrected camera by camera.
+
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+
+use super::check::RotationCheck;
+use super::frame::CheckFrame;
+use super::{CameraCorrection, RotationCheckConfig, MIN_REFINE_GAIN};
+use crate::estimator::EstimatorError;
+use mode360_core::geometry::Rig;
+
+/// `rig` with each correction applied: camera `c`'s rotation becomes `Q_c R_c`.
+pub fn apply_corrections(rig: &Rig, corrections: &[CameraCorrection]) -> Rig {
+    let mut out = rig.clone();
+    for corr in corrections {
+        if let Some(cam) = out.cameras.get_mut(corr.camera) {
+            cam.rig_from_cam = Isometry3::from_parts(
+                cam.rig_from_cam.translation,
+                corr.rotation_rig() * cam.rig_from_cam.rotation,
+            );
+        }
+    }
+    out
+}
+
+/// Corrects the rig's rotations camera by camera: each round finds every camera's best
+/// correction against the others and applies the one that raises the agreement most, until
+/// no correction is larger than the search's last step or gains [`MIN_REFINE_GAIN`]. The
+/// reference camera is never turned: turning every camera alike changes little that the
+/// images show, so the others are aligned to it (as a calibration tool anchors camera 0).
+/// Returns the refined rig and each camera's total correction (rig axes).
+pub fn refine_rotations(
+    rig: &Rig,
+    frames: &[CheckFrame],
+    cfg: &RotationCheckConfig,
+) -> Result<(Rig, Vec<CameraCorrection>), EstimatorError> {
+    let n = rig.cameras.len();
+    let mut current = rig.clone();
+    let mut total: Vec<UnitQuaternion<f64>> = vec![UnitQuaternion::identity(); n];
+    let mut last = Vec::new();
+    for _round in 0..n {
+        let check = RotationCheck::new(&current, cfg.clone())?;
+        let corrections = check.corrections(frames)?;
+        let best = corrections
+            .iter()
+            .filter(|c| c.camera != rig.reference)
+            .max_by(|a, b| a.gain().total_cmp(&b.gain()))
+            .cloned();
+        last = corrections;
+        let Some(best) = best else { break };
+        if best.angle_deg < cfg.min_step_deg || best.gain() < MIN_REFINE_GAIN {
+            break;
+        }
+        total[best.camera] = best.rotation_rig() * total[best.camera];
+        current = apply_corrections(&current, std::slice::from_ref(&best));
+    }
+    let check = RotationCheck::new(rig, cfg.clone())?;
+    let mut summary = Vec::with_capacity(n);
+    for (c, q) in total.iter().enumerate() {
+        let w = q.scaled_axis();
+        let before = check.agreement_of(frames, c, &Vector3::zeros())?;
+        let after_check = RotationCheck::new(&current, cfg.clone())?;
+        let after = after_check.agreement_of(frames, c, &Vector3::zeros())?;
+        let cells = last.iter().find(|x| x.camera == c).map_or(0, |x| x.cells);
+        summary.push(CameraCorrection {
+            camera: c,
+            name: rig.cameras[c].name.clone(),
+            rotation_vector_rig: w,
+            angle_deg: w.norm().to_degrees(),
+            agreement_before: before,
+            agreement_after: after,
+            cells,
+        });
+    }
+    Ok((current, summary))
+}
