@@ -11,6 +11,7 @@ use super::{
 use crate::estimator::photometric::sampling::CameraSampler;
 use crate::estimator::EstimatorError;
 use crate::matching::zncc::{box_mean, ViewStats};
+use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::panorama::panorama_rig;
 use mode360_core::geometry::{ErpGrid, PixelCoord, Rig};
 
@@ -83,6 +84,30 @@ impl RotationCheck {
 
     pub fn config(&self) -> &RotationCheckConfig {
         &self.cfg
+    }
+
+    /// Prepares one frame: `images` in rig order, `range_m` the estimated range of the output
+    /// frame (any ERP width; NaN or infinite ranges count as the farthest estimate).
+    pub fn frame(
+        &self,
+        images: &[RgbImage],
+        range_m: &FloatImage,
+    ) -> Result<CheckFrame, EstimatorError> {
+        CheckFrame::new(&self.rig, self.grid, images, range_m)
+    }
+
+    /// [`Self::frame`] with, per camera, the range estimated from the other cameras only: a
+    /// turned camera pulls a joint estimate towards agreeing with it (which hides part of its
+    /// turn), an estimate without it cannot. `without_m` is in rig order, one per camera.
+    pub fn frame_with_exclusions(
+        &self,
+        images: &[RgbImage],
+        range_m: &FloatImage,
+        without_m: &[FloatImage],
+    ) -> Result<CheckFrame, EstimatorError> {
+        let mut frame = self.frame(images, range_m)?;
+        frame.set_ranges_without(self.grid, without_m)?;
+        Ok(frame)
     }
 
     /// The sampler of camera `camera` turned by `w` (rig axes) for panoramas on `pano_grid`.

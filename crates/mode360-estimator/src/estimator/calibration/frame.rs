@@ -1,6 +1,5 @@
 //! [`CheckFrame`]: one frame prepared for the calibration check.
 
-use super::check::RotationCheck;
 use crate::estimator::lens_health::ranges_on;
 use crate::estimator::lens_mask::LensMask;
 use crate::estimator::photometric::sampling::bilinear_wrapped;
@@ -8,7 +7,7 @@ use crate::estimator::EstimatorError;
 use crate::matching::{luma, INTENSITY_SCALE};
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::panorama::RigRemap;
-use mode360_core::geometry::ErpGrid;
+use mode360_core::geometry::{ErpGrid, Rig};
 
 /// One frame, prepared for the check: each camera's grey panorama and where it sees, and the
 /// estimated range on the analysis grid.
@@ -66,21 +65,23 @@ impl Panorama {
     }
 }
 
-impl RotationCheck {
-    /// Prepares one frame: `images` in rig order, `range_m` the estimated range of the output
-    /// frame (any ERP width; NaN or infinite ranges count as the farthest estimate).
-    pub fn frame(
-        &self,
+impl CheckFrame {
+    /// One frame of `rig` on the analysis `grid`: `images` in rig order, `range_m` the
+    /// estimated range of the output frame (any ERP width; NaN or infinite ranges count as the
+    /// farthest estimate).
+    pub(super) fn new(
+        rig: &Rig,
+        grid: ErpGrid,
         images: &[RgbImage],
         range_m: &FloatImage,
-    ) -> Result<CheckFrame, EstimatorError> {
-        if images.len() != self.rig.cameras.len() {
+    ) -> Result<Self, EstimatorError> {
+        if images.len() != rig.cameras.len() {
             return Err(EstimatorError::ImageCount {
                 got: images.len(),
-                expected: self.rig.cameras.len(),
+                expected: rig.cameras.len(),
             });
         }
-        let remap = RigRemap::new(&self.rig, self.grid);
+        let remap = RigRemap::new(rig, grid);
         let panoramas =
             remap
                 .panoramas(images)
@@ -92,7 +93,7 @@ impl RotationCheck {
         let grey = panoramas
             .iter()
             .zip(validity)
-            .zip(&self.rig.cameras)
+            .zip(&rig.cameras)
             .map(|((pano, valid), cam)| {
                 let (w, h) = (pano.width() as usize, pano.height() as usize);
                 let grid = ErpGrid::new(w).map_err(|_| EstimatorError::BadImageSize {
@@ -109,30 +110,26 @@ impl RotationCheck {
                 Ok(Panorama { grid, grey, valid })
             })
             .collect::<Result<Vec<_>, EstimatorError>>()?;
-        Ok(CheckFrame {
+        Ok(Self {
             grey,
-            ranges_m: ranges_on(self.grid, range_m),
+            ranges_m: ranges_on(grid, range_m),
             ranges_without_m: Vec::new(),
         })
     }
 
-    /// [`Self::frame`] with, per camera, the range estimated from the other cameras only: a
-    /// turned camera pulls a joint estimate towards agreeing with it (which hides part of its
-    /// turn), an estimate without it cannot. `without_m` is in rig order, one per camera.
-    pub fn frame_with_exclusions(
-        &self,
-        images: &[RgbImage],
-        range_m: &FloatImage,
+    /// Sets, per camera (rig order), the range estimated without it.
+    pub(super) fn set_ranges_without(
+        &mut self,
+        grid: ErpGrid,
         without_m: &[FloatImage],
-    ) -> Result<CheckFrame, EstimatorError> {
-        if without_m.len() != self.rig.cameras.len() {
+    ) -> Result<(), EstimatorError> {
+        if without_m.len() != self.grey.len() {
             return Err(EstimatorError::ImageCount {
                 got: without_m.len(),
-                expected: self.rig.cameras.len(),
+                expected: self.grey.len(),
             });
         }
-        let mut frame = self.frame(images, range_m)?;
-        frame.ranges_without_m = without_m.iter().map(|r| ranges_on(self.grid, r)).collect();
-        Ok(frame)
+        self.ranges_without_m = without_m.iter().map(|r| ranges_on(grid, r)).collect();
+        Ok(())
     }
 }
