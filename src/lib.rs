@@ -16,7 +16,7 @@ pub mod cli;
 pub mod viz;
 
 pub use mode360_core::{frame, geometry, memory, metrics, sync};
-pub use mode360_estimator::{estimator, matching, model};
+pub use mode360_estimator::{cpu, estimator, matching, model};
 pub use mode360_io::{bag, deep360, msgs};
 pub use mode360_node::node;
 pub use mode360_synth::synth;

@@ -79,3 +79,79 @@ fn the_photometric_channel_ranges_a_street_from_parallax_alone() {
     assert!(truth.delta1_pct >= MIN_TRUE_DELTA1_PCT, "{msg}");
     assert!(same.delta1_pct <= MAX_SAME_IMAGE_DELTA1_PCT, "{msg}");
 }
+
+/// The cost volume's AVX2 builds (`mode360::cpu`) and the baseline x86-64 ones give the same
+/// bits: the photometric channel and the feature variance over views on a rendered street. On a
+/// CPU without AVX2 both runs take the baseline path.
+#[test]
+fn the_avx2_and_baseline_cost_volumes_agree_exactly() {
+    use mode360::cpu::{avx2_fma, with_baseline_kernels};
+    use mode360::model::ops::{sweep_variance, SampleTable};
+
+    let cfg = SsmodeConfig {
+        width: WIDTH,
+        ..SsmodeConfig::parallax_zncc()
+    };
+    let rig = deep360_rig();
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: SEED,
+        width: WIDTH,
+        max_depth_m: cfg.max_depth_m,
+        ..Default::default()
+    })
+    .unwrap()
+    .render_frame(&rig, FRAME);
+    let sampling = SweepSampling::new(&rig, &cfg).unwrap();
+    let images: Vec<_> = frame
+        .images
+        .iter()
+        .map(|img| input_tensor(img, WIDTH, &Device::Cpu).unwrap())
+        .collect();
+    let tables: Vec<SampleTable> = (0..rig.cameras.len())
+        .map(|c| sampling.sweep_table(c).unwrap().clone())
+        .collect();
+    // (M B, H, W, 8) features: any values; the op only gathers and reduces them
+    let features = candle_core::Tensor::randn(
+        0f32,
+        1.0,
+        (rig.cameras.len(), cfg.cost_height(), cfg.cost_width(), 8),
+        &Device::Cpu,
+    )
+    .unwrap();
+    let run = || {
+        let channel: Vec<f32> = photometric_cost(&images, &sampling)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        let variance: Vec<f32> = sweep_variance(&features, &tables)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        (channel, variance)
+    };
+    println!("AVX2 and FMA on this CPU: {}", avx2_fma());
+    let (channel, variance) = run();
+    let (channel_base, variance_base) = with_baseline_kernels(run);
+    assert_eq!(channel.len(), channel_base.len());
+    let differ = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .filter(|(x, y)| x.to_bits() != y.to_bits())
+            .count()
+    };
+    assert_eq!(
+        differ(&channel, &channel_base),
+        0,
+        "photometric channel values differ"
+    );
+    assert_eq!(
+        differ(&variance, &variance_base),
+        0,
+        "feature variance values differ"
+    );
+    assert!(variance.iter().any(|&v| v > 0.0));
+}
