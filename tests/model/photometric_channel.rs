@@ -4,6 +4,8 @@
 
 use crate::common::deep360_rig;
 use candle_core::Device;
+use mode360::frame::RigFrame;
+use mode360::geometry::Rig;
 use mode360::metrics::depth_metrics;
 use mode360::model::photometric_cost::photometric_cost;
 use mode360::model::{input_tensor, SsmodeConfig, SweepSampling};
@@ -30,8 +32,9 @@ fn winner_take_all(channel: &[f32], cfg: &SsmodeConfig, cells: usize) -> Vec<f32
         .collect()
 }
 
-#[test]
-fn the_photometric_channel_ranges_a_street_from_parallax_alone() {
+/// The `parallax_zncc` configuration at `WIDTH`, the Deep360 rig and its frame `FRAME` of a
+/// varied street.
+fn street_frame() -> (SsmodeConfig, Rig, RigFrame) {
     let cfg = SsmodeConfig {
         width: WIDTH,
         ..SsmodeConfig::parallax_zncc()
@@ -46,6 +49,12 @@ fn the_photometric_channel_ranges_a_street_from_parallax_alone() {
     })
     .unwrap()
     .render_frame(&rig, FRAME);
+    (cfg, rig, frame)
+}
+
+#[test]
+fn the_photometric_channel_ranges_a_street_from_parallax_alone() {
+    let (cfg, rig, frame) = street_frame();
     let gt = frame.ground_truth.clone().unwrap();
     let sampling = SweepSampling::new(&rig, &cfg).unwrap();
     let cells = cfg.cost_width() * cfg.cost_height();
@@ -88,19 +97,7 @@ fn the_avx2_and_baseline_cost_volumes_agree_exactly() {
     use mode360::cpu::{avx2_fma, with_baseline_kernels};
     use mode360::model::ops::{sweep_variance, SampleTable};
 
-    let cfg = SsmodeConfig {
-        width: WIDTH,
-        ..SsmodeConfig::parallax_zncc()
-    };
-    let rig = deep360_rig();
-    let frame = SynthRenderer::new(SynthConfig {
-        seed: SEED,
-        width: WIDTH,
-        max_depth_m: cfg.max_depth_m,
-        ..Default::default()
-    })
-    .unwrap()
-    .render_frame(&rig, FRAME);
+    let (cfg, rig, frame) = street_frame();
     let sampling = SweepSampling::new(&rig, &cfg).unwrap();
     let images: Vec<_> = frame
         .images
