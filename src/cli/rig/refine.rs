@@ -10,10 +10,12 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_estimator::estimator::calibration::{
-    refine_rotations, CameraCorrection, RotationCheck, RotationCheckConfig, MIN_TEXTURED_CELLS,
+    keep_earned_corrections, refine_rotations, turns, CameraCorrection, RotationCheck,
+    RotationCheckConfig, MIN_TEXTURED_CELLS,
 };
 use mode360_estimator::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360_io::bag::RigBagReader;
+use nalgebra::Vector3;
 use std::path::PathBuf;
 
 /// Fewest frames `rig refine` accepts: one frame's depth errors and occlusions are too easily
@@ -22,11 +24,11 @@ pub const MIN_REFINE_FRAMES: usize = 2;
 /// Frames used by default.
 pub const DEFAULT_REFINE_FRAMES: usize = 6;
 /// Depth-and-rotation passes: the sweep's depth is estimated again with the rotations refined
-/// so far. A third pass (`--passes 3`) was measured (docs/commands.md, rig refine): it brings a
-/// knocked camera closer (a 1 degree oblique knock 0.123 -> 0.058 degree, a 2 degree yaw 0.41
-/// -> 0.045) but can turn a camera that was not knocked (0.17 degree of yaw on the bags test's
-/// world, where 2 passes leave it under 0.1), so the default stays at 2.
-pub const REFINE_PASSES: usize = 2;
+/// so far. The third pass brings a knocked camera closer (a 1 degree oblique knock 0.124 ->
+/// 0.055 degree on the bags test's world) and can turn a camera that was not knocked (0.17
+/// degree of yaw there), which [`keep_earned_corrections`] undoes (docs/commands.md, rig
+/// refine).
+pub const REFINE_PASSES: usize = 3;
 /// Cameras a rig needs for each camera to be checked against depth estimated without it; a
 /// two-camera rig uses the joint depth.
 pub const MIN_CAMERAS_FOR_EXCLUSION: usize = 3;
@@ -94,6 +96,7 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
     let mut rig = start.clone();
     let mut first_pass: Option<Vec<CameraCorrection>> = None;
     let mut last_pass = Vec::new();
+    let mut last_frames = Vec::new();
     for _pass in 0..a.passes {
         // Depth with the calibration as refined so far: a turned camera bends the sweep's
         // depth towards agreeing with it, so each pass starts from better depth.
@@ -138,30 +141,27 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
         rig = refined;
         first_pass.get_or_insert_with(|| corrections.clone());
         last_pass = corrections;
+        last_frames = frames;
     }
+    // A turn that undoing costs next to nothing was fitted to the depth errors a knocked camera
+    // leaves near itself: the camera keeps its starting rotation.
+    let (rig, _gains) = keep_earned_corrections(&start, &rig, &last_frames, &cfg)?;
     // Each camera's whole change from the starting calibration, with the agreement before
-    // the first pass and after the last.
+    // the first pass and after (on the last pass's depth).
     let first_pass = first_pass.unwrap_or_default();
-    let corrections = rig
-        .cameras
-        .iter()
-        .zip(&start.cameras)
-        .enumerate()
-        .map(|(c, (now, was))| {
-            let w = (now.rig_from_cam.rotation * was.rig_from_cam.rotation.inverse()).scaled_axis();
-            let before = first_pass.get(c).map_or(f64::NAN, |x| x.agreement_before);
-            let after = last_pass.get(c).map_or(f64::NAN, |x| x.agreement_after);
-            CameraCorrection {
-                camera: c,
-                name: now.name.clone(),
-                rotation_vector_rig: w,
-                angle_deg: w.norm().to_degrees(),
-                agreement_before: before,
-                agreement_after: after,
-                cells: last_pass.get(c).map_or(0, |x| x.cells),
-            }
-        })
-        .collect();
+    let final_check = RotationCheck::new(&rig, cfg.clone())?;
+    let mut corrections = Vec::with_capacity(rig.cameras.len());
+    for (c, w) in turns(&start, &rig).into_iter().enumerate() {
+        corrections.push(CameraCorrection {
+            camera: c,
+            name: rig.cameras[c].name.clone(),
+            rotation_vector_rig: w,
+            angle_deg: w.norm().to_degrees(),
+            agreement_before: first_pass.get(c).map_or(f64::NAN, |x| x.agreement_before),
+            agreement_after: final_check.agreement_of(&last_frames, c, &Vector3::zeros())?,
+            cells: last_pass.get(c).map_or(0, |x| x.cells),
+        });
+    }
     let frames = recorded.len();
     Ok(RefineSummary {
         rig,

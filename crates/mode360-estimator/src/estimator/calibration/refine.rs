@@ -4,7 +4,7 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
 use super::check::RotationCheck;
 use super::frame::CheckFrame;
-use super::{CameraCorrection, RotationCheckConfig, MIN_REFINE_GAIN};
+use super::{CameraCorrection, RotationCheckConfig, MIN_KEEP_GAIN, MIN_REFINE_GAIN};
 use crate::estimator::EstimatorError;
 use mode360_core::geometry::Rig;
 
@@ -72,4 +72,64 @@ pub fn refine_rotations(
         });
     }
     Ok((current, summary))
+}
+
+/// What keeping each camera's whole correction is worth: for every camera turned between
+/// `start` and `refined`, its agreement on `refined` minus its agreement with its own turn
+/// undone (the others kept), on the cells of `refined`'s check:
+///
+/// ```text
+/// g_c = A_c(0) - A_c(-w_c),   exp([w_c]x) = R'_c R_c^-1
+/// ```
+///
+/// Cameras not turned get 0.
+pub fn correction_gains(
+    start: &Rig,
+    refined: &Rig,
+    frames: &[CheckFrame],
+    cfg: &RotationCheckConfig,
+) -> Result<Vec<f64>, EstimatorError> {
+    let check = RotationCheck::new(refined, cfg.clone())?;
+    let mut gains = Vec::with_capacity(refined.cameras.len());
+    for (c, turn) in turns(start, refined).iter().enumerate() {
+        if turn.norm() == 0.0 {
+            gains.push(0.0);
+            continue;
+        }
+        let kept = check.agreement_of(frames, c, &Vector3::zeros())?;
+        let undone = check.agreement_of(frames, c, &(-turn))?;
+        gains.push(kept - undone);
+    }
+    Ok(gains)
+}
+
+/// `refined` with the corrections that do not earn their keep undone: a camera whose
+/// [`correction_gains`] entry is under [`MIN_KEEP_GAIN`] gets its rotation from `start` back.
+/// Depth estimated with one camera knocked is slightly wrong near that camera, and the
+/// refinement turns cameras that were right by up to a tenth of a degree to fit it; undoing
+/// such a turn costs almost nothing, undoing a real correction a great deal. Returns the rig
+/// and the gains.
+pub fn keep_earned_corrections(
+    start: &Rig,
+    refined: &Rig,
+    frames: &[CheckFrame],
+    cfg: &RotationCheckConfig,
+) -> Result<(Rig, Vec<f64>), EstimatorError> {
+    let gains = correction_gains(start, refined, frames, cfg)?;
+    let mut out = refined.clone();
+    for (c, (turn, gain)) in turns(start, refined).iter().zip(&gains).enumerate() {
+        if turn.norm() > 0.0 && *gain < MIN_KEEP_GAIN {
+            out.cameras[c].rig_from_cam.rotation = start.cameras[c].rig_from_cam.rotation;
+        }
+    }
+    Ok((out, gains))
+}
+
+/// Each camera's turn from `start` to `now` (rig axes, radians): `exp([w]x) = R_now R_start^-1`.
+pub fn turns(start: &Rig, now: &Rig) -> Vec<Vector3<f64>> {
+    now.cameras
+        .iter()
+        .zip(&start.cameras)
+        .map(|(n, s)| (n.rig_from_cam.rotation * s.rig_from_cam.rotation.inverse()).scaled_axis())
+        .collect()
 }
