@@ -388,6 +388,7 @@ impl PhotometricSweep {
                         })
                     })
                     .collect();
+                let seen: Vec<Option<&[f32]>> = seen.iter().map(Option::as_deref).collect();
                 cost::sphere_cost(&views, &seen, &cache.pair_weights, w, h, &params)
             })
             .collect();

@@ -123,7 +123,7 @@ impl ViewStats {
 #[inline(always)]
 pub(crate) fn sphere_cost(
     views: &[&ViewStats],
-    seen: &[Option<Vec<f32>>],
+    seen: &[Option<&[f32]>],
     pair_weights: &[Vec<f32>],
     w: usize,
     h: usize,
@@ -163,7 +163,7 @@ pub(crate) fn sphere_cost(
                 }
             }
             for mask in [seen.get(a), seen.get(b)].into_iter().flatten().flatten() {
-                for (c, m) in cost.iter_mut().zip(mask) {
+                for (c, m) in cost.iter_mut().zip(mask.iter()) {
                     if *m < SEEN_THRESHOLD {
                         *c = UNSEEN_COST;
                     }

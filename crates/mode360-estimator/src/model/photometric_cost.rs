@@ -142,7 +142,7 @@ impl SphereInputs<'_> {
             .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
             .collect();
         let views: Vec<&ViewStats> = per_camera.iter().map(|(v, _)| v).collect();
-        let seen: Vec<Option<Vec<f32>>> = per_camera.iter().map(|(_, s)| s.clone()).collect();
+        let seen: Vec<Option<&[f32]>> = per_camera.iter().map(|(_, s)| s.as_deref()).collect();
         sphere_cost(&views, &seen, self.pair_weights, w, h, &self.params)
             .into_iter()
             .map(|c| (UNDECIDED_COST - c) / UNDECIDED_COST)
