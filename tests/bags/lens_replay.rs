@@ -66,6 +66,15 @@ fn replay_names_the_blocked_lens_on_diagnostics() -> TestResult {
         let fraction: f64 = diagnostic_value(&last, &name, "blocked_fraction")
             .ok_or("no blocked_fraction")?
             .parse()?;
+        // The Deep360 rig's four panoramas let the check decide (nearly) the whole view.
+        let decided: f64 = diagnostic_value(&last, &name, "lens_decided_fraction")
+            .ok_or("no lens_decided_fraction")?
+            .parse()?;
+        assert!(
+            decided > 0.9 && decided <= 1.0,
+            "{}: decided {decided}",
+            cam.name
+        );
         if c == blocker.camera {
             assert!(
                 (fraction - blocker.fraction).abs() <= BLOCKED_TOLERANCE,

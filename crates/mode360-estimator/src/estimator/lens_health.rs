@@ -305,8 +305,9 @@ fn odd_one_out(warped: &[Vec<Option<f32>>], grid: ErpGrid, c: usize, k: usize) -
 /// One camera's lens health over a window of frames ([`super::lens_window`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LensHealth {
-    /// Share of the decided view found blocked, 0 to 1 (each part weighted by its share of the
-    /// camera's view: solid angle for an ERP camera, image pixels for a fisheye).
+    /// Share of the camera's view found blocked, 0 to 1 (each part weighted by its share of the
+    /// view: solid angle for an ERP camera, image pixels for a fisheye). Undecided parts count
+    /// as clear ([`super::lens_window`]).
     pub blocked_fraction: f64,
     /// Share of the camera's view that was decided (how much the fraction rests on).
     pub decided_fraction: f64,

@@ -123,11 +123,11 @@ impl LensHealthWindow {
                     }
                 }
                 LensHealth {
-                    blocked_fraction: if decided > 0.0 {
-                        blocked / decided
-                    } else {
-                        0.0
-                    },
+                    // Of the whole view, not of its decided part: a blocker is decided wherever
+                    // it covers the view (the odd one out, still before a changing scene, or
+                    // grown through still cells that look like it), so what stays undecided is
+                    // clear view that no cue could check (the sky, parts few cameras see).
+                    blocked_fraction: if seen > 0.0 { blocked / seen } else { 0.0 },
                     decided_fraction: if seen > 0.0 { decided / seen } else { 0.0 },
                     region: (blocked > 0.0).then(|| {
                         describe_region(

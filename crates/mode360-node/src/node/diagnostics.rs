@@ -302,6 +302,12 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
                     .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.blocked_fraction)),
             ),
             kv(
+                "lens_decided_fraction",
+                cam.lens
+                    .as_ref()
+                    .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.decided_fraction)),
+            ),
+            kv(
                 "calibration_correction_deg",
                 cam.calibration
                     .as_ref()
