@@ -11,7 +11,48 @@ use std::process::ExitCode;
 /// system allocator returns each one to the kernel on free, so the next pass page-faults its
 /// memory in again (a quarter of a training step's time, measured with perf).
 #[global_allocator]
-static GLOBAL: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
+static GLOBAL: ZeroByMemset<tikv_jemallocator::Jemalloc> =
+    ZeroByMemset(tikv_jemallocator::Jemalloc);
+
+/// An allocator whose zeroed allocations are plain allocations cleared with `memset`.
+///
+/// jemalloc's `calloc` of a large size that reuses freed pages zeroes them by handing them
+/// back to the kernel (`MADV_DONTNEED`), so the first write page-faults every 4 KiB in again:
+/// every `vec![0.0; n]` of a tensor-sized buffer (conv outputs, the cost volume, the sweep's
+/// samples) costs a fault per page on every frame. Clearing the reused pages in place is
+/// cheaper. Measured on `bench-model --presets parallax_zncc_log --widths 256` (docs/benchmarks.md).
+struct ZeroByMemset<A>(A);
+
+// SAFETY: every call is forwarded to the inner allocator with the caller's layout; the zeroed
+// allocation clears exactly `layout.size()` bytes of the block the inner allocator returned.
+unsafe impl<A: std::alloc::GlobalAlloc> std::alloc::GlobalAlloc for ZeroByMemset<A> {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        // SAFETY: forwarded with the caller's layout.
+        unsafe { self.0.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
+        // SAFETY: forwarded with the caller's layout; a non-null block holds `layout.size()`
+        // writable bytes.
+        unsafe {
+            let ptr = self.0.alloc(layout);
+            if !ptr.is_null() {
+                std::ptr::write_bytes(ptr, 0, layout.size());
+            }
+            ptr
+        }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: `ptr` came from this allocator (so from the inner one) with `layout`.
+        unsafe { self.0.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        // SAFETY: as for `dealloc`; the caller guarantees `new_size` is valid for `layout`.
+        unsafe { self.0.realloc(ptr, layout, new_size) }
+    }
+}
 
 /// jemalloc options (overridden by `_RJEM_MALLOC_CONF`): large tensors go to the ordinary
 /// arenas, and purged pages are released lazily (`MADV_FREE`, reclaimed by the kernel only
