@@ -69,15 +69,18 @@ mix=(--objects-fraction 0.25 --street varied --soiled-fraction 0.3 --fisheye-fra
 mix_objects=("${mix[@]}")
 mix_objects[1]=0.5
 stage="${1:-pair}"
-w256=(train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" --lr 5e-5
-  --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 250 --checkpoint-every 50 --resume)
+# The 256 stage's arguments for learning rate $1 and the data mix that follows it.
+w256_args() {
+  local lr=$1
+  shift
+  printf '%s\n' train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" \
+    --lr "$lr" --warmup-steps 50 "$@" --rig-pool 6 --val-every 250 --checkpoint-every 50 --resume
+}
+mapfile -t w256 < <(w256_args 5e-5 "${mix[@]}")
 # The annealing arm (since the fifteenth session): the first arm's run forked at its step 4,600
 # with a fifth of its learning rate (a step decay; the same cosine then goes on from there).
-w256_anneal=(train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" --lr 1e-5
-  --warmup-steps 50 "${mix[@]}" --rig-pool 6 --val-every 250 --checkpoint-every 50 --resume)
-w256_objects=(train --preset parallax_zncc_log --width 256 --steps "${W256_STEPS:-20000}" --lr 5e-5
-  --warmup-steps 50 "${mix_objects[@]}" --rig-pool 6 --val-every 250 --checkpoint-every 50
-  --resume)
+mapfile -t w256_anneal < <(w256_args 1e-5 "${mix[@]}")
+mapfile -t w256_objects < <(w256_args 5e-5 "${mix_objects[@]}")
 if [[ "$stage" == w256 ]]; then
   exec "$bin" "${w256[@]}" --seed 2 \
     --init-weights "${INIT:-runs/gpu_w256/ssmode_parallax_zncc_log.safetensors}" \
