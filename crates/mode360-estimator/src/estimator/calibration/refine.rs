@@ -53,12 +53,12 @@ pub fn refine_rotations(
         total[best.camera] = best.rotation_rig() * total[best.camera];
         current = apply_corrections(&current, std::slice::from_ref(&best));
     }
-    let check = RotationCheck::new(rig, cfg.clone())?;
+    let before_check = RotationCheck::new(rig, cfg.clone())?;
+    let after_check = RotationCheck::new(&current, cfg.clone())?;
     let mut summary = Vec::with_capacity(n);
     for (c, q) in total.iter().enumerate() {
         let w = q.scaled_axis();
-        let before = check.agreement_of(frames, c, &Vector3::zeros())?;
-        let after_check = RotationCheck::new(&current, cfg.clone())?;
+        let before = before_check.agreement_of(frames, c, &Vector3::zeros())?;
         let after = after_check.agreement_of(frames, c, &Vector3::zeros())?;
         let cells = last.iter().find(|x| x.camera == c).map_or(0, |x| x.cells);
         summary.push(CameraCorrection {
@@ -89,9 +89,20 @@ pub fn correction_gains(
     frames: &[CheckFrame],
     cfg: &RotationCheckConfig,
 ) -> Result<Vec<f64>, EstimatorError> {
+    gains_of_turns(&turns(start, refined), refined, frames, cfg)
+}
+
+/// [`correction_gains`] for the turns `turns` (one per camera, as [`turns`] gives them) that
+/// led to `refined`.
+fn gains_of_turns(
+    turns: &[Vector3<f64>],
+    refined: &Rig,
+    frames: &[CheckFrame],
+    cfg: &RotationCheckConfig,
+) -> Result<Vec<f64>, EstimatorError> {
     let check = RotationCheck::new(refined, cfg.clone())?;
     let mut gains = Vec::with_capacity(refined.cameras.len());
-    for (c, turn) in turns(start, refined).iter().enumerate() {
+    for (c, turn) in turns.iter().enumerate() {
         if turn.norm() == 0.0 {
             gains.push(0.0);
             continue;
@@ -115,9 +126,10 @@ pub fn keep_earned_corrections(
     frames: &[CheckFrame],
     cfg: &RotationCheckConfig,
 ) -> Result<(Rig, Vec<f64>), EstimatorError> {
-    let gains = correction_gains(start, refined, frames, cfg)?;
+    let turns = turns(start, refined);
+    let gains = gains_of_turns(&turns, refined, frames, cfg)?;
     let mut out = refined.clone();
-    for (c, (turn, gain)) in turns(start, refined).iter().zip(&gains).enumerate() {
+    for (c, (turn, gain)) in turns.iter().zip(&gains).enumerate() {
         if turn.norm() > 0.0 && *gain < MIN_KEEP_GAIN {
             out.cameras[c].rig_from_cam.rotation = start.cameras[c].rig_from_cam.rotation;
         }
