@@ -21,7 +21,8 @@ import sys
 import numpy as np
 from mcap_ros2.reader import read_ros2_messages
 
-from visibility_split import camera_centres, erp_directions
+from range_texture_split import LUMA
+from visibility_split import DELTA1, camera_centres, erp_directions
 
 NEAR_M = 2.0
 SAMPLES = 1500
@@ -30,8 +31,6 @@ VARIANCE_FLOOR = 1e-6
 SPHERES = 128
 PLANE_HEIGHTS_M = np.exp(np.linspace(np.log(0.2), np.log(4.0), 64))
 MIN_DOWN = 0.01  # -r_z below which a plane is not hit
-DELTA1 = 1.25
-LUMA = np.array([0.299, 0.587, 0.114])
 
 
 def frame_message(path, topic, index):

@@ -20,8 +20,8 @@ import sys
 import numpy as np
 from mcap_ros2.reader import read_ros2_messages
 
-DELTA1 = 1.25
-SKY_M = 999.0  # ground truth at or beyond this is the sky (bags keep it at max depth 1000 m)
+from visibility_split import DELTA1, SKY_M
+
 WINDOW_RADIUS = 3  # 7x7 pixels
 # local luminance standard deviation classes: flat, faint, textured
 TEXTURE_EDGES = [0.0, 0.01, 0.03, np.inf]
