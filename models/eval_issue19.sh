@@ -8,10 +8,14 @@
 #   turned3           models/eval_rigs/rig_turned3.yaml (three cameras turned, at two heights)
 #   omnimvs           launch_configs/rig_omnimvs.yaml (fisheyes scaled by WIDTH / 512)
 #   blocked_third     the Deep360 rig with camera 3's lens one third blocked by mud
+#   cluttered         cluttered streets (near clutter from about 0.7 m out) on the Deep360 rig
+#   cluttered_soiled  the same frames with lens soiling
 # then every estimator of ESTIMATORS with `mode360 eval --geometry-share` (true views, then the
 # reference image on every camera), and one markdown table in OUT/summary.md: row, estimator,
-# δ1 true, δ1 same image, geometry share (points), AbsRel. Bags are named after WIDTH and
-# FRAMES and rendered only when missing.
+# δ1 true, δ1 same image, geometry share (points), AbsRel, and the obstacle metrics of
+# docs/ground_truth.md (recall per band and thin, δ1 over object pixels within 5 m, phantom free
+# space and its out-of-range part; n/a where a row has no labelled obstacle). Bags are named
+# after WIDTH and FRAMES and rendered only when missing; ROWS picks rows by name (all).
 #   models/eval_issue19.sh [BAGS_DIR]
 # env: SEED (2^63 + 19; another top-bit seed gives a validation set for tuning a readout, never
 # the held-out rows), WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
@@ -38,7 +42,16 @@ rows=(
   "turned3|--rig models/eval_rigs/rig_turned3.yaml"
   "omnimvs|--rig launch_configs/rig_omnimvs.yaml --fisheye-scale $fisheye_scale"
   "blocked_third|--rig $deep360 --blocked-lens 3:0.3333:mud"
+  "cluttered|--rig $deep360 --street cluttered"
+  "cluttered_soiled|--rig $deep360 --street cluttered --soiled"
 )
+if [[ -n "${ROWS:-}" ]]; then
+  picked=()
+  for row in "${rows[@]}"; do
+    [[ " $ROWS " == *" ${row%%|*} "* ]] && picked+=("$row")
+  done
+  rows=("${picked[@]}")
+fi
 
 # bags of another seed than the held-out one carry it in their name
 suffix=""
@@ -59,8 +72,8 @@ summary="$out/summary.md"
 {
   echo "held-out seed $seed, $frames frame(s) per row at ${width}x$((width / 2)), frames 60.."
   echo
-  echo "| row | estimator | δ1 true % | δ1 same image % | geometry share (points) | AbsRel |"
-  echo "|---|---|---|---|---|---|"
+  echo "| row | estimator | δ1 true % | δ1 same image % | geometry share (points) | AbsRel | recall 0-2 m | recall 2-5 m | recall 5-10 m | thin | δ1 objects ≤ 5 m | phantom % | out of range % |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 } >"$summary"
 for est in $estimators; do
   w=()
@@ -75,9 +88,21 @@ import json, sys
 path, name, est = sys.argv[1:4]
 r = json.load(open(path))
 share = r["geometry_share"][0]
-abs_rel = r["true_views"]["rows"][0]["depth"]["abs_rel"]
+row = r["true_views"]["rows"][0]
+abs_rel = row["depth"]["abs_rel"]
+o = row.get("obstacles")
+def pct(v):
+    return "n/a" if v is None else f"{v:.1f}"
+def recall(b):
+    return f"{pct(b['recall_pct'])} ({b['recovered']}/{b['instances']})"
+if o:
+    m = {s["measure"]: s["pooled_pct"] for s in o["measures"]}
+    cells = [recall(b) for b in o["bands"]] + [recall(o["thin"])] + [
+        pct(m["near_object_delta1"]), pct(m["phantom"]), pct(m["phantom_out_of_range"])]
+else:
+    cells = ["n/a"] * 7
 print(f"| {name} | {est} | {share['delta1_true_pct']:.2f} | {share['delta1_same_image_pct']:.2f} "
-      f"| {share['share_pts']:.2f} | {abs_rel:.4f} |")
+      f"| {share['share_pts']:.2f} | {abs_rel:.4f} | " + " | ".join(cells) + " |")
 EOF
   done
 done

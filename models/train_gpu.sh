@@ -33,8 +33,8 @@ set -uo pipefail
 start=$(date +%s)
 budget_s="${BUDGET_S:-540}"
 deadline=$((start + budget_s))
-init="${INIT:-runs/standing_w256_ship/checkpoint/model.safetensors}"
-[[ -f "$init" ]] || init=runs/gpu_w256/ssmode_parallax_zncc_log.safetensors
+init="${INIT:-runs/clutter_weighted/checkpoint/model.safetensors}"
+[[ -f "$init" ]] || init=models/ssmode_parallax_zncc_log.safetensors
 width="${WIDTH:-256}"
 lr="${LR:-1e-4}"
 max_steps="${MAX_STEPS:-6000}"

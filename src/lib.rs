@@ -15,7 +15,7 @@
 pub mod cli;
 pub mod viz;
 
-pub use mode360_core::{frame, geometry, memory, metrics, sync};
+pub use mode360_core::{frame, geometry, memory, metrics, obstacles, sync};
 pub use mode360_estimator::{cpu, estimator, matching, model};
 pub use mode360_io::{bag, deep360, msgs};
 pub use mode360_node::node;

@@ -11,6 +11,7 @@
 //! [`geometry_share`] runs both passes and reports δ1(true views) − δ1(same image).
 
 mod geometry_share;
+mod obstacle_table;
 
 pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
@@ -21,6 +22,7 @@ use clap::Args;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{ErpGrid, GeerPair};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
+use mode360_core::obstacles::{self, ObstacleReport, ObstacleSummary};
 use mode360_core::progress::frames_bar;
 use mode360_estimator::estimator::lens_guard::LensGuard;
 use mode360_estimator::estimator::lens_window::LENS_WINDOW_FRAMES;
@@ -121,6 +123,10 @@ pub struct EvalRow {
     /// The range that scores as the sky.
     #[serde(default = "default_max_depth_m")]
     pub max_depth_m: f64,
+    /// Obstacle recall, near δ1 and phantom free space (design.md, "Metrics"); `null` (n/a)
+    /// when no frame of the row had ground-truth labels.
+    #[serde(default)]
+    pub obstacles: Option<ObstacleReport>,
 }
 
 fn default_max_depth_m() -> f64 {
@@ -145,6 +151,7 @@ struct Group {
     cameras: Vec<String>,
     average: FrameAverage,
     bands: metrics::RangeBands,
+    obstacles: ObstacleSummary,
     max_depth_m: f64,
     elapsed_s: f64,
 }
@@ -183,6 +190,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                 cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
                 average: FrameAverage::default(),
                 bands: metrics::RangeBands::default(),
+                obstacles: ObstacleSummary::default(),
                 max_depth_m,
                 elapsed_s: 0.0,
             });
@@ -240,6 +248,14 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             group
                 .bands
                 .add_frame(&est.range_m.data, &gt.data, max_depth_m);
+            if let Some(labels) = &frame.labels {
+                let scores =
+                    obstacles::frame_obstacles(&est.range_m.data, &gt.data, labels, max_depth_m)
+                        .with_context(at)?;
+                group
+                    .obstacles
+                    .add_frame(&bag_name, frame.stamp_ns, &scores);
+            }
             if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
                 let stem = path
                     .file_stem()
@@ -282,6 +298,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             disparity: g.average.disparity(),
             s_per_frame: g.elapsed_s / g.average.frames() as f64,
             range_bands: g.bands,
+            obstacles: g.obstacles.report(),
             max_depth_m: g.max_depth_m,
             bags: g.bags,
             cameras: g.cameras,
@@ -332,6 +349,7 @@ impl EvalReport {
             ));
         }
         s.push_str(&self.range_band_table());
+        s.push_str(&self.obstacle_table());
         s.push_str(&super::drops::summary(&self.drops));
         s.push('\n');
         s

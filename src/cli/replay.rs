@@ -14,6 +14,7 @@ use clap::Args;
 use mode360_core::geometry::rig_match::check_same_cameras;
 use mode360_core::geometry::Rig;
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
+use mode360_core::obstacles::{frame_obstacles, ObstacleMeasure, ObstacleReport, ObstacleSummary};
 use mode360_core::sync::SyncStats;
 use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{RigBagReader, RigBagWriter};
@@ -63,6 +64,8 @@ pub struct ReplaySummary {
     pub point_counts: Vec<usize>,
     /// Averaged over frames with ground truth.
     pub metrics: Option<DepthMetrics>,
+    /// Obstacle measures over frames with ground-truth labels (`None`: n/a).
+    pub obstacles: Option<ObstacleReport>,
     pub max_depth_m: f64,
 }
 
@@ -115,8 +118,10 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         latencies: Vec::new(),
         point_counts: Vec::new(),
         metrics: None,
+        obstacles: None,
         max_depth_m,
     };
+    let mut obstacles = ObstacleSummary::default();
     let mut average = FrameAverage::default();
     let mut health = NodeHealth {
         cameras: rig
@@ -208,6 +213,11 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
                 let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
                     .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
                 average.push(m, None);
+                if let Some(labels) = &frame.labels {
+                    let scores = frame_obstacles(&pred.data, &gt.data, labels, max_depth_m)
+                        .with_context(|| format!("frame at {stamp_ns} ns: obstacle metrics"))?;
+                    obstacles.add_frame(&file, stamp_ns, &scores);
+                }
             }
         }
     }
@@ -221,6 +231,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     if average.frames() > 0 {
         summary.metrics = Some(average.depth());
     }
+    summary.obstacles = obstacles.report();
     Ok(summary)
 }
 
@@ -268,6 +279,39 @@ pub fn run(a: ReplayArgs) -> Result<()> {
             "against ground truth: delta1 {:.2} %, AbsRel {:.4}, MAE {:.3} m",
             m.delta1_pct, m.abs_rel, m.mae_m
         );
+        println!("{}", obstacle_line(summary.obstacles.as_ref()));
     }
     Ok(())
+}
+
+/// One line of obstacle measures for the summary (n/a without ground-truth labels).
+pub fn obstacle_line(report: Option<&ObstacleReport>) -> String {
+    let Some(o) = report else {
+        return "obstacles: n/a (the bag has no ground-truth labels)".to_string();
+    };
+    let pct = |v: Option<f64>| v.map_or_else(|| "n/a".to_string(), |v| format!("{v:.1} %"));
+    let bands: Vec<String> = o
+        .bands
+        .iter()
+        .map(|b| {
+            format!(
+                "{} {} ({}/{})",
+                b.band.label(),
+                pct(b.recall_pct),
+                b.recovered,
+                b.instances
+            )
+        })
+        .collect();
+    let measure = |m| pct(o.measure(m).and_then(|s| s.pooled_pct));
+    format!(
+        "obstacles: recall {}, thin {} ({}/{}); δ1 object pixels within 5 m {}; phantom free space {} (out of range {})",
+        bands.join(", "),
+        pct(o.thin.recall_pct),
+        o.thin.recovered,
+        o.thin.instances,
+        measure(ObstacleMeasure::NearObjectDelta1),
+        measure(ObstacleMeasure::Phantom),
+        measure(ObstacleMeasure::PhantomOutOfRange)
+    )
 }

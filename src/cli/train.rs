@@ -95,6 +95,15 @@ pub struct TrainArgs {
     /// Clip the global gradient norm to this (off when absent).
     #[arg(long)]
     pub max_grad_norm: Option<f64>,
+    /// Loss weight of pixels whose true range is at most --near-range-m (1: the plain loss).
+    #[arg(long, default_value_t = 1.0)]
+    pub near_weight: f64,
+    /// Range below which --near-weight applies, metres.
+    #[arg(long, default_value_t = mode360_train::train::loss::DEFAULT_NEAR_RANGE_M)]
+    pub near_range_m: f64,
+    /// Loss weight of a pixel predicted farther than its truth (1: the plain loss).
+    #[arg(long, default_value_t = 1.0)]
+    pub too_far_weight: f64,
     /// Where the network trains: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the
     /// `cuda` feature).
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
@@ -129,6 +138,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,
+        loss_weighting: mode360_train::train::loss::LossWeighting {
+            near_range_m: a.near_range_m,
+            near_weight: a.near_weight,
+            too_far_weight: a.too_far_weight,
+        },
         device: a.device,
         ..TrainOptions::default()
     };

@@ -67,6 +67,7 @@ fn frames() -> Vec<RigFrame> {
             stamp_ns: STAMPS_NS[f],
             images: (0..3).map(|c| image(f, c)).collect(),
             ground_truth: Some(ground_truth(f)),
+            labels: None,
         })
         .collect()
 }
@@ -328,6 +329,7 @@ fn missing_camera_topic_and_missing_camera_image_are_named() {
         stamp_ns: STAMPS_NS[0],
         images: vec![image(0, 0), image(0, 1)],
         ground_truth: None,
+        labels: None,
     };
     assert!(writer.write_frame(&frame).is_ok());
     assert!(writer.finish().is_ok());
@@ -537,6 +539,7 @@ fn full_size_frames_round_trip_with_timing() {
                 .map(|i| 0.5 + (i % 997) as f32 * 0.125 + f as f32)
                 .collect(),
         }),
+        labels: None,
     };
     let frames: Vec<RigFrame> = (0..FRAMES).map(make_frame).collect();
     let dir = temp_dir();

@@ -102,6 +102,7 @@ fn frame_with(rig: &Rig, sizes: &[(u32, u32)]) -> RigFrame {
             .map(|&(w, h)| RgbImage::from_pixel(w, h, image::Rgb([1, 2, 3])))
             .collect(),
         ground_truth: None,
+        labels: None,
     }
 }
 

@@ -16,4 +16,5 @@ mod deep360_train;
 mod deep360_writer;
 mod fisheye_bag;
 mod lens_replay;
+mod obstacle_labels;
 mod replay_bag;

@@ -451,6 +451,7 @@ fn mutated_bags_are_read_or_refused_without_losing_good_frames() {
                 stamp_ns: 1_000_000_000 + f * 100_000_000,
                 images: vec![img; rig.cameras.len()],
                 ground_truth: None,
+                labels: None,
             })
             .expect("frame");
     }

@@ -23,6 +23,7 @@ fn multi_stage_loss_by_hand() {
         hypotheses: 11,
         spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
         stage_weights: vec![0.5, 0.7, 1.0],
+        weighting: Default::default(),
     };
     // Ground truth (1 x 2 x 2): 1 m (n = 1), 100 m (n = 0), NaN (invalid), 200 m (invalid).
     let gt = FloatImage {
@@ -65,4 +66,46 @@ fn multi_stage_loss_by_hand() {
     assert!(cfg
         .loss(&[z.clone(), z.clone(), z.clone(), z], &target)
         .is_err());
+}
+
+#[test]
+fn obstacle_weighting_by_hand() {
+    // Depth range 1..100 m, D = 11: errors in hypothesis units are 10 * (pred - target).
+    let cfg = LossConfig {
+        min_depth_m: 1.0,
+        max_depth_m: 100.0,
+        hypotheses: 11,
+        spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
+        stage_weights: vec![1.0],
+        weighting: mode360::train::loss::LossWeighting {
+            near_range_m: 5.0,
+            near_weight: 3.0,
+            too_far_weight: 2.0,
+        },
+    };
+    // 1 m (n = 1, near) and 100 m (n = 0, far).
+    let gt = FloatImage {
+        width: 2,
+        height: 1,
+        data: vec![1.0, 100.0],
+    };
+    let target = cfg.target(&[&gt], &Device::Cpu).unwrap();
+    let w: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    assert_eq!(w, vec![3.0, 1.0]);
+    // Near pixel read too far: pred 0.8 -> error -2 -> SmoothL1 1.5, times 3 x 2 = 9.
+    // Far pixel read too near: pred 0.1 -> error +1 -> 0.5, times 1. Mean over 2: 4.75.
+    let pred = Tensor::new(&[[[0.8f32, 0.1]]], &Device::Cpu).unwrap();
+    let loss: f32 = cfg.loss(&[pred], &target).unwrap().to_scalar().unwrap();
+    assert!((loss - 4.75).abs() < 1e-5, "{loss}");
+    // The same errors the other way round: near too near (x3), far too far (x2).
+    let pred = Tensor::new(&[[[1.0f32, 0.0]]], &Device::Cpu).unwrap();
+    let exact: f32 = cfg.loss(&[pred], &target).unwrap().to_scalar().unwrap();
+    assert!(exact.abs() < 1e-6, "{exact}");
+    let plain = LossConfig {
+        weighting: Default::default(),
+        ..cfg.clone()
+    };
+    let pred = Tensor::new(&[[[0.8f32, 0.1]]], &Device::Cpu).unwrap();
+    let loss: f32 = plain.loss(&[pred], &target).unwrap().to_scalar().unwrap();
+    assert!((loss - 1.0).abs() < 1e-5, "{loss}");
 }

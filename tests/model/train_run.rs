@@ -34,6 +34,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         blocked_fraction: 0.0,
         rig_pool: 0,
         max_grad_norm: Some(5.0),
+        loss_weighting: Default::default(),
         device: mode360::model::ComputeDevice::Cpu,
         show_progress: false,
     }

@@ -8,18 +8,20 @@
 //!   with the frame stamp (also their log time): an ERP panorama (2:1, one size for all
 //!   panorama cameras) or, for a fisheye or dual-fisheye camera, the raw image at exactly its
 //!   `image_size` (both the writer and the reader refuse other sizes); and optionally the ground-truth range on
-//!   [`GROUND_TRUTH_TOPIC`] (32FC1, ERP, frame `rig.output_frame_id`).
+//!   [`GROUND_TRUTH_TOPIC`] (32FC1, ERP, frame `rig.output_frame_id`), and with it optionally
+//!   the labels of the same pixels: [`GROUND_TRUTH_CLASSES_TOPIC`] (8UC1) and
+//!   [`GROUND_TRUTH_INSTANCES_TOPIC`] (16UC1), always both (`crate::msgs::labels`).
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::{BagError, BagMessage, BagReader, BagWriteOptions, BagWriter};
 use crate::msgs::{
-    float_from_image_msg, image_msg_from_float, image_msg_from_rgb, rgb_from_compressed,
-    rgb_from_image_msg, CompressedImage, Header, Image, RosMessage, TFMessage, Transform,
-    TransformStamped,
+    float_from_image_msg, image_msg_from_float, image_msg_from_rgb, label_image_msgs,
+    labels_from_image_msgs, rgb_from_compressed, rgb_from_image_msg, CompressedImage, Header,
+    Image, RosMessage, TFMessage, Transform, TransformStamped,
 };
-use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
+use mode360_core::frame::{FloatImage, RgbImage, RigFrame, SceneLabels};
 use mode360_core::geometry::rig::Rig;
 
 /// Metadata record holding the rig YAML under key [`RIG_YAML_KEY`].
@@ -36,6 +38,10 @@ pub const MAX_DEPTH_KEY: &str = "max_depth_m";
 pub use mode360_core::geometry::DEFAULT_MAX_DEPTH_M;
 /// Topic of the ground-truth range image.
 pub const GROUND_TRUTH_TOPIC: &str = "/ground_truth/depth";
+/// Topic of the ground truth's surface class per pixel (8UC1).
+pub const GROUND_TRUTH_CLASSES_TOPIC: &str = "/ground_truth/classes";
+/// Topic of the ground truth's object instance id per pixel (16UC1).
+pub const GROUND_TRUTH_INSTANCES_TOPIC: &str = "/ground_truth/instances";
 pub use super::format::TF_STATIC_TOPIC;
 /// Stamp (and log time) of the `/tf_static` message, written before any frame.
 const TF_STATIC_STAMP_NS: u64 = 0;
@@ -145,8 +151,33 @@ impl RigBagWriter {
                 });
             }
             let header = Header::new(frame.stamp_ns, &self.rig.output_frame_id);
-            let msg = image_msg_from_float(header, gt);
+            let msg = image_msg_from_float(header.clone(), gt);
             self.bag.write(GROUND_TRUTH_TOPIC, frame.stamp_ns, &msg)?;
+            if let Some(labels) = &frame.labels {
+                if !labels.is_consistent() || (labels.width, labels.height) != (gt.width, gt.height)
+                {
+                    return Err(BagError::Frame {
+                        file,
+                        topic: GROUND_TRUTH_INSTANCES_TOPIC.into(),
+                        stamp_ns: frame.stamp_ns,
+                        field: "labels".into(),
+                        problem: format!(
+                            "labels of {}x{} ({} classes, {} instances) for a {}x{} ground truth",
+                            labels.width,
+                            labels.height,
+                            labels.class.len(),
+                            labels.instance.len(),
+                            gt.width,
+                            gt.height
+                        ),
+                    });
+                }
+                let (classes, instances) = label_image_msgs(&header, labels);
+                self.bag
+                    .write(GROUND_TRUTH_CLASSES_TOPIC, frame.stamp_ns, &classes)?;
+                self.bag
+                    .write(GROUND_TRUTH_INSTANCES_TOPIC, frame.stamp_ns, &instances)?;
+            }
         }
         Ok(())
     }
@@ -191,6 +222,8 @@ pub struct RigBagReader {
 struct FrameSlots<'a> {
     images: Vec<Option<BagMessage<'a>>>,
     ground_truth: Option<BagMessage<'a>>,
+    classes: Option<BagMessage<'a>>,
+    instances: Option<BagMessage<'a>>,
 }
 
 impl RigBagReader {
@@ -253,9 +286,9 @@ impl RigBagReader {
     /// be read, or a second message of a topic at the same stamp, is dropped and returned
     /// with the groups; a camera topic without any message is an error (no frame can be
     /// built).
-    fn group(&self) -> Result<(BTreeMap<u64, FrameSlots<'_>>, Vec<BagError>), BagError> {
+    fn group<'a>(&'a self) -> Result<(BTreeMap<u64, FrameSlots<'a>>, Vec<BagError>), BagError> {
         let n_cameras = self.rig.cameras.len();
-        let mut frames: BTreeMap<u64, FrameSlots<'_>> = BTreeMap::new();
+        let mut frames: BTreeMap<u64, FrameSlots<'a>> = BTreeMap::new();
         let mut dropped = Vec::new();
         for (index, camera) in self.rig.cameras.iter().enumerate() {
             let mut any = false;
@@ -271,6 +304,8 @@ impl RigBagReader {
                 let slots = frames.entry(stamp_ns).or_insert_with(|| FrameSlots {
                     images: vec![None; n_cameras],
                     ground_truth: None,
+                    classes: None,
+                    instances: None,
                 });
                 if slots.images[index].is_some() {
                     dropped.push(self.frame_err(
@@ -301,19 +336,29 @@ impl RigBagReader {
                 });
             }
         }
-        for msg in self.bag.messages_on(GROUND_TRUTH_TOPIC) {
-            let stamp_ns = match message_stamp(&msg) {
-                Ok(stamp_ns) => stamp_ns,
-                Err(err) => {
-                    dropped.push(err);
+        type Slot<'a> = for<'s> fn(&'s mut FrameSlots<'a>) -> &'s mut Option<BagMessage<'a>>;
+        let ground_truth_slots: [(&str, Slot<'a>); 3] = [
+            (GROUND_TRUTH_TOPIC, |s| &mut s.ground_truth),
+            (GROUND_TRUTH_CLASSES_TOPIC, |s| &mut s.classes),
+            (GROUND_TRUTH_INSTANCES_TOPIC, |s| &mut s.instances),
+        ];
+        for (topic, slot) in ground_truth_slots {
+            for msg in self.bag.messages_on(topic) {
+                let stamp_ns = match message_stamp(&msg) {
+                    Ok(stamp_ns) => stamp_ns,
+                    Err(err) => {
+                        dropped.push(err);
+                        continue;
+                    }
+                };
+                let Some(slots) = frames.get_mut(&stamp_ns) else {
                     continue;
-                }
-            };
-            if let Some(slots) = frames.get_mut(&stamp_ns) {
-                if slots.ground_truth.is_some() {
+                };
+                let slot = slot(slots);
+                if slot.is_some() {
                     dropped.push(
                         self.frame_err(
-                            GROUND_TRUTH_TOPIC,
+                            topic,
                             stamp_ns,
                             "header.stamp",
                             "two ground-truth images with the same stamp (the second is dropped)"
@@ -321,7 +366,7 @@ impl RigBagReader {
                         ),
                     );
                 } else {
-                    slots.ground_truth = Some(msg);
+                    *slot = Some(msg);
                 }
             }
         }
@@ -397,11 +442,62 @@ impl RigBagReader {
                 ));
             }
         }
+        let labels = self.build_labels(stamp_ns, slots, ground_truth.as_ref())?;
         Ok(RigFrame {
             stamp_ns,
             images,
             ground_truth,
+            labels,
         })
+    }
+
+    /// The labels of one stamp: both label images or neither, the ground truth's size.
+    fn build_labels(
+        &self,
+        stamp_ns: u64,
+        slots: &FrameSlots<'_>,
+        ground_truth: Option<&FloatImage>,
+    ) -> Result<Option<SceneLabels>, BagError> {
+        let (classes, instances) = match (&slots.classes, &slots.instances) {
+            (None, None) => return Ok(None),
+            (Some(c), Some(i)) => (c, i),
+            (Some(_), None) | (None, Some(_)) => {
+                let missing = if slots.classes.is_none() {
+                    GROUND_TRUTH_CLASSES_TOPIC
+                } else {
+                    GROUND_TRUTH_INSTANCES_TOPIC
+                };
+                return Err(self.frame_err(
+                    missing,
+                    stamp_ns,
+                    "header.stamp",
+                    "labels need both the classes and the instances image at a stamp".into(),
+                ));
+            }
+        };
+        let labels =
+            labels_from_image_msgs(&classes.decode()?, &instances.decode()?).map_err(|e| {
+                self.frame_err(
+                    GROUND_TRUTH_INSTANCES_TOPIC,
+                    stamp_ns,
+                    "data",
+                    e.to_string(),
+                )
+            })?;
+        if let Some(gt) = ground_truth {
+            if (labels.width, labels.height) != (gt.width, gt.height) {
+                return Err(self.frame_err(
+                    GROUND_TRUTH_INSTANCES_TOPIC,
+                    stamp_ns,
+                    "width/height",
+                    format!(
+                        "labels are {}x{} but the ground truth is {}x{}",
+                        labels.width, labels.height, gt.width, gt.height
+                    ),
+                ));
+            }
+        }
+        Ok(Some(labels))
     }
 
     /// The frames in stamp order. Each item is a frame, or an error naming the file, topic

@@ -70,6 +70,7 @@ pub fn write_same_image_bag(
             stamp_ns: frame.stamp_ns,
             images: vec![image; frame.images.len()],
             ground_truth: frame.ground_truth,
+            labels: frame.labels,
         })?;
         frames += 1;
     }

@@ -293,6 +293,7 @@ impl Deep360Dataset {
             stamp_ns: id.stamp_ns(),
             images,
             ground_truth: Some(cassini_to_erp_range(&cassini_range, grid)),
+            labels: None,
         })
     }
 }

@@ -16,6 +16,8 @@ pub mod encodings {
     pub const BGRA8: &str = "bgra8";
     pub const MONO8: &str = "mono8";
     pub const TYPE_32FC1: &str = "32FC1";
+    pub const TYPE_8UC1: &str = "8UC1";
+    pub const TYPE_16UC1: &str = "16UC1";
 }
 
 /// Colour encodings [`rgb_from_image_msg`] accepts.
@@ -104,7 +106,7 @@ fn colour_layout(encoding: &str) -> Option<ColourLayout> {
 
 /// Checks `step` and the data length against `width`, `height` and `bytes_per_pixel`:
 /// `step >= width * bytes_per_pixel` and `data.len() == height * step`.
-fn check_layout(msg: &Image, bytes_per_pixel: usize) -> Result<(), ImageMsgError> {
+pub(super) fn check_layout(msg: &Image, bytes_per_pixel: usize) -> Result<(), ImageMsgError> {
     let too_large = || ImageMsgError::TooLarge {
         width: u64::from(msg.width),
         height: u64::from(msg.height),
@@ -145,7 +147,7 @@ fn check_layout(msg: &Image, bytes_per_pixel: usize) -> Result<(), ImageMsgError
 }
 
 /// `u32` form of an image dimension (saturating; real images are far smaller).
-fn dim_u32(value: usize) -> u32 {
+pub(super) fn dim_u32(value: usize) -> u32 {
     u32::try_from(value).unwrap_or(u32::MAX)
 }
 

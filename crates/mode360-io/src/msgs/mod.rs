@@ -10,6 +10,7 @@
 
 pub mod compressed_depth;
 pub mod image;
+pub mod labels;
 pub mod schema;
 pub mod types;
 
@@ -21,6 +22,7 @@ pub use image::{
     float_from_image_msg, image_msg_from_float, image_msg_from_rgb, rgb_from_compressed,
     rgb_from_image_msg, ImageMsgError,
 };
+pub use labels::{label_image_msgs, labels_from_image_msgs, LabelMsgError};
 pub use schema::{schema_text, SCHEMA_SEPARATOR};
 pub use types::*;
 

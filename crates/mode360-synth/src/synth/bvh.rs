@@ -17,6 +17,19 @@ pub struct Prim<M> {
     pub shape: Shape,
     pub material: M,
     pub object_origin: Vector3<f64>,
+    /// What the primitive is part of (the ground truth's labels).
+    pub label: PrimLabel,
+}
+
+/// What a primitive is part of: the ground surface, the fixed structure of the scene, or one
+/// object instance (ids from 1, unique within a frame; a scene's objects may be made of
+/// several primitives).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PrimLabel {
+    Ground,
+    #[default]
+    Structure,
+    Object(u16),
 }
 
 /// Below this depth splits use the SAH; the traversal stack (`STACK_DEPTH`) exceeds this
@@ -287,6 +300,7 @@ mod tests {
             shape,
             material: (),
             object_origin: Vector3::zeros(),
+            label: PrimLabel::Structure,
         }
     }
 

@@ -26,6 +26,7 @@
 pub mod blockers;
 pub mod bvh;
 pub mod camera_view;
+pub mod clutter;
 pub mod colour;
 pub mod material;
 pub mod noise;
@@ -42,7 +43,7 @@ pub mod world;
 
 use bvh::{Bvh, Ray};
 use camera_view::PixelRays;
-use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
+use mode360_core::frame::{FloatImage, RgbImage, RigFrame, SceneLabels};
 use mode360_core::geometry::{ErpGrid, GeometryError, PixelCoord, Rig};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use noise::Rng;
@@ -352,7 +353,7 @@ impl SynthRenderer {
         let mut images = Vec::with_capacity(rig.cameras.len());
         // Where each camera sees (None: every pixel, an ERP panorama), for the soiling.
         let mut masks: Vec<Option<Vec<bool>>> = Vec::with_capacity(rig.cameras.len());
-        let mut gt: Option<FloatImage> = None;
+        let mut gt: Option<(FloatImage, SceneLabels)> = None;
         for (ci, cam) in rig.cameras.iter().enumerate() {
             let world_from_cam = world_from_rig * cam.rig_from_cam;
             if let Some(rays) = PixelRays::of_projection(&cam.projection) {
@@ -371,7 +372,7 @@ impl SynthRenderer {
                 gt = range;
             }
         }
-        let gt = match gt {
+        let (gt, labels) = match gt {
             Some(g) => g,
             None => self.render_range(&scene, &(world_from_rig * rig.rig_from_output)),
         };
@@ -412,6 +413,7 @@ impl SynthRenderer {
                 stamp_ns,
                 images,
                 ground_truth: Some(gt),
+                labels: Some(labels),
             },
             FrameReport {
                 index,
@@ -431,8 +433,10 @@ impl SynthRenderer {
     pub fn render_camera(&self, index: usize, world_from_cam: &Isometry3<f64>) -> CameraView {
         let scene = self.frame_scene(index, &[world_from_cam.translation.vector]);
         let (image, range) = self.render_view(&scene, world_from_cam, true);
-        let range_m = range
-            .unwrap_or_else(|| FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN));
+        let range_m = range.map_or_else(
+            || FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN),
+            |(range, _)| range,
+        );
         CameraView { image, range_m }
     }
 
@@ -452,9 +456,10 @@ impl SynthRenderer {
             }),
             None => {
                 let (image, range) = self.render_view(&scene, &world_from_cam, true);
-                let range_m = range.unwrap_or_else(|| {
-                    FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN)
-                });
+                let range_m = range.map_or_else(
+                    || FloatImage::filled(self.grid.width(), self.grid.height(), f32::NAN),
+                    |(range, _)| range,
+                );
                 (image, range_m)
             }
         };
@@ -524,21 +529,25 @@ impl SynthRenderer {
         }
     }
 
+    /// One ERP view: the image and, with `keep_range`, its range image and labels.
     fn render_view(
         &self,
         scene: &FrameScene,
         world_from_cam: &Isometry3<f64>,
         keep_range: bool,
-    ) -> (RgbImage, Option<FloatImage>) {
+    ) -> (RgbImage, Option<(FloatImage, SceneLabels)>) {
         let (w, h) = (self.grid.width(), self.grid.height());
         let origin = world_from_cam.translation.vector;
         let rot = world_from_cam.rotation;
         let mut rgb = vec![0u8; w * h * 3];
         let mut range = vec![0f32; w * h];
+        let mut labels = SceneLabels::sky(w, h);
         rgb.par_chunks_mut(w * 3)
             .zip(range.par_chunks_mut(w))
+            .zip(labels.class.par_chunks_mut(w))
+            .zip(labels.instance.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(v, (row, row_range))| {
+            .for_each(|(v, (((row, row_range), row_class), row_instance))| {
                 for u in 0..w {
                     let d = rot * self.dirs[v * w + u];
                     let s = scene.trace(&Ray::new(origin, d));
@@ -546,33 +555,54 @@ impl SynthRenderer {
                         row[3 * u + i] = to_srgb8(&self.gamma_lut, s.colour[i]);
                     }
                     row_range[u] = s.range_m as f32;
+                    row_class[u] = s.label.class;
+                    row_instance[u] = s.label.instance;
                 }
             });
         let img = RgbImage::from_raw(w as u32, h as u32, rgb)
             .unwrap_or_else(|| RgbImage::new(w as u32, h as u32));
-        let range = keep_range.then_some(FloatImage {
-            width: w,
-            height: h,
-            data: range,
-        });
+        let range = keep_range.then_some((
+            FloatImage {
+                width: w,
+                height: h,
+                data: range,
+            },
+            labels,
+        ));
         (img, range)
     }
 
-    fn render_range(&self, scene: &FrameScene, world_from_out: &Isometry3<f64>) -> FloatImage {
+    /// The range image and labels of an ERP view at `world_from_out`.
+    fn render_range(
+        &self,
+        scene: &FrameScene,
+        world_from_out: &Isometry3<f64>,
+    ) -> (FloatImage, SceneLabels) {
         let (w, h) = (self.grid.width(), self.grid.height());
         let origin = world_from_out.translation.vector;
         let rot = world_from_out.rotation;
         let mut data = vec![0f32; w * h];
-        data.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-            for (u, r) in row.iter_mut().enumerate() {
-                let d = rot * self.dirs[v * w + u];
-                *r = scene.range_only(&Ray::new(origin, d)) as f32;
-            }
-        });
-        FloatImage {
-            width: w,
-            height: h,
-            data,
-        }
+        let mut labels = SceneLabels::sky(w, h);
+        data.par_chunks_mut(w)
+            .zip(labels.class.par_chunks_mut(w))
+            .zip(labels.instance.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(v, ((row, row_class), row_instance))| {
+                for u in 0..w {
+                    let d = rot * self.dirs[v * w + u];
+                    let (range_m, label) = scene.range_and_label(&Ray::new(origin, d));
+                    row[u] = range_m as f32;
+                    row_class[u] = label.class;
+                    row_instance[u] = label.instance;
+                }
+            });
+        (
+            FloatImage {
+                width: w,
+                height: h,
+                data,
+            },
+            labels,
+        )
     }
 }

@@ -12,7 +12,7 @@
 //! [`standard_rig_zone`], which holds every camera of the Deep360 rig and of the training
 //! code's random rigs, so for those rigs the scene depends on `(seed, index)` only.
 
-use super::bvh::{Aabb, OrientedKind, Prim, Shape};
+use super::bvh::{Aabb, OrientedKind, Prim, PrimLabel, Shape};
 use super::colour::Rgb;
 use super::material::{Material, SurfacePrim};
 use super::noise::Rng;
@@ -216,10 +216,12 @@ pub fn objects_scene(seed: u64, index: usize, keep_out: &Aabb) -> ObjectsScene {
         if overlaps(&shape.aabb(), keep_out) {
             continue;
         }
+        let id = u16::try_from(prims.len() + 1).unwrap_or(u16::MAX);
         prims.push(Prim {
             shape,
             material,
             object_origin: c,
+            label: PrimLabel::Object(id),
         });
     }
     ObjectsScene {

@@ -1,6 +1,6 @@
 //! Street furniture built from primitives: cars and pedestrians, and small helpers.
 
-use super::bvh::{Aabb, Prim, Shape};
+use super::bvh::{Aabb, Prim, PrimLabel, Shape};
 use super::colour::Rgb;
 use super::material::{Material, SurfacePrim};
 use super::noise::Rng;
@@ -44,11 +44,40 @@ pub(crate) fn push(
         shape,
         material,
         object_origin: origin,
+        label: PrimLabel::Structure,
     });
+}
+
+/// The id the next object instance of `out` gets: one more than the last object's (objects
+/// are appended whole, so ids rise along `out`).
+fn next_object_id(out: &[SurfacePrim]) -> u16 {
+    out.iter()
+        .rev()
+        .find_map(|p| match p.label {
+            PrimLabel::Object(id) => Some(id.saturating_add(1)),
+            _ => None,
+        })
+        .unwrap_or(1)
+}
+
+/// Makes `out[start..]` (the primitives of one thing just pushed) one new object instance.
+pub(crate) fn tag_object(out: &mut [SurfacePrim], start: usize) {
+    let id = next_object_id(&out[..start.min(out.len())]);
+    for p in out.iter_mut().skip(start) {
+        p.label = PrimLabel::Object(id);
+    }
+}
+
+/// Marks `out[start..]` as part of the ground surface (sidewalk slabs).
+pub(crate) fn tag_ground(out: &mut [SurfacePrim], start: usize) {
+    for p in out.iter_mut().skip(start) {
+        p.label = PrimLabel::Ground;
+    }
 }
 
 /// A car of length `len` centred at `(x, y)` facing along x.
 pub(crate) fn car(out: &mut Vec<SurfacePrim>, x: f64, y: f64, rng: &mut Rng) {
+    let start = out.len();
     let len = rng.range(3.9, 4.8);
     let half_w = rng.range(0.82, 0.92);
     let colour = CAR_COLOURS[rng.index(CAR_COLOURS.len())];
@@ -100,10 +129,12 @@ pub(crate) fn car(out: &mut Vec<SurfacePrim>, x: f64, y: f64, rng: &mut Rng) {
             );
         }
     }
+    tag_object(out, start);
 }
 
 /// A pedestrian standing at `(x, y)` on the sidewalk, walking along x with gait phase `phase`.
 pub(crate) fn pedestrian(out: &mut Vec<SurfacePrim>, x: f64, y: f64, phase: f64, rng: &mut Rng) {
+    let start = out.len();
     let z0 = KERB_HEIGHT_M;
     let height = rng.range(1.6, 1.9);
     let clothes = CLOTHES_COLOURS[rng.index(CLOTHES_COLOURS.len())];
@@ -143,4 +174,5 @@ pub(crate) fn pedestrian(out: &mut Vec<SurfacePrim>, x: f64, y: f64, phase: f64,
         Material::Skin(skin),
         origin,
     );
+    tag_object(out, start);
 }

@@ -2,12 +2,13 @@
 //! (the street's, a random-objects frame's, or none) and a background at infinity; shading
 //! with sun, shadows, sky ambient, ground bounce and fog.
 
-use super::bvh::{self, Bvh, Ray};
+use super::bvh::{self, Bvh, PrimLabel, Ray};
 use super::colour::Rgb;
 use super::material::{self, Material};
 use super::pattern::Background;
 use super::sky::HORIZON_SKY;
 use super::world::{self, WorldParams};
+use mode360_core::frame::{SurfaceClass, NO_INSTANCE};
 use nalgebra::Vector3;
 
 /// Fog (aerial perspective) distance scale, metres.
@@ -38,6 +39,22 @@ const MIN_COS_INCIDENCE: f64 = 0.12;
 pub(crate) struct Sample {
     pub colour: Rgb,
     pub range_m: f64,
+    pub label: PixelLabel,
+}
+
+/// What a ray met first, for the ground truth's labels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct PixelLabel {
+    pub class: SurfaceClass,
+    /// The object instance ([`NO_INSTANCE`] unless `class` is an object).
+    pub instance: u16,
+}
+
+impl PixelLabel {
+    const SKY: PixelLabel = PixelLabel {
+        class: SurfaceClass::Sky,
+        instance: NO_INSTANCE,
+    };
 }
 
 /// The first surface a ray meets: its distance and the primitive (`None`: the ground plane).
@@ -96,20 +113,41 @@ impl FrameScene<'_> {
         }
     }
 
-    pub fn range_only(&self, ray: &Ray) -> f64 {
-        self.first_hit(ray)
-            .map_or(self.max_depth_m, |h| h.t.min(self.max_depth_m))
+    /// The label of a first hit (`None`: the ray met nothing, the sky). Surfaces at or
+    /// beyond the maximum depth are sky too, as their range is.
+    fn label(&self, hit: Option<&FirstHit>) -> PixelLabel {
+        let Some(hit) = hit.filter(|h| h.t < self.max_depth_m) else {
+            return PixelLabel::SKY;
+        };
+        let (class, instance) = match hit.prim.map(|h| self.bvh.prims[h.prim].label) {
+            None | Some(PrimLabel::Ground) => (SurfaceClass::Ground, NO_INSTANCE),
+            Some(PrimLabel::Structure) => (SurfaceClass::Structure, NO_INSTANCE),
+            Some(PrimLabel::Object(id)) => (SurfaceClass::Object, id),
+        };
+        PixelLabel { class, instance }
+    }
+
+    /// The range along `ray` (capped at the maximum depth) and what it met.
+    pub fn range_and_label(&self, ray: &Ray) -> (f64, PixelLabel) {
+        let hit = self.first_hit(ray);
+        let range_m = hit
+            .as_ref()
+            .map_or(self.max_depth_m, |h| h.t.min(self.max_depth_m));
+        (range_m, self.label(hit.as_ref()))
     }
 
     pub fn trace(&self, ray: &Ray) -> Sample {
         let seed = self.tex_seed;
         let sun = self.sun_dir;
-        let Some(FirstHit { t, prim: prim_hit }) = self.first_hit(ray) else {
+        let first = self.first_hit(ray);
+        let label = self.label(first.as_ref());
+        let Some(FirstHit { t, prim: prim_hit }) = first else {
             return Sample {
                 colour: self
                     .background
                     .colour(&ray.dir, &sun, self.pixel_angle_rad, seed),
                 range_m: self.max_depth_m,
+                label,
             };
         };
         let p = ray.at(t);
@@ -169,6 +207,7 @@ impl FrameScene<'_> {
         Sample {
             colour: c,
             range_m: t.min(self.max_depth_m),
+            label,
         }
     }
 }

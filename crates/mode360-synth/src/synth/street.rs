@@ -20,6 +20,10 @@ pub enum StreetStyle {
     /// Widths, setbacks, heights, densities and rig pose drawn per seed
     /// (`StreetLayout::varied`).
     Varied,
+    /// A varied street with near clutter along the rig's path: poles, sign posts, bollards,
+    /// cones, barriers, fences, trunks, people, cyclists, cars, low walls and branches
+    /// from about 0.7 m out (`super::clutter`).
+    Cluttered,
 }
 
 impl StreetStyle {
@@ -27,6 +31,7 @@ impl StreetStyle {
         match self {
             StreetStyle::Regular => "regular",
             StreetStyle::Varied => "varied",
+            StreetStyle::Cluttered => "cluttered",
         }
     }
 }

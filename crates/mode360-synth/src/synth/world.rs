@@ -10,10 +10,11 @@
 //! the density of parked cars and trees per world seed ([`StreetLayout::varied`]).
 
 use super::bvh::Shape;
+use super::clutter;
 use super::colour::Rgb;
 use super::material::{Material, SurfacePrim};
 use super::noise::{hash_words, unit_from_hash, Rng};
-use super::props::{aabox, car, pedestrian, push};
+use super::props::{aabox, car, pedestrian, push, tag_ground, tag_object};
 use super::street::{
     StreetStyle, CROSS_STREET_HALF_WIDTH_M, KERB_HEIGHT_M, LANE_WIDTH_M, ROAD_HALF_WIDTH_M,
 };
@@ -248,6 +249,8 @@ pub struct WorldParams {
     pub tex_seed: u32,
     /// Cross-section and density of the street.
     pub layout: StreetLayout,
+    /// Near clutter along the rig's path ([`StreetStyle::Cluttered`]).
+    pub clutter: bool,
 }
 
 impl WorldParams {
@@ -271,8 +274,9 @@ impl WorldParams {
             tex_seed: (hash_words(&[seed, 0x7]) >> 32) as u32,
             layout: match style {
                 StreetStyle::Regular => StreetLayout::regular(),
-                StreetStyle::Varied => StreetLayout::varied(seed),
+                StreetStyle::Varied | StreetStyle::Cluttered => StreetLayout::varied(seed),
             },
+            clutter: style == StreetStyle::Cluttered,
         }
     }
 }
@@ -358,6 +362,7 @@ fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, sid
     if is_intersection(params, tile) {
         // Corners only: sidewalks up to the cross street and a street light on one corner.
         let c = cross_street_centre_m(tile);
+        let start = out.len();
         for (a, b) in [
             (x0, c - CROSS_STREET_HALF_WIDTH_M),
             (c + CROSS_STREET_HALF_WIDTH_M, x1),
@@ -369,6 +374,7 @@ fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, sid
                 Vector3::zeros(),
             );
         }
+        tag_ground(out, start);
         // Corner buildings (front and back rows) on both sides of the cross street.
         let corner = CROSS_STREET_HALF_WIDTH_M + CORNER_SETBACK_M;
         for (a, b) in [(x0, c - corner), (c + corner, x1)] {
@@ -377,6 +383,7 @@ fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, sid
         }
         let px = c - CROSS_STREET_HALF_WIDTH_M - 1.0;
         let py = s * l.pole_y_m;
+        let start = out.len();
         push(
             out,
             Shape::Cylinder {
@@ -388,19 +395,23 @@ fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, sid
             Material::Metal,
             Vector3::new(px, py, 0.0),
         );
+        tag_object(out, start);
         return;
     }
+    let start = out.len();
     push(
         out,
         aabox([x0, ya, 0.0], [x1, yb, KERB_HEIGHT_M]),
         Material::Paving,
         Vector3::zeros(),
     );
+    tag_ground(out, start);
     // Buildings: one to three per tile with small gaps, and a taller row behind.
     building_row(out, &mut rng, l, x0, x1, s, false, 3);
     building_row(out, &mut rng, l, x0, x1, s, true, 2);
     // Tree.
     if rng.chance(l.tree_probability) {
+        let start = out.len();
         let tx = x0 + rng.range(3.0, 9.0);
         let ty = s * (l.tree_y_m + rng.range(-0.2, 0.2));
         let trunk_h = rng.range(2.8, 3.8);
@@ -440,9 +451,11 @@ fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, sid
                 origin,
             );
         }
+        tag_object(out, start);
     }
     // Street light: pole, arm over the parking strip, lamp head.
     if rng.chance(0.8) {
+        let start = out.len();
         let px = x0 + rng.range(14.0, 20.0);
         let py = s * l.pole_y_m;
         let h = rng.range(6.5, 8.0);
@@ -473,6 +486,7 @@ fn tile_content(out: &mut Vec<SurfacePrim>, params: &WorldParams, tile: i64, sid
             Material::Lamp,
             origin,
         );
+        tag_object(out, start);
     }
     // Parked cars in the bays.
     let mut cx = x0 + rng.range(1.0, 4.0);
@@ -509,6 +523,14 @@ pub fn scene_prims(
             let x = k as f64 * ONCOMING_SLOT_M + rng.range(0.0, 0.5 * ONCOMING_SLOT_M) + shift;
             car(&mut out, x, params.layout.oncoming_car_y_m, &mut rng);
         }
+    }
+    if params.clutter {
+        clutter::clutter_prims(
+            &mut out,
+            params.seed,
+            x_centre_m,
+            params.layout.ego_lane_y_m,
+        );
     }
     // Pedestrians on both sidewalks.
     for (si, side) in [1.0f64, -1.0].iter().enumerate() {

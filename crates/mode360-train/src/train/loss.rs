@@ -15,6 +15,14 @@
 //! `SmoothL1(x) = 0.5 x^2 / beta if |x| < beta else |x| - 0.5 beta`.
 //!
 //! Valid pixels have a finite ground truth in `(0, max_depth]` (sky counts, at max depth).
+//!
+//! Obstacle weighting ([`LossWeighting`]): a pixel whose true range is at most
+//! `near_range_m` weighs `near_weight`, and a prediction farther than the truth (a smaller
+//! normalized inverse depth: the obstacle melts into what stands behind it) weighs
+//! `too_far_weight` more; both 1 (the default) give the plain loss:
+//!
+//! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
+//! `a_p = near_weight if g_p <= near_range_m else 1`, `b_p = too_far_weight if n_s < n else 1`.
 
 use candle_core::{DType, Device, Tensor};
 use mode360_core::frame::FloatImage;
@@ -48,6 +56,38 @@ pub struct LossConfig {
     /// One weight per output stage, coarse to fine; when the network returns fewer stages
     /// than weights, the last weights are used.
     pub stage_weights: Vec<f64>,
+    /// Extra weight of near pixels and of too-far predictions.
+    pub weighting: LossWeighting,
+}
+
+/// Extra weight of near pixels and of predictions farther than the truth (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LossWeighting {
+    /// Pixels whose true range is at most this weigh `near_weight`, metres.
+    pub near_range_m: f64,
+    pub near_weight: f64,
+    /// Weight of a pixel predicted farther than its truth.
+    pub too_far_weight: f64,
+}
+
+/// Range below which [`LossWeighting::near_weight`] applies by default, metres.
+pub const DEFAULT_NEAR_RANGE_M: f64 = 5.0;
+
+impl Default for LossWeighting {
+    /// The plain loss: every weight 1.
+    fn default() -> Self {
+        Self {
+            near_range_m: DEFAULT_NEAR_RANGE_M,
+            near_weight: 1.0,
+            too_far_weight: 1.0,
+        }
+    }
+}
+
+impl LossWeighting {
+    fn is_plain(&self) -> bool {
+        self.near_weight == 1.0 && self.too_far_weight == 1.0
+    }
 }
 
 /// Regression target and validity mask of one or more ground-truth images.
@@ -57,6 +97,8 @@ pub struct LossTarget {
     pub normalized_inverse_depth: Tensor,
     /// `(B, H, W)` 1 for valid pixels, 0 elsewhere.
     pub mask: Tensor,
+    /// `(B, H, W)` each valid pixel's weight (`near_weight` or 1), 0 elsewhere.
+    pub weight: Tensor,
 }
 
 impl LossConfig {
@@ -98,15 +140,23 @@ impl LossConfig {
         let (w, h) = gts.first().map(|g| (g.width, g.height)).unwrap_or((0, 0));
         let mut target = Vec::with_capacity(gts.len() * w * h);
         let mut mask = Vec::with_capacity(gts.len() * w * h);
+        let mut weight = Vec::with_capacity(gts.len() * w * h);
+        let near = &self.weighting;
         for g in gts {
             for &r in &g.data {
                 let r = f64::from(r);
                 if r.is_finite() && r > 0.0 && r <= self.max_depth_m {
                     target.push(Self::normalized_in(hypotheses.as_ref(), r) as f32);
                     mask.push(1.0f32);
+                    weight.push(if r <= near.near_range_m {
+                        near.near_weight as f32
+                    } else {
+                        1.0
+                    });
                 } else {
                     target.push(0.0);
                     mask.push(0.0);
+                    weight.push(0.0);
                 }
             }
         }
@@ -114,6 +164,7 @@ impl LossConfig {
         Ok(LossTarget {
             normalized_inverse_depth: Tensor::from_vec(target, shape, device)?,
             mask: Tensor::from_vec(mask, shape, device)?,
+            weight: Tensor::from_vec(weight, shape, device)?,
         })
     }
 
@@ -135,7 +186,22 @@ impl LossConfig {
         for (pred, &w) in stages.iter().zip(weights) {
             let diff = ((pred - &target.normalized_inverse_depth)? * scale)?;
             let per_pixel = smooth_l1(&diff, SMOOTH_L1_BETA)?;
-            let term = ((per_pixel * &target.mask)?.sum_all()? / &denom)?;
+            let per_pixel = if self.weighting.is_plain() {
+                (per_pixel * &target.mask)?
+            } else {
+                // Too far: a smaller normalized inverse depth than the truth.
+                let too_far = diff.lt(0.0)?;
+                let far_w = too_far.where_cond(
+                    &Tensor::full(
+                        self.weighting.too_far_weight as f32,
+                        diff.shape(),
+                        diff.device(),
+                    )?,
+                    &Tensor::ones(diff.shape(), DType::F32, diff.device())?,
+                )?;
+                ((per_pixel * &target.weight)? * far_w)?
+            };
+            let term = (per_pixel.sum_all()? / &denom)?;
             let term = (term * w)?;
             total = Some(match total {
                 Some(t) => (t + term)?,

@@ -4,7 +4,7 @@
 
 use super::data::DataError;
 use super::log::ValRecord;
-use super::loss::LossError;
+use super::loss::{LossError, LossWeighting};
 use super::rig_layouts::RigLayouts;
 use mode360_estimator::model::{ComputeDevice, ModelError, Preset, SsmodeConfig};
 use mode360_synth::synth::StreetStyle;
@@ -93,6 +93,8 @@ pub struct TrainOptions {
     pub rig_pool: usize,
     /// Clip the global gradient norm to this (`None`: no clipping).
     pub max_grad_norm: Option<f64>,
+    /// Extra loss weight of near pixels and too-far predictions (default: none).
+    pub loss_weighting: LossWeighting,
     /// Start a new run (not a resumed one) from these weights instead of the random
     /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
     pub init_weights: Option<PathBuf>,
@@ -144,6 +146,7 @@ impl Default for TrainOptions {
             blocked_fraction: 0.0,
             rig_pool: 0,
             max_grad_norm: None,
+            loss_weighting: LossWeighting::default(),
             init_weights: None,
             fork_from: None,
             until_step: None,

@@ -176,6 +176,7 @@ impl Trainer {
             hypotheses: cfg.hypotheses,
             spacing: cfg.hypothesis_spacing,
             stage_weights: PSMNET_STAGE_WEIGHTS.to_vec(),
+            weighting: opts.loss_weighting,
         };
         let schedule = LrSchedule {
             base_lr: opts.lr,

@@ -1,0 +1,328 @@
+//! Near clutter along the rig's path ([`super::StreetStyle::Cluttered`]): the poles, sign
+//! posts, bollards, cones, barriers, fences, rails, tree trunks, people, cyclists, parked
+//! cars, low walls and overhanging branches that a vehicle or robot passes close by, each one
+//! object instance of the ground truth's labels.
+//!
+//! Items are anchored in the world, so a sequence sees them approach and pass: slot `k` of
+//! [`SLOT_LENGTH_M`] along x holds an item with probability [`ITEM_PROBABILITY`], on either
+//! side of the ego lane's centre line `y = ego_y`, at a lateral offset drawn log-uniformly in
+//! [`MIN_LATERAL_M`, `MAX_LATERAL_M`] from that line. With every camera of the rig within
+//! [`super::objects::standard_rig_zone`]'s 0.75 m of the line, the nearest item surface is
+//! at least `MIN_LATERAL_M - 0.75 m` from a camera, and 0.7 m from the Deep360 rig's (0.5 m
+//! off the line). Thin structures go down to [`MIN_THIN_RADIUS_M`] (3 cm across).
+
+use super::bvh::Shape;
+use super::colour::Rgb;
+use super::material::{Material, SurfacePrim};
+use super::noise::Rng;
+use super::pattern::{random_colour, Pattern};
+use super::props::{aabox, car, pedestrian, push, tag_object};
+use nalgebra::Vector3;
+
+/// Length along x of one clutter slot, metres.
+pub const SLOT_LENGTH_M: f64 = 3.0;
+/// Chance that a slot holds an item.
+pub const ITEM_PROBABILITY: f64 = 0.7;
+/// Nearest lateral offset of an item's surface from the ego lane's centre line, metres.
+pub const MIN_LATERAL_M: f64 = 1.2;
+/// Farthest lateral offset of an item from the ego lane's centre line, metres.
+pub const MAX_LATERAL_M: f64 = 9.0;
+/// Clutter is generated this far ahead of and behind the rig along x, metres.
+pub const CLUTTER_RANGE_M: f64 = 60.0;
+/// Radius of the thinnest poles and rails, metres.
+pub const MIN_THIN_RADIUS_M: f64 = 0.015;
+/// Half width of a person across the walking direction (torso), metres.
+const PERSON_HALF_WIDTH_M: f64 = 0.22;
+/// Largest half width of a car, metres (`props::car`).
+const CAR_HALF_WIDTH_MAX_M: f64 = 0.92;
+/// Overhanging branches hang at least this high above the road, metres (above any rig).
+const MIN_BRANCH_HEIGHT_M: f64 = 3.2;
+/// Traffic-cone orange and barrier red/white (linear RGB).
+const CONE_ORANGE: Rgb = [0.85, 0.25, 0.03];
+const BARRIER_RED: Rgb = [0.7, 0.05, 0.04];
+/// Dark glossy paint and pale flat concrete: surfaces that defeat matching.
+const DARK_PAINT: Rgb = [0.03, 0.03, 0.035];
+
+/// The kinds of clutter, drawn uniformly.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Item {
+    Pole,
+    SignPost,
+    Bollard,
+    Cone,
+    Barrier,
+    Fence,
+    TreeTrunk,
+    Person,
+    Cyclist,
+    ParkedCar,
+    LowWall,
+    Branch,
+}
+
+const ITEMS: [Item; 12] = [
+    Item::Pole,
+    Item::SignPost,
+    Item::Bollard,
+    Item::Cone,
+    Item::Barrier,
+    Item::Fence,
+    Item::TreeTrunk,
+    Item::Person,
+    Item::Cyclist,
+    Item::ParkedCar,
+    Item::LowWall,
+    Item::Branch,
+];
+
+fn log_uniform(rng: &mut Rng, lo: f64, hi: f64) -> f64 {
+    rng.range(lo.ln(), hi.ln()).exp()
+}
+
+/// A vertical cylinder standing on the road at `(x, y)`.
+fn post(x: f64, y: f64, radius_m: f64, height_m: f64) -> Shape {
+    Shape::Cylinder {
+        centre: Vector3::new(x, y, 0.5 * height_m),
+        axis: 2,
+        radius_m,
+        half_length_m: 0.5 * height_m,
+    }
+}
+
+/// A paint or pattern for signs and barriers: mostly a pattern, sometimes flat.
+fn sign_material(rng: &mut Rng) -> Material {
+    if rng.chance(0.7) {
+        Material::Pattern(Pattern::random(rng, 0.02, 0.2))
+    } else {
+        Material::CarPaint(random_colour(rng))
+    }
+}
+
+/// One item of kind `item` whose near side is `lateral_m` from the centre line `ego_y_m`, on
+/// side `side` (+1 left, -1 right), at `x`.
+fn item(
+    out: &mut Vec<SurfacePrim>,
+    item: Item,
+    x: f64,
+    ego_y_m: f64,
+    side: f64,
+    lateral_m: f64,
+    rng: &mut Rng,
+) {
+    // `y_at(d)`: the y of a point `d` beyond the near side.
+    let y_at = |d: f64| ego_y_m + side * (lateral_m + d);
+    let origin = Vector3::new(x, y_at(0.0), 0.0);
+    let start = out.len();
+    match item {
+        Item::Pole => {
+            let r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.12);
+            let h = rng.range(2.2, 5.0);
+            let m = if rng.chance(0.5) {
+                Material::Metal
+            } else {
+                Material::CarPaint(random_colour(rng))
+            };
+            push(out, post(x, y_at(r), r, h), m, origin);
+        }
+        Item::SignPost => {
+            let r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.05);
+            let h = rng.range(2.0, 3.0);
+            push(out, post(x, y_at(r), r, h), Material::Metal, origin);
+            let half_w = rng.range(0.2, 0.45);
+            let plate_h = rng.range(0.3, 0.8);
+            // The plate faces along x or across it.
+            let (hx, hy) = if rng.chance(0.5) {
+                (0.01, half_w)
+            } else {
+                (half_w, 0.01)
+            };
+            // Centred so that its near edge is no nearer than the post's.
+            let c = Vector3::new(x, y_at(hy.max(r)), h - 0.5 * plate_h);
+            push(
+                out,
+                aabox(
+                    [c.x - hx, c.y - hy, c.z - 0.5 * plate_h],
+                    [c.x + hx, c.y + hy, c.z + 0.5 * plate_h],
+                ),
+                sign_material(rng),
+                c,
+            );
+        }
+        Item::Bollard => {
+            let r = rng.range(0.05, 0.15);
+            let m = if rng.chance(0.5) {
+                Material::Concrete
+            } else {
+                Material::CarPaint(DARK_PAINT)
+            };
+            push(out, post(x, y_at(r), r, rng.range(0.6, 1.2)), m, origin);
+        }
+        Item::Cone => {
+            let r = rng.range(0.1, 0.18);
+            let h = rng.range(0.45, 0.75);
+            let (y, m) = (y_at(r), Material::CarPaint(CONE_ORANGE));
+            push(out, post(x, y, r, 0.5 * h), m, origin);
+            let top = Shape::Cylinder {
+                centre: Vector3::new(x, y, 0.75 * h),
+                axis: 2,
+                radius_m: 0.5 * r,
+                half_length_m: 0.25 * h,
+            };
+            push(out, top, m, origin);
+        }
+        Item::Barrier | Item::Fence => {
+            let len = rng.range(1.5, 5.0);
+            let h = rng.range(0.8, 1.2);
+            let post_r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.05);
+            // The barrier's board is 6 cm thick, centred on the posts.
+            let y = y_at(post_r.max(0.03));
+            let posts = 2 + (len / 1.5) as usize;
+            for i in 0..posts {
+                let px = x - 0.5 * len + len * i as f64 / (posts - 1) as f64;
+                push(out, post(px, y, post_r, h), Material::Metal, origin);
+            }
+            if item == Item::Barrier {
+                let m = Material::CarPaint(if rng.chance(0.5) {
+                    BARRIER_RED
+                } else {
+                    [0.8, 0.8, 0.78]
+                });
+                let board = aabox(
+                    [x - 0.5 * len, y - 0.03, h - 0.35],
+                    [x + 0.5 * len, y + 0.03, h - 0.05],
+                );
+                push(out, board, m, origin);
+            } else {
+                for rail_z in [0.45 * h, 0.95 * h] {
+                    let rail = Shape::Cylinder {
+                        centre: Vector3::new(x, y, rail_z),
+                        axis: 0,
+                        radius_m: post_r,
+                        half_length_m: 0.5 * len,
+                    };
+                    push(out, rail, Material::Metal, origin);
+                }
+            }
+        }
+        Item::TreeTrunk => {
+            let r = rng.range(0.1, 0.3);
+            push(
+                out,
+                post(x, y_at(r), r, rng.range(2.0, 4.0)),
+                Material::Bark,
+                origin,
+            );
+        }
+        Item::Person => pedestrian(out, x, y_at(PERSON_HALF_WIDTH_M), rng.range(0.0, 6.3), rng),
+        Item::Cyclist => {
+            let y = y_at(PERSON_HALF_WIDTH_M);
+            pedestrian(out, x, y, rng.range(0.0, 6.3), rng);
+            for dx in [-0.55, 0.55] {
+                let wheel = Shape::Cylinder {
+                    centre: Vector3::new(x + dx, y, 0.34),
+                    axis: 1,
+                    radius_m: 0.34,
+                    half_length_m: 0.02,
+                };
+                push(out, wheel, Material::Tyre, origin);
+            }
+            // The pedestrian tagged itself; the wheels join it.
+            tag_object(out, start);
+        }
+        Item::ParkedCar => car(out, x, y_at(CAR_HALF_WIDTH_MAX_M), rng),
+        Item::LowWall => {
+            let len = rng.range(2.0, 6.0);
+            let thick = rng.range(0.15, 0.35);
+            let h = rng.range(0.4, 1.1);
+            let y = y_at(0.5 * thick);
+            let m = if rng.chance(0.5) {
+                Material::Concrete
+            } else {
+                Material::Paving
+            };
+            let wall = aabox(
+                [x - 0.5 * len, y - 0.5 * thick, 0.0],
+                [x + 0.5 * len, y + 0.5 * thick, h],
+            );
+            push(out, wall, m, origin);
+        }
+        Item::Branch => {
+            let z = rng.range(MIN_BRANCH_HEIGHT_M, 4.5);
+            let r = rng.range(0.5, 1.2);
+            let green: Rgb = [
+                rng.range(0.08, 0.16) as f32,
+                rng.range(0.2, 0.32) as f32,
+                rng.range(0.04, 0.1) as f32,
+            ];
+            let blob = Shape::Ellipsoid {
+                centre: Vector3::new(x, y_at(0.0), z + r),
+                radii_m: Vector3::new(r, 0.8 * r, 0.5 * r),
+            };
+            push(out, blob, Material::Foliage(green), origin);
+        }
+    }
+    // Items built from push calls are one instance (people and cars tag themselves).
+    if !matches!(item, Item::Person | Item::Cyclist | Item::ParkedCar) {
+        tag_object(out, start);
+    }
+}
+
+/// The clutter of world `seed` within [`CLUTTER_RANGE_M`] of `x_centre_m`, beside the ego
+/// lane's centre line `ego_y_m`.
+pub fn clutter_prims(out: &mut Vec<SurfacePrim>, seed: u64, x_centre_m: f64, ego_y_m: f64) {
+    let first = ((x_centre_m - CLUTTER_RANGE_M) / SLOT_LENGTH_M).floor() as i64;
+    let last = ((x_centre_m + CLUTTER_RANGE_M) / SLOT_LENGTH_M).ceil() as i64;
+    for k in first..=last {
+        let mut rng = Rng::new(&[seed, k as u64, 0xC1_7733]);
+        if !rng.chance(ITEM_PROBABILITY) {
+            continue;
+        }
+        let kind = ITEMS[rng.index(ITEMS.len())];
+        let side = if rng.chance(0.5) { 1.0 } else { -1.0 };
+        let lateral = log_uniform(&mut rng, MIN_LATERAL_M, MAX_LATERAL_M);
+        let x = (k as f64 + rng.range(0.2, 0.8)) * SLOT_LENGTH_M;
+        item(out, kind, x, ego_y_m, side, lateral, &mut rng);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::bvh::PrimLabel;
+    use super::*;
+
+    #[test]
+    fn items_are_instances_beside_the_path() {
+        let mut out = Vec::new();
+        clutter_prims(&mut out, 7, 0.0, -2.0);
+        assert!(out.len() > 30, "{} prims", out.len());
+        let mut ids: Vec<u16> = out
+            .iter()
+            .map(|p| match p.label {
+                PrimLabel::Object(id) => id,
+                other => panic!("clutter labelled {other:?}"),
+            })
+            .collect();
+        ids.dedup();
+        // Ids rise along the list: every item's prims are contiguous and one instance.
+        assert!(ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
+        let slots = (2.0 * CLUTTER_RANGE_M / SLOT_LENGTH_M) as usize;
+        assert!(
+            ids.len() > slots / 2 && ids.len() <= slots + 2,
+            "{} items",
+            ids.len()
+        );
+        // Nothing below the branches' height comes within MIN_LATERAL_M of the line.
+        for p in &out {
+            let b = p.shape.aabb();
+            if b.min.z >= MIN_BRANCH_HEIGHT_M {
+                continue;
+            }
+            let near = if b.min.y > -2.0 {
+                b.min.y - (-2.0)
+            } else {
+                -2.0 - b.max.y
+            };
+            assert!(near >= MIN_LATERAL_M - 1e-9, "{:?} at {near} m", p.shape);
+        }
+    }
+}
