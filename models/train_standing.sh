@@ -13,8 +13,9 @@
 #                          (`--near-weight 4 --too-far-weight 2`).
 # Data: cluttered streets (near clutter along the path from about 0.7 m out, labelled
 # obstacles: --street cluttered) with random objects on a quarter of the samples, 30 % soiled,
-# a fifth on fisheye racks, every rig layout, a fifth with one lens 5 to 40 % blocked, rigs
-# from a pool of 6 renewed every 400 samples. The arms are compared on held-out cluttered
+# a fifth on fisheye racks, every rig layout, a fifth with one lens 5 to 40 % blocked, a real
+# camera's effects on every image (exposure, white balance, vignetting, blur, noise, JPEG:
+# --camera-effects), rigs from a pool of 6 renewed every 400 samples. The arms are compared on held-out cluttered
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights: the shipped file), ARMS
@@ -25,7 +26,7 @@ bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
 arms="${ARMS:-plain weighted}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
-  --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50)
+  --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
 pids=()
 for arm in $arms; do

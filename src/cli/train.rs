@@ -101,6 +101,10 @@ pub struct TrainArgs {
     /// Range below which --near-weight applies, metres.
     #[arg(long, default_value_t = mode360_train::train::loss::DEFAULT_NEAR_RANGE_M)]
     pub near_range_m: f64,
+    /// Give every rendered camera image a real camera's effects: exposure, white balance,
+    /// vignetting, blur, sensor noise and JPEG compression, drawn per camera.
+    #[arg(long)]
+    pub camera_effects: bool,
     /// Loss weight of a pixel predicted farther than its truth (1: the plain loss).
     #[arg(long, default_value_t = 1.0)]
     pub too_far_weight: f64,
@@ -143,6 +147,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             near_weight: a.near_weight,
             too_far_weight: a.too_far_weight,
         },
+        camera_effects: a.camera_effects,
         device: a.device,
         ..TrainOptions::default()
     };

@@ -26,6 +26,7 @@ fn cfg(seed: u64) -> DataConfig {
         rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
         blocked_fraction: 0.0,
         rig_pool: 0,
+        camera_effects: false,
     }
 }
 

@@ -33,6 +33,7 @@ fn cfg(seed: u64, rig_layouts: RigLayouts, blocked_fraction: f64) -> DataConfig 
         rig_layouts,
         blocked_fraction,
         rig_pool: 0,
+        camera_effects: false,
     }
 }
 

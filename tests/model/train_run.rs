@@ -35,6 +35,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         rig_pool: 0,
         max_grad_norm: Some(5.0),
         loss_weighting: Default::default(),
+        camera_effects: false,
         device: mode360::model::ComputeDevice::Cpu,
         show_progress: false,
     }

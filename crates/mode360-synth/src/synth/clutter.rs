@@ -5,11 +5,18 @@
 //!
 //! Items are anchored in the world, so a sequence sees them approach and pass: slot `k` of
 //! [`SLOT_LENGTH_M`] along x holds an item with probability [`ITEM_PROBABILITY`], on either
-//! side of the ego lane's centre line `y = ego_y`, at a lateral offset drawn log-uniformly in
-//! [`MIN_LATERAL_M`, `MAX_LATERAL_M`] from that line. With every camera of the rig within
+//! side of the ego lane's centre line `y = ego_y`, at a lateral offset from that line drawn,
+//! with probability [`CLOSE_SHARE`], uniformly in [`MIN_LATERAL_M`, `CLOSE_LATERAL_M`],
+//! else log-uniformly in [`MIN_LATERAL_M`, `MAX_LATERAL_M`]. With every camera of the rig within
 //! [`super::objects::standard_rig_zone`]'s 0.75 m of the line, the nearest item surface is
 //! at least `MIN_LATERAL_M - 0.75 m` from a camera, and 0.7 m from the Deep360 rig's (0.5 m
 //! off the line). Thin structures go down to [`MIN_THIN_RADIUS_M`] (3 cm across).
+//!
+//! Things stand in the path too: slot `k` of [`PATH_SLOT_LENGTH_M`] holds, with probability
+//! [`PATH_ITEM_PROBABILITY`], a person, cyclist, cone, bollard, pole or sign post within
+//! 0.5 m of the centre line; it is part of a frame only while it is at least
+//! [`PATH_CLEARANCE_M`] ahead of or behind the rig along x (a sequence sees it approach, then
+//! it is gone), so no camera is ever inside it.
 
 use super::bvh::Shape;
 use super::colour::Rgb;
@@ -20,13 +27,29 @@ use super::props::{aabox, car, pedestrian, push, tag_object};
 use nalgebra::Vector3;
 
 /// Length along x of one clutter slot, metres.
-pub const SLOT_LENGTH_M: f64 = 3.0;
+pub const SLOT_LENGTH_M: f64 = 1.0;
 /// Chance that a slot holds an item.
 pub const ITEM_PROBABILITY: f64 = 0.7;
 /// Nearest lateral offset of an item's surface from the ego lane's centre line, metres.
 pub const MIN_LATERAL_M: f64 = 1.2;
 /// Farthest lateral offset of an item from the ego lane's centre line, metres.
-pub const MAX_LATERAL_M: f64 = 9.0;
+pub const MAX_LATERAL_M: f64 = 7.0;
+/// Share of the items drawn close by: uniformly within [`MIN_LATERAL_M`, `CLOSE_LATERAL_M`]
+/// (the others log-uniformly up to [`MAX_LATERAL_M`]).
+pub const CLOSE_SHARE: f64 = 0.4;
+/// Outer edge of the close items' lateral offsets, metres.
+pub const CLOSE_LATERAL_M: f64 = 2.2;
+/// Length along x of one slot of the things standing in the ego lane ahead (or behind).
+pub const PATH_SLOT_LENGTH_M: f64 = 8.0;
+/// Chance that a path slot holds an item.
+pub const PATH_ITEM_PROBABILITY: f64 = 0.6;
+/// A thing in the path exists only while its x is at least this far from the rig's: it is
+/// there in the frames that see it ahead or behind, and gone while the rig would pass
+/// through it (half the rig zone, 0.75 m, plus the largest path item's half length, 0.9 m,
+/// plus a gap), metres.
+pub const PATH_CLEARANCE_M: f64 = 2.2;
+/// Largest half extent along x of a path item (a cyclist's wheels), metres.
+const PATH_ITEM_HALF_LENGTH_M: f64 = 0.9;
 /// Clutter is generated this far ahead of and behind the rig along x, metres.
 pub const CLUTTER_RANGE_M: f64 = 60.0;
 /// Radius of the thinnest poles and rails, metres.
@@ -59,6 +82,16 @@ enum Item {
     LowWall,
     Branch,
 }
+
+/// What may stand in the path (at most [`PATH_ITEM_HALF_LENGTH_M`] along x).
+const PATH_ITEMS: [Item; 6] = [
+    Item::Person,
+    Item::Cyclist,
+    Item::Cone,
+    Item::Bollard,
+    Item::Pole,
+    Item::SignPost,
+];
 
 const ITEMS: [Item; 12] = [
     Item::Pole,
@@ -279,9 +312,29 @@ pub fn clutter_prims(out: &mut Vec<SurfacePrim>, seed: u64, x_centre_m: f64, ego
         }
         let kind = ITEMS[rng.index(ITEMS.len())];
         let side = if rng.chance(0.5) { 1.0 } else { -1.0 };
-        let lateral = log_uniform(&mut rng, MIN_LATERAL_M, MAX_LATERAL_M);
+        let lateral = if rng.chance(CLOSE_SHARE) {
+            rng.range(MIN_LATERAL_M, CLOSE_LATERAL_M)
+        } else {
+            log_uniform(&mut rng, MIN_LATERAL_M, MAX_LATERAL_M)
+        };
         let x = (k as f64 + rng.range(0.2, 0.8)) * SLOT_LENGTH_M;
         item(out, kind, x, ego_y_m, side, lateral, &mut rng);
+    }
+    let first = ((x_centre_m - CLUTTER_RANGE_M) / PATH_SLOT_LENGTH_M).floor() as i64;
+    let last = ((x_centre_m + CLUTTER_RANGE_M) / PATH_SLOT_LENGTH_M).ceil() as i64;
+    for k in first..=last {
+        let mut rng = Rng::new(&[seed, k as u64, 0x9A7B]);
+        if !rng.chance(PATH_ITEM_PROBABILITY) {
+            continue;
+        }
+        let kind = PATH_ITEMS[rng.index(PATH_ITEMS.len())];
+        let x = (k as f64 + rng.range(0.2, 0.8)) * PATH_SLOT_LENGTH_M;
+        if (x - x_centre_m).abs() < PATH_CLEARANCE_M {
+            continue;
+        }
+        // Near side 0.5 m left of the line to on it.
+        let lateral = rng.range(-0.5, 0.0);
+        item(out, kind, x, ego_y_m, 1.0, lateral, &mut rng);
     }
 }
 
@@ -306,15 +359,22 @@ mod tests {
         // Ids rise along the list: every item's prims are contiguous and one instance.
         assert!(ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
         let slots = (2.0 * CLUTTER_RANGE_M / SLOT_LENGTH_M) as usize;
+        let path_slots = (2.0 * CLUTTER_RANGE_M / PATH_SLOT_LENGTH_M) as usize;
         assert!(
-            ids.len() > slots / 2 && ids.len() <= slots + 2,
+            ids.len() > slots / 2 && ids.len() <= slots + path_slots + 4,
             "{} items",
             ids.len()
         );
-        // Nothing below the branches' height comes within MIN_LATERAL_M of the line.
+        // Nothing below the branches' height comes within MIN_LATERAL_M of the line, but
+        // things in the path, which keep their distance along x.
         for p in &out {
             let b = p.shape.aabb();
             if b.min.z >= MIN_BRANCH_HEIGHT_M {
+                continue;
+            }
+            let along = b.min.x.abs().min(b.max.x.abs());
+            let clear_of_rig = b.min.x > 0.0 || b.max.x < 0.0;
+            if clear_of_rig && along >= PATH_CLEARANCE_M - PATH_ITEM_HALF_LENGTH_M - 1e-9 {
                 continue;
             }
             let near = if b.min.y > -2.0 {

@@ -40,6 +40,7 @@
 //! Training world seeds have the top bit clear, validation world seeds have it set, so the
 //! held-out set never shares a world with training.
 
+use super::camera_effects::apply_camera_effects;
 use super::fisheye_rigs::random_fisheye_rig;
 use super::rack::random_rig;
 use super::rig_layouts::{draw_family, layout_rig, LayoutFamily, RigLayouts};
@@ -126,6 +127,10 @@ pub struct DataConfig {
     /// Random rigs come from a renewed pool of this many (0: a new rig every sample), so that
     /// sweep tables are reused ([`super::rig_pool`]).
     pub rig_pool: usize,
+    /// Every rendered camera image gets a camera's effects (exposure, white balance,
+    /// vignetting, blur, noise, JPEG: [`super::camera_effects`]), drawn per camera from the
+    /// sample's world seed and frame.
+    pub camera_effects: bool,
 }
 
 /// The paper's Deep360 dataset on disk as a source of training samples.
@@ -389,7 +394,10 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
             .collect(),
         ..SynthConfig::default()
     })?;
-    let frame = renderer.render_frame(&rig, spec.frame_index);
+    let mut frame = renderer.render_frame(&rig, spec.frame_index);
+    if cfg.camera_effects {
+        apply_camera_effects(&mut frame.images, spec.world_seed, spec.frame_index as u64);
+    }
     // Fisheye images enter the network as panoramas of their own frame, as at inference.
     let remap = RigRemap::new(
         &rig,

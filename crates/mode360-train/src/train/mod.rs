@@ -28,6 +28,7 @@
 //! (seeded initialisation, fine-tuning start weights) and `forward.rs` (one sample through the
 //! network, the validation pass).
 
+pub mod camera_effects;
 pub mod data;
 pub mod fisheye_rigs;
 pub mod log;

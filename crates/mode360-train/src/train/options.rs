@@ -95,6 +95,8 @@ pub struct TrainOptions {
     pub max_grad_norm: Option<f64>,
     /// Extra loss weight of near pixels and too-far predictions (default: none).
     pub loss_weighting: LossWeighting,
+    /// Camera effects on every rendered training image ([`super::camera_effects`]).
+    pub camera_effects: bool,
     /// Start a new run (not a resumed one) from these weights instead of the random
     /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
     pub init_weights: Option<PathBuf>,
@@ -147,6 +149,7 @@ impl Default for TrainOptions {
             rig_pool: 0,
             max_grad_norm: None,
             loss_weighting: LossWeighting::default(),
+            camera_effects: false,
             init_weights: None,
             fork_from: None,
             until_step: None,

@@ -79,6 +79,7 @@ mod tests {
             rig_layouts: RigLayouts::Any,
             blocked_fraction: 0.2,
             rig_pool: 0,
+            camera_effects: false,
         };
         let pooled = DataConfig {
             rig_pool: rigs,

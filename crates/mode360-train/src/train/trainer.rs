@@ -169,6 +169,7 @@ impl Trainer {
             rig_layouts: opts.rig_layouts,
             blocked_fraction: opts.blocked_fraction,
             rig_pool: opts.rig_pool,
+            camera_effects: opts.camera_effects,
         };
         let loss_cfg = LossConfig {
             min_depth_m: cfg.min_depth_m,
