@@ -26,6 +26,7 @@ fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
         rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
         blocked_fraction: 0.0,
         rig_pool: 0,
+        camera_effects: false,
     }
 }
 
