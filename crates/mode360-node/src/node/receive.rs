@@ -213,6 +213,8 @@ pub(super) fn dds_main(
             SyncConfig {
                 tolerance_ns: (params.sync_tolerance_s * 1e9).round() as u64,
                 queue_size: params.sync_queue_size,
+                // max_ahead_ns and reset_jump_ns: not node parameters (yet), the defaults.
+                ..SyncConfig::default()
             },
         ),
         clock: NodeClock::new(params.use_sim_time),
