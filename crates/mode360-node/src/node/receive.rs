@@ -3,7 +3,8 @@
 //! inference worker ([`super::worker`]) and then runs a current-thread tokio runtime
 //! whose loop (`tokio::select!`) receives every camera topic (sensor-data QoS: best effort,
 //! keep last), validates and decodes each image ([`super::decode`]) and feeds
-//! [`ApproxTimeSync`]; with `use_sim_time` it also follows `/clock` ([`NodeClock`]); a
+//! [`ApproxTimeSync`] with the node clock's time of receipt (stamps far ahead and clock resets:
+//! [`Receiver::on_camera`]); with `use_sim_time` it also follows `/clock` ([`NodeClock`]); a
 //! `tokio::time` ticker ([`TICK`]) times cameras out and publishes `/diagnostics` once a
 //! second; a watch channel stops it. Complete groups go to the inference worker's mailbox
 //! ([`super::worker`]), which this loop starts and, at shutdown, stops and waits for.
@@ -20,7 +21,7 @@ use super::NodeError;
 use futures::StreamExt;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{Rig, RigCamera};
-use mode360_core::sync::{ApproxTimeSync, SyncConfig};
+use mode360_core::sync::{ApproxTimeSync, ClockReset, SyncConfig};
 use mode360_io::bag::rig_tf_static;
 use mode360_io::msgs::{DiagnosticArray, TFMessage};
 use ros2_client::Publisher;
@@ -67,6 +68,16 @@ struct Receiver {
 }
 
 impl Receiver {
+    /// Takes one camera message: decodes it and feeds the synchronizer with its receive time,
+    /// the node clock's now. With the system clock that is wall-clock time; with `use_sim_time`
+    /// it is the newest `/clock` (none before the first, and then only the other cameras bound
+    /// a stamp). Under simulated time the cameras stamp with simulated time, which starts at
+    /// zero or in a recording's past: against wall-clock time no stamp would ever look ahead,
+    /// against `/clock` the check means what it says. Cameras running ahead of a slowly
+    /// published `/clock` lose a few images at most: the synchronizer follows a stream whose
+    /// stamps stay ahead ([`mode360_core::sync`]). A reset (a stamp that jumped back: a looped
+    /// bag, a simulator or driver restart) is logged once at WARN with the camera and the jump,
+    /// and counted on that camera's diagnostics.
     fn on_camera(&mut self, i: usize, result: Result<CameraMsg, Bad>) {
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
@@ -84,15 +95,20 @@ impl Receiver {
             result
                 .and_then(|msg| decode_camera(camera, &msg))
                 .and_then(|(stamp_ns, img)| {
-                    sync.push(i, stamp_ns, img)
+                    sync.push_at(i, stamp_ns, now_ns, img)
                         .map_err(|e| (BadImageReason::from(&e), e.to_string()))
                 });
         let mut groups = Vec::new();
         {
             let mut h = lock(&self.shared.health);
             match outcome {
-                Ok(g) => {
-                    groups = g;
+                Ok(pushed) => {
+                    groups = pushed.groups;
+                    if let Some(reset) = pushed.reset {
+                        log_reset(camera, &reset);
+                        h.cameras[i]
+                            .record_clock_jump(seconds_between(reset.stamp_ns, reset.last_ns));
+                    }
                     if now_ns.is_some() {
                         self.cams[i].last_receipt_ns = now_ns;
                     }
@@ -167,6 +183,19 @@ impl Receiver {
             self.last_diag = Instant::now();
         }
     }
+}
+
+/// The WARN line of a synchronizer reset caused by `camera`.
+fn log_reset(camera: &RigCamera, reset: &ClockReset) {
+    tracing::warn!(
+        "camera '{}': stamp jumped back {:.3} s ({} ns -> {} ns): clock reset, looped bag or \
+         restarted driver; synchronizer restarted ({} queued images discarded)",
+        camera.name,
+        seconds_between(reset.stamp_ns, reset.last_ns),
+        reset.last_ns,
+        reset.stamp_ns,
+        reset.discarded
+    );
 }
 
 pub(super) fn dds_main(
