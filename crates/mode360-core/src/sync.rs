@@ -21,7 +21,9 @@
 //!   [`SyncStats::resets`] counts it and [`Pushed::reset`] reports it once to the caller. The
 //!   queued messages it discards count as [`SyncStats::unmatched`]. Because every clock is
 //!   cleared, when all cameras jump back together (a looped bag) the first camera's jump resets
-//!   and the others' older stamps are then plain first messages: groups resume at once.
+//!   and the others' older stamps are then plain first messages: groups resume at once; an
+//!   image of the old epoch delivered after the reset is far ahead (below) and dropped. A loop
+//!   shorter than `reset_jump_ns` cannot be told from a reorder: its stamps stay out of order.
 //! * **Far ahead**: with `margin = max(max_ahead_ns, tolerance_ns)`, `t` is far ahead when
 //!   `t > receipt_ns + margin` (the receive time, when the caller passes one) or
 //!   `t > max(last_ns of the other streams) + margin` (when any other stream has a clock). Such
