@@ -26,10 +26,16 @@
 //!   shorter than `reset_jump_ns` cannot be told from a reorder: its stamps stay out of order.
 //! * **Far ahead**: with `margin = max(max_ahead_ns, tolerance_ns)`, `t` is far ahead when
 //!   `t > receipt_ns + margin` (the receive time, when the caller passes one) or
-//!   `t > max(last_ns of the other streams) + margin` (when any other stream has a clock). Such
-//!   a message is rejected as [`SyncError::Ahead`] (counted in [`SyncStats::ahead`]) and does
-//!   not move the stream's clock, so one image stamped an hour (or until 2038) ahead costs that
-//!   image only. Two exceptions keep a stream that really lives ahead from being starved:
+//!   `t > max(last_ns of the other streams) + margin` (when any other stream has a clock, and
+//!   either the caller passes no receive time or the stream has no clock yet: its first message
+//!   at start or after a reset). Such a message is rejected as [`SyncError::Ahead`] (counted in
+//!   [`SyncStats::ahead`]) and does not move the stream's clock, so one image stamped an hour
+//!   (or until 2038) ahead costs that image only. Where a receive time is known the other
+//!   streams bound only a first message: stamps of a bag from the past lie far behind the
+//!   receive time, and when every camera steps forward together (a gap in the bag) the first
+//!   camera to step must not be taken for a runaway; a single camera's stray stamp there costs
+//!   one reset (its next stamp jumps back) instead of one image.
+//!   Two exceptions keep a stream that really lives ahead from being starved:
 //!   - `t <= last_ns + margin`: the stream continues its own accepted clock (e.g. the only
 //!     camera still sending while the others' clocks are stale);
 //!   - the [`AHEAD_STAMPS_TO_FOLLOW`]-th consecutive far-ahead message of a stream, each
@@ -257,8 +263,9 @@ impl<T> ApproxTimeSync<T> {
     }
 
     /// Adds a message received at `receipt_ns` (same clock and epoch as the stamps; `None`
-    /// when no such clock is known, which skips the receive-time bound). The module's time
-    /// policy decides whether it is queued, dropped or resets the synchronizer.
+    /// when no such clock is known: then the other streams bound every stamp, not only a
+    /// stream's first). The module's time policy decides whether it is queued, dropped or
+    /// resets the synchronizer.
     pub fn push_at(
         &mut self,
         stream: usize,
@@ -310,13 +317,18 @@ impl<T> ApproxTimeSync<T> {
     ) -> Result<(), SyncError> {
         let margin = self.config.max_ahead_ns.max(self.config.tolerance_ns);
         let beyond = |reference_ns: u64| stamp_ns > reference_ns.saturating_add(margin);
-        if self.last_stamp_ns[stream].is_some_and(|last| !beyond(last)) {
+        let last = self.last_stamp_ns[stream];
+        if last.is_some_and(|last| !beyond(last)) {
             return Ok(());
         }
-        let others_ns = (0..self.last_stamp_ns.len())
-            .filter(|&i| i != stream)
-            .filter_map(|i| self.last_stamp_ns[i])
-            .max();
+        let others_ns = if receipt_ns.is_none() || last.is_none() {
+            (0..self.last_stamp_ns.len())
+                .filter(|&i| i != stream)
+                .filter_map(|i| self.last_stamp_ns[i])
+                .max()
+        } else {
+            None
+        };
         let (reference, reference_ns) = match (receipt_ns, others_ns) {
             (Some(r), _) if beyond(r) => (TimeReference::Receipt, r),
             (_, Some(o)) if beyond(o) => (TimeReference::OtherStreams, o),
@@ -483,6 +495,8 @@ mod tests {
     const T0: u64 = 1_700_000_000 * S;
     /// Delivery latency of the synthetic receive times.
     const LATENCY: u64 = 2 * MS;
+    /// The receive time of a bag recorded at `T0` and played a year later on the system clock.
+    const WALL: u64 = T0 + 365 * 86_400 * S;
 
     /// Pushes one frame: every stream stamped `stamp_ns` (stream `k` jittered by `k` ms,
     /// inside the 5 ms tolerance), received `LATENCY` later when `with_receipt`. Returns the
@@ -534,6 +548,29 @@ mod tests {
             );
             assert_eq!((st.resets, st.out_of_order, st.unmatched), (0, 0, 0));
         }
+        // A bag from the past played on the system clock: the receive time cannot tell, the
+        // stray stamps form one group, the next normal stamp resets and groups go on.
+        let mut s = sync(3);
+        let mut groups = Vec::new();
+        for f in 0..20 {
+            if f == 10 {
+                for k in 0..3 {
+                    let hour_ahead = T0 + 10 * PERIOD + 3600 * S + k as u64 * MS;
+                    let pushed = s.push_at(k, hour_ahead, Some(WALL), "bad").unwrap();
+                    groups.extend(pushed.groups.iter().map(|g| g.stamp_ns));
+                }
+            }
+            for k in 0..3 {
+                let pushed = s.push_at(k, T0 + f * PERIOD + k as u64 * MS, Some(WALL), "img");
+                groups.extend(pushed.unwrap().groups.iter().map(|g| g.stamp_ns));
+            }
+        }
+        assert_eq!(
+            groups.len(),
+            21,
+            "20 normal groups and the stray one: {groups:?}"
+        );
+        assert_eq!((s.stats().resets, s.stats().ahead), (1, 0));
     }
 
     #[test]
@@ -568,6 +605,54 @@ mod tests {
         assert_eq!(after, 9);
         let st = s.stats();
         assert_eq!((st.resets, st.ahead, st.groups), (1, 1, 40));
+    }
+
+    #[test]
+    fn an_old_epoch_image_delivered_after_a_reset_is_dropped_not_a_second_reset() {
+        // A bag from the past looped on the system clock; camera 1's last image of the first
+        // pass is delivered after camera 0's first image of the second pass.
+        let mut s = sync(3);
+        let push = |s: &mut ApproxTimeSync<&'static str>, k: usize, t: u64| {
+            s.push_at(k, t, Some(WALL), "img")
+        };
+        for f in 0..40 {
+            frame_at(&mut s, 3, T0 + f * PERIOD, WALL);
+        }
+        let last = T0 + 40 * PERIOD;
+        push(&mut s, 0, last).unwrap();
+        push(&mut s, 2, last + 2 * MS).unwrap();
+        let reset = push(&mut s, 0, T0).unwrap().reset.expect("a reset");
+        assert_eq!((reset.stream, reset.discarded), (0, 2));
+        assert!(matches!(
+            push(&mut s, 1, last + MS),
+            Err(SyncError::Ahead {
+                stream: 1,
+                reference: TimeReference::OtherStreams,
+                ..
+            })
+        ));
+        let mut groups = Vec::new();
+        groups.extend(push(&mut s, 1, T0 + MS).unwrap().groups);
+        groups.extend(push(&mut s, 2, T0 + 2 * MS).unwrap().groups);
+        assert_eq!(groups.len(), 1, "the second pass's first frame is a group");
+        for f in 1..10 {
+            frame_at(&mut s, 3, T0 + f * PERIOD, WALL);
+        }
+        let st = s.stats();
+        assert_eq!((st.groups, st.resets, st.ahead), (50, 1, 1));
+    }
+
+    /// [`frame`] with every message received at `receipt_ns`.
+    fn frame_at(
+        s: &mut ApproxTimeSync<&'static str>,
+        streams: usize,
+        stamp_ns: u64,
+        receipt_ns: u64,
+    ) {
+        for k in 0..streams {
+            s.push_at(k, stamp_ns + k as u64 * MS, Some(receipt_ns), "img")
+                .expect("a good message");
+        }
     }
 
     #[test]
@@ -684,6 +769,15 @@ mod tests {
         assert_eq!(stamps.len(), 5 - lost, "{stamps:?}");
         assert_eq!(s.stats().ahead, (3 * lost) as u64);
         assert_eq!(s.stats().resets, 0);
+        // The same bag on the system clock: the receive time vouches, nothing is lost.
+        let mut s = sync(3);
+        for f in 0..5 {
+            frame_at(&mut s, 3, T0 + f * PERIOD, WALL);
+        }
+        for f in 5..10 {
+            frame_at(&mut s, 3, T0 + gap + f * PERIOD, WALL);
+        }
+        assert_eq!((s.stats().groups, s.stats().ahead), (10, 0));
     }
 
     #[test]
