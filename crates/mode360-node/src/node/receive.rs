@@ -36,11 +36,20 @@ pub const TICK: Duration = Duration::from_millis(50);
 pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
 /// Fewest cameras the node keeps running with.
 pub const MIN_ACTIVE_CAMERAS: usize = 2;
+/// Shortest time between two WARN lines about one camera's synchronizer resets; the resets in
+/// between are counted in the next line. A looped bag logs each loop; a camera whose stamps
+/// keep jumping (two sources with different clocks on one topic) does not log at its frame
+/// rate.
+pub const RESET_WARN_INTERVAL: Duration = Duration::from_secs(5);
 /// Per-camera receive bookkeeping on the DDS thread.
 struct CameraState {
     /// Node-clock time of the newest good message.
     last_receipt_ns: Option<u64>,
     received_in_period: u64,
+    /// When the newest reset WARN about this camera was logged.
+    last_reset_warn: Option<Instant>,
+    /// Resets of this camera since that WARN, not logged.
+    unlogged_resets: u64,
 }
 
 /// Matched subscribers of the outputs built only on demand.
@@ -76,8 +85,9 @@ impl Receiver {
     /// against `/clock` the check means what it says. Cameras running ahead of a slowly
     /// published `/clock` lose a few images at most: the synchronizer follows a stream whose
     /// stamps stay ahead ([`mode360_core::sync`]). A reset (a stamp that jumped back: a looped
-    /// bag, a simulator or driver restart) is logged once at WARN with the camera and the jump,
-    /// and counted on that camera's diagnostics.
+    /// bag, a simulator or driver restart) is logged once at WARN with the camera and the jump
+    /// (at most one line per camera per [`RESET_WARN_INTERVAL`]), and counted on that camera's
+    /// diagnostics.
     fn on_camera(&mut self, i: usize, result: Result<CameraMsg, Bad>) {
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
@@ -105,7 +115,16 @@ impl Receiver {
                 Ok(pushed) => {
                     groups = pushed.groups;
                     if let Some(reset) = pushed.reset {
-                        log_reset(camera, &reset);
+                        let c = &mut self.cams[i];
+                        if c.last_reset_warn
+                            .is_none_or(|t| t.elapsed() >= RESET_WARN_INTERVAL)
+                        {
+                            log_reset(camera, &reset, c.unlogged_resets);
+                            c.last_reset_warn = Some(Instant::now());
+                            c.unlogged_resets = 0;
+                        } else {
+                            c.unlogged_resets += 1;
+                        }
                         h.cameras[i]
                             .record_clock_jump(seconds_between(reset.stamp_ns, reset.last_ns));
                     }
@@ -185,11 +204,17 @@ impl Receiver {
     }
 }
 
-/// The WARN line of a synchronizer reset caused by `camera`.
-fn log_reset(camera: &RigCamera, reset: &ClockReset) {
+/// The WARN line of a synchronizer reset caused by `camera`, after `unlogged` resets of it
+/// that were not logged ([`RESET_WARN_INTERVAL`]).
+fn log_reset(camera: &RigCamera, reset: &ClockReset, unlogged: u64) {
+    let earlier = if unlogged > 0 {
+        format!("; {unlogged} more resets by this camera since its previous warning")
+    } else {
+        String::new()
+    };
     tracing::warn!(
         "camera '{}': stamp jumped back {:.3} s ({} ns -> {} ns): clock reset, looped bag or \
-         restarted driver; synchronizer restarted ({} queued images discarded)",
+         restarted driver; synchronizer restarted ({} queued images discarded){earlier}",
         camera.name,
         seconds_between(reset.stamp_ns, reset.last_ns),
         reset.last_ns,
@@ -251,6 +276,8 @@ pub(super) fn dds_main(
             .map(|_| CameraState {
                 last_receipt_ns: None,
                 received_in_period: 0,
+                last_reset_warn: None,
+                unlogged_resets: 0,
             })
             .collect(),
         started_ns: None,
