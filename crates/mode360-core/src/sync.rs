@@ -1,33 +1,117 @@
 //! Approximate-time synchronization of N camera streams (pure logic, no DDS).
 //!
-//! Policy: every stream keeps a bounded queue of messages ordered by header stamp. While every
-//! *active* stream has a message, look at the earliest message of each:
+//! Grouping policy: every stream keeps a bounded queue of messages ordered by header stamp.
+//! While every *active* stream has a message, look at the earliest message of each:
 //!
 //! * if their stamps span at most `tolerance_ns`, they form a group (all are removed);
 //! * otherwise the earliest of them can never join a group (every other stream's messages are
 //!   later than its head, which is already too late) and is dropped.
 //!
-//! A stream whose newest stamp goes backwards rejects that message (out of order). A queue
-//! longer than `queue_size` drops its oldest message. Inactive streams (e.g. a camera that fell
-//! silent) are not waited for; their messages still join a group when they match.
+//! A queue longer than `queue_size` drops its oldest message. Inactive streams (e.g. a camera
+//! that fell silent) are not waited for; their messages still join a group when they match.
+//!
+//! Time policy: each stream has a *clock*, `last_ns`, the stamp of its newest accepted
+//! message. A message stamped `t` on a stream is judged before it is queued:
+//!
+//! * **Small reorder**, `last_ns - reset_jump_ns <= t < last_ns`: rejected as
+//!   [`SyncError::OutOfOrder`] (counted in [`SyncStats::out_of_order`]).
+//! * **Jump back**, `t < last_ns - reset_jump_ns`: the clock was reset (a simulator or clock
+//!   reset, a restarted driver, `ros2 bag play --loop`, a bag played twice). Every queue and
+//!   every stream's clock is cleared, the message is accepted as the first of the new epoch,
+//!   [`SyncStats::resets`] counts it and [`Pushed::reset`] reports it once to the caller. The
+//!   queued messages it discards count as [`SyncStats::unmatched`]. Because every clock is
+//!   cleared, when all cameras jump back together (a looped bag) the first camera's jump resets
+//!   and the others' older stamps are then plain first messages: groups resume at once; an
+//!   image of the old epoch delivered after the reset is far ahead (below) and dropped. A loop
+//!   shorter than `reset_jump_ns` cannot be told from a reorder: its stamps stay out of order.
+//! * **Far ahead**: with `margin = max(max_ahead_ns, tolerance_ns)`, `t` is far ahead when
+//!   `t > receipt_ns + margin` (the receive time, when the caller passes one) or
+//!   `t > max(last_ns of the other streams) + margin` (when any other stream has a clock, and
+//!   either the caller passes no receive time or the stream has no clock yet: its first message
+//!   at start or after a reset). Such a message is rejected as [`SyncError::Ahead`] (counted in
+//!   [`SyncStats::ahead`]) and does not move the stream's clock, so one image stamped an hour
+//!   (or until 2038) ahead costs that image only. Where a receive time is known the other
+//!   streams bound only a first message: stamps of a bag from the past lie far behind the
+//!   receive time, and when every camera steps forward together (a gap in the bag) the first
+//!   camera to step must not be taken for a runaway; a single camera's stray stamp there costs
+//!   one reset (its next stamp jumps back) instead of one image.
+//!   Two exceptions keep a stream that really lives ahead from being starved:
+//!   - `t <= last_ns + margin`: the stream continues its own accepted clock (e.g. the only
+//!     camera still sending while the others' clocks are stale);
+//!   - the [`AHEAD_STAMPS_TO_FOLLOW`]-th consecutive far-ahead message of a stream, each
+//!     stamped no earlier than the one before, is accepted: time really moved forward (a
+//!     forward clock step, a gap in a bag played faster than real time, a camera clock that
+//!     runs ahead of the receiver's). A stray far-ahead stamp is followed by a normal one,
+//!     which breaks the run.
+//!
+//! Messages a stream has queued are not revisited when time is judged; only the clocks are.
 
 use std::collections::VecDeque;
 
-/// Synchronizer settings.
+/// Default of [`SyncConfig::max_ahead_ns`]: one second.
+pub const DEFAULT_MAX_AHEAD_NS: u64 = 1_000_000_000;
+/// Default of [`SyncConfig::reset_jump_ns`]: one second.
+pub const DEFAULT_RESET_JUMP_NS: u64 = 1_000_000_000;
+/// Default of [`SyncConfig::tolerance_ns`]: 10 ms.
+pub const DEFAULT_TOLERANCE_NS: u64 = 10_000_000;
+/// Default of [`SyncConfig::queue_size`].
+pub const DEFAULT_QUEUE_SIZE: usize = 5;
+/// Consecutive far-ahead messages of one stream (stamps non-decreasing) after which the last
+/// of them is accepted and the stream's clock follows (see the module's time policy).
+pub const AHEAD_STAMPS_TO_FOLLOW: u32 = 3;
+
+/// Synchronizer settings. The time limits have serde defaults, so settings written before
+/// they existed still load.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SyncConfig {
     /// Largest spread of stamps inside one group, nanoseconds.
     pub tolerance_ns: u64,
     /// Messages kept per stream while waiting for partners.
     pub queue_size: usize,
+    /// A stamp later than the receive time or the other streams' newest stamps by more than
+    /// this (or than `tolerance_ns`, whichever is larger) is dropped as far ahead, nanoseconds.
+    #[serde(default = "default_max_ahead_ns")]
+    pub max_ahead_ns: u64,
+    /// A stamp earlier than its stream's newest by more than this resets the synchronizer
+    /// (a smaller step back is an out-of-order drop), nanoseconds.
+    #[serde(default = "default_reset_jump_ns")]
+    pub reset_jump_ns: u64,
+}
+
+fn default_max_ahead_ns() -> u64 {
+    DEFAULT_MAX_AHEAD_NS
+}
+
+fn default_reset_jump_ns() -> u64 {
+    DEFAULT_RESET_JUMP_NS
 }
 
 impl Default for SyncConfig {
     fn default() -> Self {
         Self {
-            tolerance_ns: 10_000_000,
-            queue_size: 5,
+            tolerance_ns: DEFAULT_TOLERANCE_NS,
+            queue_size: DEFAULT_QUEUE_SIZE,
+            max_ahead_ns: DEFAULT_MAX_AHEAD_NS,
+            reset_jump_ns: DEFAULT_RESET_JUMP_NS,
         }
+    }
+}
+
+/// What a far-ahead stamp was compared with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TimeReference {
+    /// The receive time the caller passed.
+    Receipt,
+    /// The newest accepted stamp of the other streams.
+    OtherStreams,
+}
+
+impl std::fmt::Display for TimeReference {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Receipt => "the receive time",
+            Self::OtherStreams => "the other cameras' newest stamp",
+        })
     }
 }
 
@@ -42,8 +126,51 @@ pub enum SyncError {
         stamp_ns: u64,
         last_ns: u64,
     },
+    #[error(
+        "stream {stream}: stamp {stamp_ns} ns is {:.3} s ahead of {reference} ({reference_ns} ns)",
+        seconds(stamp_ns.saturating_sub(*reference_ns))
+    )]
+    Ahead {
+        stream: usize,
+        stamp_ns: u64,
+        reference: TimeReference,
+        reference_ns: u64,
+    },
     #[error("stream {stream} does not exist ({count} streams)")]
     NoSuchStream { stream: usize, count: usize },
+}
+
+fn seconds(ns: u64) -> f64 {
+    ns as f64 / 1e9
+}
+
+/// A reset of the synchronizer: a stream's stamp jumped back by more than `reset_jump_ns`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClockReset {
+    /// The stream whose stamp jumped back.
+    pub stream: usize,
+    /// Its newest stamp before the jump, nanoseconds.
+    pub last_ns: u64,
+    /// The stamp that jumped back (accepted as the first of the new epoch), nanoseconds.
+    pub stamp_ns: u64,
+    /// Queued messages of all streams discarded by the reset.
+    pub discarded: usize,
+}
+
+impl ClockReset {
+    /// How far back the stamp jumped, nanoseconds.
+    pub fn jump_ns(&self) -> u64 {
+        self.last_ns - self.stamp_ns
+    }
+}
+
+/// What an accepted message did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pushed<T> {
+    /// Groups it completed (usually zero or one).
+    pub groups: Vec<SyncGroup<T>>,
+    /// `Some` when it reset the synchronizer (reported only on the message that reset it).
+    pub reset: Option<ClockReset>,
 }
 
 /// A synchronized group: one slot per stream, `None` for streams that were inactive.
@@ -58,11 +185,26 @@ pub struct SyncGroup<T> {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SyncStats {
     pub groups: u64,
-    /// Messages dropped because no partner matched them.
+    /// Messages dropped because no partner matched them (also those a reset discarded).
     pub unmatched: u64,
     /// Messages dropped because a queue overflowed.
     pub overflow: u64,
+    /// Messages dropped because their stamp was slightly older than their stream's newest.
     pub out_of_order: u64,
+    /// Messages dropped because their stamp was far ahead (of the receive time or of the
+    /// other streams).
+    pub ahead: u64,
+    /// Resets: a stream's stamp jumped back by more than `reset_jump_ns`.
+    pub resets: u64,
+}
+
+/// A stream's run of consecutive far-ahead messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct AheadRun {
+    /// The newest far-ahead stamp of the run.
+    stamp_ns: u64,
+    /// Messages in the run.
+    count: u32,
 }
 
 /// Approximate-time synchronizer over a fixed number of streams.
@@ -71,6 +213,7 @@ pub struct ApproxTimeSync<T> {
     config: SyncConfig,
     queues: Vec<VecDeque<(u64, T)>>,
     last_stamp_ns: Vec<Option<u64>>,
+    ahead_runs: Vec<Option<AheadRun>>,
     active: Vec<bool>,
     stats: SyncStats,
 }
@@ -81,6 +224,7 @@ impl<T> ApproxTimeSync<T> {
             config,
             queues: (0..streams).map(|_| VecDeque::new()).collect(),
             last_stamp_ns: vec![None; streams],
+            ahead_runs: vec![None; streams],
             active: vec![true; streams],
             stats: SyncStats::default(),
         }
@@ -88,6 +232,10 @@ impl<T> ApproxTimeSync<T> {
 
     pub fn stats(&self) -> SyncStats {
         self.stats
+    }
+
+    pub fn config(&self) -> SyncConfig {
+        self.config
     }
 
     /// Marks a stream as waited for (`true`) or not. Returns groups that became complete.
@@ -102,20 +250,40 @@ impl<T> ApproxTimeSync<T> {
         self.active.get(stream).copied().unwrap_or(false)
     }
 
-    /// Adds a message; returns the groups it completed (usually zero or one).
+    /// Adds a message without a receive time (only the other streams bound how far ahead its
+    /// stamp may be); returns the groups it completed. A reset is counted in the stats but
+    /// not reported: callers that log resets use [`Self::push_at`].
     pub fn push(
         &mut self,
         stream: usize,
         stamp_ns: u64,
         msg: T,
     ) -> Result<Vec<SyncGroup<T>>, SyncError> {
+        self.push_at(stream, stamp_ns, None, msg).map(|p| p.groups)
+    }
+
+    /// Adds a message received at `receipt_ns` (same clock and epoch as the stamps; `None`
+    /// when no such clock is known: then the other streams bound every stamp, not only a
+    /// stream's first). The module's time policy decides whether it is queued, dropped or
+    /// resets the synchronizer.
+    pub fn push_at(
+        &mut self,
+        stream: usize,
+        stamp_ns: u64,
+        receipt_ns: Option<u64>,
+        msg: T,
+    ) -> Result<Pushed<T>, SyncError> {
         let count = self.queues.len();
-        let last = self
+        let last = *self
             .last_stamp_ns
-            .get_mut(stream)
+            .get(stream)
             .ok_or(SyncError::NoSuchStream { stream, count })?;
-        if let Some(last_ns) = *last {
-            if stamp_ns < last_ns {
+        let mut reset = None;
+        match last {
+            Some(last_ns) if stamp_ns < last_ns - last_ns.min(self.config.reset_jump_ns) => {
+                reset = Some(self.reset(stream, last_ns, stamp_ns));
+            }
+            Some(last_ns) if stamp_ns < last_ns => {
                 self.stats.out_of_order += 1;
                 return Err(SyncError::OutOfOrder {
                     stream,
@@ -123,15 +291,83 @@ impl<T> ApproxTimeSync<T> {
                     last_ns,
                 });
             }
+            _ => self.check_ahead(stream, stamp_ns, receipt_ns)?,
         }
-        *last = Some(stamp_ns);
+        self.last_stamp_ns[stream] = Some(stamp_ns);
+        self.ahead_runs[stream] = None;
         let q = &mut self.queues[stream];
         q.push_back((stamp_ns, msg));
         while q.len() > self.config.queue_size.max(1) {
             q.pop_front();
             self.stats.overflow += 1;
         }
-        Ok(self.drain())
+        Ok(Pushed {
+            groups: self.drain(),
+            reset,
+        })
+    }
+
+    /// `Err(Ahead)` (counted, the run recorded) when `stamp_ns` is far ahead and no exception
+    /// of the time policy applies.
+    fn check_ahead(
+        &mut self,
+        stream: usize,
+        stamp_ns: u64,
+        receipt_ns: Option<u64>,
+    ) -> Result<(), SyncError> {
+        let margin = self.config.max_ahead_ns.max(self.config.tolerance_ns);
+        let beyond = |reference_ns: u64| stamp_ns > reference_ns.saturating_add(margin);
+        let last = self.last_stamp_ns[stream];
+        if last.is_some_and(|last| !beyond(last)) {
+            return Ok(());
+        }
+        let others_ns = if receipt_ns.is_none() || last.is_none() {
+            (0..self.last_stamp_ns.len())
+                .filter(|&i| i != stream)
+                .filter_map(|i| self.last_stamp_ns[i])
+                .max()
+        } else {
+            None
+        };
+        let (reference, reference_ns) = match (receipt_ns, others_ns) {
+            (Some(r), _) if beyond(r) => (TimeReference::Receipt, r),
+            (_, Some(o)) if beyond(o) => (TimeReference::OtherStreams, o),
+            _ => return Ok(()),
+        };
+        let run = match self.ahead_runs[stream] {
+            Some(run) if run.stamp_ns <= stamp_ns => AheadRun {
+                stamp_ns,
+                count: run.count + 1,
+            },
+            _ => AheadRun { stamp_ns, count: 1 },
+        };
+        if run.count >= AHEAD_STAMPS_TO_FOLLOW {
+            return Ok(());
+        }
+        self.ahead_runs[stream] = Some(run);
+        self.stats.ahead += 1;
+        Err(SyncError::Ahead {
+            stream,
+            stamp_ns,
+            reference,
+            reference_ns,
+        })
+    }
+
+    /// Clears every queue, clock and far-ahead run; counts the reset.
+    fn reset(&mut self, stream: usize, last_ns: u64, stamp_ns: u64) -> ClockReset {
+        let discarded: usize = self.queues.iter().map(VecDeque::len).sum();
+        self.queues.iter_mut().for_each(VecDeque::clear);
+        self.last_stamp_ns.iter_mut().for_each(|l| *l = None);
+        self.ahead_runs.iter_mut().for_each(|r| *r = None);
+        self.stats.unmatched += discarded as u64;
+        self.stats.resets += 1;
+        ClockReset {
+            stream,
+            last_ns,
+            stamp_ns,
+            discarded,
+        }
     }
 
     fn drain(&mut self) -> Vec<SyncGroup<T>> {
@@ -185,6 +421,7 @@ mod tests {
             SyncConfig {
                 tolerance_ns: 5 * MS,
                 queue_size: 3,
+                ..SyncConfig::default()
             },
         )
     }
@@ -249,5 +486,306 @@ mod tests {
         s.push(1, 21 * MS, "b").unwrap();
         let g = s.push(2, 22 * MS, "c").unwrap();
         assert_eq!(g[0].messages.iter().filter(|m| m.is_some()).count(), 3);
+    }
+
+    const S: u64 = 1_000_000_000;
+    /// A camera period of 30 Hz.
+    const PERIOD: u64 = 33 * MS;
+    /// Where the synthetic streams' clocks start (an ordinary epoch time).
+    const T0: u64 = 1_700_000_000 * S;
+    /// Delivery latency of the synthetic receive times.
+    const LATENCY: u64 = 2 * MS;
+    /// The receive time of a bag recorded at `T0` and played a year later on the system clock.
+    const WALL: u64 = T0 + 365 * 86_400 * S;
+
+    /// Pushes one frame: every stream stamped `stamp_ns` (stream `k` jittered by `k` ms,
+    /// inside the 5 ms tolerance), received `LATENCY` later when `with_receipt`. Returns the
+    /// stamps of the groups completed and the resets reported.
+    fn frame(
+        s: &mut ApproxTimeSync<&'static str>,
+        streams: usize,
+        stamp_ns: u64,
+        with_receipt: bool,
+    ) -> (Vec<u64>, Vec<ClockReset>) {
+        let (mut groups, mut resets) = (Vec::new(), Vec::new());
+        for k in 0..streams {
+            let t = stamp_ns + k as u64 * MS;
+            let receipt = with_receipt.then_some(t + LATENCY);
+            let pushed = s.push_at(k, t, receipt, "img").expect("a good message");
+            groups.extend(pushed.groups.iter().map(|g| g.stamp_ns));
+            resets.extend(pushed.reset);
+        }
+        (groups, resets)
+    }
+
+    #[test]
+    fn an_hour_ahead_stamp_on_every_camera_costs_those_images_only() {
+        for with_receipt in [false, true] {
+            let mut s = sync(3);
+            let mut groups = 0;
+            for f in 0..10 {
+                groups += frame(&mut s, 3, T0 + f * PERIOD, with_receipt).0.len();
+            }
+            // Each camera in turn sends one image stamped an hour ahead.
+            let hour_ahead = T0 + 10 * PERIOD + 3600 * S;
+            for k in 0..3 {
+                let receipt = with_receipt.then_some(T0 + 10 * PERIOD);
+                let err = s.push_at(k, hour_ahead, receipt, "bad").unwrap_err();
+                assert!(matches!(err, SyncError::Ahead { stream, .. } if stream == k));
+            }
+            for f in 10..20 {
+                groups += frame(&mut s, 3, T0 + f * PERIOD, with_receipt).0.len();
+            }
+            assert_eq!(
+                groups, 20,
+                "with_receipt {with_receipt}: every normal frame grouped"
+            );
+            let st = s.stats();
+            assert_eq!(
+                (st.groups, st.ahead),
+                (20, 3),
+                "with_receipt {with_receipt}"
+            );
+            assert_eq!((st.resets, st.out_of_order, st.unmatched), (0, 0, 0));
+        }
+        // A bag from the past played on the system clock: the receive time cannot tell, the
+        // stray stamps form one group, the next normal stamp resets and groups go on.
+        let mut s = sync(3);
+        let mut groups = Vec::new();
+        for f in 0..20 {
+            if f == 10 {
+                for k in 0..3 {
+                    let hour_ahead = T0 + 10 * PERIOD + 3600 * S + k as u64 * MS;
+                    let pushed = s.push_at(k, hour_ahead, Some(WALL), "bad").unwrap();
+                    groups.extend(pushed.groups.iter().map(|g| g.stamp_ns));
+                }
+            }
+            for k in 0..3 {
+                let pushed = s.push_at(k, T0 + f * PERIOD + k as u64 * MS, Some(WALL), "img");
+                groups.extend(pushed.unwrap().groups.iter().map(|g| g.stamp_ns));
+            }
+        }
+        assert_eq!(
+            groups.len(),
+            21,
+            "20 normal groups and the stray one: {groups:?}"
+        );
+        assert_eq!((s.stats().resets, s.stats().ahead), (1, 0));
+    }
+
+    #[test]
+    fn a_20_s_clock_reset_resumes_groups_within_one_group_period() {
+        let mut s = sync(4);
+        let mut before = 0;
+        for f in 0..30 {
+            before += frame(&mut s, 4, T0 + f * PERIOD, true).0.len();
+        }
+        assert_eq!(before, 30);
+        // Simulated time starts over 20 s earlier, on every camera.
+        let back = T0 + 30 * PERIOD - 20 * S;
+        let (groups, resets) = frame(&mut s, 4, back, true);
+        assert_eq!(groups, [back], "the first frame after the reset is a group");
+        assert_eq!(resets.len(), 1, "reported once: {resets:?}");
+        assert_eq!(resets[0].stream, 0);
+        assert_eq!(resets[0].jump_ns(), 20 * S - PERIOD);
+        // A straggler from before the reset (camera 1, delivered late) is far ahead now: it
+        // is dropped and does not reset again.
+        let straggler = T0 + 29 * PERIOD + MS;
+        assert!(matches!(
+            s.push_at(1, straggler, None, "late"),
+            Err(SyncError::Ahead {
+                reference: TimeReference::OtherStreams,
+                ..
+            })
+        ));
+        let mut after = 0;
+        for f in 1..10 {
+            after += frame(&mut s, 4, back + f * PERIOD, true).0.len();
+        }
+        assert_eq!(after, 9);
+        let st = s.stats();
+        assert_eq!((st.resets, st.ahead, st.groups), (1, 1, 40));
+    }
+
+    #[test]
+    fn an_old_epoch_image_delivered_after_a_reset_is_dropped_not_a_second_reset() {
+        // A bag from the past looped on the system clock; camera 1's last image of the first
+        // pass is delivered after camera 0's first image of the second pass.
+        let mut s = sync(3);
+        let push = |s: &mut ApproxTimeSync<&'static str>, k: usize, t: u64| {
+            s.push_at(k, t, Some(WALL), "img")
+        };
+        for f in 0..40 {
+            frame_at(&mut s, 3, T0 + f * PERIOD, WALL);
+        }
+        let last = T0 + 40 * PERIOD;
+        push(&mut s, 0, last).unwrap();
+        push(&mut s, 2, last + 2 * MS).unwrap();
+        let reset = push(&mut s, 0, T0).unwrap().reset.expect("a reset");
+        assert_eq!((reset.stream, reset.discarded), (0, 2));
+        assert!(matches!(
+            push(&mut s, 1, last + MS),
+            Err(SyncError::Ahead {
+                stream: 1,
+                reference: TimeReference::OtherStreams,
+                ..
+            })
+        ));
+        let mut groups = Vec::new();
+        groups.extend(push(&mut s, 1, T0 + MS).unwrap().groups);
+        groups.extend(push(&mut s, 2, T0 + 2 * MS).unwrap().groups);
+        assert_eq!(groups.len(), 1, "the second pass's first frame is a group");
+        for f in 1..10 {
+            frame_at(&mut s, 3, T0 + f * PERIOD, WALL);
+        }
+        let st = s.stats();
+        assert_eq!((st.groups, st.resets, st.ahead), (50, 1, 1));
+    }
+
+    /// [`frame`] with every message received at `receipt_ns`.
+    fn frame_at(
+        s: &mut ApproxTimeSync<&'static str>,
+        streams: usize,
+        stamp_ns: u64,
+        receipt_ns: u64,
+    ) {
+        for k in 0..streams {
+            s.push_at(k, stamp_ns + k as u64 * MS, Some(receipt_ns), "img")
+                .expect("a good message");
+        }
+    }
+
+    #[test]
+    fn a_looped_sequence_played_twice_yields_every_group_of_both_passes() {
+        // Two seconds: longer than reset_jump_ns, as a loop must be to be told from a reorder.
+        const FRAMES: u64 = 60;
+        let mut s = sync(4);
+        let mut stamps = Vec::new();
+        let mut resets = Vec::new();
+        for _pass in 0..2 {
+            for f in 0..FRAMES {
+                // Cameras arrive in a different order each frame.
+                for j in 0..4 {
+                    let k = ((f as usize) + j) % 4;
+                    let t = T0 + f * PERIOD + k as u64 * MS;
+                    let pushed = s.push_at(k, t, None, "img").expect("a good message");
+                    stamps.extend(pushed.groups.iter().map(|g| g.stamp_ns));
+                    resets.extend(pushed.reset);
+                }
+            }
+        }
+        assert_eq!(stamps.len() as u64, 2 * FRAMES);
+        assert_eq!(stamps[..FRAMES as usize], stamps[FRAMES as usize..]);
+        assert_eq!(resets.len(), 1, "one reset per loop: {resets:?}");
+        let st = s.stats();
+        assert_eq!((st.resets, st.ahead, st.out_of_order), (1, 0, 0));
+    }
+
+    #[test]
+    fn a_stamp_in_2038_is_dropped_and_counted_and_the_stream_goes_on() {
+        let year_2038 = ((1u64 << 31) - 1) * S;
+        let mut s = sync(2);
+        let mut groups = 0;
+        for f in 0..5 {
+            groups += frame(&mut s, 2, T0 + f * PERIOD, false).0.len();
+        }
+        assert_eq!(
+            s.push(0, year_2038, "bad"),
+            Err(SyncError::Ahead {
+                stream: 0,
+                stamp_ns: year_2038,
+                reference: TimeReference::OtherStreams,
+                reference_ns: T0 + 4 * PERIOD + MS,
+            })
+        );
+        for f in 5..10 {
+            groups += frame(&mut s, 2, T0 + f * PERIOD, false).0.len();
+        }
+        assert_eq!(groups, 10);
+        assert_eq!((s.stats().ahead, s.stats().resets), (1, 0));
+        // As the very first message, only the receive time can tell.
+        let mut fresh = sync(2);
+        let receipt = Some(T0);
+        let err = fresh.push_at(1, year_2038, receipt, "bad").unwrap_err();
+        assert!(matches!(
+            err,
+            SyncError::Ahead {
+                reference: TimeReference::Receipt,
+                ..
+            }
+        ));
+        assert!(
+            err.to_string().contains("s ahead of the receive time"),
+            "{err}"
+        );
+        let mut groups = 0;
+        for f in 0..5 {
+            groups += frame(&mut fresh, 2, T0 + f * PERIOD, true).0.len();
+        }
+        assert_eq!(groups, 5);
+    }
+
+    #[test]
+    fn a_small_reorder_is_out_of_order_not_a_reset() {
+        let mut s = sync(2);
+        let mut groups = 0;
+        for f in 0..5 {
+            groups += frame(&mut s, 2, T0 + f * PERIOD, true).0.len();
+        }
+        // 40 ms back: well inside reset_jump_ns.
+        let late = T0 + 4 * PERIOD - 40 * MS;
+        assert!(matches!(
+            s.push_at(0, late, Some(T0 + 5 * PERIOD), "late"),
+            Err(SyncError::OutOfOrder { stream: 0, .. })
+        ));
+        for f in 5..10 {
+            groups += frame(&mut s, 2, T0 + f * PERIOD, true).0.len();
+        }
+        assert_eq!(groups, 10);
+        let st = s.stats();
+        assert_eq!((st.out_of_order, st.resets, st.ahead), (1, 0, 0));
+    }
+
+    #[test]
+    fn a_forward_step_of_every_clock_is_followed() {
+        // A gap of 10 s in a bag played faster than real time: no receive time to vouch for
+        // the new stamps, each camera's first ones look far ahead of the others'.
+        let mut s = sync(3);
+        for f in 0..5 {
+            frame(&mut s, 3, T0 + f * PERIOD, false);
+        }
+        let gap = 10 * S;
+        let mut stamps = Vec::new();
+        for f in 5..10 {
+            for k in 0..3 {
+                let t = T0 + gap + f * PERIOD + k as u64 * MS;
+                if let Ok(g) = s.push(k, t, "img") {
+                    stamps.extend(g.iter().map(|g| g.stamp_ns));
+                }
+            }
+        }
+        // Camera 0 needs AHEAD_STAMPS_TO_FOLLOW frames; cameras 1 and 2 then follow it.
+        let lost = AHEAD_STAMPS_TO_FOLLOW as usize - 1;
+        assert_eq!(stamps.len(), 5 - lost, "{stamps:?}");
+        assert_eq!(s.stats().ahead, (3 * lost) as u64);
+        assert_eq!(s.stats().resets, 0);
+        // The same bag on the system clock: the receive time vouches, nothing is lost.
+        let mut s = sync(3);
+        for f in 0..5 {
+            frame_at(&mut s, 3, T0 + f * PERIOD, WALL);
+        }
+        for f in 5..10 {
+            frame_at(&mut s, 3, T0 + gap + f * PERIOD, WALL);
+        }
+        assert_eq!((s.stats().groups, s.stats().ahead), (10, 0));
+    }
+
+    #[test]
+    fn settings_without_the_time_limits_still_load() {
+        let c: SyncConfig = serde_yaml::from_str("tolerance_ns: 20000000\nqueue_size: 4\n")
+            .expect("old settings load");
+        assert_eq!(c.max_ahead_ns, DEFAULT_MAX_AHEAD_NS);
+        assert_eq!(c.reset_jump_ns, DEFAULT_RESET_JUMP_NS);
+        assert_eq!((c.tolerance_ns, c.queue_size), (20_000_000, 4));
     }
 }

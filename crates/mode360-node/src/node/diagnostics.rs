@@ -26,21 +26,26 @@ pub enum BadImageReason {
     /// Not the size the camera's model takes: an equirectangular camera's image must be 2:1,
     /// a fisheye or dual-fisheye camera's exactly its `image_size`.
     WrongSize,
-    /// A stamp older than the camera's previous message.
+    /// A stamp older than the camera's previous message (by less than the synchronizer's
+    /// reset jump; a larger jump back restarts the synchronizer instead).
     OutOfOrder,
+    /// A stamp far ahead of the node's clock or of the other cameras' newest stamps (a
+    /// glitch: it would otherwise block the camera until that time).
+    StampAhead,
     /// The middleware could not deliver the message (deserialization).
     Transport,
 }
 
 impl BadImageReason {
     /// Every reason, in the order of the diagnostics keys.
-    pub const ALL: [Self; 7] = [
+    pub const ALL: [Self; 8] = [
         Self::Encoding,
         Self::Layout,
         Self::Truncated,
         Self::Undecodable,
         Self::WrongSize,
         Self::OutOfOrder,
+        Self::StampAhead,
         Self::Transport,
     ];
 
@@ -53,6 +58,7 @@ impl BadImageReason {
             Self::Undecodable => "undecodable",
             Self::WrongSize => "wrong_size",
             Self::OutOfOrder => "out_of_order",
+            Self::StampAhead => "stamp_ahead",
             Self::Transport => "transport",
         }
     }
@@ -75,6 +81,7 @@ impl From<&SyncError> for BadImageReason {
     fn from(e: &SyncError) -> Self {
         match e {
             SyncError::OutOfOrder { .. } => Self::OutOfOrder,
+            SyncError::Ahead { .. } => Self::StampAhead,
             SyncError::NoSuchStream { .. } => Self::Transport,
         }
     }
@@ -93,10 +100,13 @@ pub struct CameraHealth {
     pub age_s: Option<f64>,
     /// False while the camera is timed out and not waited for.
     pub active: bool,
-    /// Messages dropped as malformed (encoding, size, truncation, out-of-order stamps).
+    /// Messages dropped as malformed (encoding, size, truncation, out-of-order stamps) or
+    /// stamped far ahead.
     pub bad_messages: u64,
     /// Reason of the newest bad message.
     pub last_bad_reason: Option<String>,
+    /// Kind of the newest bad message.
+    pub last_bad_kind: Option<BadImageReason>,
     /// Messages dropped, by reason.
     pub bad_by_reason: BTreeMap<BadImageReason, u64>,
     /// Bad messages since the newest good one (0 after a good message).
@@ -105,6 +115,10 @@ pub struct CameraHealth {
     pub lens: Option<LensHealth>,
     /// The calibration drift check's latest finding (`None` before its first check).
     pub calibration: Option<CalibrationDrift>,
+    /// Times this camera's stamp jumped back and restarted the synchronizer.
+    pub clock_jumps_back: u64,
+    /// Size of the newest such jump, seconds.
+    pub last_clock_jump_s: Option<f64>,
 }
 
 impl CameraHealth {
@@ -114,6 +128,13 @@ impl CameraHealth {
         self.bad_since_good += 1;
         *self.bad_by_reason.entry(reason).or_insert(0) += 1;
         self.last_bad_reason = Some(detail);
+        self.last_bad_kind = Some(reason);
+    }
+
+    /// Counts a jump back of this camera's stamps by `jump_s` seconds (a synchronizer reset).
+    pub fn record_clock_jump(&mut self, jump_s: f64) {
+        self.clock_jumps_back += 1;
+        self.last_clock_jump_s = Some(jump_s);
     }
 
     /// Counts a good message.
@@ -248,10 +269,14 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
     let mut status = Vec::with_capacity(health.cameras.len() + 1);
     for cam in &health.cameras {
         let (level, message) = if cam.only_malformed() {
+            let what = match cam.last_bad_kind {
+                Some(BadImageReason::StampAhead) => "images stamped far ahead",
+                _ => "malformed images",
+            };
             (
                 DiagnosticStatus::ERROR,
                 format!(
-                    "sending only malformed images: {}",
+                    "sending only {what}: {}",
                     cam.last_bad_reason.as_deref().unwrap_or("")
                 ),
             )
@@ -313,6 +338,12 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
                     .as_ref()
                     .map_or_else(|| "n/a".into(), |d| format!("{:.3}", d.correction_deg)),
             ),
+            kv("clock_jumped_back", cam.clock_jumps_back),
+            kv(
+                "last_clock_jump_s",
+                cam.last_clock_jump_s
+                    .map_or_else(|| "n/a".into(), |j| format!("{j:.3}")),
+            ),
         ];
         values.extend(BadImageReason::ALL.iter().map(|r| {
             kv(
@@ -356,6 +387,8 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
             kv("sync_unmatched", health.sync.unmatched),
             kv("sync_overflow", health.sync.overflow),
             kv("sync_out_of_order", health.sync.out_of_order),
+            kv("sync_stamp_ahead", health.sync.ahead),
+            kv("sync_resets", health.sync.resets),
             kv("pipeline_errors", health.pipeline_errors),
             kv(
                 "last_pipeline_error",
@@ -437,6 +470,57 @@ mod tests {
             (0, 3, 2)
         );
         assert!(!cam.only_malformed());
+    }
+
+    #[test]
+    fn stamps_ahead_and_clock_jumps_are_named_not_malformed() {
+        let error = SyncError::Ahead {
+            stream: 0,
+            stamp_ns: 3_600_000_000_000,
+            reference: mode360_core::sync::TimeReference::Receipt,
+            reference_ns: 0,
+        };
+        let reason = BadImageReason::from(&error);
+        assert_eq!(reason, BadImageReason::StampAhead);
+        let mut cam = CameraHealth {
+            name: "cam2".into(),
+            active: true,
+            ..Default::default()
+        };
+        cam.record_bad(reason, error.to_string());
+        cam.record_clock_jump(20.0);
+        let health = NodeHealth {
+            cameras: vec![cam],
+            sync: SyncStats {
+                ahead: 1,
+                resets: 1,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let array = diagnostic_array(1, "test", &health);
+        let status = &array.status[0];
+        assert_eq!(status.level, DiagnosticStatus::ERROR);
+        assert!(
+            status
+                .message
+                .starts_with("sending only images stamped far ahead: stream 0: stamp"),
+            "{}",
+            status.message
+        );
+        let value = |name: &str, key: &str| diagnostic_value(&array, name, key);
+        assert_eq!(value("mode360: camera cam2", "bad_stamp_ahead"), Some("1"));
+        assert_eq!(value("mode360: camera cam2", "bad_out_of_order"), Some("0"));
+        assert_eq!(
+            value("mode360: camera cam2", "clock_jumped_back"),
+            Some("1")
+        );
+        assert_eq!(
+            value("mode360: camera cam2", "last_clock_jump_s"),
+            Some("20.000")
+        );
+        assert_eq!(value("mode360: pipeline", "sync_stamp_ahead"), Some("1"));
+        assert_eq!(value("mode360: pipeline", "sync_resets"), Some("1"));
     }
 
     #[test]

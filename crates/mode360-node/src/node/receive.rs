@@ -3,7 +3,8 @@
 //! inference worker ([`super::worker`]) and then runs a current-thread tokio runtime
 //! whose loop (`tokio::select!`) receives every camera topic (sensor-data QoS: best effort,
 //! keep last), validates and decodes each image ([`super::decode`]) and feeds
-//! [`ApproxTimeSync`]; with `use_sim_time` it also follows `/clock` ([`NodeClock`]); a
+//! [`ApproxTimeSync`] with the node clock's time of receipt (stamps far ahead and clock resets:
+//! [`Receiver::on_camera`]); with `use_sim_time` it also follows `/clock` ([`NodeClock`]); a
 //! `tokio::time` ticker ([`TICK`]) times cameras out and publishes `/diagnostics` once a
 //! second; a watch channel stops it. Complete groups go to the inference worker's mailbox
 //! ([`super::worker`]), which this loop starts and, at shutdown, stops and waits for.
@@ -20,7 +21,7 @@ use super::NodeError;
 use futures::StreamExt;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{Rig, RigCamera};
-use mode360_core::sync::{ApproxTimeSync, SyncConfig};
+use mode360_core::sync::{ApproxTimeSync, ClockReset, SyncConfig};
 use mode360_io::bag::rig_tf_static;
 use mode360_io::msgs::{DiagnosticArray, TFMessage};
 use ros2_client::Publisher;
@@ -35,11 +36,20 @@ pub const TICK: Duration = Duration::from_millis(50);
 pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
 /// Fewest cameras the node keeps running with.
 pub const MIN_ACTIVE_CAMERAS: usize = 2;
+/// Shortest time between two WARN lines about one camera's synchronizer resets; the resets in
+/// between are counted in the next line. A looped bag logs each loop; a camera whose stamps
+/// keep jumping (two sources with different clocks on one topic) does not log at its frame
+/// rate.
+pub const RESET_WARN_INTERVAL: Duration = Duration::from_secs(5);
 /// Per-camera receive bookkeeping on the DDS thread.
 struct CameraState {
     /// Node-clock time of the newest good message.
     last_receipt_ns: Option<u64>,
     received_in_period: u64,
+    /// When the newest reset WARN about this camera was logged.
+    last_reset_warn: Option<Instant>,
+    /// Resets of this camera since that WARN, not logged.
+    unlogged_resets: u64,
 }
 
 /// Matched subscribers of the outputs built only on demand.
@@ -67,6 +77,17 @@ struct Receiver {
 }
 
 impl Receiver {
+    /// Takes one camera message: decodes it and feeds the synchronizer with its receive time,
+    /// the node clock's now. With the system clock that is wall-clock time; with `use_sim_time`
+    /// it is the newest `/clock` (none before the first, and then only the other cameras bound
+    /// a stamp). Under simulated time the cameras stamp with simulated time, which starts at
+    /// zero or in a recording's past: against wall-clock time no stamp would ever look ahead,
+    /// against `/clock` the check means what it says. Cameras running ahead of a slowly
+    /// published `/clock` lose a few images at most: the synchronizer follows a stream whose
+    /// stamps stay ahead ([`mode360_core::sync`]). A reset (a stamp that jumped back: a looped
+    /// bag, a simulator or driver restart) is logged once at WARN with the camera and the jump
+    /// (at most one line per camera per [`RESET_WARN_INTERVAL`]), and counted on that camera's
+    /// diagnostics.
     fn on_camera(&mut self, i: usize, result: Result<CameraMsg, Bad>) {
         let now_ns = self.clock.now_ns();
         if let Some(now) = now_ns {
@@ -84,15 +105,29 @@ impl Receiver {
             result
                 .and_then(|msg| decode_camera(camera, &msg))
                 .and_then(|(stamp_ns, img)| {
-                    sync.push(i, stamp_ns, img)
+                    sync.push_at(i, stamp_ns, now_ns, img)
                         .map_err(|e| (BadImageReason::from(&e), e.to_string()))
                 });
         let mut groups = Vec::new();
         {
             let mut h = lock(&self.shared.health);
             match outcome {
-                Ok(g) => {
-                    groups = g;
+                Ok(pushed) => {
+                    groups = pushed.groups;
+                    if let Some(reset) = pushed.reset {
+                        let c = &mut self.cams[i];
+                        if c.last_reset_warn
+                            .is_none_or(|t| t.elapsed() >= RESET_WARN_INTERVAL)
+                        {
+                            log_reset(camera, &reset, c.unlogged_resets);
+                            c.last_reset_warn = Some(Instant::now());
+                            c.unlogged_resets = 0;
+                        } else {
+                            c.unlogged_resets += 1;
+                        }
+                        h.cameras[i]
+                            .record_clock_jump(seconds_between(reset.stamp_ns, reset.last_ns));
+                    }
                     if now_ns.is_some() {
                         self.cams[i].last_receipt_ns = now_ns;
                     }
@@ -169,6 +204,25 @@ impl Receiver {
     }
 }
 
+/// The WARN line of a synchronizer reset caused by `camera`, after `unlogged` resets of it
+/// that were not logged ([`RESET_WARN_INTERVAL`]).
+fn log_reset(camera: &RigCamera, reset: &ClockReset, unlogged: u64) {
+    let earlier = if unlogged > 0 {
+        format!("; {unlogged} more resets by this camera since its previous warning")
+    } else {
+        String::new()
+    };
+    tracing::warn!(
+        "camera '{}': stamp jumped back {:.3} s ({} ns -> {} ns): clock reset, looped bag or \
+         restarted driver; synchronizer restarted ({} queued images discarded){earlier}",
+        camera.name,
+        seconds_between(reset.stamp_ns, reset.last_ns),
+        reset.last_ns,
+        reset.stamp_ns,
+        reset.discarded
+    );
+}
+
 pub(super) fn dds_main(
     params: NodeParams,
     dds: DdsOptions,
@@ -213,6 +267,8 @@ pub(super) fn dds_main(
             SyncConfig {
                 tolerance_ns: (params.sync_tolerance_s * 1e9).round() as u64,
                 queue_size: params.sync_queue_size,
+                // max_ahead_ns and reset_jump_ns: not node parameters (yet), the defaults.
+                ..SyncConfig::default()
             },
         ),
         clock: NodeClock::new(params.use_sim_time),
@@ -220,6 +276,8 @@ pub(super) fn dds_main(
             .map(|_| CameraState {
                 last_receipt_ns: None,
                 received_in_period: 0,
+                last_reset_warn: None,
+                unlogged_resets: 0,
             })
             .collect(),
         started_ns: None,

@@ -254,6 +254,7 @@ mod tests {
                     unmatched: 1,
                     overflow: 2,
                     out_of_order: 2,
+                    ..SyncStats::default()
                 },
                 groups_processed: 6,
                 groups_dropped: 3,
