@@ -163,6 +163,21 @@ pub const DEFAULT_REFINE_RADIUS_CELLS: usize = 2;
 /// The largest [`SsmodeConfig::refine_radius_cells`] accepted: beyond it the median erases
 /// whole objects.
 pub const MAX_REFINE_RADIUS_CELLS: usize = 8;
+/// Limits a weights file's configuration must keep, so that a file can never make a command
+/// or the node allocate more than the machine has (the paper's largest network is 1024 wide
+/// with 48 spheres and 192 hypotheses): input width, pixels.
+pub const MAX_WIDTH_PX: usize = 8192;
+/// Most sweep spheres.
+pub const MAX_SPHERES: usize = 1024;
+/// Most output hypotheses.
+pub const MAX_HYPOTHESES: usize = 1024;
+/// Most channels of any layer.
+pub const MAX_CHANNELS: usize = 1024;
+/// Most residual blocks of a feature stage, and most hourglasses.
+pub const MAX_BLOCKS: usize = 64;
+/// Most cells of one channel of the cost volume, `spheres * cost_height * cost_width`
+/// (the paper's network at 1024 wide: 1.6 M; `parallax` at 2048 wide: 201 M).
+pub const MAX_COST_VOLUME_CELLS: usize = 1 << 28;
 
 fn default_refine_radius_cells() -> usize {
     DEFAULT_REFINE_RADIUS_CELLS
@@ -253,6 +268,38 @@ impl SsmodeConfig {
         };
         // The quarter-res ERP must be even-width and its height divisible by HOURGLASS_DIVISOR.
         let width_multiple = FEATURE_DOWNSAMPLE * 2 * HOURGLASS_DIVISOR;
+        let limits = [
+            ("width", self.width, MAX_WIDTH_PX),
+            ("spheres", self.spheres, MAX_SPHERES),
+            ("hypotheses", self.hypotheses, MAX_HYPOTHESES),
+            (
+                "feature_out_channels",
+                self.feature_out_channels,
+                MAX_CHANNELS,
+            ),
+            ("hourglass_channels", self.hourglass_channels, MAX_CHANNELS),
+            ("fine_channels", self.fine_channels, MAX_CHANNELS),
+            ("hourglasses", self.hourglasses, MAX_BLOCKS),
+        ]
+        .into_iter()
+        .chain(
+            self.feature_channels
+                .iter()
+                .map(|&c| ("feature_channels", c, MAX_CHANNELS)),
+        )
+        .chain(
+            self.feature_blocks
+                .iter()
+                .map(|&b| ("feature_blocks", b, MAX_BLOCKS)),
+        );
+        for (field, value, max) in limits {
+            if value > max {
+                return bad(
+                    field,
+                    format!("{value} is above the largest this build runs, {max}"),
+                );
+            }
+        }
         if self.width == 0 || !self.width.is_multiple_of(width_multiple) {
             return bad(
                 "width",
@@ -374,6 +421,19 @@ impl SsmodeConfig {
             return bad(
                 "hourglasses",
                 "at least one hourglass is needed".to_string(),
+            );
+        }
+        let cells = self.spheres * self.cost_height() * self.cost_width();
+        if cells > MAX_COST_VOLUME_CELLS {
+            return bad(
+                "spheres",
+                format!(
+                    "{} spheres of {}x{} cells make {cells} cost-volume cells, above the \
+                     largest this build runs, {MAX_COST_VOLUME_CELLS}",
+                    self.spheres,
+                    self.cost_width(),
+                    self.cost_height()
+                ),
             );
         }
         self.depth_range().map(|_| ())

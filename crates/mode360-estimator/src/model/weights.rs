@@ -110,6 +110,61 @@ mod tests {
     }
 
     #[test]
+    fn sizes_a_build_cannot_run_are_refused_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let base = SsmodeConfig::parallax_zncc();
+        let cases = [
+            (
+                "spheres",
+                SsmodeConfig {
+                    spheres: 1_000_000_000,
+                    ..base.clone()
+                },
+            ),
+            (
+                "hypotheses",
+                SsmodeConfig {
+                    hypotheses: 1_000_000_000,
+                    ..base.clone()
+                },
+            ),
+            (
+                "width",
+                SsmodeConfig {
+                    width: 4_000_000_000,
+                    ..base.clone()
+                },
+            ),
+            (
+                "hourglass_channels",
+                SsmodeConfig {
+                    hourglass_channels: 1 << 20,
+                    ..base.clone()
+                },
+            ),
+            // Each within its own limit, together too large: 1024 spheres at 8192 wide.
+            (
+                "cost-volume cells",
+                SsmodeConfig {
+                    spheres: 1024,
+                    width: 8192,
+                    ..base.clone()
+                },
+            ),
+        ];
+        for (what, cfg) in cases {
+            let path = file_with_config(dir.path(), &serde_json::to_string(&cfg).unwrap());
+            let err = read_config(&path).unwrap_err().to_string();
+            assert!(
+                err.contains("weights.safetensors") && err.contains(what),
+                "{what}: {err}"
+            );
+        }
+        assert!(base.validate().is_ok());
+        assert!(SsmodeConfig::paper().validate().is_ok());
+    }
+
+    #[test]
     fn unknown_or_invalid_configurations_name_the_file_and_the_field() {
         let dir = tempfile::tempdir().unwrap();
         let mut json: serde_json::Value =

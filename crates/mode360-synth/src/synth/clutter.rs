@@ -47,9 +47,14 @@ pub const PATH_ITEM_PROBABILITY: f64 = 0.6;
 /// there in the frames that see it ahead or behind, and gone while the rig would pass
 /// through it (half the rig zone, 0.75 m, plus the largest path item's half length, 0.9 m,
 /// plus a gap), metres.
-pub const PATH_CLEARANCE_M: f64 = 2.2;
+pub const PATH_CLEARANCE_M: f64 = RIG_ZONE_HALF_WIDTH_M + PATH_ITEM_HALF_LENGTH_M + PATH_GAP_M;
+/// Half the width of the zone that holds every camera of the rigs here, metres
+/// ([`super::objects::standard_rig_zone`]).
+const RIG_ZONE_HALF_WIDTH_M: f64 = 0.75;
 /// Largest half extent along x of a path item (a cyclist's wheels), metres.
 const PATH_ITEM_HALF_LENGTH_M: f64 = 0.9;
+/// Gap between the rig zone and a path item, metres.
+const PATH_GAP_M: f64 = 0.55;
 /// Clutter is generated this far ahead of and behind the rig along x, metres.
 pub const CLUTTER_RANGE_M: f64 = 60.0;
 /// Radius of the thinnest poles and rails, metres.

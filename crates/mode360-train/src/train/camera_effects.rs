@@ -182,7 +182,10 @@ mod tests {
             let e = CameraEffects::draw(1, k, 0);
             let lo = MIN_GAIN.powf(1.0 / DISPLAY_GAMMA) * (1.0 - WHITE_BALANCE_SPREAD);
             let hi = MAX_GAIN.powf(1.0 / DISPLAY_GAMMA) * (1.0 + WHITE_BALANCE_SPREAD);
-            assert!(e.channel_gain.iter().all(|g| (lo..=hi).contains(g)), "{e:?}");
+            assert!(
+                e.channel_gain.iter().all(|g| (lo..=hi).contains(g)),
+                "{e:?}"
+            );
             assert!((0.0..=MAX_VIGNETTING).contains(&e.vignetting));
             jpeg += usize::from(e.jpeg_quality.is_some());
         }
@@ -218,9 +221,12 @@ mod tests {
         noisy.apply(&mut img, &mut Rng::new(&[2]));
         let values: Vec<f64> = img.as_raw().iter().map(|&v| f64::from(v)).collect();
         let mean = values.iter().sum::<f64>() / values.len() as f64;
-        let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len() as f64)
-            .sqrt();
-        assert!((mean - 100.0).abs() < 0.5 && (sd - 4.0).abs() < 0.5, "{mean} {sd}");
+        let sd =
+            (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len() as f64).sqrt();
+        assert!(
+            (mean - 100.0).abs() < 0.5 && (sd - 4.0).abs() < 0.5,
+            "{mean} {sd}"
+        );
     }
 
     #[test]
@@ -234,8 +240,12 @@ mod tests {
         };
         let mut flat = grey(32, 16, 90);
         effects.apply(&mut flat, &mut Rng::new(&[3]));
-        assert!(flat.as_raw().iter().all(|&v| (i32::from(v) - 90).abs() <= 2));
-        let mut edge = RgbImage::from_fn(32, 16, |u, _| image::Rgb([if u < 16 { 0 } else { 200 }; 3]));
+        assert!(flat
+            .as_raw()
+            .iter()
+            .all(|&v| (i32::from(v) - 90).abs() <= 2));
+        let mut edge =
+            RgbImage::from_fn(32, 16, |u, _| image::Rgb([if u < 16 { 0 } else { 200 }; 3]));
         CameraEffects {
             jpeg_quality: None,
             ..effects

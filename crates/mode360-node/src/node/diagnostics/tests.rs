@@ -1,0 +1,201 @@
+//! Tests of the parent module.
+
+use super::*;
+
+#[test]
+fn a_camera_sending_only_malformed_images_is_malformed_not_silent() {
+    let mut cam = CameraHealth {
+        name: "cam3".into(),
+        active: true,
+        ..Default::default()
+    };
+    cam.record_good();
+    cam.record_bad(
+        BadImageReason::Encoding,
+        "unsupported encoding 'yuv422'".into(),
+    );
+    assert!(
+        !cam.only_malformed(),
+        "active with a good image: some dropped"
+    );
+    cam.active = false;
+    cam.record_bad(
+        BadImageReason::Encoding,
+        "unsupported encoding 'yuv422'".into(),
+    );
+    cam.record_bad(BadImageReason::Truncated, "truncated".into());
+    assert!(cam.only_malformed());
+    let health = NodeHealth {
+        cameras: vec![cam.clone()],
+        ..Default::default()
+    };
+    let array = diagnostic_array(1, "test", &health);
+    let status = &array.status[0];
+    assert_eq!(status.level, DiagnosticStatus::ERROR);
+    assert_eq!(status.message, "sending only malformed images: truncated");
+    assert_eq!(
+        diagnostic_value(&array, "mode360: camera cam3", "bad_encoding"),
+        Some("2")
+    );
+    assert_eq!(
+        diagnostic_value(&array, "mode360: camera cam3", "bad_truncated"),
+        Some("1")
+    );
+    assert_eq!(
+        diagnostic_value(&array, "mode360: camera cam3", "bad_layout"),
+        Some("0")
+    );
+    cam.record_good();
+    assert_eq!(
+        (cam.bad_since_good, cam.bad_messages, cam.received),
+        (0, 3, 2)
+    );
+    assert!(!cam.only_malformed());
+}
+
+#[test]
+fn stamps_ahead_and_clock_jumps_are_named_not_malformed() {
+    let error = SyncError::Ahead {
+        stream: 0,
+        stamp_ns: 3_600_000_000_000,
+        reference: mode360_core::sync::TimeReference::Receipt,
+        reference_ns: 0,
+    };
+    let reason = BadImageReason::from(&error);
+    assert_eq!(reason, BadImageReason::StampAhead);
+    let mut cam = CameraHealth {
+        name: "cam2".into(),
+        active: true,
+        ..Default::default()
+    };
+    cam.record_bad(reason, error.to_string());
+    cam.record_clock_jump(20.0);
+    let health = NodeHealth {
+        cameras: vec![cam],
+        sync: SyncStats {
+            ahead: 1,
+            resets: 1,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let array = diagnostic_array(1, "test", &health);
+    let status = &array.status[0];
+    assert_eq!(status.level, DiagnosticStatus::ERROR);
+    assert!(
+        status
+            .message
+            .starts_with("sending only images stamped far ahead: stream 0: stamp"),
+        "{}",
+        status.message
+    );
+    let value = |name: &str, key: &str| diagnostic_value(&array, name, key);
+    assert_eq!(value("mode360: camera cam2", "bad_stamp_ahead"), Some("1"));
+    assert_eq!(value("mode360: camera cam2", "bad_out_of_order"), Some("0"));
+    assert_eq!(
+        value("mode360: camera cam2", "clock_jumped_back"),
+        Some("1")
+    );
+    assert_eq!(
+        value("mode360: camera cam2", "last_clock_jump_s"),
+        Some("20.000")
+    );
+    assert_eq!(value("mode360: pipeline", "sync_stamp_ahead"), Some("1"));
+    assert_eq!(value("mode360: pipeline", "sync_resets"), Some("1"));
+}
+
+#[test]
+fn statuses_carry_counters_and_levels() {
+    let health = NodeHealth {
+        cameras: vec![
+            CameraHealth {
+                name: "cam1".into(),
+                received: 10,
+                rate_hz: 9.5,
+                active: true,
+                ..Default::default()
+            },
+            CameraHealth {
+                name: "cam2".into(),
+                received: 3,
+                active: false,
+                bad_messages: 2,
+                last_bad_reason: Some("unsupported encoding '16UC1'".into()),
+                ..Default::default()
+            },
+        ],
+        groups_dropped: 4,
+        last_latency_ms: Some(12.34),
+        ..Default::default()
+    };
+    let a = diagnostic_array(7, "rig", &health);
+    assert_eq!(a.status.len(), 3);
+    assert_eq!(a.status[0].level, DiagnosticStatus::OK);
+    assert_eq!(a.status[1].level, DiagnosticStatus::WARN);
+    assert_eq!(a.status[2].level, DiagnosticStatus::WARN);
+    assert_eq!(
+        diagnostic_value(&a, "mode360: camera cam2", "bad_messages"),
+        Some("2")
+    );
+    assert_eq!(
+        diagnostic_value(&a, "mode360: pipeline", "degraded_cameras"),
+        Some("cam2")
+    );
+    assert_eq!(
+        diagnostic_value(&a, "mode360: pipeline", "groups_dropped_mailbox"),
+        Some("4")
+    );
+    assert_eq!(
+        diagnostic_value(&a, "mode360: pipeline", "last_latency_ms"),
+        Some("12.3")
+    );
+}
+
+#[test]
+fn a_blocked_lens_turns_warn_then_error_naming_where() {
+    let status = |fraction: f64| {
+        let mut health = NodeHealth {
+            cameras: vec![CameraHealth {
+                name: "cam3".into(),
+                active: true,
+                received: 5,
+                ..Default::default()
+            }],
+            ..Default::default()
+        };
+        health.record_lens(&[LensHealth {
+            blocked_fraction: fraction,
+            decided_fraction: 1.0,
+            region: Some("middle front".into()),
+        }]);
+        let array = diagnostic_array(1, "test", &health);
+        let s = array.status[0].clone();
+        let value = diagnostic_value(&array, &s.name, "blocked_fraction").map(String::from);
+        (s.level, s.message, value)
+    };
+    let (level, message, value) = status(0.05);
+    assert_eq!(
+        (level, message.as_str()),
+        (DiagnosticStatus::OK, "receiving")
+    );
+    assert_eq!(value.as_deref(), Some("0.050"));
+    let (level, message, _) = status(0.3);
+    assert_eq!(level, DiagnosticStatus::WARN);
+    assert!(
+        message.contains("blocked") && message.contains("30 %") && message.contains("middle front"),
+        "{message}"
+    );
+    assert_eq!(status(0.6).0, DiagnosticStatus::ERROR);
+    let fresh = diagnostic_array(
+        1,
+        "test",
+        &NodeHealth {
+            cameras: vec![CameraHealth::default()],
+            ..Default::default()
+        },
+    );
+    assert_eq!(
+        diagnostic_value(&fresh, &fresh.status[0].name, "blocked_fraction"),
+        Some("n/a")
+    );
+}
