@@ -222,6 +222,55 @@ fn write_bag(path: &Path, options: BagWriteOptions) -> Vec<Expected> {
             &msg,
             checks,
         );
+
+        // Labels (docs/ground_truth.md): classes 8UC1 (0 sky, 1 ground, 2 structure,
+        // 3 object), instances 16UC1 little endian, 0 off objects. The checks are the
+        // documented bytes, written out by hand.
+        let mut labels = mode360::frame::SceneLabels::sky(4, 2);
+        labels.class = [0u8, 1, 2, 3, 3, 1, 1, 0]
+            .iter()
+            .map(|&c| mode360::frame::SurfaceClass::from_u8(c).unwrap_or_default())
+            .collect();
+        labels.instance = vec![0, 0, 0, 7 + frame as u16, 300, 0, 0, 0];
+        let (classes, instances) = label_image_msgs(&Header::new(stamp, "cam1_link"), &labels);
+        let mut checks = header_checks(&classes.header);
+        checks.extend([
+            check("encoding", "8UC1"),
+            check("width", 4),
+            check("height", 2),
+            check("step", 4),
+            check("data#len", 8),
+            check("data[2]", 2),
+            check("data[3]", 3),
+            check("data[5]", 1),
+        ]);
+        put(
+            &mut bag,
+            &mut expected,
+            "/ground_truth/classes",
+            stamp,
+            &classes,
+            checks,
+        );
+        let mut checks = header_checks(&instances.header);
+        checks.extend([
+            check("encoding", "16UC1"),
+            check("is_bigendian", 0),
+            check("step", 8),
+            check("data#len", 16),
+            check("data[6]", 7 + frame),
+            check("data[7]", 0),
+            check("data[8]", 0x2c),
+            check("data[9]", 0x01),
+        ]);
+        put(
+            &mut bag,
+            &mut expected,
+            "/ground_truth/instances",
+            stamp,
+            &instances,
+            checks,
+        );
     }
 
     // Coloured point cloud: x y z float32 and packed float32 rgb (0x00RRGGBB bits).
