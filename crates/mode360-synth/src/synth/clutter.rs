@@ -10,7 +10,10 @@
 //! else log-uniformly in [`MIN_LATERAL_M`, `MAX_LATERAL_M`]. With every camera of the rig within
 //! [`super::objects::standard_rig_zone`]'s 0.75 m of the line, the nearest item surface is
 //! at least `MIN_LATERAL_M - 0.75 m` from a camera, and 0.7 m from the Deep360 rig's (0.5 m
-//! off the line). Thin structures go down to [`MIN_THIN_RADIUS_M`] (3 cm across).
+//! off the line). Thin structures go down to [`MIN_THIN_RADIUS_M`] (3 cm across). Some are
+//! hard to match: dark glossy paint, pale walls with no texture; the cluttered street also
+//! has pale patches of ground and the sun's glare on paint, glass, metal and the wet road
+//! (`super::world`, `super::material::gloss`).
 //!
 //! Things stand in the path too: slot `k` of [`PATH_SLOT_LENGTH_M`] holds, with probability
 //! [`PATH_ITEM_PROBABILITY`], a person, cyclist, cone, bollard, pole or sign post within
@@ -70,6 +73,7 @@ const CONE_ORANGE: Rgb = [0.85, 0.25, 0.03];
 const BARRIER_RED: Rgb = [0.7, 0.05, 0.04];
 /// Dark glossy paint and pale flat concrete: surfaces that defeat matching.
 const DARK_PAINT: Rgb = [0.03, 0.03, 0.035];
+const PALE_CONCRETE: Rgb = [0.55, 0.54, 0.52];
 
 /// The kinds of clutter, drawn uniformly.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -273,10 +277,11 @@ fn item(
             let thick = rng.range(0.15, 0.35);
             let h = rng.range(0.4, 1.1);
             let y = y_at(0.5 * thick);
-            let m = if rng.chance(0.5) {
-                Material::Concrete
-            } else {
-                Material::Paving
+            let m = match rng.index(3) {
+                0 => Material::Concrete,
+                1 => Material::Paving,
+                // Fresh pale concrete: almost no texture to match.
+                _ => Material::Plain(PALE_CONCRETE),
             };
             let wall = aabox(
                 [x - 0.5 * len, y - 0.5 * thick, 0.0],

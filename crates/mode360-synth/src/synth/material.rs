@@ -67,6 +67,23 @@ pub enum Material {
     Skin(Rgb),
     /// A high-contrast procedural pattern in object coordinates (random-objects scenes).
     Pattern(super::pattern::Pattern),
+    /// A pale surface with almost no texture (fresh concrete, snow): `colour` with 2 %
+    /// variation, which defeats matching.
+    Plain(Rgb),
+}
+
+/// How shiny a material is: a specular lobe `strength * max(0, r . v)^exponent` of the sun
+/// (`r` the sun's mirror direction, `v` towards the viewer), added where the surface is sunlit
+/// in scenes that render gloss (cluttered streets). `None`: matte.
+pub fn gloss(material: &Material) -> Option<(f32, i32)> {
+    match material {
+        Material::CarPaint(_) => Some((0.6, 40)),
+        Material::CarGlass => Some((1.2, 200)),
+        Material::Metal => Some((0.5, 20)),
+        // Wet road.
+        Material::Asphalt { .. } | Material::CrossStreet { .. } => Some((0.35, 12)),
+        _ => None,
+    }
 }
 
 fn p32(p: &Vector3<f64>) -> [f32; 3] {
@@ -182,6 +199,10 @@ pub fn albedo(
         }
         Material::Skin(c) => c,
         Material::Pattern(pat) => pat.albedo(p_obj, footprint_m),
+        Material::Plain(c) => {
+            let v = fbm3(p32(p_world), seed ^ 0x79, 0.7, 2, fp);
+            scale(c, 0.99 + 0.02 * v)
+        }
     }
 }
 

@@ -509,6 +509,7 @@ impl SynthRenderer {
                 tex_seed: self.params.tex_seed,
                 pixel_angle_rad,
                 max_depth_m: self.cfg.max_depth_m,
+                specular: self.params.clutter,
             },
             SceneKind::Objects => {
                 let keep_out = objects::keep_out_box(camera_centres_w);
@@ -524,6 +525,7 @@ impl SynthRenderer {
                     tex_seed: self.params.tex_seed,
                     pixel_angle_rad,
                     max_depth_m: self.cfg.max_depth_m,
+                    specular: false,
                 }
             }
         }

@@ -86,6 +86,9 @@ pub(crate) struct FrameScene<'a> {
     pub tex_seed: u32,
     pub pixel_angle_rad: f64,
     pub max_depth_m: f64,
+    /// Render the sun's specular glare on glossy materials ([`material::gloss`]): it differs
+    /// from camera to camera, as on real paint, glass and wet roads.
+    pub specular: bool,
 }
 
 impl FrameScene<'_> {
@@ -193,6 +196,16 @@ impl FrameScene<'_> {
                 * (SUN_RADIANCE[i] * sunlit as f32
                     + SKY_AMBIENT[i] * sky_w as f32
                     + GROUND_BOUNCE[i] * ground_w as f32);
+        }
+        if self.specular && sunlit > 0.0 {
+            if let Some((strength, exponent)) = material::gloss(&material) {
+                // The sun mirrored in the surface, seen from the ray's origin.
+                let mirrored = 2.0 * n.dot(&sun) * n - sun;
+                let lobe = mirrored.dot(&-ray.dir).max(0.0).powi(exponent) as f32;
+                for (ci, s) in c.iter_mut().zip(SUN_RADIANCE) {
+                    *ci += strength * lobe * s;
+                }
+            }
         }
         if material == Material::Lamp {
             for (ci, e) in c.iter_mut().zip(LAMP_EMISSION) {

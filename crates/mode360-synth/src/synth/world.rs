@@ -94,6 +94,19 @@ pub fn on_cross_street(params: &WorldParams, x_m: f64, margin_m: f64) -> bool {
         && (x_m - cross_street_centre_m(tile)).abs() <= CROSS_STREET_HALF_WIDTH_M + margin_m
 }
 
+/// Cluttered streets: the ground is pale and almost textureless (fresh concrete, snow) in
+/// cells of this size with probability [`PALE_PATCH_PROBABILITY`], metres.
+const PALE_PATCH_CELL_M: f64 = 6.0;
+const PALE_PATCH_PROBABILITY: f64 = 0.15;
+const PALE_PATCH_COLOUR: Rgb = [0.5, 0.5, 0.48];
+
+/// Whether `p` lies in a pale patch of the ground of world `seed`.
+fn pale_patch(seed: u64, p: &Vector3<f64>) -> bool {
+    let cell = |c: f64| (c / PALE_PATCH_CELL_M).floor() as i64 as u64;
+    let h = hash_words(&[seed, cell(p.x), cell(p.y), 0xA1E]);
+    unit_from_hash(h) < PALE_PATCH_PROBABILITY
+}
+
 /// What the ground plane is at a point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GroundSurface {
@@ -113,6 +126,12 @@ pub fn ground_material(params: &WorldParams, p: &Vector3<f64>) -> GroundSurface 
                 road_half_width_m: l.road_half_width_m as f32,
             },
             texture_origin: Vector3::new(c, 0.0, 0.0),
+        };
+    }
+    if params.clutter && pale_patch(params.seed, p) {
+        return GroundSurface {
+            material: Material::Plain(PALE_PATCH_COLOUR),
+            texture_origin: Vector3::zeros(),
         };
     }
     let material = if p.y.abs() <= l.road_half_width_m {
