@@ -187,6 +187,9 @@ pub struct Pipeline {
     /// The last group's lens and drift checks when [`Self::process_deferred`] left them to
     /// [`Self::run_deferred_checks`].
     deferred: Option<DeferredChecks>,
+    /// Per camera (rig order): whether it is being left out for its image size (warned once
+    /// when that starts, told once when it ends).
+    size_misfit: Vec<bool>,
 }
 
 /// What the rig health checks of one complete group read.
@@ -212,6 +215,7 @@ impl Pipeline {
             grid,
             lens: LensGuard::new(LENS_WINDOW_FRAMES, true),
             deferred: None,
+            size_misfit: Vec::new(),
         })
     }
 
@@ -312,7 +316,7 @@ impl Pipeline {
             });
         }
         let mut present = Vec::new();
-        let mut images = Vec::new();
+        let mut images: Vec<RgbImage> = Vec::new();
         let mut missing_cameras = Vec::new();
         for (i, slot) in group.into_iter().enumerate() {
             match slot {
@@ -328,7 +332,11 @@ impl Pipeline {
                 present: present.len(),
             });
         }
-        if !self.sizes_fit(&present, &images) {
+        let misfits = self.misfits(&present, &images);
+        let fits_left = misfits
+            .as_ref()
+            .is_some_and(|m| present.len() - m.len() >= MIN_CAMERAS);
+        if !fits_left {
             // Name every camera: which one is "wrong" is not knowable from the sizes alone.
             let sizes = present
                 .iter()
@@ -344,6 +352,14 @@ impl Pipeline {
                 .collect::<Vec<_>>()
                 .join(", ");
             return Err(PipelineError::SizeMismatch { sizes });
+        }
+        let misfits = misfits.unwrap_or_default();
+        self.note_misfits(&present, &images, &misfits);
+        // Left out: as if the camera had sent nothing in this group.
+        for &k in misfits.iter().rev() {
+            let i = present.remove(k);
+            images.remove(k);
+            missing_cameras.push(self.rig.cameras[i].name.clone());
         }
         let checked = self.params.rig_health_checks;
         // The estimate before REP 117 that a deferred check reads (with the images, moved in
@@ -428,21 +444,66 @@ impl Pipeline {
 }
 
 impl Pipeline {
-    /// Whether every image fits its camera (a fisheye image is its `image_size`, a panorama
-    /// 2:1) and the panoramas share one size.
-    fn sizes_fit(&self, present: &[usize], images: &[RgbImage]) -> bool {
-        let mut panorama: Option<(u32, u32)> = None;
-        present.iter().zip(images).all(|(&i, img)| {
+    /// The positions in `present` of the images that do not fit their camera: a fisheye
+    /// image that is not its `image_size`, a panorama that is not 2:1, or one of another size
+    /// than most of the group's panoramas. `None` when two sizes tie for most (which one is
+    /// wrong is not knowable from the sizes alone).
+    fn misfits(&self, present: &[usize], images: &[RgbImage]) -> Option<Vec<usize>> {
+        let mut misfits = Vec::new();
+        let mut panorama_sizes: Vec<((u32, u32), usize)> = Vec::new();
+        for (k, (&i, img)) in present.iter().zip(images).enumerate() {
             let projection = &self.rig.cameras[i].projection;
             if projection
                 .check_image_size(img.width(), img.height())
                 .is_err()
             {
-                return false;
+                misfits.push(k);
+            } else if projection.is_equirectangular() {
+                match panorama_sizes
+                    .iter_mut()
+                    .find(|(d, _)| *d == img.dimensions())
+                {
+                    Some((_, count)) => *count += 1,
+                    None => panorama_sizes.push((img.dimensions(), 1)),
+                }
             }
-            !projection.is_equirectangular()
-                || *panorama.get_or_insert(img.dimensions()) == img.dimensions()
-        })
+        }
+        let most = panorama_sizes.iter().map(|(_, n)| *n).max().unwrap_or(0);
+        let mut winners = panorama_sizes.iter().filter(|(_, n)| *n == most);
+        let winner = winners.next().map(|(d, _)| *d);
+        if winners.next().is_some() {
+            return None;
+        }
+        for (k, (&i, img)) in present.iter().zip(images).enumerate() {
+            let erp = self.rig.cameras[i].projection.is_equirectangular();
+            if erp && Some(img.dimensions()) != winner && !misfits.contains(&k) {
+                misfits.push(k);
+            }
+        }
+        misfits.sort_unstable();
+        Some(misfits)
+    }
+
+    /// Logs, once per episode, a camera left out for its image size and its return.
+    fn note_misfits(&mut self, present: &[usize], images: &[RgbImage], misfits: &[usize]) {
+        if self.size_misfit.len() != self.rig.cameras.len() {
+            self.size_misfit = vec![false; self.rig.cameras.len()];
+        }
+        for (k, (&i, img)) in present.iter().zip(images).enumerate() {
+            let misfit = misfits.contains(&k);
+            let name = &self.rig.cameras[i].name;
+            if misfit && !self.size_misfit[i] {
+                tracing::warn!(
+                    "camera '{name}': its {}x{} images do not fit (the other panoramas' size, or \
+                     its image_size); it is left out of the groups until they do",
+                    img.width(),
+                    img.height()
+                );
+            } else if !misfit && self.size_misfit[i] {
+                tracing::info!("camera '{name}': its images fit again; it is back in the groups");
+            }
+            self.size_misfit[i] = misfit;
+        }
     }
 }
 

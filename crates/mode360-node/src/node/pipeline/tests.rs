@@ -199,17 +199,47 @@ fn mixed_image_sizes_name_every_camera() {
     let width = 16;
     let mut p = pipeline(width);
     let n = p.rig().cameras.len();
-    let mut group: Vec<_> = (0..n).map(|_| Some(test_image(width as u32))).collect();
-    // The odd one is the first camera: the error must not blame the others.
-    group[0] = Some(test_image(8));
-    let err = p.process(group, 5).err().map(|e| e.to_string());
     let names: Vec<String> = p.rig().cameras.iter().map(|c| c.name.clone()).collect();
+    // Two sizes, two cameras each: which is wrong is not knowable, the error names all.
+    let mut group: Vec<_> = (0..n).map(|_| Some(test_image(width as u32))).collect();
+    group[0] = Some(test_image(8));
+    group[1] = Some(test_image(8));
+    let err = p.process(group, 5).err().map(|e| e.to_string());
     let expected = format!(
-        "the cameras' images do not fit their cameras ({} 8x4, {} 16x8, {} 16x8, {} 16x8): \
+        "the cameras' images do not fit their cameras ({} 8x4, {} 8x4, {} 16x8, {} 16x8): \
          panoramas must share one 2:1 size, fisheye images must be their image_size",
         names[0], names[1], names[2], names[3]
     );
     assert_eq!(err, Some(expected));
+}
+
+#[test]
+fn a_camera_of_another_size_is_left_out_and_the_rest_go_on() {
+    let width = 16;
+    let mut p = pipeline(width);
+    let n = p.rig().cameras.len();
+    let names: Vec<String> = p.rig().cameras.iter().map(|c| c.name.clone()).collect();
+    // The odd one is the first camera: it alone is left out.
+    let mut group: Vec<_> = (0..n).map(|_| Some(test_image(width as u32))).collect();
+    group[0] = Some(test_image(8));
+    let out = p.process(group, 5).unwrap();
+    assert_eq!(out.missing_cameras, vec![names[0].clone()]);
+    assert_eq!(out.depth.width as usize, width);
+    // A panorama that is not 2:1 is left out too; with it back to size, nobody is missing.
+    let mut group: Vec<_> = (0..n).map(|_| Some(test_image(width as u32))).collect();
+    group[2] = Some(RgbImage::new(width as u32, width as u32));
+    assert_eq!(
+        p.process(group, 6).unwrap().missing_cameras,
+        vec![names[2].clone()]
+    );
+    let group: Vec<_> = (0..n).map(|_| Some(test_image(width as u32))).collect();
+    assert!(p.process(group, 7).unwrap().missing_cameras.is_empty());
+    // Too few left: the error names every camera's size.
+    let mut group: Vec<_> = (0..n).map(|_| Some(test_image(8))).collect();
+    group[0] = Some(test_image(width as u32));
+    group[1] = None;
+    group[2] = None;
+    assert!(p.process(group, 8).is_err());
 }
 
 #[test]
@@ -257,11 +287,22 @@ fn fisheye_points_take_colour_from_a_camera_that_sees_them() {
     assert!(by_camera[0] > pts.len() / 3, "{by_camera:?}");
     // Then the next cameras in rig order: front-right and rear-left cover the rest.
     assert!(by_camera[1] > 0 && by_camera[2] > 0, "{by_camera:?}");
-    // A fisheye image at the wrong size is refused by name.
+    // A fisheye image at the wrong size leaves that camera out; three such, and the error
+    // names them.
     let mut bad = group();
     bad[2] = Some(RgbImage::new(64, 32));
-    let err = p.process(bad, 1).err().map(|e| e.to_string()).unwrap();
-    assert!(err.contains("rear_left 64x32"), "{err}");
+    let out = p.process(bad, 1).unwrap();
+    assert_eq!(out.missing_cameras, vec!["rear_left".to_string()]);
+    let mut bad = group();
+    for slot in bad.iter_mut().skip(1) {
+        *slot = Some(RgbImage::new(64, 32));
+    }
+    let err = p.process(bad, 2).err().map(|e| e.to_string());
+    assert!(
+        err.as_deref()
+            .is_some_and(|e| e.contains("rear_left 64x32")),
+        "{err:?}"
+    );
 }
 
 #[test]
