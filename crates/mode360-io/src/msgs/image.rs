@@ -69,6 +69,17 @@ pub enum ImageMsgError {
     },
     #[error("image of {width}x{height} is too large to address")]
     TooLarge { width: u64, height: u64 },
+    #[error(
+        "{format} data ({len} bytes) decodes to {width}x{height}, more than the {max_pixels} \
+         pixels accepted (refused before decoding)"
+    )]
+    TooManyPixels {
+        format: String,
+        len: usize,
+        width: u32,
+        height: u32,
+        max_pixels: u64,
+    },
     #[error("compressed format '{format}' is not supported (expected jpeg or png)")]
     UnsupportedFormat { format: String },
     #[error("cannot decode {format} data ({len} bytes): {message}")]
@@ -251,19 +262,72 @@ fn compressed_codec(format: &str) -> Option<image::ImageFormat> {
     }
 }
 
-/// Decodes a jpeg or png `CompressedImage` to RGB (grey images are expanded, alpha dropped,
-/// 16-bit channels scaled to 8 bits).
-pub fn rgb_from_compressed(msg: &CompressedImage) -> Result<RgbImage, ImageMsgError> {
+/// Most pixels a compressed image may decode to by default: a 8192x4096 panorama (a PNG or
+/// JPEG of a few hundred kilobytes can claim gigabytes).
+pub const MAX_DECODED_PIXELS: u64 = 8192 * 4096;
+/// Bytes a decoder may allocate per decoded pixel (16-bit RGBA, the widest these codecs give).
+const MAX_DECODER_BYTES_PER_PIXEL: u64 = 8;
+
+fn decode_err(msg: &CompressedImage) -> impl Fn(image::ImageError) -> ImageMsgError + '_ {
+    move |err| ImageMsgError::Decode {
+        format: msg.format.clone(),
+        len: msg.data.len(),
+        message: err.to_string(),
+    }
+}
+
+fn compressed_reader(
+    msg: &CompressedImage,
+) -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, ImageMsgError> {
     let codec = compressed_codec(&msg.format).ok_or_else(|| ImageMsgError::UnsupportedFormat {
         format: msg.format.clone(),
     })?;
-    image::load_from_memory_with_format(&msg.data, codec)
-        .map(|decoded| decoded.to_rgb8())
-        .map_err(|err| ImageMsgError::Decode {
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(msg.data.as_slice()));
+    reader.set_format(codec);
+    Ok(reader)
+}
+
+/// The width and height a jpeg or png `CompressedImage` declares, read from its header
+/// without decoding the pixels.
+pub fn compressed_dimensions(msg: &CompressedImage) -> Result<(u32, u32), ImageMsgError> {
+    compressed_reader(msg)?
+        .into_dimensions()
+        .map_err(decode_err(msg))
+}
+
+/// Decodes a jpeg or png `CompressedImage` to RGB (grey images are expanded, alpha dropped,
+/// 16-bit channels scaled to 8 bits), refusing before decoding one that declares more than
+/// [`MAX_DECODED_PIXELS`].
+pub fn rgb_from_compressed(msg: &CompressedImage) -> Result<RgbImage, ImageMsgError> {
+    rgb_from_compressed_within(msg, MAX_DECODED_PIXELS)
+}
+
+/// [`rgb_from_compressed`] with at most `max_pixels`: the header's size is checked first and
+/// the decoder may not allocate more than that many pixels need.
+pub fn rgb_from_compressed_within(
+    msg: &CompressedImage,
+    max_pixels: u64,
+) -> Result<RgbImage, ImageMsgError> {
+    let (width, height) = compressed_dimensions(msg)?;
+    if u64::from(width) * u64::from(height) > max_pixels {
+        return Err(ImageMsgError::TooManyPixels {
             format: msg.format.clone(),
             len: msg.data.len(),
-            message: err.to_string(),
-        })
+            width,
+            height,
+            max_pixels,
+        });
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(width);
+    limits.max_image_height = Some(height);
+    limits.max_alloc = Some(max_pixels.saturating_mul(MAX_DECODER_BYTES_PER_PIXEL));
+    let mut reader = compressed_reader(msg)?;
+    reader.limits(limits);
+    reader
+        .decode()
+        .map(|decoded| decoded.to_rgb8())
+        .map_err(decode_err(msg))
 }
 
 #[cfg(test)]
@@ -272,6 +336,70 @@ mod tests {
 
     fn header() -> Header {
         Header::new(1_500_000_000, "cam")
+    }
+
+    /// CRC-32 (ISO-HDLC, as PNG chunks use), bit by bit.
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = 0xFFFF_FFFFu32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = if crc & 1 == 1 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+
+    /// A valid 2x1 PNG whose IHDR is rewritten to claim `width` x `height` (CRC fixed).
+    fn png_claiming(width: u32, height: u32) -> Vec<u8> {
+        let mut png = Vec::new();
+        RgbImage::new(2, 1)
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        // Signature (8), IHDR length (4), "IHDR" (4), width (4), height (4), ... CRC after
+        // the 13 data bytes.
+        png[16..20].copy_from_slice(&width.to_be_bytes());
+        png[20..24].copy_from_slice(&height.to_be_bytes());
+        let crc = crc32(&png[12..29]);
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        png
+    }
+
+    #[test]
+    fn a_compressed_bomb_is_refused_before_decoding() {
+        let msg = CompressedImage {
+            header: header(),
+            format: "png".into(),
+            data: png_claiming(20_000, 10_000),
+        };
+        assert_eq!(compressed_dimensions(&msg), Ok((20_000, 10_000)));
+        let err = rgb_from_compressed(&msg).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                ImageMsgError::TooManyPixels {
+                    width: 20_000,
+                    height: 10_000,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert!(err.to_string().contains("refused before decoding"), "{err}");
+        // A small limit refuses a real image too; the untouched 2x1 PNG decodes.
+        let small = CompressedImage {
+            data: png_claiming(2, 1),
+            ..msg
+        };
+        assert!(rgb_from_compressed_within(&small, 1).is_err());
+        assert_eq!(
+            rgb_from_compressed(&small).map(|i| i.dimensions()),
+            Ok((2, 1))
+        );
     }
 
     #[test]

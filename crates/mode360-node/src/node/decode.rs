@@ -5,7 +5,9 @@
 use super::diagnostics::BadImageReason;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::RigCamera;
-use mode360_io::msgs::image::{rgb_from_compressed, rgb_from_image_msg, ImageMsgError};
+use mode360_io::msgs::image::{
+    compressed_dimensions, rgb_from_compressed, rgb_from_image_msg, ImageMsgError,
+};
 use mode360_io::msgs::{CompressedImage, Image};
 
 /// A received camera message.
@@ -25,26 +27,36 @@ fn bad_image(e: ImageMsgError) -> Bad {
 /// the size its model takes (an ERP panorama 2:1 at any width, a fisheye or dual-fisheye
 /// image exactly its `image_size`). A wrong size is [`BadImageReason::WrongSize`], with a
 /// detail naming the camera, the size expected and the size received.
+/// A compressed image's size is checked from its header before it is decoded, so a small
+/// file that claims a huge image (a PNG or JPEG bomb) costs no memory.
 pub(super) fn decode_camera(camera: &RigCamera, msg: &CameraMsg) -> Result<(u64, RgbImage), Bad> {
+    let wrong_size = |e: mode360_core::geometry::ImageSizeError| {
+        (
+            BadImageReason::WrongSize,
+            format!("camera '{}': {e}", camera.name),
+        )
+    };
     let (stamp_ns, image) = match msg {
         CameraMsg::Raw(m) => (
             m.header.stamp.to_nanos(),
             rgb_from_image_msg(m).map_err(bad_image)?,
         ),
-        CameraMsg::Compressed(m) => (
-            m.header.stamp.to_nanos(),
-            rgb_from_compressed(m).map_err(bad_image)?,
-        ),
+        CameraMsg::Compressed(m) => {
+            let (width, height) = compressed_dimensions(m).map_err(bad_image)?;
+            camera
+                .projection
+                .check_image_size(width, height)
+                .map_err(wrong_size)?;
+            (
+                m.header.stamp.to_nanos(),
+                rgb_from_compressed(m).map_err(bad_image)?,
+            )
+        }
     };
     camera
         .projection
         .check_image_size(image.width(), image.height())
-        .map_err(|e| {
-            (
-                BadImageReason::WrongSize,
-                format!("camera '{}': {e}", camera.name),
-            )
-        })?;
+        .map_err(wrong_size)?;
     Ok((stamp_ns, image))
 }
 

@@ -72,6 +72,7 @@ impl From<&ImageMsgError> for BadImageReason {
             }
             ImageMsgError::StepTooSmall { .. } | ImageMsgError::DataTooLong { .. } => Self::Layout,
             ImageMsgError::DataTooShort { .. } => Self::Truncated,
+            ImageMsgError::TooManyPixels { .. } => Self::WrongSize,
             _ => Self::Undecodable,
         }
     }
