@@ -64,8 +64,9 @@ unsafe impl<A: std::alloc::GlobalAlloc> std::alloc::GlobalAlloc for ZeroByMemset
 pub static malloc_conf: &[u8] = b"oversize_threshold:0,muzzy_decay_ms:-1\0";
 
 /// Log filter when RUST_LOG is unset: RustDDS is quiet and ros2-client reports only problems
-/// unless asked (RUST_LOG=info,rustdds=warn).
-const DEFAULT_LOG_FILTER: &str = "info,rustdds=off,ros2_client=warn";
+/// unless asked (RUST_LOG=info,rustdds=warn); its ROS_DISTRO check, which calls every
+/// distribution but Jazzy an ERROR, is replaced by the node's own (`node::ros_distro`).
+const DEFAULT_LOG_FILTER: &str = "info,rustdds=off,ros2_client=warn,ros2_client::distributions=off";
 
 #[derive(Parser)]
 #[command(
@@ -124,7 +125,9 @@ fn log_filter(command: &Command) -> tracing_subscriber::EnvFilter {
         _ => None,
     };
     match level {
-        Some(level) => format!("{level},rustdds=off,ros2_client=warn").into(),
+        Some(level) => {
+            format!("{level},rustdds=off,ros2_client=warn,ros2_client::distributions=off").into()
+        }
         None => DEFAULT_LOG_FILTER.into(),
     }
 }

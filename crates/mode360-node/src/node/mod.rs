@@ -39,6 +39,7 @@ pub mod pipeline;
 pub mod player;
 pub mod qos_overrides;
 pub mod ros_args;
+pub mod ros_distro;
 pub mod ros_params;
 pub mod tf_extrinsics;
 

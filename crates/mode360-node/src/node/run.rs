@@ -120,6 +120,7 @@ impl NodeRun {
 pub fn run_node(args: Vec<String>) -> Result<NodeRun, NodeError> {
     let params = NodeParams::from_args(&args)?;
     let dds = DdsOptions::from_env()?;
+    super::ros_distro::log_ros_distro();
     let rt = runtime()?;
     // Handlers first: a signal during setup is then a clean stop, not a kill.
     let mut signals = {
