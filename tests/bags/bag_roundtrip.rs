@@ -584,3 +584,20 @@ fn full_size_frames_round_trip_with_timing() {
         mb / read_s
     );
 }
+
+#[test]
+fn tf_static_carries_the_stamp_it_is_given() {
+    let rig = mode360::geometry::Rig::from_file(crate::common::RIG_PATH).expect("rig");
+    let stamp_ns = 1_764_000_000_123_456_789;
+    let at = mode360::bag::rig_tf_static_at(&rig, stamp_ns);
+    let plain = mode360::bag::rig_tf_static(&rig);
+    assert_eq!(at.transforms.len(), rig.cameras.len());
+    for (a, p) in at.transforms.iter().zip(&plain.transforms) {
+        assert_eq!(a.header.stamp.to_nanos(), stamp_ns);
+        assert_eq!(p.header.stamp.to_nanos(), 0);
+        assert_eq!(
+            (&a.child_frame_id, &a.transform),
+            (&p.child_frame_id, &p.transform)
+        );
+    }
+}

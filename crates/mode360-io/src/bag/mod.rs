@@ -25,8 +25,8 @@ pub use reader::{BagMessage, BagReader, TopicInfo};
 pub use writer::{BagCompression, BagWriteOptions, BagWriter};
 
 pub use rig_bag::{
-    rig_tf_static, RigBagReader, RigBagWriter, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_CLASSES_TOPIC,
-    GROUND_TRUTH_INSTANCES_TOPIC, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, RIG_METADATA, RIG_YAML_KEY,
-    SOILED_KEY, SYNTH_METADATA, TF_STATIC_TOPIC,
+    rig_tf_static, rig_tf_static_at, RigBagReader, RigBagWriter, DEFAULT_MAX_DEPTH_M,
+    GROUND_TRUTH_CLASSES_TOPIC, GROUND_TRUTH_INSTANCES_TOPIC, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY,
+    RIG_METADATA, RIG_YAML_KEY, SOILED_KEY, SYNTH_METADATA, TF_STATIC_TOPIC,
 };
 pub use same_image::{write_same_image_bag, SameImageSummary, SAME_IMAGE_METADATA};

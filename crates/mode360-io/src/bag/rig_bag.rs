@@ -191,8 +191,14 @@ impl RigBagWriter {
 /// `/tf_static` of `rig`: `rig_frame <- camera` for each camera, plus `rig_frame <- output`
 /// when the output frame is not a camera's.
 pub fn rig_tf_static(rig: &Rig) -> TFMessage {
+    rig_tf_static_at(rig, TF_STATIC_STAMP_NS)
+}
+
+/// [`rig_tf_static`] with every transform stamped `stamp_ns` (the node stamps its
+/// `/tf_static` with the time it starts).
+pub fn rig_tf_static_at(rig: &Rig, stamp_ns: u64) -> TFMessage {
     let stamped = |child: &str, rig_from_child| TransformStamped {
-        header: Header::new(TF_STATIC_STAMP_NS, &rig.rig_frame),
+        header: Header::new(stamp_ns, &rig.rig_frame),
         child_frame_id: child.to_string(),
         transform: Transform::from_isometry(rig_from_child),
     };

@@ -18,7 +18,7 @@ use super::topics::{
 use super::worker::OutputPublishers;
 use super::NodeError;
 use mode360_core::geometry::Rig;
-use mode360_io::bag::rig_tf_static;
+use mode360_io::bag::rig_tf_static_at;
 use mode360_io::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
 use ros2_client::{Context, Publisher};
 use std::sync::Arc;
@@ -109,7 +109,10 @@ pub(super) fn dds_setup(
     };
     if let Some(tf_static) = &tf_static {
         tf_static
-            .publish(rig_tf_static(rig))
+            .publish(rig_tf_static_at(
+                rig,
+                tf_static_stamp_ns(params.use_sim_time),
+            ))
             .map_err(|e| format!("{e:?}"))
             .map_err(dds_err("publishing /tf_static"))?;
     }
@@ -123,4 +126,14 @@ pub(super) fn dds_setup(
         compressed_subs,
         clock_sub,
     })
+}
+
+/// The stamp of the node's `/tf_static`: the wall clock at start, or 0 with simulated time
+/// (no `/clock` has arrived when it is sent; tf2 uses static transforms at any time).
+fn tf_static_stamp_ns(use_sim_time: bool) -> u64 {
+    if use_sim_time {
+        0
+    } else {
+        super::clock::system_now_ns()
+    }
 }
