@@ -212,6 +212,8 @@ struct AheadRun {
 pub struct ApproxTimeSync<T> {
     config: SyncConfig,
     queues: Vec<VecDeque<(u64, T)>>,
+    /// Bytes a message holds, and the most bytes a queue may hold (see [`Self::with_bytes_cap`]).
+    bytes_cap: Option<(fn(&T) -> usize, usize)>,
     last_stamp_ns: Vec<Option<u64>>,
     ahead_runs: Vec<Option<AheadRun>>,
     active: Vec<bool>,
@@ -223,11 +225,20 @@ impl<T> ApproxTimeSync<T> {
         Self {
             config,
             queues: (0..streams).map(|_| VecDeque::new()).collect(),
+            bytes_cap: None,
             last_stamp_ns: vec![None; streams],
             ahead_runs: vec![None; streams],
             active: vec![true; streams],
             stats: SyncStats::default(),
         }
+    }
+
+    /// Also bounds each stream's queue in bytes: `bytes_of` weighs a message, and while a
+    /// queue holds more than `max_bytes` (and more than one message) its oldest message is
+    /// dropped as an overflow, as for `queue_size`.
+    pub fn with_bytes_cap(mut self, bytes_of: fn(&T) -> usize, max_bytes: usize) -> Self {
+        self.bytes_cap = Some((bytes_of, max_bytes));
+        self
     }
 
     pub fn stats(&self) -> SyncStats {
@@ -297,7 +308,13 @@ impl<T> ApproxTimeSync<T> {
         self.ahead_runs[stream] = None;
         let q = &mut self.queues[stream];
         q.push_back((stamp_ns, msg));
-        while q.len() > self.config.queue_size.max(1) {
+        let over_bytes = |q: &VecDeque<(u64, T)>| match self.bytes_cap {
+            Some((bytes_of, max_bytes)) => {
+                q.len() > 1 && q.iter().map(|(_, m)| bytes_of(m)).sum::<usize>() > max_bytes
+            }
+            None => false,
+        };
+        while q.len() > self.config.queue_size.max(1) || over_bytes(q) {
             q.pop_front();
             self.stats.overflow += 1;
         }

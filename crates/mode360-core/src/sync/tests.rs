@@ -371,3 +371,26 @@ fn settings_without_the_time_limits_still_load() {
     assert_eq!(c.reset_jump_ns, DEFAULT_RESET_JUMP_NS);
     assert_eq!((c.tolerance_ns, c.queue_size), (20_000_000, 4));
 }
+
+#[test]
+fn queues_are_bounded_in_bytes_too() {
+    // Messages weigh their length; a queue may hold 10 bytes (and always its newest message).
+    let mut s = ApproxTimeSync::<Vec<u8>>::new(2, SyncConfig::default())
+        .with_bytes_cap(|m: &Vec<u8>| m.len(), 10);
+    // Stream 1 never sends: stream 0's messages wait, and only what fits 10 bytes stays.
+    for k in 0..4 {
+        s.push(0, (10 + k) * MS, vec![0; 4]).unwrap();
+    }
+    // 4 + 4 fit, a third would make 12: two of the four were dropped.
+    assert_eq!(s.stats().overflow, 2);
+    // A single message larger than the cap is kept alone (the newest is never dropped).
+    s.push(0, 20 * MS, vec![0; 50]).unwrap();
+    assert_eq!(s.stats().overflow, 4);
+    // Its partner arrives: one group, carrying the large message.
+    let groups = s.push(1, 20 * MS, vec![1]).unwrap();
+    assert_eq!(groups.len(), 1);
+    assert_eq!(
+        groups[0].messages[0].as_ref().map(|(_, m)| m.len()),
+        Some(50)
+    );
+}

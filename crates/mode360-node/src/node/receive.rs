@@ -22,6 +22,10 @@ use futures::StreamExt;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{Rig, RigCamera};
 use mode360_core::sync::{ApproxTimeSync, ClockReset, SyncConfig};
+
+/// The most image bytes one camera's synchronizer queue holds besides its newest image
+/// (about ten 2048x1024 panoramas): a burst of large images cannot make the node grow.
+pub const MAX_QUEUED_BYTES_PER_CAMERA: usize = 64 << 20;
 use mode360_io::bag::rig_tf_static;
 use mode360_io::msgs::{DiagnosticArray, TFMessage};
 use ros2_client::Publisher;
@@ -270,6 +274,10 @@ pub(super) fn dds_main(
                 // max_ahead_ns and reset_jump_ns: not node parameters (yet), the defaults.
                 ..SyncConfig::default()
             },
+        )
+        .with_bytes_cap(
+            |img: &RgbImage| img.as_raw().len(),
+            MAX_QUEUED_BYTES_PER_CAMERA,
         ),
         clock: NodeClock::new(params.use_sim_time),
         cams: (0..n)
