@@ -207,13 +207,16 @@ struct AheadRun {
     count: u32,
 }
 
+/// How many bytes a queued message holds.
+pub type BytesOf<T> = fn(&T) -> usize;
+
 /// Approximate-time synchronizer over a fixed number of streams.
 #[derive(Clone, Debug)]
 pub struct ApproxTimeSync<T> {
     config: SyncConfig,
     queues: Vec<VecDeque<(u64, T)>>,
     /// Bytes a message holds, and the most bytes a queue may hold (see [`Self::with_bytes_cap`]).
-    bytes_cap: Option<(fn(&T) -> usize, usize)>,
+    bytes_cap: Option<(BytesOf<T>, usize)>,
     last_stamp_ns: Vec<Option<u64>>,
     ahead_runs: Vec<Option<AheadRun>>,
     active: Vec<bool>,
@@ -236,7 +239,7 @@ impl<T> ApproxTimeSync<T> {
     /// Also bounds each stream's queue in bytes: `bytes_of` weighs a message, and while a
     /// queue holds more than `max_bytes` (and more than one message) its oldest message is
     /// dropped as an overflow, as for `queue_size`.
-    pub fn with_bytes_cap(mut self, bytes_of: fn(&T) -> usize, max_bytes: usize) -> Self {
+    pub fn with_bytes_cap(mut self, bytes_of: BytesOf<T>, max_bytes: usize) -> Self {
         self.bytes_cap = Some((bytes_of, max_bytes));
         self
     }
