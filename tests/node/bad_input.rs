@@ -406,8 +406,12 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
         "depth without the silent camera after only {waited:.2} s"
     );
     let silent = camera_status(&names[SILENT_CAMERA]);
+    // Until the degraded depth goes out the pipeline may read "no depth" (ERROR); then it is
+    // WARN, degraded.
+    let degraded = format!("degraded: without {}", names[SILENT_CAMERA]);
     let diag = h.await_diagnostics("the silent camera", |a| {
         diagnostic_value(a, &silent, "active") == Some("false")
+            && message(a, &pipeline_status()) == Some(degraded.as_str())
     })?;
     assert_eq!(level(&diag, &silent), Some(DiagnosticStatus::WARN));
     assert_eq!(message(&diag, &silent), Some("timed out, not waited for"));

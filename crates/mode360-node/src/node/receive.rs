@@ -74,6 +74,8 @@ struct Receiver {
     shared: Arc<Shared>,
     hardware_id: String,
     last_diag: Instant,
+    /// When the receive loop started (the baseline of the depth age before any depth).
+    created: Instant,
     /// The rig's transforms, for the live view.
     tf_static: TFMessage,
     /// The rig's cameras (rig order), whose models say which image sizes are accepted.
@@ -190,6 +192,8 @@ impl Receiver {
                     c.received_in_period = 0;
                 }
                 h.sync = self.sync.stats();
+                let since = h.last_depth_at.unwrap_or(self.created);
+                h.depth_age_s = Some(since.elapsed().as_secs_f64());
                 // Stamp 0 with simulated time before the first /clock, as in ROS 2.
                 diagnostic_array(now_ns.unwrap_or(0), &self.hardware_id, &h)
             };
@@ -293,6 +297,7 @@ pub(super) fn dds_main(
         shared: shared.clone(),
         hardware_id: params.fully_qualified_name(),
         last_diag: Instant::now(),
+        created: Instant::now(),
         tf_static: rig_tf_static(&rig),
         cameras: rig.cameras.clone(),
     };

@@ -136,6 +136,7 @@ pub(super) fn worker_main(
                         h.clouds_skipped += 1;
                     }
                     h.last_latency_ms = Some(ms);
+                    h.last_depth_at = Some(std::time::Instant::now());
                     h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);
                 }
                 if let Some(live) = live {

@@ -175,7 +175,19 @@ pub struct NodeHealth {
     /// The camera the drift check suspects is WARN when its correction exceeds this, degrees;
     /// the `calibration_warn_deg` parameter.
     pub calibration_warn_deg: f64,
+    /// When the newest depth went out (the live node; `None` before the first).
+    pub last_depth_at: Option<std::time::Instant>,
+    /// Seconds since depth last went out, or since the node started before the first; `None`
+    /// where it is not measured (replay). Above [`NO_DEPTH_ERROR_S`] the pipeline is ERROR.
+    pub depth_age_s: Option<f64>,
 }
+
+/// The pipeline status is ERROR when no depth went out for longer than this, seconds, or
+/// than [`NO_DEPTH_LATENCIES`] times the mean latency when that is longer (a slow estimator
+/// is not a stall).
+pub const NO_DEPTH_ERROR_S: f64 = 3.0;
+/// See [`NO_DEPTH_ERROR_S`].
+pub const NO_DEPTH_LATENCIES: f64 = 3.0;
 
 /// Blocked fraction above which a camera is ERROR whatever the warning threshold.
 pub const LENS_ERROR_FRACTION: f64 = 0.5;
@@ -198,6 +210,8 @@ impl Default for NodeHealth {
             mean_latency_ms: None,
             lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
             calibration_warn_deg: DEFAULT_CALIBRATION_WARN_DEG,
+            last_depth_at: None,
+            depth_age_s: None,
         }
     }
 }
@@ -366,19 +380,26 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
         .filter(|c| !c.active)
         .map(|c| c.name.as_str())
         .collect();
-    let level = if health.pipeline_errors > 0 || !degraded.is_empty() {
+    let stall_s = health.mean_latency_ms.map_or(NO_DEPTH_ERROR_S, |ms| {
+        (NO_DEPTH_LATENCIES * ms / 1e3).max(NO_DEPTH_ERROR_S)
+    });
+    let stalled = health.depth_age_s.filter(|age| *age > stall_s);
+    let level = if stalled.is_some() {
+        DiagnosticStatus::ERROR
+    } else if health.pipeline_errors > 0 || !degraded.is_empty() {
         DiagnosticStatus::WARN
     } else {
         DiagnosticStatus::OK
     };
+    let message = match stalled {
+        Some(age) => format!("no depth for {age:.1} s: {}", stall_reason(health)),
+        None if degraded.is_empty() => "all cameras in use".into(),
+        None => format!("degraded: without {}", degraded.join(", ")),
+    };
     status.push(DiagnosticStatus {
         level,
         name: format!("{DIAGNOSTIC_PREFIX}: pipeline"),
-        message: if degraded.is_empty() {
-            "all cameras in use".into()
-        } else {
-            format!("degraded: without {}", degraded.join(", "))
-        },
+        message,
         hardware_id: hardware_id.to_string(),
         values: vec![
             kv("groups_processed", health.groups_processed),
@@ -398,12 +419,51 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
             kv("last_latency_ms", opt_ms(health.last_latency_ms)),
             kv("mean_latency_ms", opt_ms(health.mean_latency_ms)),
             kv("degraded_cameras", degraded.join(",")),
+            kv(
+                "depth_age_s",
+                health
+                    .depth_age_s
+                    .map_or_else(|| "n/a".into(), |a| format!("{a:.1}")),
+            ),
         ],
     });
     DiagnosticArray {
         header: Header::new(stamp_ns, ""),
         status,
     }
+}
+
+/// Why no depth goes out, as far as the counters tell: cameras dropping every image (with
+/// their reason), the last pipeline error, or too few cameras sending.
+fn stall_reason(health: &NodeHealth) -> String {
+    let dropping: Vec<String> = health
+        .cameras
+        .iter()
+        .filter(|c| c.only_malformed())
+        .map(|c| {
+            format!(
+                "camera '{}' drops every image ({})",
+                c.name,
+                c.last_bad_reason.as_deref().unwrap_or("bad images")
+            )
+        })
+        .collect();
+    if !dropping.is_empty() {
+        return dropping.join("; ");
+    }
+    if let Some(e) = &health.last_pipeline_error {
+        return format!("the pipeline fails: {e}");
+    }
+    let silent: Vec<&str> = health
+        .cameras
+        .iter()
+        .filter(|c| !c.active || c.received == 0)
+        .map(|c| c.name.as_str())
+        .collect();
+    if !silent.is_empty() {
+        return format!("no images from {}", silent.join(", "));
+    }
+    "no complete group of images (see sync_* and the cameras' statuses)".into()
 }
 
 /// The value of `key` in the status named `name` (for tests and tools).

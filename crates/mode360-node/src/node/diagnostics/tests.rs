@@ -199,3 +199,49 @@ fn a_blocked_lens_turns_warn_then_error_naming_where() {
         Some("n/a")
     );
 }
+
+#[test]
+fn a_stalled_pipeline_is_error_with_the_reason() {
+    let camera = |name: &str, received: u64| CameraHealth {
+        name: name.into(),
+        active: true,
+        received,
+        ..Default::default()
+    };
+    let pipeline = |h: &NodeHealth| {
+        diagnostic_array(0, "hw", h)
+            .status
+            .into_iter()
+            .find(|s| s.name == "mode360: pipeline")
+            .expect("pipeline status")
+    };
+    let mut health = NodeHealth {
+        cameras: vec![camera("a", 10), camera("b", 0)],
+        depth_age_s: Some(1.0),
+        ..Default::default()
+    };
+    // Recent depth: not an error.
+    assert_ne!(pipeline(&health).level, DiagnosticStatus::ERROR);
+    // No depth for 5 s: ERROR, naming the silent camera.
+    health.depth_age_s = Some(5.0);
+    let s = pipeline(&health);
+    assert_eq!(s.level, DiagnosticStatus::ERROR);
+    assert_eq!(s.message, "no depth for 5.0 s: no images from b");
+    // A pipeline error is the reason before silence.
+    health.last_pipeline_error = Some("sizes".into());
+    assert_eq!(
+        pipeline(&health).message,
+        "no depth for 5.0 s: the pipeline fails: sizes"
+    );
+    // A slow estimator (2 s a group) is not a stall at 5 s.
+    health.mean_latency_ms = Some(2000.0);
+    assert_ne!(pipeline(&health).level, DiagnosticStatus::ERROR);
+    health.mean_latency_ms = None;
+    // Not measured (replay): never an error for it.
+    health.depth_age_s = None;
+    assert_ne!(pipeline(&health).level, DiagnosticStatus::ERROR);
+    assert!(pipeline(&health)
+        .values
+        .iter()
+        .any(|kv| kv.key == "depth_age_s" && kv.value == "n/a"));
+}
