@@ -108,6 +108,10 @@ pub struct TrainArgs {
     /// Loss weight of a pixel predicted farther than its truth (1: the plain loss).
     #[arg(long, default_value_t = 1.0)]
     pub too_far_weight: f64,
+    /// Where the too-far loss weight applies: pixels whose true range is at most this, metres
+    /// (default: everywhere).
+    #[arg(long, default_value_t = f64::INFINITY)]
+    pub too_far_range_m: f64,
     /// Where the network trains: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the
     /// `cuda` feature).
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
@@ -146,6 +150,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             near_range_m: a.near_range_m,
             near_weight: a.near_weight,
             too_far_weight: a.too_far_weight,
+            too_far_range_m: a.too_far_range_m,
         },
         camera_effects: a.camera_effects,
         device: a.device,

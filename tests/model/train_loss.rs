@@ -81,6 +81,7 @@ fn obstacle_weighting_by_hand() {
             near_range_m: 5.0,
             near_weight: 3.0,
             too_far_weight: 2.0,
+            too_far_range_m: f64::INFINITY,
         },
     };
     // 1 m (n = 1, near) and 100 m (n = 0, far).
@@ -108,4 +109,45 @@ fn obstacle_weighting_by_hand() {
     let pred = Tensor::new(&[[[0.8f32, 0.1]]], &Device::Cpu).unwrap();
     let loss: f32 = plain.loss(&[pred], &target).unwrap().to_scalar().unwrap();
     assert!((loss - 1.0).abs() < 1e-5, "{loss}");
+    // Too-far weight only within 10 m: a 50 m pixel read too far keeps weight 1.
+    let near_only = LossConfig {
+        weighting: mode360::train::loss::LossWeighting {
+            too_far_range_m: 10.0,
+            ..cfg.weighting
+        },
+        ..cfg.clone()
+    };
+    let gt50 = FloatImage {
+        width: 2,
+        height: 1,
+        data: vec![1.0, 50.0],
+    };
+    let target = near_only.target(&[&gt50], &Device::Cpu).unwrap();
+    let zone: Vec<f32> = target
+        .too_far_zone
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert_eq!(zone, vec![1.0, 0.0]);
+    // n(50 m) = (1/50 - 1/100) / (1 - 1/100); pred 0 is 10 n hypothesis steps too far:
+    // SmoothL1 0.5 (10 n)^2. The near pixel read 2 steps too far weighs 3 x 2: 6 x 1.5 = 9.
+    let n50 = (1.0f64 / 50.0 - 1.0 / 100.0) / (1.0 - 1.0 / 100.0);
+    let far_term = 0.5 * (10.0 * n50).powi(2);
+    let pred = Tensor::new(&[[[0.8f32, 0.0]]], &Device::Cpu).unwrap();
+    let loss: f32 = near_only
+        .loss(std::slice::from_ref(&pred), &target)
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert!(
+        (f64::from(loss) - (9.0 + far_term) / 2.0).abs() < 1e-5,
+        "{loss}"
+    );
+    let everywhere = cfg.target(&[&gt50], &Device::Cpu).unwrap();
+    let loss: f32 = cfg.loss(&[pred], &everywhere).unwrap().to_scalar().unwrap();
+    assert!(
+        (f64::from(loss) - (9.0 + 2.0 * far_term) / 2.0).abs() < 1e-5,
+        "{loss}"
+    );
 }

@@ -22,7 +22,8 @@
 //! `too_far_weight` more; both 1 (the default) give the plain loss:
 //!
 //! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
-//! `a_p = near_weight if g_p <= near_range_m else 1`, `b_p = too_far_weight if n_s < n else 1`.
+//! `a_p = near_weight if g_p <= near_range_m else 1`,
+//! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m else 1`.
 
 use candle_core::{DType, Device, Tensor};
 use mode360_core::frame::FloatImage;
@@ -68,6 +69,14 @@ pub struct LossWeighting {
     pub near_weight: f64,
     /// Weight of a pixel predicted farther than its truth.
     pub too_far_weight: f64,
+    /// `too_far_weight` applies only where the true range is at most this, metres (infinite:
+    /// everywhere), so that the far field and the sky keep the plain loss.
+    #[serde(default = "unlimited_range")]
+    pub too_far_range_m: f64,
+}
+
+fn unlimited_range() -> f64 {
+    f64::INFINITY
 }
 
 /// Range below which [`LossWeighting::near_weight`] applies by default, metres.
@@ -80,6 +89,7 @@ impl Default for LossWeighting {
             near_range_m: DEFAULT_NEAR_RANGE_M,
             near_weight: 1.0,
             too_far_weight: 1.0,
+            too_far_range_m: f64::INFINITY,
         }
     }
 }
@@ -99,6 +109,9 @@ pub struct LossTarget {
     pub mask: Tensor,
     /// `(B, H, W)` each valid pixel's weight (`near_weight` or 1), 0 elsewhere.
     pub weight: Tensor,
+    /// `(B, H, W)` 1 where a too-far reading weighs `too_far_weight` (true range at most
+    /// `too_far_range_m`), 0 elsewhere.
+    pub too_far_zone: Tensor,
 }
 
 impl LossConfig {
@@ -141,6 +154,7 @@ impl LossConfig {
         let mut target = Vec::with_capacity(gts.len() * w * h);
         let mut mask = Vec::with_capacity(gts.len() * w * h);
         let mut weight = Vec::with_capacity(gts.len() * w * h);
+        let mut too_far_zone = Vec::with_capacity(gts.len() * w * h);
         let near = &self.weighting;
         for g in gts {
             for &r in &g.data {
@@ -153,10 +167,12 @@ impl LossConfig {
                     } else {
                         1.0
                     });
+                    too_far_zone.push(f32::from(u8::from(r <= near.too_far_range_m)));
                 } else {
                     target.push(0.0);
                     mask.push(0.0);
                     weight.push(0.0);
+                    too_far_zone.push(0.0);
                 }
             }
         }
@@ -165,6 +181,7 @@ impl LossConfig {
             normalized_inverse_depth: Tensor::from_vec(target, shape, device)?,
             mask: Tensor::from_vec(mask, shape, device)?,
             weight: Tensor::from_vec(weight, shape, device)?,
+            too_far_zone: Tensor::from_vec(too_far_zone, shape, device)?,
         })
     }
 
@@ -189,16 +206,11 @@ impl LossConfig {
             let per_pixel = if self.weighting.is_plain() {
                 (per_pixel * &target.mask)?
             } else {
-                // Too far: a smaller normalized inverse depth than the truth.
-                let too_far = diff.lt(0.0)?;
-                let far_w = too_far.where_cond(
-                    &Tensor::full(
-                        self.weighting.too_far_weight as f32,
-                        diff.shape(),
-                        diff.device(),
-                    )?,
-                    &Tensor::ones(diff.shape(), DType::F32, diff.device())?,
-                )?;
+                // Too far: a smaller normalized inverse depth than the truth, where it counts.
+                let too_far = diff.lt(0.0)?.to_dtype(DType::F32)?;
+                let too_far = (too_far * &target.too_far_zone)?;
+                // 1 + (too_far_weight - 1) * [too far in the zone]
+                let far_w = ((too_far * (self.weighting.too_far_weight - 1.0))? + 1.0)?;
                 ((per_pixel * &target.weight)? * far_w)?
             };
             let term = (per_pixel.sum_all()? / &denom)?;
