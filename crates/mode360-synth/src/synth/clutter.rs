@@ -310,16 +310,29 @@ fn item(
     }
 }
 
+/// The occupied slots of length `slot_m` within [`CLUTTER_RANGE_M`] of `x_centre_m`: for each
+/// slot `k` whose draw from `Rng::new(&[seed, k, tag])` passes `probability`, `k` and that
+/// generator (for the item's own draws).
+fn occupied_slots(
+    seed: u64,
+    tag: u64,
+    slot_m: f64,
+    probability: f64,
+    x_centre_m: f64,
+) -> impl Iterator<Item = (i64, Rng)> {
+    let first = ((x_centre_m - CLUTTER_RANGE_M) / slot_m).floor() as i64;
+    let last = ((x_centre_m + CLUTTER_RANGE_M) / slot_m).ceil() as i64;
+    (first..=last).filter_map(move |k| {
+        let mut rng = Rng::new(&[seed, k as u64, tag]);
+        rng.chance(probability).then_some((k, rng))
+    })
+}
+
 /// The clutter of world `seed` within [`CLUTTER_RANGE_M`] of `x_centre_m`, beside the ego
-/// lane's centre line `ego_y_m`.
+/// lane's centre line `ego_y_m`, and the things in the path.
 pub fn clutter_prims(out: &mut Vec<SurfacePrim>, seed: u64, x_centre_m: f64, ego_y_m: f64) {
-    let first = ((x_centre_m - CLUTTER_RANGE_M) / SLOT_LENGTH_M).floor() as i64;
-    let last = ((x_centre_m + CLUTTER_RANGE_M) / SLOT_LENGTH_M).ceil() as i64;
-    for k in first..=last {
-        let mut rng = Rng::new(&[seed, k as u64, 0xC1_7733]);
-        if !rng.chance(ITEM_PROBABILITY) {
-            continue;
-        }
+    for (k, mut rng) in occupied_slots(seed, 0xC1_7733, SLOT_LENGTH_M, ITEM_PROBABILITY, x_centre_m)
+    {
         let kind = ITEMS[rng.index(ITEMS.len())];
         let side = if rng.chance(0.5) { 1.0 } else { -1.0 };
         let lateral = if rng.chance(CLOSE_SHARE) {
@@ -330,13 +343,14 @@ pub fn clutter_prims(out: &mut Vec<SurfacePrim>, seed: u64, x_centre_m: f64, ego
         let x = (k as f64 + rng.range(0.2, 0.8)) * SLOT_LENGTH_M;
         item(out, kind, x, ego_y_m, side, lateral, &mut rng);
     }
-    let first = ((x_centre_m - CLUTTER_RANGE_M) / PATH_SLOT_LENGTH_M).floor() as i64;
-    let last = ((x_centre_m + CLUTTER_RANGE_M) / PATH_SLOT_LENGTH_M).ceil() as i64;
-    for k in first..=last {
-        let mut rng = Rng::new(&[seed, k as u64, 0x9A7B]);
-        if !rng.chance(PATH_ITEM_PROBABILITY) {
-            continue;
-        }
+    let path = occupied_slots(
+        seed,
+        0x9A7B,
+        PATH_SLOT_LENGTH_M,
+        PATH_ITEM_PROBABILITY,
+        x_centre_m,
+    );
+    for (k, mut rng) in path {
         let kind = PATH_ITEMS[rng.index(PATH_ITEMS.len())];
         let x = (k as f64 + rng.range(0.2, 0.8)) * PATH_SLOT_LENGTH_M;
         if (x - x_centre_m).abs() < PATH_CLEARANCE_M {
