@@ -32,7 +32,7 @@
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-weighted nearfar}"
+arms="${ARMS:-nearfar near}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
@@ -45,8 +45,9 @@ for arm in $arms; do
   nearfar)
     loss=(--near-weight 8 --too-far-weight 4 --too-far-range-m 10 --fork-from runs/clutter_strong)
     ;;
+  near) loss=(--near-weight 8 --fork-from runs/clutter_nearfar) ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong or nearfar)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar or near)" >&2
     exit 2
     ;;
   esac

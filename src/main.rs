@@ -63,16 +63,47 @@ unsafe impl<A: std::alloc::GlobalAlloc> std::alloc::GlobalAlloc for ZeroByMemset
 #[export_name = "_rjem_malloc_conf"]
 pub static malloc_conf: &[u8] = b"oversize_threshold:0,muzzy_decay_ms:-1\0";
 
+/// jemalloc's name for all arenas at once (`MALLCTL_ARENAS_ALL`) in `arena.<i>.purge`.
+const PURGE_ALL_ARENAS: &std::ffi::CStr = c"arena.4096.purge";
+
+/// Hands the pages jemalloc holds free (dirty and lazily purged ones, of every arena) back to
+/// the kernel at once; true when jemalloc did. Registered with the node
+/// (`mode360_node::node::page_release`), which calls it when memory was freed for good.
+fn purge_jemalloc() -> bool {
+    // SAFETY: `arena.<i>.purge` reads and writes nothing (all pointers null, length 0) and
+    // the name is a NUL-terminated string; jemalloc locks each arena while purging it.
+    let rc = unsafe {
+        tikv_jemalloc_sys::mallctl(
+            PURGE_ALL_ARENAS.as_ptr(),
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            0,
+        )
+    };
+    rc == 0
+}
+
 /// Log filter when RUST_LOG is unset: RustDDS is quiet and ros2-client reports only problems
 /// unless asked (RUST_LOG=info,rustdds=warn); its ROS_DISTRO check, which calls every
 /// distribution but Jazzy an ERROR, is replaced by the node's own (`node::ros_distro`).
 const DEFAULT_LOG_FILTER: &str = "info,rustdds=off,ros2_client=warn,ros2_client::distributions=off";
 
+/// Where the defaults' files are found (`mode360_core::shipped`), shown by `--help`.
+const SHIPPED_FILES_HELP: &str =
+    "Shipped files (the weights under models/, the rigs and parameter file under \
+launch_configs/, the demo bag bags/demo_deep360.mcap) are found by their relative path: in the \
+working directory, then in the data directory ($MODE360_DATA_DIR, else $XDG_DATA_HOME/mode360, \
+else ~/.local/share/mode360), then beside the binary (BIN/../share/mode360, then BIN's folder), \
+else the copy built into the binary is unpacked into DATA_DIR/builtin/ (the demo bag is rendered \
+into DATA_DIR/bags/).";
+
 #[derive(Parser)]
 #[command(
     name = "mode360",
     version,
-    about = "Multi-camera 360° depth: synthetic rig bags, SSMODE and the spherical sweep, the ROS 2 node, evaluation"
+    about = "Multi-camera 360° depth: synthetic rig bags, SSMODE and the spherical sweep, the ROS 2 node, evaluation",
+    after_help = SHIPPED_FILES_HELP
 )]
 struct Cli {
     #[command(subcommand)]
@@ -175,6 +206,7 @@ fn describe(error: &anyhow::Error) -> String {
 }
 
 fn main() -> ExitCode {
+    mode360_node::node::page_release::set_page_release(purge_jemalloc);
     let cli = Cli::parse();
     init_logging(log_filter(&cli.command));
     match run(cli.command) {

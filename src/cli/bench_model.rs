@@ -377,7 +377,7 @@ pub struct BenchModelArgs {
 }
 
 pub fn run(a: BenchModelArgs) -> Result<()> {
-    let rig = Rig::from_file(&a.rig)?;
+    let rig = Rig::from_file_or_shipped(&a.rig)?;
     // candidate weights, first match per preset: the given file, then the shipped ones
     let mut candidates = Vec::new();
     if let Some(w) = &a.weights {

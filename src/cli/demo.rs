@@ -5,6 +5,7 @@
 //! (colour-mapped depth under the panorama; a top-down view of the point cloud) and scores the
 //! received depth against the bag's ground truth.
 
+use super::bundled_bag::{locate_bag, BUNDLED_BAG};
 use super::estimator_args::EstimatorArgs;
 use crate::viz::{colorize_range, depth_legend, stack_vertical};
 use anyhow::{anyhow, Context, Result};
@@ -294,8 +295,9 @@ fn top_view(points: &[mode360_node::node::pipeline::DecodedPoint]) -> RgbImage {
 
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Bag to play into the node.
-    #[arg(long, default_value = "bags/demo_deep360.mcap")]
+    /// Bag to play into the node (the bundled one is rendered into the data directory where
+    /// neither the working directory nor an install has it).
+    #[arg(long, default_value = BUNDLED_BAG)]
     pub bag: PathBuf,
     /// Rig calibration YAML.
     #[arg(long, default_value = "launch_configs/rig_deep360.yaml")]
@@ -324,7 +326,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let mut dds = DdsOptions::from_env()?;
     dds.loopback_only = true;
     let opts = DemoOptions {
-        bag: a.bag,
+        bag: locate_bag(&a.bag)?,
         rig_file: a.rig,
         estimator: a.estimator.spec(),
         out_bag: a.out.clone(),

@@ -26,6 +26,7 @@
 
 pub mod bench_model;
 pub mod bench_node;
+pub mod bundled_bag;
 pub mod deep360_bag;
 pub mod demo;
 pub mod drops;

@@ -86,7 +86,7 @@ pub fn calibration_for(reader: &RigBagReader, rig_file: Option<&Path>, file: &st
     let Some(path) = rig_file else {
         return Ok(reader.rig().clone());
     };
-    let rig = Rig::from_file(path)?;
+    let rig = Rig::from_file_or_shipped(path)?;
     check_same_cameras(reader.rig(), &rig).with_context(|| {
         format!(
             "rig file {} does not fit the cameras of bag '{file}'",

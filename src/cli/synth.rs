@@ -91,7 +91,7 @@ pub const MAX_SYNTH_FRAMES: u32 = 100_000;
 
 /// `mode360 synth`: renders the frames into the bag and prints the size and the rate.
 pub fn run(a: SynthArgs) -> Result<()> {
-    let rig = Rig::from_file(&a.rig)?;
+    let rig = Rig::from_file_or_shipped(&a.rig)?;
     let rig = if a.fisheye_scale == 1.0 {
         rig
     } else {

@@ -3,8 +3,9 @@
 //! SIGINT (`process`), Eclipse Cyclone DDS peers both ways (`cyclone`) and Fast DDS peers both
 //! ways (`fastdds`), bad input seen on `/diagnostics` (`bad_input`), outputs built only while
 //! subscribed (`lazy`), QoS overrides and `publish_tf` (`qos`), the parameter services
-//! (`params`), extrinsics from TF (`tf`) and the Foxglove live view read by Foxglove's own
-//! client (`foxglove`). The tests take [`common::live_node_lock`] so that one node runs at a
+//! (`params`), extrinsics from TF (`tf`), the Foxglove live view read by Foxglove's own
+//! client (`foxglove`) and the binary's demo run from an empty folder, away from its source
+//! tree (`installed`). The tests take [`common::live_node_lock`] so that one node runs at a
 //! time.
 
 #[path = "../common/mod.rs"]
@@ -18,6 +19,7 @@ mod dropout;
 mod fastdds;
 mod foxglove;
 mod harness;
+mod installed;
 mod lazy;
 mod params;
 mod process;

@@ -11,4 +11,5 @@ pub mod memory;
 pub mod metrics;
 pub mod obstacles;
 pub mod progress;
+pub mod shipped;
 pub mod sync;

@@ -16,9 +16,11 @@
 //!   (allocator arenas and DDS buffers fill up during the first half; growth after that
 //!   means a leak).
 
+use super::bundled_bag::BUNDLED_BAG;
 use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use mode360_core::memory::resident_mib;
+use mode360_core::shipped::{self, Origin};
 use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::RigBagReader;
 use mode360_io::msgs::{CompressedImage, Image, RosMessage};
@@ -45,7 +47,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// The bundled bag, used when its width is the one asked for.
-pub const BUNDLED_BAG: &str = "bags/demo_deep360.mcap";
 /// Default width (of the rendered input and of the node's output).
 pub const DEFAULT_WIDTH: usize = 512;
 /// Frames rendered when the bundled bag does not fit.
@@ -155,16 +156,17 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
         (Some(b), _) => b.clone(),
         (None, w) => {
             let width = w.unwrap_or(DEFAULT_WIDTH);
-            let bundled = Path::new(BUNDLED_BAG);
-            let fits = bundled.exists() && bag_width(&RigBagReader::open(bundled)?)? == width;
+            let bundled = shipped::locate(Path::new(BUNDLED_BAG), &[]);
+            let fits = bundled.origin != Origin::NotFound
+                && bag_width(&RigBagReader::open(&bundled.path)?)? == width;
             if fits {
-                bundled.to_path_buf()
+                bundled.path
             } else {
                 let out = temp_path("input.mcap");
                 temps.push(TempFile(out.clone()));
                 tracing::info!("rendering {RENDERED_FRAMES} frames at {width} px");
                 record_synthetic_bag(&RecordOptions {
-                    rig: mode360_core::geometry::Rig::from_file(&opts.rig_file)?,
+                    rig: mode360_core::geometry::Rig::from_file_or_shipped(&opts.rig_file)?,
                     config: SynthConfig {
                         width,
                         seed: 1,

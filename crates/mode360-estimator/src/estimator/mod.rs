@@ -177,13 +177,12 @@ impl EstimatorSpec {
         Self { device, ..self }
     }
 
-    /// The weights file SSMODE will load (the shipped one when none was given); `None` for
-    /// estimators without weights.
+    /// The weights file SSMODE will load (the shipped one when none was given), located as
+    /// [`ssmode::locate_weights`] says; `None` for estimators without weights.
     pub fn weights_path(&self) -> Option<PathBuf> {
-        self.kind.has_weights().then(|| {
-            self.weights
-                .clone()
-                .unwrap_or_else(ssmode::default_weights_path)
+        self.kind.has_weights().then(|| match &self.weights {
+            Some(path) => ssmode::locate_weights(path),
+            None => ssmode::default_weights_path(),
         })
     }
 

@@ -22,13 +22,15 @@ use mode360_core::frame::RgbImage;
 use mode360_core::geometry::panorama::RigRemap;
 pub use mode360_core::geometry::resample_erp;
 use mode360_core::geometry::{ErpGrid, Rig};
+use mode360_core::shipped::{self, BuiltinFile};
 
 /// The estimator's name on the command line and in reports.
 pub const SSMODE_NAME: &str = "ssmode";
 
-/// Weights loaded by `by_name("ssmode")` and by an `EstimatorSpec` without weights, relative to the working directory or, failing that,
-/// to the source tree the binary was built from (see [`default_weights_path`]): the
-/// `parallax_zncc_log` preset (the ZNCC channel and log-depth hypotheses, models/README.md).
+/// Weights loaded by `by_name("ssmode")` and by an `EstimatorSpec` without weights, found as
+/// [`mode360_core::shipped`] says (the working directory, the data directory, beside the
+/// binary, else the copy built in): the `parallax_zncc_log` preset (the ZNCC channel and
+/// log-depth hypotheses, models/README.md).
 pub const DEFAULT_WEIGHTS_PATH: &str = "models/ssmode_parallax_zncc_log.safetensors";
 
 /// The earlier `parallax` weights (variance-only volume, hypotheses uniform in inverse depth),
@@ -39,37 +41,41 @@ pub const PARALLAX_WEIGHTS_PATH: &str = "models/ssmode_parallax.safetensors";
 /// streets, but read from one panorama's look (geometry share about 3 points, models/README.md).
 pub const COMPACT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
 
-/// [`DEFAULT_WEIGHTS_PATH`] under the working directory when it exists there, else under the
-/// crate's source tree (so `mode360` finds the shipped weights when run from elsewhere).
+/// The shipped weights files, built into the binary so that an installed or copied binary
+/// runs without its source tree.
+pub const BUILTIN_WEIGHTS: &[BuiltinFile] = &[
+    BuiltinFile {
+        relative: DEFAULT_WEIGHTS_PATH,
+        bytes: include_bytes!("../../../../models/ssmode_parallax_zncc_log.safetensors"),
+    },
+    BuiltinFile {
+        relative: PARALLAX_WEIGHTS_PATH,
+        bytes: include_bytes!("../../../../models/ssmode_parallax.safetensors"),
+    },
+    BuiltinFile {
+        relative: COMPACT_WEIGHTS_PATH,
+        bytes: include_bytes!("../../../../models/ssmode_compact.safetensors"),
+    },
+];
+
+/// [`DEFAULT_WEIGHTS_PATH`], located ([`locate_weights`]).
 pub fn default_weights_path() -> PathBuf {
-    shipped_path(DEFAULT_WEIGHTS_PATH)
+    locate_weights(Path::new(DEFAULT_WEIGHTS_PATH))
 }
 
-/// Every shipped weights file, default first, resolved like [`default_weights_path`].
+/// Every shipped weights file, default first, located ([`locate_weights`]).
 pub fn shipped_weights_paths() -> Vec<PathBuf> {
-    [
-        DEFAULT_WEIGHTS_PATH,
-        PARALLAX_WEIGHTS_PATH,
-        COMPACT_WEIGHTS_PATH,
-    ]
-    .into_iter()
-    .map(shipped_path)
-    .collect()
+    BUILTIN_WEIGHTS
+        .iter()
+        .map(|f| locate_weights(Path::new(f.relative)))
+        .collect()
 }
 
-fn shipped_path(relative: &str) -> PathBuf {
-    let local = PathBuf::from(relative);
-    if local.exists() {
-        return local;
-    }
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(relative);
-    if shipped.exists() {
-        shipped
-    } else {
-        local
-    }
+/// A weights path as the user gave it, or a shipped file's relative path, looked up as
+/// [`mode360_core::shipped`] says: as given, in the data directory, beside the binary, else the
+/// shipped copy built in.
+pub fn locate_weights(path: &Path) -> PathBuf {
+    shipped::locate_path(path, BUILTIN_WEIGHTS)
 }
 
 /// SSMODE inference on the CPU or a CUDA GPU.
@@ -100,7 +106,8 @@ impl SsmodeEstimator {
     /// Loads weights (with their config) from `path` onto `device`; an error naming CUDA and
     /// what was found when a CUDA device cannot be opened.
     pub fn load_on(path: impl AsRef<Path>, device: ComputeDevice) -> Result<Self, EstimatorError> {
-        let path = path.as_ref();
+        let located = locate_weights(path.as_ref());
+        let path = located.as_path();
         if !path.exists() {
             return Err(EstimatorError::BadConfig {
                 field: "weights".to_string(),

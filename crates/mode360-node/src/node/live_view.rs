@@ -17,10 +17,12 @@
 //! process do not share channels.
 //!
 //! When a client leaves, the memory its queue held goes back to the kernel
-//! ([`release_freed_pages`], [`RELEASE_DELAY`] later): the binary's jemalloc otherwise keeps
-//! freed pages for the next frame (`muzzy_decay_ms:-1`, `src/main.rs`), and a node that once
-//! served stalled clients would keep their backlog's size for good.
+//! ([`release_freed_pages`], [`RELEASE_DELAY`] later, through the allocator's release the
+//! binary registered): the binary's jemalloc otherwise keeps freed pages for the next frame
+//! (`muzzy_decay_ms:-1`, `src/main.rs`), and a node that once served stalled clients would keep
+//! their backlog's size for good.
 
+use super::page_release::release_freed_pages;
 use foxglove::websocket::ServerListener;
 use foxglove::{Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
 use mode360_io::bag::{MESSAGE_ENCODING, SCHEMA_ENCODING};
@@ -49,29 +51,6 @@ pub const CLIENT_BACKLOG_MESSAGES: usize = 16;
 /// server drops the client's queue once its connection task ends, shortly after the
 /// disconnect is reported. Disconnects within this time share one release.
 pub const RELEASE_DELAY: Duration = Duration::from_secs(1);
-/// jemalloc's name for all arenas at once (`MALLCTL_ARENAS_ALL`) in `arena.<i>.purge`.
-const PURGE_ALL_ARENAS: &std::ffi::CStr = c"arena.4096.purge";
-
-/// Hands the pages jemalloc holds free (dirty and lazily purged ones, of every arena) back to
-/// the kernel at once, so the resident size drops to what is in use. True when jemalloc did;
-/// where the process allocates with another allocator, jemalloc's own arenas are empty and
-/// this costs nothing. The next allocations fault their pages in again, so this runs when
-/// memory was freed for good (a client gone), never per frame.
-pub fn release_freed_pages() -> bool {
-    // SAFETY: `arena.<i>.purge` reads and writes nothing (all pointers null, length 0) and
-    // the name is a NUL-terminated string; jemalloc locks each arena while purging it.
-    let rc = unsafe {
-        tikv_jemalloc_sys::mallctl(
-            PURGE_ALL_ARENAS.as_ptr(),
-            std::ptr::null_mut(),
-            std::ptr::null_mut(),
-            std::ptr::null_mut(),
-            0,
-        )
-    };
-    rc == 0
-}
-
 /// Releases freed pages [`RELEASE_DELAY`] after a client disconnects (one release pending at
 /// a time), on the server's runtime.
 struct ReleaseOnDisconnect {
@@ -345,6 +324,21 @@ mod tests {
     #[export_name = "_rjem_malloc_conf"]
     pub static malloc_conf: &[u8] = b"oversize_threshold:0,muzzy_decay_ms:-1\0";
 
+    /// The release `src/main.rs` registers: jemalloc's purge of every arena.
+    fn purge_jemalloc() -> bool {
+        // SAFETY: `arena.<i>.purge` reads and writes nothing (all pointers null, length 0).
+        let rc = unsafe {
+            tikv_jemalloc_sys::mallctl(
+                c"arena.4096.purge".as_ptr(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                0,
+            )
+        };
+        rc == 0
+    }
+
     fn topics() -> LiveViewTopics {
         LiveViewTopics {
             cameras: vec![
@@ -388,6 +382,7 @@ mod tests {
         let held = resident_mib().unwrap();
         drop(blocks);
         let kept = resident_mib().unwrap();
+        crate::node::page_release::set_page_release(purge_jemalloc);
         assert!(release_freed_pages());
         let released = resident_mib().unwrap();
         // Without a release jemalloc keeps the 256 MiB resident; with one, they are gone.

@@ -32,6 +32,7 @@
 pub mod clock;
 pub mod diagnostics;
 pub mod live_view;
+pub mod page_release;
 pub mod param_table;
 pub mod params;
 mod params_file;

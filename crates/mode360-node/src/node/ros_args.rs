@@ -10,6 +10,7 @@ use super::param_table::{image_transport, parameter, DEPRECATED_NAMES};
 use super::params::{NodeParams, ParamsError, IMAGE_TRANSPORT_PREFIX};
 use super::params_file::file_parameters;
 use super::qos_overrides::QOS_OVERRIDES_PREFIX;
+use mode360_core::shipped;
 use std::path::PathBuf;
 
 /// A parameter source in command-line order.
@@ -80,6 +81,7 @@ impl NodeParams {
         for source in sources {
             match source {
                 Source::File(path) => {
+                    let path = shipped::locate_path(&path, shipped::LAUNCH_CONFIGS);
                     let file = path.display().to_string();
                     let text = std::fs::read_to_string(&path).map_err(|e| ParamsError::File {
                         file: file.clone(),

@@ -150,7 +150,7 @@ pub fn run_node(args: Vec<String>) -> Result<NodeRun, NodeError> {
 /// Starts the node on its own threads and returns once it is set up (publishers created,
 /// `/tf_static` sent).
 pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle, NodeError> {
-    let rig = Rig::from_file(&params.rig_file)?;
+    let rig = Rig::from_file_or_shipped(&params.rig_file)?;
     let rig = match params.extrinsics_source {
         ExtrinsicsSource::Yaml => rig,
         ExtrinsicsSource::Tf => {

@@ -30,6 +30,7 @@ pub use input::{MAX_CALIBRATION_FILE_BYTES, MAX_FLOW_COLLECTIONS, MAX_FLOW_DEPTH
 pub use projection::PROJECTION_NAMES;
 
 use crate::geometry::rig::{Rig, RigCamera, RigError, RigOutput, DEFAULT_RIG_FRAME, MIN_CAMERAS};
+use crate::shipped;
 use fields::{non_empty, parse_pose, pose_to_raw, Ctx, RawPose};
 use projection::{parse_projection, projection_to_raw, RawIntrinsics, RawLens, RawProjection};
 use serde::{Deserialize, Serialize};
@@ -83,6 +84,13 @@ impl Rig {
             },
         })?;
         Self::from_yaml_str(&text, &file)
+    }
+
+    /// [`Self::from_file`] of `path` located as [`crate::shipped`] says: a shipped rig such as
+    /// `launch_configs/rig_deep360.yaml` is found from any folder, also by a binary installed
+    /// or copied without its source tree.
+    pub fn from_file_or_shipped(path: impl AsRef<Path>) -> Result<Self, RigError> {
+        Self::from_file(shipped::locate_path(path.as_ref(), shipped::LAUNCH_CONFIGS))
     }
 
     /// Parses and validates rig YAML; `source_name` names the text in errors. A leading
