@@ -6,6 +6,7 @@
 //! [`SpunNode::stop`] stops it and waits for it) and the current-thread tokio [`runtime`]
 //! every node thread runs. `play`, `bench`, the demo and the tests use it as well.
 
+use super::discovery_range::DiscoverySettings;
 use super::{NodeError, ROS_DOMAIN_ID_ENV};
 use mode360_io::msgs::RosMessage;
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
@@ -38,13 +39,20 @@ pub fn runtime() -> Result<tokio::runtime::Runtime, NodeError> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct DdsOptions {
     pub domain_id: u16,
-    /// Use only the loopback interface (tests, single-host setups).
+    /// Use only the loopback interface (tests, single-host setups,
+    /// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`, `ROS_LOCALHOST_ONLY=1`).
     pub loopback_only: bool,
 }
 
 impl DdsOptions {
-    /// Domain from `ROS_DOMAIN_ID` (default 0), all interfaces.
+    /// Domain from `ROS_DOMAIN_ID` (default 0); the interfaces from the discovery range
+    /// ([`DiscoverySettings`]: loopback only for `LOCALHOST`, else all), its notes logged as
+    /// warnings.
     pub fn from_env() -> Result<Self, NodeError> {
+        let discovery = DiscoverySettings::from_env()?;
+        for note in &discovery.notes {
+            tracing::warn!("{note}");
+        }
         let domain_id = match std::env::var(ROS_DOMAIN_ID_ENV) {
             Ok(value) => value
                 .trim()
@@ -56,7 +64,7 @@ impl DdsOptions {
         };
         Ok(Self {
             domain_id,
-            loopback_only: false,
+            loopback_only: discovery.range.loopback_only(),
         })
     }
 }

@@ -23,6 +23,12 @@ pub enum NodeError {
     LiveView(#[from] LiveViewError),
     #[error("environment variable {ROS_DOMAIN_ID_ENV}='{value}' is not a domain id (0..=232)")]
     DomainId { value: String },
+    #[error("environment variable {variable}='{value}' is not valid (expected {expected})")]
+    Environment {
+        variable: String,
+        value: String,
+        expected: String,
+    },
     #[error("topic '{topic}': not a valid ROS 2 name: {problem}")]
     TopicName { topic: String, problem: String },
     #[error("DDS: {what}: {problem}")]
