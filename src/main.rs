@@ -185,6 +185,10 @@ fn init_logging(filter: tracing_subscriber::EnvFilter) {
                 .with_filter(repeats)
                 .with_filter(filter),
         )
+        .with(
+            mode360_node::node::rosout::RosoutLayer
+                .with_filter(mode360_node::node::rosout::rosout_filter()),
+        )
         .init();
 }
 

@@ -20,6 +20,11 @@ Discovery and data stay on the loopback interface.
       with the frame's stamp; prints `published K STAMP`), `quit` (or end of input) exits.
       QoS as the node's camera subscriptions (sensor data): best effort, volatile, keep last 5.
 
+  cyclone_peer.py rosout --domain D [--timeout-s 60]
+      Prints `ready` once its reader exists, then every rcl_interfaces/msg/Log record on
+      /rosout as one JSON line (level, name, msg, file, function, line, stamp_ns) until the
+      timeout. QoS as rcl's /rosout: reliable, transient local.
+
 Exit status 0 on success; 1 with a message on stderr when something is missing or malformed;
 2 on bad usage.
 """
@@ -96,6 +101,17 @@ class PointCloud2(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
     row_step: uint32
     data: sequence[uint8]
     is_dense: bool
+
+
+@dataclass
+class Log(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
+    stamp: Time
+    level: uint8
+    name: str
+    msg: str
+    file: str
+    function: str
+    line: uint32
 
 
 FLOAT32 = 7  # sensor_msgs/PointField datatype
@@ -316,6 +332,27 @@ def publish(args):
         say(f"published {k} {stamp}")
 
 
+def rosout(args):
+    """Prints every rcl_interfaces/msg/Log record on /rosout as one JSON line ("ready" first),
+    until stdin closes or the timeout passes."""
+    dp = DomainParticipant(args.domain)
+    topic = Topic(dp, dds_topic("/rosout"), Log)
+    qos = Qos(
+        Policy.Reliability.Reliable(duration(seconds=1)),
+        Policy.Durability.TransientLocal,
+        Policy.History.KeepLast(100),
+    )
+    reader = DataReader(dp, topic, qos=qos)
+    say("ready")
+    deadline = time.monotonic() + args.timeout_s
+    while time.monotonic() < deadline:
+        for r in reader.take(N=100):
+            say(json.dumps({"level": r.level, "name": r.name, "msg": r.msg, "file": r.file,
+                            "function": r.function, "line": r.line,
+                            "stamp_ns": r.stamp.sec * NANOS + r.stamp.nanosec}))
+        time.sleep(POLL_S)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -329,9 +366,12 @@ def main():
     p.add_argument("--domain", type=int, required=True)
     p.add_argument("--frames", required=True)
     p.add_argument("--timeout-s", type=float, default=30.0)
+    r = sub.add_parser("rosout")
+    r.add_argument("--domain", type=int, required=True)
+    r.add_argument("--timeout-s", type=float, default=60.0)
     args = parser.parse_args()
     try:
-        (subscribe if args.command == "subscribe" else publish)(args)
+        {"subscribe": subscribe, "publish": publish, "rosout": rosout}[args.command](args)
     except PeerError as e:
         print(f"cyclone_peer {args.command}: {e}", file=sys.stderr, flush=True)
         sys.exit(1)

@@ -4,7 +4,7 @@
 //! ways (`fastdds`), bad input seen on `/diagnostics` (`bad_input`), outputs built only while
 //! subscribed (`lazy`), QoS overrides and `publish_tf` (`qos`), the parameter services
 //! (`params`), extrinsics from TF (`tf`), the Foxglove live view read by Foxglove's own
-//! client (`foxglove`) and the binary's demo run from an empty folder, away from its source
+//! client (`foxglove`), the binary's log records on `/rosout` (`rosout`) and the binary's demo run from an empty folder, away from its source
 //! tree (`installed`). The tests take [`common::live_node_lock`] so that one node runs at a
 //! time.
 
@@ -24,4 +24,5 @@ mod lazy;
 mod params;
 mod process;
 mod qos;
+mod rosout;
 mod tf;

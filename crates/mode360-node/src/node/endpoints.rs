@@ -11,6 +11,7 @@ use super::error::dds_err;
 use super::params::{ImageTransport, NodeParams};
 use super::qos_overrides::QosEntity;
 use super::ros_params::{node_options, RuntimeParams};
+use super::rosout::{attach, logger_name, RosoutGuard};
 use super::topics::{
     camera_topic, output_topic, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
     DIAGNOSTICS_TOPIC, POINTS_TOPIC, TF_STATIC_TOPIC,
@@ -34,6 +35,8 @@ pub(super) struct DdsSetup {
     pub(super) raw_subs: Vec<(usize, ros2_client::Subscription<Image>)>,
     pub(super) compressed_subs: Vec<(usize, ros2_client::Subscription<CompressedImage>)>,
     pub(super) clock_sub: Option<ros2_client::Subscription<Clock>>,
+    /// The node's log records on `/rosout` while this lives.
+    pub(super) rosout: RosoutGuard,
 }
 
 pub(super) fn dds_setup(
@@ -116,6 +119,10 @@ pub(super) fn dds_setup(
             .map_err(|e| format!("{e:?}"))
             .map_err(dds_err("publishing /tf_static"))?;
     }
+    let rosout = attach(
+        spun.node.logging_handle(),
+        logger_name(&params.namespace, &params.node_name),
+    );
     Ok(DdsSetup {
         context,
         spun,
@@ -125,6 +132,7 @@ pub(super) fn dds_setup(
         raw_subs,
         compressed_subs,
         clock_sub,
+        rosout,
     })
 }
 

@@ -43,6 +43,7 @@ pub mod qos_overrides;
 pub mod ros_args;
 pub mod ros_distro;
 pub mod ros_params;
+pub mod rosout;
 pub mod tf_extrinsics;
 
 pub use clock::{ClockSource, NodeClock};

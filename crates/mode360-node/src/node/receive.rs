@@ -262,6 +262,8 @@ pub(super) fn dds_main(
         raw_subs,
         compressed_subs,
         clock_sub,
+        // Bound last, so dropped first: no record goes out once the node is going.
+        rosout: _rosout,
     } = setup;
     let points_pub = publishers.points.clone();
     let compressed_pub = publishers.compressed_depth.clone();

@@ -95,7 +95,7 @@ fn validate(base: &NodeParams, name: &str, value: &ParameterValue) -> Result<Nod
 /// that updates `runtime`.
 pub fn node_options(params: &NodeParams, runtime: RuntimeParams) -> NodeOptions {
     let mut options = NodeOptions::new()
-        .enable_rosout(false)
+        .enable_rosout(true)
         .start_parameter_services(true);
     for (name, value) in declared_parameters(params) {
         options = options.declare_parameter(name, value);
