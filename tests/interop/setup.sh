@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Prepares the third-party peers used by tests/bags/bag_interop.rs (bag readers),
 # tests/node/cyclone.rs (Cyclone DDS), tests/node/foxglove.rs (Foxglove's WebSocket client) and
-# tests/node/fastdds.rs (Fast DDS). Idempotent.
+# tests/node/fastdds.rs (Fast DDS), tests/node/rosout.rs (Cyclone DDS) and tests/node/rclpy.rs
+# (real ROS 2 clients: rclpy of Jazzy and Kilted with rmw_fastrtps_cpp). Idempotent.
 #
 # Usage: tests/interop/setup.sh DIR
 #   - creates a Python venv at DIR/.venv with mcap, mcap-ros2-support, rosbags and cyclonedds
@@ -11,10 +12,15 @@
 #     (skipped when node_modules already holds the pinned packages);
 #   - installs Debian's libfastrtps-dev, libfastcdr-dev, fastddsgen and g++ with apt-get
 #     (skipped when dpkg has them; needs root otherwise) and builds the Fast DDS peer
-#     tests/interop/fastdds into DIR/.fastdds-peer (skipped when up to date).
+#     tests/interop/fastdds into DIR/.fastdds-peer (skipped when up to date);
+#   - creates DIR/.venv-rclpy-jazzy and DIR/.venv-rclpy-kilted with that distribution's rclpy,
+#     rmw_fastrtps_cpp and message wheels from the Python package index (Python 3.11; skipped
+#     when they import).
 # Then export, as printed at the end:
 #   MODE360_PYTHON=DIR/.venv/bin/python  MODE360_NODE_DIR=<repo>/tests/interop
 #   MODE360_FASTDDS_PEER=DIR/.fastdds-peer/fastdds_peer
+#   MODE360_RCLPY_JAZZY=DIR/.venv-rclpy-jazzy/bin/python
+#   MODE360_RCLPY_KILTED=DIR/.venv-rclpy-kilted/bin/python
 set -euo pipefail
 
 if [[ $# -ne 1 ]]; then
@@ -70,6 +76,22 @@ else
 fi
 fastdds_peer="$(bash "$here/fastdds/build.sh" "$root/.fastdds-peer" | tail -n 1)"
 
+# Real ROS 2 clients: the rclpy wheels of each distribution, in a venv of its own.
+for distro in jazzy kilted; do
+  rvenv="$root/.venv-rclpy-$distro"
+  rpython="$rvenv/bin/python"
+  if [[ -x "$rpython" ]] && "$rpython" -c "import rclpy, rmw_fastrtps_cpp, sensor_msgs.msg, rcl_interfaces.srv" 2>/dev/null; then
+    echo "rclpy: $rvenv already has rclpy ($distro)"
+  else
+    [[ -x "$rpython" ]] || python3 -m venv "$rvenv"
+    echo "rclpy: installing the ros-$distro wheels into $rvenv"
+    "$rpython" -m pip install --quiet "ros-$distro-rclpy" "ros-$distro-rmw-fastrtps-cpp" \
+      "ros-$distro-sensor-msgs" "ros-$distro-rcl-interfaces" "ros-$distro-diagnostic-msgs"
+  fi
+done
+
 echo "export MODE360_PYTHON=$python"
 echo "export MODE360_NODE_DIR=$here"
 echo "export MODE360_FASTDDS_PEER=$fastdds_peer"
+echo "export MODE360_RCLPY_JAZZY=$root/.venv-rclpy-jazzy/bin/python"
+echo "export MODE360_RCLPY_KILTED=$root/.venv-rclpy-kilted/bin/python"

@@ -13,13 +13,13 @@
 //! Without it the tests are skipped, unless `CI` is set, where they fail.
 
 use super::dds_peer::{
-    dds_peer_tests, DdsPeer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT, PEER_WIDTH,
+    dds_peer_tests, write_frames, DdsPeer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT,
 };
 use super::harness::Peer;
 use crate::common::PYTHON_ENV;
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
 const PEER_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/cyclone_peer.py");
@@ -80,39 +80,6 @@ impl DdsPeer for Cyclone {
         let commands = (0..frames.len()).map(|k| format!("publish {k}")).collect();
         Ok(Publishing { args, commands })
     }
-}
-
-/// Writes each camera image of `frames` as raw rgb8 and the publisher's frames.json.
-fn write_frames(
-    rig: &Rig,
-    frames: &[RigFrame],
-    dir: &Path,
-) -> Result<PathBuf, Box<dyn std::error::Error>> {
-    let mut spec_frames = Vec::new();
-    for (k, frame) in frames.iter().enumerate() {
-        let mut files = Vec::new();
-        for (i, img) in frame.images.iter().enumerate() {
-            let path = dir.join(format!("frame{k}_cam{i}.rgb"));
-            std::fs::write(&path, img.as_raw())?;
-            files.push(path.display().to_string());
-        }
-        spec_frames.push(serde_json::json!({
-            "stamp_ns": frame.stamp_ns.to_string(),
-            "files": files,
-        }));
-    }
-    let spec = serde_json::json!({
-        "width": PEER_WIDTH,
-        "height": PEER_WIDTH / 2,
-        "cameras": rig.cameras.iter().map(|c| serde_json::json!({
-            "topic": c.topic,
-            "frame_id": c.frame_id,
-        })).collect::<Vec<_>>(),
-        "frames": spec_frames,
-    });
-    let path = dir.join("frames.json");
-    std::fs::write(&path, spec.to_string())?;
-    Ok(path)
 }
 
 dds_peer_tests!(

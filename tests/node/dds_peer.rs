@@ -19,7 +19,7 @@ use mode360::synth::{SynthConfig, SynthRenderer};
 use ros2_client::Context;
 use serde_json::Value;
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::MutexGuard;
 use std::time::{Duration, Instant};
 
@@ -211,6 +211,40 @@ fn peer_frames(rig: &Rig, frames: usize) -> PeerResult<Vec<RigFrame>> {
         ..Default::default()
     })?;
     Ok((0..frames).map(|k| renderer.render_frame(rig, k)).collect())
+}
+
+/// Writes each camera image of `frames` as raw rgb8 and a publishing peer's frames.json
+/// (`cyclone_peer.py publish`, `rclpy_peer.py publish`).
+pub fn write_frames(
+    rig: &Rig,
+    frames: &[RigFrame],
+    dir: &Path,
+) -> Result<PathBuf, Box<dyn std::error::Error>> {
+    let mut spec_frames = Vec::new();
+    for (k, frame) in frames.iter().enumerate() {
+        let mut files = Vec::new();
+        for (i, img) in frame.images.iter().enumerate() {
+            let path = dir.join(format!("frame{k}_cam{i}.rgb"));
+            std::fs::write(&path, img.as_raw())?;
+            files.push(path.display().to_string());
+        }
+        spec_frames.push(serde_json::json!({
+            "stamp_ns": frame.stamp_ns.to_string(),
+            "files": files,
+        }));
+    }
+    let spec = serde_json::json!({
+        "width": PEER_WIDTH,
+        "height": PEER_WIDTH / 2,
+        "cameras": rig.cameras.iter().map(|c| serde_json::json!({
+            "topic": c.topic,
+            "frame_id": c.frame_id,
+        })).collect::<Vec<_>>(),
+        "frames": spec_frames,
+    });
+    let path = dir.join("frames.json");
+    std::fs::write(&path, spec.to_string())?;
+    Ok(path)
 }
 
 /// Declares the two tests of a [`DdsPeer`]: `$subscriber_test`

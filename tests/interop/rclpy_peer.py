@@ -1,0 +1,260 @@
+#!/usr/bin/env python3
+"""A real ROS 2 client as a peer of the mode360 node, used by tests/node/rclpy.rs: rclpy with
+rmw_fastrtps_cpp and Fast DDS's default settings (its default socket buffers, shared memory
+and UDP), from the `ros-<distro>-rclpy` wheels that tests/interop/setup.sh installs. Message
+types are rclpy's own (sensor_msgs, rcl_interfaces); discovery stays on this host
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST).
+
+  rclpy_peer.py subscribe --domain D [--depth-topic /depth] [--points-topic /points]
+                          [--max-depth-m 1000] [--timeout-s 30]
+      As cyclone_peer.py subscribe: `ready` once both subscriptions see a publisher, then
+      `result {json}` (peer_checks.summarize) of the first depth image and cloud with one stamp.
+
+  rclpy_peer.py publish --domain D --frames frames.json [--timeout-s 30]
+      As cyclone_peer.py publish: rclpy as the camera driver (sensor-data QoS).
+
+  rclpy_peer.py stream --domain D [--timeout-s 120]
+      Reliable subscriptions with rclpy's defaults (reliable, volatile, keep last 10: what
+      rviz and `ros2 topic echo` use) to /depth, /confidence and /points; `ready` once each
+      sees a publisher; on stdin `quit` (or end of input) prints `result {json}`: per topic
+      the [stamp_ns, receive_ns] of every message received (receive_ns: wall clock).
+
+  rclpy_peer.py params --domain D --node /mode360 --set NAME=VALUE --refused NAME=VALUE
+                       --describe A,B,C
+      The parameter services as `ros2 param` uses them: list, get every listed one, describe
+      A, B and C, set NAME (must succeed), set the other (must be refused); prints
+      `result {json}`.
+
+Exit status 0 on success; 1 with a message on stderr when something is missing or malformed;
+2 on bad usage.
+"""
+
+import argparse
+import json
+import os
+import sys
+import threading
+import time
+
+from peer_checks import NANOS, POLL_S, PeerError, say, stamp_ns, summarize, wait_until
+
+
+def start(domain):
+    """rclpy on `domain`, this host only; returns the rclpy module and a node."""
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    import rclpy
+
+    rclpy.init()
+    return rclpy, rclpy.create_node("mode360_rclpy_peer")
+
+
+def spin_until(rclpy, node, predicate, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise PeerError(f"timed out after {timeout_s} s waiting for {what}")
+        rclpy.spin_once(node, timeout_sec=POLL_S)
+
+
+def subscribe(args):
+    from sensor_msgs.msg import Image, PointCloud2
+
+    rclpy, node = start(args.domain)
+    depths, clouds = {}, {}
+    node.create_subscription(Image, args.depth_topic, lambda m: depths.setdefault(stamp_ns(m.header), m), 10)
+    node.create_subscription(
+        PointCloud2, args.points_topic, lambda m: clouds.setdefault(stamp_ns(m.header), m), 10
+    )
+    spin_until(
+        rclpy,
+        node,
+        lambda: node.count_publishers(args.depth_topic) and node.count_publishers(args.points_topic),
+        args.timeout_s,
+        f"publishers of {args.depth_topic} and {args.points_topic}",
+    )
+    say("ready")
+    spin_until(rclpy, node, lambda: set(depths) & set(clouds), args.timeout_s, "a depth image and cloud of one stamp")
+    stamp = sorted(set(depths) & set(clouds))[0]
+    result = summarize(depths[stamp], clouds[stamp], args.max_depth_m)
+    result["received"] = {"depth": len(depths), "points": len(clouds)}
+    say("result " + json.dumps(result))
+
+
+def publish(args):
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    with open(args.frames, encoding="utf-8") as f:
+        spec = json.load(f)
+    width, height = spec["width"], spec["height"]
+    cameras, frames = spec["cameras"], spec["frames"]
+    rclpy, node = start(args.domain)
+    qos = qos_profile_sensor_data
+    writers = [node.create_publisher(Image, c["topic"], qos) for c in cameras]
+    spin_until(
+        rclpy,
+        node,
+        lambda: all(w.get_subscription_count() for w in writers),
+        args.timeout_s,
+        "subscribers of " + ", ".join(c["topic"] for c in cameras),
+    )
+    say("ready")
+    for line in sys.stdin:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "quit":
+            return
+        if words[0] != "publish" or len(words) != 2:
+            raise PeerError(f"unknown command '{line.strip()}'")
+        k = int(words[1])
+        frame = frames[k]
+        stamp = int(frame["stamp_ns"])
+        for cam, writer, path in zip(cameras, writers, frame["files"]):
+            with open(path, "rb") as f:
+                data = f.read()
+            if len(data) != width * height * 3:
+                raise PeerError(f"{path}: {len(data)} bytes, expected {width}x{height}x3")
+            msg = Image()
+            msg.header.stamp.sec = stamp // NANOS
+            msg.header.stamp.nanosec = stamp % NANOS
+            msg.header.frame_id = cam["frame_id"]
+            msg.height, msg.width = height, width
+            msg.encoding, msg.is_bigendian, msg.step = "rgb8", 0, width * 3
+            msg.data = data
+            writer.publish(msg)
+        say(f"published {k} {stamp}")
+
+
+def stream(args):
+    from sensor_msgs.msg import Image, PointCloud2
+
+    rclpy, node = start(args.domain)
+    topics = {"/depth": Image, "/confidence": Image, "/points": PointCloud2}
+    got = {t: [] for t in topics}
+    for topic, kind in topics.items():
+        node.create_subscription(
+            kind, topic, lambda m, t=topic: got[t].append([str(stamp_ns(m.header)), str(time.time_ns())]), 10
+        )
+    spin_until(
+        rclpy, node, lambda: all(node.count_publishers(t) for t in topics), args.timeout_s, "publishers of " + ", ".join(topics)
+    )
+    say("ready")
+    done = threading.Event()
+
+    def wait_for_quit():
+        for line in sys.stdin:
+            if line.strip() == "quit":
+                break
+        done.set()
+
+    threading.Thread(target=wait_for_quit, daemon=True).start()
+    deadline = time.monotonic() + args.timeout_s
+    while not done.is_set() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=POLL_S)
+    say("result " + json.dumps(got))
+
+
+def params(args):
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+
+    rclpy, node = start(args.domain)
+
+    def call(kind, service, request):
+        client = node.create_client(kind, f"{args.node}/{service}")
+        wait_until(lambda: client.wait_for_service(timeout_sec=0.1), args.timeout_s, f"{args.node}/{service}")
+        future = client.call_async(request)
+        spin_until(rclpy, node, future.done, args.timeout_s, f"{service}'s answer")
+        return future.result()
+
+    def value_of(v):
+        return {
+            ParameterType.PARAMETER_BOOL: lambda: v.bool_value,
+            ParameterType.PARAMETER_INTEGER: lambda: v.integer_value,
+            ParameterType.PARAMETER_DOUBLE: lambda: v.double_value,
+            ParameterType.PARAMETER_STRING: lambda: v.string_value,
+        }.get(v.type, lambda: None)()
+
+    def parameter(assignment):
+        name, text = assignment.split("=", 1)
+        value = ParameterValue()
+        for kind, field, parse in (
+            (ParameterType.PARAMETER_INTEGER, "integer_value", int),
+            (ParameterType.PARAMETER_DOUBLE, "double_value", float),
+        ):
+            try:
+                setattr(value, field, parse(text))
+                value.type = kind
+                break
+            except ValueError:
+                continue
+        else:
+            if text in ("true", "false"):
+                value.type, value.bool_value = ParameterType.PARAMETER_BOOL, text == "true"
+            else:
+                value.type, value.string_value = ParameterType.PARAMETER_STRING, text
+        return Parameter(name=name, value=value)
+
+    names = list(call(ListParameters, "list_parameters", ListParameters.Request()).result.names)
+    got = call(GetParameters, "get_parameters", GetParameters.Request(names=names)).values
+    described = call(
+        DescribeParameters, "describe_parameters", DescribeParameters.Request(names=args.describe.split(","))
+    ).descriptors
+    results = {}
+    for key, assignment in (("set", args.set), ("refused", args.refused)):
+        p = parameter(assignment)
+        r = call(SetParameters, "set_parameters", SetParameters.Request(parameters=[p])).results[0]
+        results[key] = {"name": p.name, "successful": r.successful, "reason": r.reason}
+    after = call(GetParameters, "get_parameters", GetParameters.Request(names=[results["set"]["name"]])).values
+    say(
+        "result "
+        + json.dumps(
+            {
+                "names": names,
+                "values": {n: value_of(v) for n, v in zip(names, got)},
+                "types": {d.name: d.type for d in described},
+                "set": results["set"],
+                "refused": results["refused"],
+                "after_set": value_of(after[0]),
+            }
+        )
+    )
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("subscribe")
+    s.add_argument("--domain", type=int, required=True)
+    s.add_argument("--depth-topic", default="/depth")
+    s.add_argument("--points-topic", default="/points")
+    s.add_argument("--max-depth-m", type=float, default=1000.0)
+    s.add_argument("--timeout-s", type=float, default=30.0)
+    p = sub.add_parser("publish")
+    p.add_argument("--domain", type=int, required=True)
+    p.add_argument("--frames", required=True)
+    p.add_argument("--timeout-s", type=float, default=30.0)
+    st = sub.add_parser("stream")
+    st.add_argument("--domain", type=int, required=True)
+    st.add_argument("--timeout-s", type=float, default=120.0)
+    pa = sub.add_parser("params")
+    pa.add_argument("--domain", type=int, required=True)
+    pa.add_argument("--node", default="/mode360")
+    pa.add_argument("--set", required=True)
+    pa.add_argument("--refused", required=True)
+    pa.add_argument("--describe", required=True, help="comma-separated names")
+    pa.add_argument("--timeout-s", type=float, default=30.0)
+    args = parser.parse_args()
+    commands = {"subscribe": subscribe, "publish": publish, "stream": stream, "params": params}
+    try:
+        commands[args.command](args)
+    except PeerError as e:
+        print(f"rclpy_peer {args.command}: {e}", file=sys.stderr, flush=True)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
