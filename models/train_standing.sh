@@ -8,17 +8,16 @@
 # Two arms side by side, one thread each (on this 2-core machine two one-thread runs make about
 # twice the steps of one two-thread run), on the same data stream (seed 6), so that at equal
 # steps they differ only in the loss:
-#   runs/clutter_weighted  from the shipped weights at width 256: near pixels (true range
-#                          <= 5 m) weigh 4, too-far predictions 2 (`--near-weight 4
-#                          --too-far-weight 2`);
-#   runs/clutter_nearfar   near pixels weigh 8, too-far predictions 4 but only where the truth
-#                          is within 10 m (`--too-far-range-m 10`), forked once from the
-#                          `strong` arm (runs/clutter_strong, not kept) at its step 1,100.
-# History (models/README.md, "Obstacles"): the first pair was `plain` (the plain loss) against
-# `weighted`, from the shipped weights; at steps 250 and 500 the weighted loss kept about three
-# times the obstacles within 5 m, so the plain arm stopped at 500. `strong` (near x8, too-far x4
-# everywhere, forked from `weighted` at 500) kept every near obstacle by step 1,000 but lost
-# 5.8 points of δ1: its too-far weight pulled the far field in, hence `nearfar`.
+#   runs/clutter_nearfar   near pixels (true range <= 5 m) weigh 8, too-far predictions 4 but
+#                          only where the truth is within 10 m (`--too-far-range-m 10`), forked
+#                          once from the `strong` arm (not kept) at its step 1,100;
+#   runs/clutter_near      near pixels weigh 8, no too-far weight, forked once from
+#                          runs/clutter_nearfar at its step 1,600.
+# History (models/README.md, "Obstacles"): `plain` (the plain loss) against `weighted` (near x4,
+# too-far x2), both from the weights shipped on 2026-11-27; the plain arm stopped at 500 (it
+# kept no more obstacles); `strong` (x8 and x4, from `weighted` at 500) kept every near obstacle
+# but pulled the far field in, hence `nearfar`; `weighted` stopped at 1,400, dominated by
+# `nearfar`; `near` at step 1,750 is the default weights since 2026-11-28.
 # Data: cluttered streets (near clutter along the path from about 0.7 m out, labelled
 # obstacles: --street cluttered) with random objects on a quarter of the samples, 30 % soiled,
 # a fifth on fisheye racks, every rig layout, a fifth with one lens 5 to 40 % blocked, a real
@@ -26,8 +25,8 @@
 # --camera-effects), rigs from a pool of 6 renewed every 400 samples. The arms are compared on held-out cluttered
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
-# env: MODE360_BIN (target/release/mode360), INIT (start weights: the shipped file), ARMS
-# ("plain weighted"), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
+# shipped file), ARMS ("nearfar near"), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
