@@ -60,6 +60,7 @@ from peer_checks import (  # noqa: E402
     POLL_S,
     PeerError,
     dds_topic,
+    frames_to_publish,
     say,
     stamp_ns,
     summarize,
@@ -170,7 +171,6 @@ def publish(args):
         spec = json.load(f)
     width, height = spec["width"], spec["height"]
     cameras = spec["cameras"]
-    frames = spec["frames"]
     dp = DomainParticipant(args.domain)
     qos = Qos(
         Policy.Reliability.BestEffort,
@@ -184,22 +184,8 @@ def publish(args):
         "readers of " + ", ".join(c["topic"] for c in cameras),
     )
     say("ready")
-    for line in sys.stdin:
-        words = line.split()
-        if not words:
-            continue
-        if words[0] == "quit":
-            return
-        if words[0] != "publish" or len(words) != 2:
-            raise PeerError(f"unknown command '{line.strip()}'")
-        k = int(words[1])
-        frame = frames[k]
-        stamp = int(frame["stamp_ns"])
-        for cam, writer, path in zip(cameras, writers, frame["files"]):
-            with open(path, "rb") as f:
-                data = f.read()
-            if len(data) != width * height * 3:
-                raise PeerError(f"{path}: {len(data)} bytes, expected {width}x{height}x3")
+    for k, stamp, images in frames_to_publish(spec, sys.stdin):
+        for (cam, data), writer in zip(images, writers):
             writer.write(
                 Image(
                     header=Header(

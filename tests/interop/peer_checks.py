@@ -129,3 +129,28 @@ def summarize(depth, cloud, max_depth_m):
             "fnv1a64": fnv1a64(cdata),
         },
     }
+
+
+def frames_to_publish(spec, lines):
+    """The publishing peers' protocol: for each `publish K` line of `lines` (stdin), yields
+    (K, stamp_ns, [(camera, rgb8 bytes)]) of frame K of `spec` (frames.json); returns on `quit`
+    or at the end of input."""
+    width, height = spec["width"], spec["height"]
+    for line in lines:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "quit":
+            return
+        if words[0] != "publish" or len(words) != 2:
+            raise PeerError(f"unknown command '{line.strip()}'")
+        k = int(words[1])
+        frame = spec["frames"][k]
+        images = []
+        for cam, path in zip(spec["cameras"], frame["files"]):
+            with open(path, "rb") as f:
+                data = f.read()
+            if len(data) != width * height * 3:
+                raise PeerError(f"{path}: {len(data)} bytes, expected {width}x{height}x3")
+            images.append((cam, data))
+        yield k, int(frame["stamp_ns"]), images

@@ -36,7 +36,7 @@ import sys
 import threading
 import time
 
-from peer_checks import NANOS, POLL_S, PeerError, say, stamp_ns, summarize, wait_until
+from peer_checks import NANOS, POLL_S, PeerError, frames_to_publish, say, stamp_ns, summarize, wait_until
 
 
 def start(domain):
@@ -89,7 +89,7 @@ def publish(args):
     with open(args.frames, encoding="utf-8") as f:
         spec = json.load(f)
     width, height = spec["width"], spec["height"]
-    cameras, frames = spec["cameras"], spec["frames"]
+    cameras = spec["cameras"]
     rclpy, node = start(args.domain)
     qos = qos_profile_sensor_data
     writers = [node.create_publisher(Image, c["topic"], qos) for c in cameras]
@@ -101,22 +101,8 @@ def publish(args):
         "subscribers of " + ", ".join(c["topic"] for c in cameras),
     )
     say("ready")
-    for line in sys.stdin:
-        words = line.split()
-        if not words:
-            continue
-        if words[0] == "quit":
-            return
-        if words[0] != "publish" or len(words) != 2:
-            raise PeerError(f"unknown command '{line.strip()}'")
-        k = int(words[1])
-        frame = frames[k]
-        stamp = int(frame["stamp_ns"])
-        for cam, writer, path in zip(cameras, writers, frame["files"]):
-            with open(path, "rb") as f:
-                data = f.read()
-            if len(data) != width * height * 3:
-                raise PeerError(f"{path}: {len(data)} bytes, expected {width}x{height}x3")
+    for k, stamp, images in frames_to_publish(spec, sys.stdin):
+        for (cam, data), writer in zip(images, writers):
             msg = Image()
             msg.header.stamp.sec = stamp // NANOS
             msg.header.stamp.nanosec = stamp % NANOS

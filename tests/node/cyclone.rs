@@ -13,7 +13,7 @@
 //! Without it the tests are skipped, unless `CI` is set, where they fail.
 
 use super::dds_peer::{
-    dds_peer_tests, write_frames, DdsPeer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT,
+    dds_peer_tests, frames_json_publishing, DdsPeer, PeerResult, Publishing, PEER_DISCOVERY_TIMEOUT,
 };
 use super::harness::Peer;
 use crate::common::PYTHON_ENV;
@@ -75,10 +75,7 @@ impl DdsPeer for Cyclone {
 
     /// The frames go to `frames.json` (`--frames`); frame K is published on `publish K`.
     fn publishing(&self, rig: &Rig, frames: &[RigFrame], dir: &Path) -> PeerResult<Publishing> {
-        let spec = write_frames(rig, frames, dir)?;
-        let args = vec!["--frames".into(), spec.display().to_string()];
-        let commands = (0..frames.len()).map(|k| format!("publish {k}")).collect();
-        Ok(Publishing { args, commands })
+        frames_json_publishing(rig, frames, dir)
     }
 }
 

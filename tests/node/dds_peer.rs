@@ -215,7 +215,7 @@ fn peer_frames(rig: &Rig, frames: usize) -> PeerResult<Vec<RigFrame>> {
 
 /// Writes each camera image of `frames` as raw rgb8 and a publishing peer's frames.json
 /// (`cyclone_peer.py publish`, `rclpy_peer.py publish`).
-pub fn write_frames(
+fn write_frames(
     rig: &Rig,
     frames: &[RigFrame],
     dir: &Path,
@@ -245,6 +245,19 @@ pub fn write_frames(
     let path = dir.join("frames.json");
     std::fs::write(&path, spec.to_string())?;
     Ok(path)
+}
+
+/// How the Python peers (`cyclone_peer.py`, `rclpy_peer.py`) are told to publish: the frames in
+/// `frames.json` (`--frames`, [`write_frames`]), frame K on `publish K`.
+pub fn frames_json_publishing(
+    rig: &Rig,
+    frames: &[RigFrame],
+    dir: &Path,
+) -> PeerResult<Publishing> {
+    let spec = write_frames(rig, frames, dir)?;
+    let args = vec!["--frames".into(), spec.display().to_string()];
+    let commands = (0..frames.len()).map(|k| format!("publish {k}")).collect();
+    Ok(Publishing { args, commands })
 }
 
 /// Declares the two tests of a [`DdsPeer`]: `$subscriber_test`
