@@ -1,10 +1,12 @@
 //! Handing freed memory back to the kernel, which only the allocator can do, and the allocator
 //! is the binary's business: `src/main.rs` allocates with jemalloc and registers its purge
 //! here ([`set_page_release`]); the library calls [`release_freed_pages`] when memory was freed
-//! for good (a live-view client gone, `live_view.rs`). A process that registers nothing (a
+//! for good (a live-view client gone, `live_view.rs`; resident memory well above the working
+//! set after a burst of large input, [`TrimPolicy`], checked by the receive loop once a second). A process that registers nothing (a
 //! test, another binary with the system allocator) releases nothing and pays nothing.
 
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
 
 /// Hands the allocator's free pages back to the kernel; true when it did.
 pub type PageRelease = fn() -> bool;
@@ -23,4 +25,170 @@ pub fn set_page_release(release: PageRelease) -> bool {
 /// per frame.
 pub fn release_freed_pages() -> bool {
     PAGE_RELEASE.get().is_some_and(|release| release())
+}
+
+/// Resident memory this far above the working set is handed back to the kernel.
+pub const TRIM_MARGIN_MIB: f64 = 100.0;
+/// Releases are at least this far apart: each costs the next frame its page faults, and where
+/// the working set grew for good by more than the margin (measured: 955 -> 1,095 MiB at 512
+/// after a burst of 4096x2048 images) the node releases at this period from then on.
+pub const TRIM_MIN_INTERVAL: Duration = Duration::from_secs(30);
+/// From start, the highest resident size seen for this long is the first working set (model
+/// loaded, tables built, the first frames run).
+pub const TRIM_STARTUP: Duration = Duration::from_secs(30);
+/// After a release, the highest resident size seen for this long is measured as the working set
+/// again (the next frames fault their buffers back in).
+pub const TRIM_SETTLE: Duration = Duration::from_secs(10);
+
+/// When the node hands freed memory back: a burst of large input (oversized images, a backlog
+/// of fragments) leaves the allocator holding pages the node no longer uses, and jemalloc as the
+/// binary configures it keeps them for good. The policy releases once the resident size is more
+/// than [`TRIM_MARGIN_MIB`] above the working set, at most every [`TRIM_MIN_INTERVAL`]. The
+/// working set is the highest resident size of the first [`TRIM_STARTUP`]; after each release
+/// it is measured again over [`TRIM_SETTLE`] and taken if it grew by less than the margin (a
+/// window that an ongoing burst inflated keeps the old value), so steady operation, whose
+/// frames reuse their buffers, triggers nothing.
+#[derive(Clone, Debug)]
+pub struct TrimPolicy {
+    margin_mib: f64,
+    min_interval: Duration,
+    settle: Duration,
+    /// When the current measurement window began (start or the last release).
+    since: Instant,
+    /// How long the current window lasts.
+    window: Duration,
+    /// The highest resident size of the current window.
+    window_max_mib: f64,
+    /// The accepted working set; `None` until the startup window ends.
+    working_set_mib: Option<f64>,
+    /// Releases so far.
+    pub releases: u64,
+}
+
+impl TrimPolicy {
+    /// The node's policy, from `now` (the node's start).
+    pub fn new(now: Instant) -> Self {
+        Self::with_limits(
+            now,
+            TRIM_MARGIN_MIB,
+            TRIM_MIN_INTERVAL,
+            TRIM_STARTUP,
+            TRIM_SETTLE,
+        )
+    }
+
+    pub fn with_limits(
+        now: Instant,
+        margin_mib: f64,
+        min_interval: Duration,
+        startup: Duration,
+        settle: Duration,
+    ) -> Self {
+        Self {
+            margin_mib,
+            min_interval,
+            settle,
+            since: now,
+            window: startup,
+            window_max_mib: 0.0,
+            working_set_mib: None,
+            releases: 0,
+        }
+    }
+
+    /// The accepted working set, once measured.
+    pub fn working_set_mib(&self) -> Option<f64> {
+        self.working_set_mib
+    }
+
+    /// Takes the resident size at `now`; true when freed memory should be released now
+    /// (then call [`Self::released`]).
+    pub fn observe(&mut self, resident_mib: f64, now: Instant) -> bool {
+        let age = now.saturating_duration_since(self.since);
+        if age <= self.window {
+            self.window_max_mib = self.window_max_mib.max(resident_mib);
+            return false;
+        }
+        if self.window_max_mib > 0.0 {
+            let measured = self.window_max_mib;
+            self.working_set_mib = match self.working_set_mib {
+                Some(old) if measured > old + self.margin_mib => Some(old),
+                _ => Some(measured),
+            };
+            self.window_max_mib = 0.0;
+        }
+        let Some(working_set) = self.working_set_mib else {
+            return false;
+        };
+        age >= self.min_interval && resident_mib > working_set + self.margin_mib
+    }
+
+    /// A release was done at `now`: the working set is measured again from here.
+    pub fn released(&mut self, now: Instant) {
+        self.since = now;
+        self.window = self.settle;
+        self.window_max_mib = 0.0;
+        self.releases += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SEC: Duration = Duration::from_secs(1);
+
+    fn policy(t0: Instant) -> TrimPolicy {
+        TrimPolicy::with_limits(t0, 100.0, 10 * SEC, 30 * SEC, 10 * SEC)
+    }
+
+    #[test]
+    fn steady_frames_trigger_nothing_and_a_burst_is_released() {
+        let t0 = Instant::now();
+        let mut p = policy(t0);
+        // Start: loading, then frames between 400 and 600 MiB.
+        for s in 0..=30 {
+            let rss = if s < 5 {
+                200.0
+            } else if s % 2 == 0 {
+                400.0
+            } else {
+                600.0
+            };
+            assert!(!p.observe(rss, t0 + s * SEC), "startup at {s} s");
+        }
+        for s in 31..60 {
+            assert!(!p.observe(650.0, t0 + s * SEC), "steady at {s} s");
+        }
+        assert_eq!(p.working_set_mib(), Some(600.0));
+        // A burst leaves 1.5 GiB held: released at once.
+        assert!(p.observe(1500.0, t0 + 60 * SEC));
+        p.released(t0 + 60 * SEC);
+        // The burst goes on while the working set is measured again: that window is refused,
+        // and the memory goes back once the interval has passed.
+        for s in 61..=70 {
+            assert!(!p.observe(1200.0, t0 + s * SEC));
+        }
+        assert!(p.observe(1250.0, t0 + 71 * SEC));
+        p.released(t0 + 71 * SEC);
+        assert_eq!(p.working_set_mib(), Some(600.0));
+        // Calm again: the working set measured anew, nothing released.
+        for s in 72..120 {
+            assert!(!p.observe(if s % 2 == 0 { 420.0 } else { 640.0 }, t0 + s * SEC));
+        }
+        assert_eq!(p.working_set_mib(), Some(640.0));
+        assert_eq!(p.releases, 2);
+    }
+
+    #[test]
+    fn nothing_is_released_before_the_working_set_is_known_or_the_interval_passed() {
+        let t0 = Instant::now();
+        let mut p = TrimPolicy::with_limits(t0, 100.0, 40 * SEC, 30 * SEC, 5 * SEC);
+        assert!(!p.observe(300.0, t0 + SEC));
+        assert!(!p.observe(3000.0, t0 + 20 * SEC));
+        // The startup window's maximum is the working set, whatever it was.
+        assert!(!p.observe(3000.0, t0 + 35 * SEC));
+        assert_eq!(p.working_set_mib(), Some(3000.0));
+        assert!(p.observe(3200.0, t0 + 41 * SEC));
+    }
 }

@@ -14,6 +14,7 @@ use super::dds::{runtime, DdsOptions};
 use super::decode::{decode_camera, Bad, CameraMsg};
 use super::diagnostics::{diagnostic_array, BadImageReason};
 use super::endpoints::{dds_setup, DdsSetup};
+use super::page_release::{release_freed_pages, TrimPolicy};
 use super::params::NodeParams;
 use super::pipeline::Pipeline;
 use super::worker::{lock, post_groups, spawn_worker, stop_worker, Shared};
@@ -21,6 +22,7 @@ use super::NodeError;
 use futures::StreamExt;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{Rig, RigCamera};
+use mode360_core::memory::resident_mib;
 use mode360_core::sync::{ApproxTimeSync, ClockReset, SyncConfig};
 
 /// The most image bytes one camera's synchronizer queue holds besides its newest image
@@ -80,6 +82,8 @@ struct Receiver {
     tf_static: TFMessage,
     /// The rig's cameras (rig order), whose models say which image sizes are accepted.
     cameras: Vec<RigCamera>,
+    /// When freed memory goes back to the kernel.
+    trim: TrimPolicy,
 }
 
 impl Receiver {
@@ -208,6 +212,24 @@ impl Receiver {
                 tracing::warn!("publishing /diagnostics: {e:?}");
             }
             self.last_diag = Instant::now();
+            self.trim_memory();
+        }
+    }
+
+    /// Hands freed memory back to the kernel when [`TrimPolicy`] says so.
+    fn trim_memory(&mut self) {
+        let Some(before) = resident_mib() else {
+            return;
+        };
+        if !self.trim.observe(before, Instant::now()) {
+            return;
+        }
+        let released = release_freed_pages();
+        self.trim.released(Instant::now());
+        if let (true, Some(after)) = (released, resident_mib()) {
+            tracing::info!(
+                "handed freed memory back to the kernel: resident {before:.0} -> {after:.0} MiB"
+            );
         }
     }
 }
@@ -300,6 +322,7 @@ pub(super) fn dds_main(
         hardware_id: params.fully_qualified_name(),
         last_diag: Instant::now(),
         created: Instant::now(),
+        trim: TrimPolicy::new(Instant::now()),
         tf_static: rig_tf_static(&rig),
         cameras: rig.cameras.clone(),
     };
