@@ -56,6 +56,7 @@ from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 from cyclonedds.util import duration  # noqa: E402
 from peer_checks import (  # noqa: E402
+    add_peer_commands,
     NANOS,
     POLL_S,
     PeerError,
@@ -227,16 +228,7 @@ def rosout(args):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("subscribe")
-    s.add_argument("--domain", type=int, required=True)
-    s.add_argument("--depth-topic", default="/depth")
-    s.add_argument("--points-topic", default="/points")
-    s.add_argument("--max-depth-m", type=float, default=1000.0)
-    s.add_argument("--timeout-s", type=float, default=30.0)
-    p = sub.add_parser("publish")
-    p.add_argument("--domain", type=int, required=True)
-    p.add_argument("--frames", required=True)
-    p.add_argument("--timeout-s", type=float, default=30.0)
+    add_peer_commands(sub)
     r = sub.add_parser("rosout")
     r.add_argument("--domain", type=int, required=True)
     r.add_argument("--timeout-s", type=float, default=60.0)

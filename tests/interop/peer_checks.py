@@ -154,3 +154,17 @@ def frames_to_publish(spec, lines):
                 raise PeerError(f"{path}: {len(data)} bytes, expected {width}x{height}x3")
             images.append((cam, data))
         yield k, int(frame["stamp_ns"]), images
+
+
+def add_peer_commands(sub):
+    """The `subscribe` and `publish` commands every DDS peer offers (argparse subparsers `sub`)."""
+    s = sub.add_parser("subscribe")
+    s.add_argument("--domain", type=int, required=True)
+    s.add_argument("--depth-topic", default="/depth")
+    s.add_argument("--points-topic", default="/points")
+    s.add_argument("--max-depth-m", type=float, default=1000.0)
+    s.add_argument("--timeout-s", type=float, default=30.0)
+    p = sub.add_parser("publish")
+    p.add_argument("--domain", type=int, required=True)
+    p.add_argument("--frames", required=True)
+    p.add_argument("--timeout-s", type=float, default=30.0)

@@ -36,7 +36,7 @@ import sys
 import threading
 import time
 
-from peer_checks import NANOS, POLL_S, PeerError, frames_to_publish, say, stamp_ns, summarize, wait_until
+from peer_checks import add_peer_commands, NANOS, POLL_S, PeerError, frames_to_publish, say, stamp_ns, summarize, wait_until
 
 
 def start(domain):
@@ -213,16 +213,7 @@ def params(args):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("subscribe")
-    s.add_argument("--domain", type=int, required=True)
-    s.add_argument("--depth-topic", default="/depth")
-    s.add_argument("--points-topic", default="/points")
-    s.add_argument("--max-depth-m", type=float, default=1000.0)
-    s.add_argument("--timeout-s", type=float, default=30.0)
-    p = sub.add_parser("publish")
-    p.add_argument("--domain", type=int, required=True)
-    p.add_argument("--frames", required=True)
-    p.add_argument("--timeout-s", type=float, default=30.0)
+    add_peer_commands(sub)
     st = sub.add_parser("stream")
     st.add_argument("--domain", type=int, required=True)
     st.add_argument("--timeout-s", type=float, default=120.0)
