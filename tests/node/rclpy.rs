@@ -43,7 +43,7 @@ const PEER_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/rc
 /// (`rclpy_jazzy_receives_every_output_at_512`, ignored): at 512 wide (depth 0.5 MB, cloud
 /// up to 1.6 MB) the writer sends a sample's fragments back to back, the reader's buffer
 /// overflows, and repair brings depth 2.5 s late or not at all (1 of 3 groups on time); and a
-/// `describe_parameters` request for 20 or more names gets no answer (12 work).
+/// `describe_parameters` reply longer than one datagram (16 or more names here) never arrives.
 const STREAM_WIDTH: usize = 128;
 /// Output width of the ignored measurement at the node's default size.
 const FULL_WIDTH: usize = 512;
@@ -327,7 +327,7 @@ fn rclpy_reads_and_sets_parameters<D: Distro>(domain_id: u16) -> TestResult {
         "max_depth_m=250.0".into(),
         "--refused".into(),
         "output_width=128".into(),
-        // A few names: describing 20 or more at once gets no answer (see STREAM_WIDTH's note).
+        // A few names: a reply over one datagram never arrives (see STREAM_WIDTH's note).
         "--describe".into(),
         "output_width,max_depth_m,estimator".into(),
     ])?;
