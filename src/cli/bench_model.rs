@@ -343,8 +343,9 @@ pub fn format_table(cases: &[ModelBenchCase]) -> String {
 
 #[derive(Args)]
 pub struct BenchModelArgs {
-    /// Presets to measure (comma separated; parallax is the shipped one).
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Preset::Parallax, Preset::Compact])]
+    /// Presets to measure (comma separated): any preset name, also the ones training does not
+    /// offer (tiny, tiny_parallax, tiny_zncc, the lost ablations).
+    #[arg(long, value_parser = <Preset as std::str::FromStr>::from_str, value_delimiter = ',', default_values_t = [Preset::Parallax, Preset::Compact])]
     pub presets: Vec<Preset>,
     /// Input widths (comma separated, height = width / 2).
     #[arg(long, value_delimiter = ',', default_value = "256,512")]

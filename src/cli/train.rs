@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct TrainArgs {
-    /// Network preset (parallax is the shipped one).
+    /// Network preset (the shipped weights are parallax_zncc_log).
     #[arg(long, value_enum, default_value_t = Preset::Parallax)]
     pub preset: Preset,
     /// Override the preset's input width (height = width / 2).

@@ -68,7 +68,7 @@ fn cuda_without_a_gpu_is_a_clear_error_in_every_command() {
         ),
         (
             vec![
-                "train", "--preset", "tiny", "--steps", "1", "--out", &run, "--device", "cuda:0",
+                "train", "--preset", "compact", "--steps", "1", "--out", &run, "--device", "cuda:0",
             ],
             Some(&run),
         ),

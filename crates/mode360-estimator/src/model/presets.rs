@@ -17,30 +17,38 @@ use mode360_core::geometry::HypothesisSpacing;
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "cli", value(rename_all = "snake_case"))]
 ///
-/// Each variant's text is its `--help` line; the configs are [`SsmodeConfig::parallax`],
+/// Each variant's text is its `--help` line; the ablations that lost (`parallax_zncc_log_pos`,
+/// `parallax_zncc_log_prior`) and the test presets (`tiny*`) are not offered by `train
+/// --preset` (their names still parse in checkpoints, weights files and `bench-model`); the
+/// configs are [`SsmodeConfig::parallax`],
 /// [`SsmodeConfig::compact`], [`SsmodeConfig::paper`], [`SsmodeConfig::tiny`] and
 /// [`SsmodeConfig::tiny_parallax`].
 pub enum Preset {
-    /// The shipped multi-view network: variance-only cost volume, 256x128.
+    /// The first multi-view network: variance-only cost volume, 256x128.
     #[default]
     Parallax,
     /// `parallax` with the sweep's ZNCC matching cost as one more cost-volume channel.
     ParallaxZncc,
-    /// `parallax_zncc` with spheres and hypotheses uniform in log depth.
+    /// `parallax_zncc` with spheres and hypotheses uniform in log depth (the shipped weights).
     ParallaxZnccLog,
     /// `parallax_zncc_log` with two position channels (sphere, latitude) in the cost volume.
+    #[cfg_attr(feature = "cli", value(skip))]
     ParallaxZnccLogPos,
     /// `parallax_zncc_log` with a learned prior over hypotheses by latitude on the logits.
+    #[cfg_attr(feature = "cli", value(skip))]
     ParallaxZnccLogPrior,
     /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
     /// The paper's sizes.
     Paper,
     /// For tests: a few channels and spheres.
+    #[cfg_attr(feature = "cli", value(skip))]
     Tiny,
     /// For tests: `tiny` with the parallax (variance-only) volume.
+    #[cfg_attr(feature = "cli", value(skip))]
     TinyParallax,
     /// For tests: `tiny_parallax` with the photometric cost channel.
+    #[cfg_attr(feature = "cli", value(skip))]
     TinyZncc,
 }
 
