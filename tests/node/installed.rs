@@ -4,8 +4,11 @@
 //! data directory, nothing beside the binary). The shipped weights and rig must come from the
 //! copies built into the binary, the demo bag must be rendered, and the demo must run end to
 //! end over loopback DDS: every frame's depth received and scored against the ground truth.
+//! Then a rig of the same name in `$MODE360_DATA_DIR` must win over the built-in one.
 
 use crate::common::TestResult;
+use mode360::bag::RigBagReader;
+use mode360::geometry::Rig;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -113,5 +116,34 @@ fn installed_binary_runs_the_demo_from_an_empty_folder() -> TestResult {
         !stdout.contains(MANIFEST_DIR) && !stderr.contains(MANIFEST_DIR),
         "the source tree was used:\n{stdout}\n{stderr}"
     );
+
+    // A file in `$MODE360_DATA_DIR` wins over the built-in copy: a two-camera rig under the
+    // default rig's name, rendered by `synth` with its default `--rig`.
+    let data_dir = root.path().join("data");
+    let full = Rig::from_file(format!("{MANIFEST_DIR}/launch_configs/rig_deep360.yaml"))?;
+    let pair = Rig {
+        cameras: full.cameras[..2].to_vec(),
+        reference: 0,
+        ..full
+    };
+    std::fs::create_dir_all(data_dir.join("launch_configs"))?;
+    std::fs::write(
+        data_dir.join("launch_configs/rig_deep360.yaml"),
+        pair.to_yaml(),
+    )?;
+    let rendered = work.join("pair.mcap");
+    let out = Command::new(&exe)
+        .args(["synth", "--frames", "1", "--width", "64", "--out"])
+        .arg(&rendered)
+        .current_dir(&work)
+        .env("MODE360_DATA_DIR", &data_dir)
+        .env("HOME", &home)
+        .output()?;
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(RigBagReader::open(&rendered)?.rig().cameras.len(), 2);
     Ok(())
 }
