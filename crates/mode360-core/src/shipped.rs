@@ -37,33 +37,26 @@ pub struct BuiltinFile {
     pub bytes: &'static [u8],
 }
 
+/// A [`BuiltinFile`] of `path`, relative to the repository root (this file is three folders
+/// below it).
+macro_rules! builtin {
+    ($path:literal) => {
+        BuiltinFile {
+            relative: $path,
+            bytes: include_bytes!(concat!("../../../", $path)),
+        }
+    };
+}
+
 /// The launch configuration the binary carries: the rigs, the node's parameter file, the
 /// launch file and the Foxglove layout.
 pub const LAUNCH_CONFIGS: &[BuiltinFile] = &[
-    BuiltinFile {
-        relative: "launch_configs/rig_deep360.yaml",
-        bytes: include_bytes!("../../../launch_configs/rig_deep360.yaml"),
-    },
-    BuiltinFile {
-        relative: "launch_configs/rig_omnimvs.yaml",
-        bytes: include_bytes!("../../../launch_configs/rig_omnimvs.yaml"),
-    },
-    BuiltinFile {
-        relative: "launch_configs/rig_dual_fisheye.yaml",
-        bytes: include_bytes!("../../../launch_configs/rig_dual_fisheye.yaml"),
-    },
-    BuiltinFile {
-        relative: "launch_configs/mode360.params.yaml",
-        bytes: include_bytes!("../../../launch_configs/mode360.params.yaml"),
-    },
-    BuiltinFile {
-        relative: "launch_configs/mode360.launch.xml",
-        bytes: include_bytes!("../../../launch_configs/mode360.launch.xml"),
-    },
-    BuiltinFile {
-        relative: "launch_configs/foxglove_layout.json",
-        bytes: include_bytes!("../../../launch_configs/foxglove_layout.json"),
-    },
+    builtin!("launch_configs/rig_deep360.yaml"),
+    builtin!("launch_configs/rig_omnimvs.yaml"),
+    builtin!("launch_configs/rig_dual_fisheye.yaml"),
+    builtin!("launch_configs/mode360.params.yaml"),
+    builtin!("launch_configs/mode360.launch.xml"),
+    builtin!("launch_configs/foxglove_layout.json"),
 ];
 
 /// Where a located file was found.
