@@ -12,7 +12,10 @@
 #                          only where the truth is within 10 m (`--too-far-range-m 10`), forked
 #                          once from the `strong` arm (not kept) at its step 1,100;
 #   runs/clutter_near      near pixels weigh 8, no too-far weight, forked once from
-#                          runs/clutter_nearfar at its step 1,600.
+#                          runs/clutter_nearfar at its step 1,600;
+#   runs/clutter_near10    near pixels out to 10 m weigh 8 (`--near-range-m 10`: the 5-10 m
+#                          obstacles the `near` arm still misses), forked once from
+#                          runs/clutter_near at its step 3,550.
 # History (models/README.md, "Obstacles"): `plain` (the plain loss) against `weighted` (near x4,
 # too-far x2), both from the weights shipped on 2026-11-27; the plain arm stopped at 500 (it
 # kept no more obstacles); `strong` (x8 and x4, from `weighted` at 500) kept every near obstacle
@@ -26,12 +29,12 @@
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("nearfar near"), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("near near10"), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-nearfar near}"
+arms="${ARMS:-near near10}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
@@ -45,8 +48,9 @@ for arm in $arms; do
     loss=(--near-weight 8 --too-far-weight 4 --too-far-range-m 10 --fork-from runs/clutter_strong)
     ;;
   near) loss=(--near-weight 8 --fork-from runs/clutter_nearfar) ;;
+  near10) loss=(--near-weight 8 --near-range-m 10 --fork-from runs/clutter_near) ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar or near)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near or near10)" >&2
     exit 2
     ;;
   esac

@@ -43,7 +43,12 @@ const PEER_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/rc
 /// (`rclpy_jazzy_receives_every_output_at_512`, ignored): at 512 wide (depth 0.5 MB, cloud
 /// up to 1.6 MB) the writer sends a sample's fragments back to back, the reader's buffer
 /// overflows, and repair brings depth 2.5 s late or not at all (1 of 3 groups on time); and a
-/// `describe_parameters` reply longer than one datagram (16 or more names here) never arrives.
+/// service reply that RustDDS fragments never arrives: one larger than the reader's path-MTU
+/// budget (1,352 bytes behind a 1,400-byte MTU interface, which Fast DDS advertises even with
+/// discovery on this host only), such as `describe_parameters` of 16 or more names or
+/// `get_parameters` of every name once `rig_file` is a long path (`ros2 param dump`). Topic
+/// samples fragmented the same way arrive; the reply's inline QoS (its related sample identity)
+/// is what differs. The peer therefore asks a few names a request.
 const STREAM_WIDTH: usize = 128;
 /// Output width of the ignored measurement at the node's default size.
 const FULL_WIDTH: usize = 512;
