@@ -15,7 +15,12 @@
 #                          runs/clutter_nearfar at its step 1,600;
 #   runs/clutter_near10    near pixels out to 10 m weigh 8 (`--near-range-m 10`: the 5-10 m
 #                          obstacles the `near` arm still misses), forked once from
-#                          runs/clutter_near at its step 3,550.
+#                          runs/clutter_near at its step 3,550;
+#   runs/clutter_obst      near pixels weigh 8, the pixels of an obstacle as `eval` counts it
+#                          (an object instance within 10 m) 4 more and a thin one's (under
+#                          3 degrees) 2 more again (`--obstacle-weight 4 --thin-weight 2`),
+#                          forked once from runs/clutter_near at its step 3,550.
+# `near` stopped at 3,550 (its obstacle recall had not moved since 1,750).
 # History (models/README.md, "Obstacles"): `plain` (the plain loss) against `weighted` (near x4,
 # too-far x2), both from the weights shipped on 2026-11-27; the plain arm stopped at 500 (it
 # kept no more obstacles); `strong` (x8 and x4, from `weighted` at 500) kept every near obstacle
@@ -29,12 +34,12 @@
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("near near10"), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("near10 obst"), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-near near10}"
+arms="${ARMS:-near10 obst}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
@@ -49,8 +54,9 @@ for arm in $arms; do
     ;;
   near) loss=(--near-weight 8 --fork-from runs/clutter_nearfar) ;;
   near10) loss=(--near-weight 8 --near-range-m 10 --fork-from runs/clutter_near) ;;
+  obst) loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 2 --fork-from runs/clutter_near) ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near or near10)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10 or obst)" >&2
     exit 2
     ;;
   esac

@@ -112,6 +112,13 @@ pub struct TrainArgs {
     /// (default: everywhere).
     #[arg(long, default_value_t = f64::INFINITY)]
     pub too_far_range_m: f64,
+    /// Loss weight of the pixels of an obstacle as `eval` counts them (an object instance
+    /// within 10 m; rendered samples only; 1: the plain loss).
+    #[arg(long, default_value_t = 1.0)]
+    pub obstacle_weight: f64,
+    /// Further loss weight of a thin obstacle's pixels (narrower than 3 degrees).
+    #[arg(long, default_value_t = 1.0)]
+    pub thin_weight: f64,
     /// Where the network trains: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the
     /// `cuda` feature).
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
@@ -151,6 +158,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
             near_weight: a.near_weight,
             too_far_weight: a.too_far_weight,
             too_far_range_m: a.too_far_range_m,
+            obstacle_weight: a.obstacle_weight,
+            thin_weight: a.thin_weight,
         },
         camera_effects: a.camera_effects,
         device: a.device,

@@ -1,7 +1,7 @@
 //! The multi-stage inverse-depth SmoothL1 loss, checked by hand.
 
 use candle_core::{Device, Tensor};
-use mode360::frame::FloatImage;
+use mode360::frame::{FloatImage, SceneLabels, SurfaceClass};
 use mode360::train::loss::{smooth_l1, LossConfig};
 
 #[test]
@@ -82,6 +82,7 @@ fn obstacle_weighting_by_hand() {
             near_weight: 3.0,
             too_far_weight: 2.0,
             too_far_range_m: f64::INFINITY,
+            ..Default::default()
         },
     };
     // 1 m (n = 1, near) and 100 m (n = 0, far).
@@ -150,4 +151,88 @@ fn obstacle_weighting_by_hand() {
         (f64::from(loss) - (9.0 + 2.0 * far_term) / 2.0).abs() < 1e-5,
         "{loss}"
     );
+}
+
+#[test]
+fn obstacle_and_thin_weights_follow_the_counted_instances() {
+    // 256 x 2 at 1.40625 degrees a pixel: thin is under 3 degrees (2 pixels), a counted
+    // instance has at least 20 (256 / 512)^2 = 5 pixels and a median range within 10 m.
+    let (w, h) = (256, 2);
+    let mut range = vec![50.0f32; w * h];
+    let mut labels = SceneLabels::sky(w, h);
+    labels.class.fill(SurfaceClass::Structure);
+    let mut put = |cols: std::ops::Range<usize>, id: u16, class: SurfaceClass, r: f32| {
+        for row in 0..h {
+            for c in cols.clone() {
+                range[row * w + c] = r;
+                labels.class[row * w + c] = class;
+                labels.instance[row * w + c] = id;
+            }
+        }
+    };
+    put(0..3, 1, SurfaceClass::Object, 3.0); // 6 px, 4.2 degrees at 3 m: counted, not thin
+    put(10..12, 2, SurfaceClass::Object, 8.0); // 4 px: too few, not counted
+    put(20..23, 3, SurfaceClass::Object, 20.0); // beyond 10 m: not counted
+    put(30..32, 4, SurfaceClass::Object, 4.0); // 4 px at 2.8 degrees: too few
+    put(40..42, 5, SurfaceClass::Object, 6.0); // with the rows below: 2 wide, 6 px, thin
+    put(50..51, 0, SurfaceClass::Structure, 2.0); // near wall, not an object
+    let gt = FloatImage {
+        width: w,
+        height: h,
+        data: range,
+    };
+    let mut tall_labels = labels.clone();
+    let mut tall = gt.clone();
+    // Instance 5 gets a third row so that it has 6 pixels.
+    tall.height = 3;
+    tall.data.extend(std::iter::repeat_n(50.0f32, w));
+    tall_labels.height = 3;
+    tall_labels
+        .class
+        .extend(std::iter::repeat_n(SurfaceClass::Structure, w));
+    tall_labels.instance.extend(std::iter::repeat_n(0u16, w));
+    for c in 40..42 {
+        tall.data[2 * w + c] = 6.0;
+        tall_labels.class[2 * w + c] = SurfaceClass::Object;
+        tall_labels.instance[2 * w + c] = 5;
+    }
+    let cfg = LossConfig {
+        min_depth_m: 0.5,
+        max_depth_m: 100.0,
+        hypotheses: 11,
+        spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
+        stage_weights: vec![1.0],
+        weighting: mode360::train::loss::LossWeighting {
+            near_weight: 3.0,
+            obstacle_weight: 4.0,
+            thin_weight: 2.0,
+            ..Default::default()
+        },
+    };
+    let target = cfg
+        .target_labelled(&[(&tall, Some(&tall_labels))], &Device::Cpu)
+        .unwrap();
+    let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    let at = |row: usize, col: usize| weight[row * w + col];
+    assert_eq!(at(0, 1), 3.0 * 4.0, "near, counted, wide");
+    assert_eq!(at(1, 11), 1.0, "too few pixels");
+    assert_eq!(at(0, 21), 1.0, "beyond 10 m");
+    assert_eq!(
+        at(1, 30),
+        3.0,
+        "near but too few pixels: the near weight alone"
+    );
+    assert_eq!(at(2, 41), 4.0 * 2.0, "counted and thin, beyond 5 m");
+    assert_eq!(at(0, 50), 3.0, "a near wall is not an obstacle");
+    assert_eq!(at(0, 100), 1.0);
+    // Without labels only the near weight applies.
+    let unlabelled = cfg.target(&[&tall], &Device::Cpu).unwrap();
+    let weight: Vec<f32> = unlabelled.weight.flatten_all().unwrap().to_vec1().unwrap();
+    assert_eq!((weight[1], weight[2 * w + 41]), (3.0, 1.0));
+    // The two-row frame alone: instance 5 has 4 pixels and is not counted.
+    let target = cfg
+        .target_labelled(&[(&gt, Some(&labels))], &Device::Cpu)
+        .unwrap();
+    let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    assert_eq!((weight[1], weight[41]), (12.0, 1.0));
 }

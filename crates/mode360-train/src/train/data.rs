@@ -46,7 +46,7 @@ use super::rack::random_rig;
 use super::rig_layouts::{draw_family, layout_rig, LayoutFamily, RigLayouts};
 use super::rig_pool::pooled_rig_index;
 use candle_core::{Device, Tensor};
-use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::frame::{FloatImage, RgbImage, SceneLabels};
 use mode360_core::geometry::panorama::RigRemap;
 use mode360_core::geometry::{ErpGrid, Rig, RigError};
 use mode360_estimator::model::{input_tensor, ModelError};
@@ -268,6 +268,8 @@ pub struct TrainSample {
     pub images: Vec<Tensor>,
     /// Ground-truth range of the output frame (camera 1), metres; sky = `max_depth_m`.
     pub range_m: FloatImage,
+    /// What each ground-truth pixel shows (rendered samples; `None` for Deep360).
+    pub labels: Option<SceneLabels>,
 }
 
 /// The spec of training sample `index` of the stream `cfg.seed`.
@@ -418,6 +420,7 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
         rig,
         images,
         range_m,
+        labels: frame.labels,
     })
 }
 
@@ -449,6 +452,7 @@ fn load_deep360_sample(
         rig: ds.rig().clone(),
         images,
         range_m,
+        labels: None,
     })
 }
 

@@ -79,7 +79,7 @@ pub(super) fn forward_sample(
         .map(|t| t.to_device(device))
         .collect::<Result<Vec<_>, _>>()?;
     let out = model.forward(&images, sampling, train)?;
-    let target = loss_cfg.target(&[&sample.range_m], device)?;
+    let target = loss_cfg.target_labelled(&[(&sample.range_m, sample.labels.as_ref())], device)?;
     let loss = loss_cfg.loss(&out.inverse_depth_stages, &target)?;
     let range_m = out
         .stages

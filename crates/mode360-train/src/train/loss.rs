@@ -22,12 +22,19 @@
 //! `too_far_weight` more; both 1 (the default) give the plain loss:
 //!
 //! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
-//! `a_p = near_weight if g_p <= near_range_m else 1`,
+//! `a_p = (near_weight if g_p <= near_range_m else 1) * o_p`,
 //! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m else 1`.
+//!
+//! With the output frame's labels, `o_p` weighs the pixels of the obstacles that
+//! `mode360_core::obstacles` counts (object instances with median true range at most
+//! [`mode360_core::obstacles::OBSTACLE_MAX_RANGE_M`] and enough pixels): `o_p = obstacle_weight`, times `thin_weight`
+//! for an instance narrower than [`mode360_core::obstacles::THIN_MAX_WIDTH_DEG`]; 1 elsewhere and without labels.
 
 use candle_core::{DType, Device, Tensor};
-use mode360_core::frame::FloatImage;
+use mode360_core::frame::{FloatImage, SceneLabels, SurfaceClass};
 use mode360_core::geometry::{DepthHypotheses, DepthRange, HypothesisSpacing};
+use mode360_core::obstacles::frame_obstacles;
+use std::collections::BTreeMap;
 
 /// PSMNet's stage weights (coarse to fine).
 pub const PSMNET_STAGE_WEIGHTS: [f64; 3] = [0.5, 0.7, 1.0];
@@ -73,6 +80,16 @@ pub struct LossWeighting {
     /// everywhere), so that the far field and the sky keep the plain loss.
     #[serde(default = "unlimited_range")]
     pub too_far_range_m: f64,
+    /// Weight of the pixels of a counted obstacle (needs labels; module docs).
+    #[serde(default = "unit_weight")]
+    pub obstacle_weight: f64,
+    /// Further weight of the pixels of a thin counted obstacle.
+    #[serde(default = "unit_weight")]
+    pub thin_weight: f64,
+}
+
+fn unit_weight() -> f64 {
+    1.0
 }
 
 fn unlimited_range() -> f64 {
@@ -90,13 +107,56 @@ impl Default for LossWeighting {
             near_weight: 1.0,
             too_far_weight: 1.0,
             too_far_range_m: f64::INFINITY,
+            obstacle_weight: 1.0,
+            thin_weight: 1.0,
         }
     }
 }
 
 impl LossWeighting {
     fn is_plain(&self) -> bool {
-        self.near_weight == 1.0 && self.too_far_weight == 1.0
+        self.near_weight == 1.0
+            && self.too_far_weight == 1.0
+            && self.obstacle_weight == 1.0
+            && self.thin_weight == 1.0
+    }
+
+    fn weighs_obstacles(&self) -> bool {
+        self.obstacle_weight != 1.0 || self.thin_weight != 1.0
+    }
+
+    /// The obstacle factor `o_p` of every pixel of one frame (module docs); all 1 without
+    /// labels, with labels of another size, or when the obstacle weights are 1.
+    pub fn obstacle_factors(
+        &self,
+        range_m: &FloatImage,
+        labels: Option<&SceneLabels>,
+        max_depth_m: f64,
+    ) -> Vec<f32> {
+        let mut factors = vec![1.0f32; range_m.data.len()];
+        let Some(labels) = labels.filter(|_| self.weighs_obstacles()) else {
+            return factors;
+        };
+        // Scored against itself: only the instances' true ranges and widths are used.
+        let Ok(frame) = frame_obstacles(&range_m.data, &range_m.data, labels, max_depth_m) else {
+            return factors;
+        };
+        let by_instance: BTreeMap<u16, f32> = frame
+            .obstacles
+            .iter()
+            .map(|o| {
+                let thin = if o.is_thin() { self.thin_weight } else { 1.0 };
+                (o.instance, (self.obstacle_weight * thin) as f32)
+            })
+            .collect();
+        for ((f, class), id) in factors.iter_mut().zip(&labels.class).zip(&labels.instance) {
+            if *class == SurfaceClass::Object {
+                if let Some(w) = by_instance.get(id) {
+                    *f = *w;
+                }
+            }
+        }
+        factors
     }
 }
 
@@ -148,25 +208,40 @@ impl LossConfig {
 
     /// Builds the target and mask tensors from ground-truth range images (one per batch item).
     pub fn target(&self, gts: &[&FloatImage], device: &Device) -> Result<LossTarget, LossError> {
+        let unlabelled: Vec<_> = gts.iter().map(|g| (*g, None)).collect();
+        self.target_labelled(&unlabelled, device)
+    }
+
+    /// [`Self::target`] with each image's labels, where it has them, for the obstacle weights.
+    pub fn target_labelled(
+        &self,
+        gts: &[(&FloatImage, Option<&SceneLabels>)],
+        device: &Device,
+    ) -> Result<LossTarget, LossError> {
         self.check()?;
         let hypotheses = self.depth_hypotheses();
-        let (w, h) = gts.first().map(|g| (g.width, g.height)).unwrap_or((0, 0));
+        let (w, h) = gts
+            .first()
+            .map(|(g, _)| (g.width, g.height))
+            .unwrap_or((0, 0));
         let mut target = Vec::with_capacity(gts.len() * w * h);
         let mut mask = Vec::with_capacity(gts.len() * w * h);
         let mut weight = Vec::with_capacity(gts.len() * w * h);
         let mut too_far_zone = Vec::with_capacity(gts.len() * w * h);
         let near = &self.weighting;
-        for g in gts {
-            for &r in &g.data {
+        for (g, labels) in gts {
+            let factors = near.obstacle_factors(g, *labels, self.max_depth_m);
+            for (&r, &obstacle) in g.data.iter().zip(&factors) {
                 let r = f64::from(r);
                 if r.is_finite() && r > 0.0 && r <= self.max_depth_m {
                     target.push(Self::normalized_in(hypotheses.as_ref(), r) as f32);
                     mask.push(1.0f32);
-                    weight.push(if r <= near.near_range_m {
+                    let near_w = if r <= near.near_range_m {
                         near.near_weight as f32
                     } else {
                         1.0
-                    });
+                    };
+                    weight.push(near_w * obstacle);
                     too_far_zone.push(f32::from(u8::from(r <= near.too_far_range_m)));
                 } else {
                     target.push(0.0);
