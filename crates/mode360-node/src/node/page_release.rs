@@ -33,8 +33,8 @@ pub const TRIM_MARGIN_MIB: f64 = 100.0;
 /// the working set grew for good by more than the margin (measured: 955 -> 1,095 MiB at 512
 /// after a burst of 4096x2048 images) the node releases at this period from then on.
 pub const TRIM_MIN_INTERVAL: Duration = Duration::from_secs(30);
-/// From start, the highest resident size seen for this long is the first working set (model
-/// loaded, tables built, the first frames run).
+/// From start, and again from the first published output, the highest resident size seen for
+/// this long is the working set (model loaded, tables built, the first frames run).
 pub const TRIM_STARTUP: Duration = Duration::from_secs(30);
 /// After a release, the highest resident size seen for this long is measured as the working set
 /// again (the next frames fault their buffers back in).
@@ -44,10 +44,13 @@ pub const TRIM_SETTLE: Duration = Duration::from_secs(10);
 /// of fragments) leaves the allocator holding pages the node no longer uses, and jemalloc as the
 /// binary configures it keeps them for good. The policy releases once the resident size is more
 /// than [`TRIM_MARGIN_MIB`] above the working set, at most every [`TRIM_MIN_INTERVAL`]. The
-/// working set is the highest resident size of the first [`TRIM_STARTUP`]; after each release
-/// it is measured again over [`TRIM_SETTLE`] and taken if it grew by less than the margin (a
-/// window that an ongoing burst inflated keeps the old value), so steady operation, whose
-/// frames reuse their buffers, triggers nothing.
+/// working set is the highest resident size of the first [`TRIM_STARTUP`], measured again over
+/// as long from the first published output ([`Self::outputs_started`]: a slow start must not
+/// leave the estimate below what running frames need). After each release it is measured again
+/// over [`TRIM_SETTLE`] and taken if it grew by less than the margin; a window that grew by more
+/// is kept as a candidate (an ongoing burst inflates one window) and taken when the next window
+/// agrees with it within the margin (the working set did grow), so steady operation, whose
+/// frames reuse their buffers, triggers at most two releases.
 #[derive(Clone, Debug)]
 pub struct TrimPolicy {
     margin_mib: f64,
@@ -61,6 +64,12 @@ pub struct TrimPolicy {
     window_max_mib: f64,
     /// The accepted working set; `None` until the startup window ends.
     working_set_mib: Option<f64>,
+    /// A window's maximum that was more than the margin above the working set, waiting for the
+    /// next window to confirm it.
+    candidate_mib: Option<f64>,
+    startup: Duration,
+    /// Whether [`Self::outputs_started`] restarted the startup window.
+    outputs_seen: bool,
     /// Releases so far.
     pub releases: u64,
 }
@@ -92,8 +101,24 @@ impl TrimPolicy {
             window: startup,
             window_max_mib: 0.0,
             working_set_mib: None,
+            candidate_mib: None,
+            startup,
+            outputs_seen: false,
             releases: 0,
         }
+    }
+
+    /// The node published its first output at `now`: the working set is measured again over
+    /// the startup window from here, whatever was measured before (later calls do nothing).
+    pub fn outputs_started(&mut self, now: Instant) {
+        if std::mem::replace(&mut self.outputs_seen, true) {
+            return;
+        }
+        self.since = now;
+        self.window = self.startup;
+        self.window_max_mib = 0.0;
+        self.working_set_mib = None;
+        self.candidate_mib = None;
     }
 
     /// The accepted working set, once measured.
@@ -111,8 +136,17 @@ impl TrimPolicy {
         }
         if self.window_max_mib > 0.0 {
             let measured = self.window_max_mib;
+            let margin = self.margin_mib;
+            let candidate = self.candidate_mib.take();
             self.working_set_mib = match self.working_set_mib {
-                Some(old) if measured > old + self.margin_mib => Some(old),
+                Some(old) if measured > old + margin => match candidate {
+                    // Two windows in a row agree: the working set grew.
+                    Some(c) if (measured - c).abs() <= margin => Some(measured.max(c)),
+                    _ => {
+                        self.candidate_mib = Some(measured);
+                        Some(old)
+                    }
+                },
                 _ => Some(measured),
             };
             self.window_max_mib = 0.0;
@@ -178,6 +212,49 @@ mod tests {
         }
         assert_eq!(p.working_set_mib(), Some(640.0));
         assert_eq!(p.releases, 2);
+    }
+
+    #[test]
+    fn a_working_set_that_grew_is_taken_after_two_agreeing_windows() {
+        let t0 = Instant::now();
+        let mut p = policy(t0);
+        // A slow start: 300 MiB until the first output at 40 s, then frames at 900 to 950.
+        for s in 0..=40 {
+            assert!(!p.observe(300.0, t0 + s * SEC), "startup at {s} s");
+        }
+        assert_eq!(p.working_set_mib(), Some(300.0));
+        p.outputs_started(t0 + 40 * SEC);
+        assert_eq!(p.working_set_mib(), None);
+        let frames = |s: u32| if s % 2 == 0 { 900.0 } else { 950.0 };
+        for s in 41..=70 {
+            assert!(!p.observe(frames(s), t0 + s * SEC), "frames at {s} s");
+        }
+        // Measured again from the first output: nothing to release in steady operation.
+        for s in 71..200 {
+            assert!(!p.observe(frames(s), t0 + s * SEC), "steady at {s} s");
+        }
+        assert_eq!(p.working_set_mib(), Some(950.0));
+        assert_eq!(p.releases, 0);
+        // Later calls do not restart the measurement.
+        p.outputs_started(t0 + 200 * SEC);
+        assert_eq!(p.working_set_mib(), Some(950.0));
+
+        // Without the restart (the old behaviour's case), a working set that grew for good
+        // costs two releases, not one every interval.
+        let mut q = policy(t0);
+        for s in 0..=30 {
+            assert!(!q.observe(300.0, t0 + s * SEC));
+        }
+        let mut releases_at = Vec::new();
+        for s in 31..400 {
+            let now = t0 + s * SEC;
+            if q.observe(frames(s), now) {
+                q.released(now);
+                releases_at.push(s);
+            }
+        }
+        assert_eq!(releases_at.len(), 2, "{releases_at:?}");
+        assert_eq!(q.working_set_mib(), Some(950.0));
     }
 
     #[test]

@@ -198,6 +198,10 @@ impl Receiver {
                 h.sync = self.sync.stats();
                 let since = h.last_depth_at.unwrap_or(self.created);
                 h.depth_age_s = Some(since.elapsed().as_secs_f64());
+                if let Some(published) = h.last_depth_at {
+                    // The first tick after the first output (later calls do nothing).
+                    self.trim.outputs_started(published);
+                }
                 // Stamp 0 with simulated time before the first /clock, as in ROS 2.
                 diagnostic_array(now_ns.unwrap_or(0), &self.hardware_id, &h)
             };
