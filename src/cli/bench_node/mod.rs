@@ -25,7 +25,7 @@ use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::RigBagReader;
 use mode360_io::msgs::{CompressedImage, Image, RosMessage};
 use mode360_node::node::params::DEFAULT_RIG_FILE;
-use mode360_node::node::player::{play_bag_until, PlayOptions, Published};
+use mode360_node::node::player::{play_bag_until, PlayOptions, PlaySummary, Published};
 use mode360_node::node::{
     create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHealth, NodeParams,
     ShutdownSignals, SpunNode,
@@ -135,53 +135,9 @@ struct PlayerState {
 
 /// Runs the bench (see the module docs).
 pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
-    // Fail before rendering or starting anything when the GPU cannot be had.
-    if opts.estimator.device.is_cuda() {
-        opts.estimator
-            .device
-            .open()
-            .context("the device of the node's estimator (--device)")?;
-    }
-    if let Some(path) = opts.estimator.weights_path() {
-        if !path.exists() {
-            bail!(
-                "estimator 'ssmode' needs trained weights at {}, which does not exist",
-                path.display()
-            );
-        }
-    }
-    // The bag: given, bundled, or rendered.
+    check_estimator(opts)?;
     let mut temps = Vec::new();
-    let bag_path = match (&opts.bag, opts.width) {
-        (Some(b), _) => b.clone(),
-        (None, w) => {
-            let width = w.unwrap_or(DEFAULT_WIDTH);
-            let bundled = shipped::locate(Path::new(BUNDLED_BAG), &[]);
-            let fits = bundled.origin != Origin::NotFound
-                && bag_width(&RigBagReader::open(&bundled.path)?)? == width;
-            if fits {
-                bundled.path
-            } else {
-                let out = temp_path("input.mcap");
-                temps.push(TempFile(out.clone()));
-                tracing::info!("rendering {RENDERED_FRAMES} frames at {width} px");
-                record_synthetic_bag(&RecordOptions {
-                    rig: mode360_core::geometry::Rig::from_file_or_shipped(&opts.rig_file)?,
-                    config: SynthConfig {
-                        width,
-                        seed: 1,
-                        ..Default::default()
-                    },
-                    frames: RENDERED_FRAMES,
-                    first_frame: 0,
-                    out: out.clone(),
-                    show_progress: false,
-                })
-                .context("rendering the bench input")?;
-                out
-            }
-        }
-    };
+    let bag_path = bench_input(opts, &mut temps)?;
     let reader = RigBagReader::open(&bag_path)?;
     let rig = reader.rig().clone();
     let input_width = bag_width(&reader)?;
@@ -192,7 +148,6 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
         .with_context(|| format!("writing {}", rig_path.display()))?;
     temps.push(TempFile(rig_path.clone()));
     let camera_topics: Vec<String> = rig.cameras.iter().map(|c| c.topic.clone()).collect();
-    let n_cams = camera_topics.len();
 
     let rt = runtime()?;
     let mut signals = {
@@ -231,89 +186,20 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
         rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
     }
 
-    // Player.
     let published = Arc::new(Mutex::new(PlayerState::default()));
     let stop = Arc::new(AtomicBool::new(false));
-    let player = {
-        let published = published.clone();
-        let stop = stop.clone();
-        let play_opts = PlayOptions {
-            input: bag_path.clone(),
-            rate: opts.rate,
-            loops: usize::MAX,
-            publish_clock: false,
-            dds: opts.dds.clone(),
-            wait_for_subscribers: Some(DISCOVERY_TIMEOUT),
-            wait_topics: camera_topics.clone(),
-        };
-        let topics = camera_topics.clone();
-        std::thread::Builder::new()
-            .name("mode360-bench-player".into())
-            .spawn(move || {
-                play_bag_until(&play_opts, &stop, |p: &Published<'_>| {
-                    let is_image = p.type_name == Image::TYPE_NAME
-                        || p.type_name == CompressedImage::TYPE_NAME;
-                    let Some(stamp) = p.stamp_ns else { return };
-                    if !is_image || !topics.iter().any(|t| t == p.topic) {
-                        return;
-                    }
-                    let now = Instant::now();
-                    let mut st = published.lock().unwrap_or_else(|e| e.into_inner());
-                    st.first_publish.get_or_insert(now);
-                    let entry = st.images.entry(stamp).or_insert((0, now));
-                    entry.0 += 1;
-                    entry.1 = now;
-                    if entry.0 == n_cams {
-                        st.complete += 1;
-                    }
-                })
-                .map_err(anyhow::Error::from)
-            })
-            .context("starting the player thread")?
-    };
-
-    // Listen until the duration is over (counted from the first publish) or a signal.
-    let mut latencies_ms: Vec<f64> = Vec::new();
-    let mut depth_received = 0u64;
-    let mut first_depth_s: Option<f64> = None;
-    let interrupted = rt.block_on(async {
-        let mut depth = depth_sub.async_stream().boxed();
-        let mut rss_tick = tokio::time::interval(RSS_PERIOD);
-        let mut started: Option<Instant> = None;
-        loop {
-            if started.is_none() {
-                started = lock_published(&published).first_publish;
-            }
-            if started.is_some_and(|s| s.elapsed() >= opts.duration) {
-                return false;
-            }
-            if player.is_finished() {
-                return false;
-            }
-            tokio::select! {
-                name = signals.recv() => {
-                    tracing::info!("{name}: stopping the bench early");
-                    return true;
-                }
-                Some(r) = depth.next() => {
-                    let now = Instant::now();
-                    if let Ok((m, _)) = r {
-                        depth_received += 1;
-                        first_depth_s.get_or_insert(bench_start.elapsed().as_secs_f64());
-                        let stamp = m.header.stamp.to_nanos();
-                        if let Some((_, t)) = lock_published(&published).images.get(&stamp) {
-                            latencies_ms.push(now.duration_since(*t).as_secs_f64() * 1e3);
-                        }
-                    }
-                }
-                _ = rss_tick.tick() => {
-                    if let Some(mib) = resident_mib() {
-                        rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
-                    }
-                }
-            }
-        }
-    });
+    let player = spawn_player(opts, &bag_path, &camera_topics, &published, &stop)?;
+    let heard = rt.block_on(listen(
+        opts,
+        &depth_sub,
+        &mut signals,
+        Watched {
+            published: &published,
+            player: &player,
+            bench_start,
+        },
+        &mut rss_samples,
+    ));
     let window_s = lock_published(&published)
         .first_publish
         .map_or(0.0, |s| s.elapsed().as_secs_f64());
@@ -336,28 +222,10 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
     drop(context);
     let health: NodeHealth = node.shutdown()?;
     play_result?;
-    if interrupted {
+    if heard.interrupted {
         tracing::warn!("interrupted: the figures cover {window_s:.1} s");
     }
     let end_s = bench_start.elapsed().as_secs_f64();
-    let steady_from_s = first_depth_s.map(|f| f + (end_s - f) / 2.0);
-    let rss = (!rss_samples.is_empty()).then(|| {
-        let steady: Vec<(f64, f64)> = rss_samples
-            .iter()
-            .copied()
-            .filter(|(t, _)| steady_from_s.is_some_and(|f| *t >= f))
-            .collect();
-        RssStats {
-            start_mib: rss_samples[0].1,
-            max_mib: rss_samples.iter().map(|s| s.1).fold(f64::MIN, f64::max),
-            end_mib: rss_samples[rss_samples.len() - 1].1,
-            slope_mib_per_min: slope_mib_per_min(&steady),
-            steady_from_s,
-            steady_min_mib: steady.iter().map(|s| s.1).reduce(f64::min),
-            steady_max_mib: steady.iter().map(|s| s.1).reduce(f64::max),
-            samples: rss_samples.clone(),
-        }
-    });
     let per_s = |n: u64| {
         if window_s > 0.0 {
             n as f64 / window_s
@@ -371,24 +239,218 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
         bag: bag_path.display().to_string(),
         input_width,
         output_width,
-        cameras: n_cams,
+        cameras: camera_topics.len(),
         play_rate: opts.rate,
         window_s,
         groups_published,
         input_rate_hz: per_s(groups_published),
-        depth_received,
-        output_rate_hz: per_s(depth_received),
+        depth_received: heard.depth_received,
+        output_rate_hz: per_s(heard.depth_received),
         groups_synced: health.sync.groups,
         groups_processed: health.groups_processed,
         groups_dropped: health.groups_dropped,
         groups_lost: groups_published.saturating_sub(health.sync.groups),
         pipeline_errors: health.pipeline_errors,
         mean_inference_ms: health.mean_latency_ms,
-        latency: LatencyStats::from_samples(&latencies_ms),
-        rss,
+        latency: LatencyStats::from_samples(&heard.latencies_ms),
+        rss: rss_stats(&rss_samples, heard.first_depth_s, end_s),
         cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
         load_average_1m_start: load_start,
         load_average_1m_end: load_end,
+    })
+}
+
+/// Fails before rendering or starting anything when the estimator cannot run: its GPU cannot
+/// be had, or its weights file is missing.
+fn check_estimator(opts: &BenchOptions) -> Result<()> {
+    if opts.estimator.device.is_cuda() {
+        opts.estimator
+            .device
+            .open()
+            .context("the device of the node's estimator (--device)")?;
+    }
+    if let Some(path) = opts.estimator.weights_path() {
+        if !path.exists() {
+            bail!(
+                "estimator 'ssmode' needs trained weights at {}, which does not exist",
+                path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The bag to play: the one given, the bundled one when its width fits, or frames rendered
+/// into a temporary file (added to `temps`).
+fn bench_input(opts: &BenchOptions, temps: &mut Vec<TempFile>) -> Result<PathBuf> {
+    if let Some(b) = &opts.bag {
+        return Ok(b.clone());
+    }
+    let width = opts.width.unwrap_or(DEFAULT_WIDTH);
+    let bundled = shipped::locate(Path::new(BUNDLED_BAG), &[]);
+    if bundled.origin != Origin::NotFound
+        && bag_width(&RigBagReader::open(&bundled.path)?)? == width
+    {
+        return Ok(bundled.path);
+    }
+    let out = temp_path("input.mcap");
+    temps.push(TempFile(out.clone()));
+    tracing::info!("rendering {RENDERED_FRAMES} frames at {width} px");
+    record_synthetic_bag(&RecordOptions {
+        rig: mode360_core::geometry::Rig::from_file_or_shipped(&opts.rig_file)?,
+        config: SynthConfig {
+            width,
+            seed: 1,
+            ..Default::default()
+        },
+        frames: RENDERED_FRAMES,
+        first_frame: 0,
+        out: out.clone(),
+        show_progress: false,
+    })
+    .context("rendering the bench input")?;
+    Ok(out)
+}
+
+/// The player thread and what it returns.
+type PlayerThread = std::thread::JoinHandle<Result<PlaySummary>>;
+
+/// Plays the bag in a loop until `stop`, noting in `published` when each group's images went
+/// out.
+fn spawn_player(
+    opts: &BenchOptions,
+    bag_path: &Path,
+    camera_topics: &[String],
+    published: &Arc<Mutex<PlayerState>>,
+    stop: &Arc<AtomicBool>,
+) -> Result<PlayerThread> {
+    let published = published.clone();
+    let stop = stop.clone();
+    let play_opts = PlayOptions {
+        input: bag_path.to_path_buf(),
+        rate: opts.rate,
+        loops: usize::MAX,
+        publish_clock: false,
+        dds: opts.dds.clone(),
+        wait_for_subscribers: Some(DISCOVERY_TIMEOUT),
+        wait_topics: camera_topics.to_vec(),
+    };
+    let topics = camera_topics.to_vec();
+    let n_cams = topics.len();
+    std::thread::Builder::new()
+        .name("mode360-bench-player".into())
+        .spawn(move || {
+            play_bag_until(&play_opts, &stop, |p: &Published<'_>| {
+                let is_image =
+                    p.type_name == Image::TYPE_NAME || p.type_name == CompressedImage::TYPE_NAME;
+                let Some(stamp) = p.stamp_ns else { return };
+                if !is_image || !topics.iter().any(|t| t == p.topic) {
+                    return;
+                }
+                let now = Instant::now();
+                let mut st = lock_published(&published);
+                st.first_publish.get_or_insert(now);
+                let entry = st.images.entry(stamp).or_insert((0, now));
+                entry.0 += 1;
+                entry.1 = now;
+                if entry.0 == n_cams {
+                    st.complete += 1;
+                }
+            })
+            .map_err(anyhow::Error::from)
+        })
+        .context("starting the player thread")
+}
+
+/// What the listener watches besides `depth`.
+struct Watched<'a> {
+    published: &'a Mutex<PlayerState>,
+    player: &'a PlayerThread,
+    bench_start: Instant,
+}
+
+/// What the listener heard.
+struct Heard {
+    latencies_ms: Vec<f64>,
+    depth_received: u64,
+    /// Seconds from the bench's start to the first depth image.
+    first_depth_s: Option<f64>,
+    /// Stopped by a signal.
+    interrupted: bool,
+}
+
+/// Listens to `depth` until the duration is over (counted from the first publish), the player
+/// ends or a signal comes, sampling the resident size every [`RSS_PERIOD`].
+async fn listen(
+    opts: &BenchOptions,
+    depth_sub: &ros2_client::Subscription<Image>,
+    signals: &mut ShutdownSignals,
+    watched: Watched<'_>,
+    rss_samples: &mut Vec<(f64, f64)>,
+) -> Heard {
+    let mut heard = Heard {
+        latencies_ms: Vec::new(),
+        depth_received: 0,
+        first_depth_s: None,
+        interrupted: false,
+    };
+    let mut depth = depth_sub.async_stream().boxed();
+    let mut rss_tick = tokio::time::interval(RSS_PERIOD);
+    let mut started: Option<Instant> = None;
+    loop {
+        if started.is_none() {
+            started = lock_published(watched.published).first_publish;
+        }
+        if started.is_some_and(|s| s.elapsed() >= opts.duration) || watched.player.is_finished() {
+            return heard;
+        }
+        tokio::select! {
+            name = signals.recv() => {
+                tracing::info!("{name}: stopping the bench early");
+                heard.interrupted = true;
+                return heard;
+            }
+            Some(r) = depth.next() => {
+                let now = Instant::now();
+                if let Ok((m, _)) = r {
+                    heard.depth_received += 1;
+                    heard
+                        .first_depth_s
+                        .get_or_insert(watched.bench_start.elapsed().as_secs_f64());
+                    let stamp = m.header.stamp.to_nanos();
+                    if let Some((_, t)) = lock_published(watched.published).images.get(&stamp) {
+                        heard.latencies_ms.push(now.duration_since(*t).as_secs_f64() * 1e3);
+                    }
+                }
+            }
+            _ = rss_tick.tick() => {
+                if let Some(mib) = resident_mib() {
+                    rss_samples.push((watched.bench_start.elapsed().as_secs_f64(), mib));
+                }
+            }
+        }
+    }
+}
+
+/// Memory figures of the samples `(s since start, MiB)`; the steady state is the second half
+/// of the time after the first depth image.
+fn rss_stats(samples: &[(f64, f64)], first_depth_s: Option<f64>, end_s: f64) -> Option<RssStats> {
+    let (first, last) = (samples.first()?, samples.last()?);
+    let steady_from_s = first_depth_s.map(|f| f + (end_s - f) / 2.0);
+    let steady: Vec<(f64, f64)> = samples
+        .iter()
+        .copied()
+        .filter(|(t, _)| steady_from_s.is_some_and(|f| *t >= f))
+        .collect();
+    Some(RssStats {
+        start_mib: first.1,
+        max_mib: samples.iter().map(|s| s.1).fold(f64::MIN, f64::max),
+        end_mib: last.1,
+        slope_mib_per_min: slope_mib_per_min(&steady),
+        steady_from_s,
+        steady_min_mib: steady.iter().map(|s| s.1).reduce(f64::min),
+        steady_max_mib: steady.iter().map(|s| s.1).reduce(f64::max),
+        samples: samples.to_vec(),
     })
 }
 

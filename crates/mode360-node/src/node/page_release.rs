@@ -225,7 +225,7 @@ mod tests {
         assert_eq!(p.working_set_mib(), Some(300.0));
         p.outputs_started(t0 + 40 * SEC);
         assert_eq!(p.working_set_mib(), None);
-        let frames = |s: u32| if s % 2 == 0 { 900.0 } else { 950.0 };
+        let frames = |s: u32| if s.is_multiple_of(2) { 900.0 } else { 950.0 };
         for s in 41..=70 {
             assert!(!p.observe(frames(s), t0 + s * SEC), "frames at {s} s");
         }
