@@ -2,7 +2,8 @@
 //! played into it (`dds`), camera dropout (`dropout`), the binary under `use_sim_time` and
 //! SIGINT (`process`), Eclipse Cyclone DDS peers both ways (`cyclone`), Fast DDS peers both
 //! ways (`fastdds`), real ROS 2 clients (rclpy of Jazzy and Kilted: decoding, feeding, every
-//! output of a reliable stream, parameters; `rclpy`), bad input seen on `/diagnostics` (`bad_input`), outputs built only while
+//! output of a reliable stream, parameters; `rclpy`), bad input seen on `/diagnostics` (`bad_input`), a hostile sender's
+//! malformed and oversized samples (`fuzz`), outputs built only while
 //! subscribed (`lazy`), QoS overrides and `publish_tf` (`qos`), the parameter services
 //! (`params`), extrinsics from TF (`tf`), the Foxglove live view read by Foxglove's own
 //! client (`foxglove`), the binary's log records on `/rosout` (`rosout`) and the binary's demo
@@ -19,6 +20,7 @@ mod dds_peer;
 mod dropout;
 mod fastdds;
 mod foxglove;
+mod fuzz;
 mod harness;
 mod installed;
 mod lazy;
