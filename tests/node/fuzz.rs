@@ -310,7 +310,6 @@ fn hostile_camera_samples_are_counted_and_depth_keeps_flowing() -> TestResult {
         stream_until_depth()?;
     }
     let rss_after = resident_mib();
-    drop(stream_until_depth);
     let health = node.health();
     eprintln!(
         "fuzz: {} hostile samples ({} kinds), depth resumed after {resume_s:.1?} s, bad counted {:?}, RSS {rss_before:?} -> {rss_after:?} MiB",
