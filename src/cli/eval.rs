@@ -19,8 +19,8 @@ use super::drops::{DropCount, DropTally};
 use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
-use mode360_core::frame::RgbImage;
-use mode360_core::geometry::{ErpGrid, GeerPair};
+use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
+use mode360_core::geometry::{ErpGrid, GeerPair, Rig};
 use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
 use mode360_core::obstacles::{self, ObstacleReport, ObstacleSummary};
 use mode360_core::progress::frames_bar;
@@ -32,7 +32,7 @@ use mode360_io::bag::{
 };
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Nearest range of the preview colour map, metres.
@@ -156,6 +156,76 @@ struct Group {
     elapsed_s: f64,
 }
 
+impl Group {
+    /// Scores one frame's estimate against its ground truth (and labels, where it has them).
+    fn score(
+        &mut self,
+        range_m: &FloatImage,
+        frame: &RigFrame,
+        rig: &Rig,
+        pair: &GeerPair,
+        bag_name: &str,
+    ) -> Result<()> {
+        let Some(gt) = frame.ground_truth.as_ref() else {
+            bail!("no ground truth");
+        };
+        let output = ErpGrid::new(gt.width)?;
+        let depth = metrics::depth_metrics(&range_m.data, &gt.data, self.max_depth_m)?;
+        let disp_pred = metrics::disparity_image(rig, output, pair, range_m);
+        let disp_gt = metrics::disparity_image(rig, output, pair, gt);
+        let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
+        self.average.push(depth, disparity);
+        self.bands
+            .add_frame(&range_m.data, &gt.data, self.max_depth_m);
+        if let Some(labels) = &frame.labels {
+            let scores =
+                obstacles::frame_obstacles(&range_m.data, &gt.data, labels, self.max_depth_m)?;
+            self.obstacles.add_frame(bag_name, frame.stamp_ns, &scores);
+        }
+        Ok(())
+    }
+}
+
+/// A bag's condition (`soiled` or `clean`) and maximum depth, from its metadata.
+fn bag_condition(info: &BTreeMap<String, String>, bag_name: &str) -> Result<(&'static str, f64)> {
+    let condition = if info.get(SOILED_KEY).map(String::as_str) == Some("true") {
+        "soiled"
+    } else {
+        "clean"
+    };
+    let max_depth_m = match info.get(MAX_DEPTH_KEY) {
+        None => DEFAULT_MAX_DEPTH_M,
+        Some(v) => v.parse().map_err(|_| {
+            anyhow!("{bag_name}: metadata '{MAX_DEPTH_KEY}' = '{v}' is not a number")
+        })?,
+    };
+    Ok((condition, max_depth_m))
+}
+
+/// Writes a preview: the reference image, the estimate and the ground truth colour-mapped, and
+/// the legend, stacked.
+fn write_preview(
+    png: &Path,
+    reference: &RgbImage,
+    range_m: &FloatImage,
+    gt: &FloatImage,
+    max_depth_m: f64,
+) -> Result<()> {
+    let min_depth_m = PREVIEW_MIN_DEPTH_M as f32;
+    let picture = crate::viz::stack_vertical(&[
+        reference.clone(),
+        crate::viz::colorize_range(range_m, min_depth_m, max_depth_m as f32),
+        crate::viz::colorize_range(gt, min_depth_m, max_depth_m as f32),
+        crate::viz::depth_legend(range_m.width as u32, min_depth_m, max_depth_m as f32),
+    ]);
+    if let Some(dir) = png.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    picture
+        .save(png)
+        .with_context(|| format!("writing preview {}", png.display()))
+}
+
 /// Runs `estimator` over every frame of the bags and scores it.
 pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Result<EvalReport> {
     let mut groups: BTreeMap<String, Group> = BTreeMap::new();
@@ -163,18 +233,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
     for path in &opts.bags {
         let bag_name = path.display().to_string();
         let reader = RigBagReader::open(path).with_context(|| format!("opening {bag_name}"))?;
-        let info = reader.info().clone();
-        let condition = if info.get(SOILED_KEY).map(String::as_str) == Some("true") {
-            "soiled"
-        } else {
-            "clean"
-        };
-        let max_depth_m = match info.get(MAX_DEPTH_KEY) {
-            None => DEFAULT_MAX_DEPTH_M,
-            Some(v) => v.parse().map_err(|_| {
-                anyhow!("{bag_name}: metadata '{MAX_DEPTH_KEY}' = '{v}' is not a number")
-            })?,
-        };
+        let (condition, max_depth_m) = bag_condition(&reader.info(), &bag_name)?;
         let full_rig = reader.rig().clone();
         let selection: Vec<usize> = opts
             .cameras
@@ -230,8 +289,6 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                 .estimate(estimator, &rig, &images, output)
                 .with_context(at)?;
             group.elapsed_s += t0.elapsed().as_secs_f64();
-            let depth = metrics::depth_metrics(&est.range_m.data, &gt.data, max_depth_m)
-                .with_context(at)?;
             let pair = match &pair_cache {
                 Some((w, p)) if *w == gt.width => p.clone(),
                 _ => {
@@ -241,21 +298,9 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                     p
                 }
             };
-            let disp_pred = metrics::disparity_image(&rig, output, &pair, &est.range_m);
-            let disp_gt = metrics::disparity_image(&rig, output, &pair, gt);
-            let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
-            group.average.push(depth, disparity);
             group
-                .bands
-                .add_frame(&est.range_m.data, &gt.data, max_depth_m);
-            if let Some(labels) = &frame.labels {
-                let scores =
-                    obstacles::frame_obstacles(&est.range_m.data, &gt.data, labels, max_depth_m)
-                        .with_context(at)?;
-                group
-                    .obstacles
-                    .add_frame(&bag_name, frame.stamp_ns, &scores);
-            }
+                .score(&est.range_m, &frame, &rig, &pair, &bag_name)
+                .with_context(at)?;
             if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
                 let stem = path
                     .file_stem()
@@ -266,22 +311,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                     ViewMode::SameImage => "_same_image",
                 };
                 let png = dir.join(format!("{stem}_{}{views}_{n:03}.png", estimator.name()));
-                let min_depth_m = PREVIEW_MIN_DEPTH_M as f32;
-                let picture = crate::viz::stack_vertical(&[
-                    images[rig.reference].clone(),
-                    crate::viz::colorize_range(&est.range_m, min_depth_m, max_depth_m as f32),
-                    crate::viz::colorize_range(gt, min_depth_m, max_depth_m as f32),
-                    crate::viz::depth_legend(
-                        est.range_m.width as u32,
-                        min_depth_m,
-                        max_depth_m as f32,
-                    ),
-                ]);
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("creating {}", dir.display()))?;
-                picture
-                    .save(&png)
-                    .with_context(|| format!("writing preview {}", png.display()))?;
+                write_preview(&png, &images[rig.reference], &est.range_m, gt, max_depth_m)?;
             }
             progress.inc(1);
             n += 1;

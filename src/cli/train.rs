@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::Args;
 use mode360_estimator::model::{ComputeDevice, Preset};
 use mode360_synth::synth::StreetStyle;
+use mode360_train::train::data::SceneMix;
 use mode360_train::train::rig_layouts::RigLayouts;
 use mode360_train::train::{run_training, TrainOptions};
 use std::path::PathBuf;
@@ -144,12 +145,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
         init_weights: a.init_weights,
         fork_from: a.fork_from,
         until_step: a.until_step,
-        objects_fraction: a.objects_fraction,
-        street: a.street,
-        fisheye_fraction: a.fisheye_fraction,
-        rig_layouts: a.rig_layouts,
-        blocked_fraction: a.blocked_fraction,
-        rig_pool: a.rig_pool,
+        mix: SceneMix {
+            objects_fraction: a.objects_fraction,
+            street: a.street,
+            fisheye_fraction: a.fisheye_fraction,
+            rig_layouts: a.rig_layouts,
+            blocked_fraction: a.blocked_fraction,
+            rig_pool: a.rig_pool,
+        },
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,

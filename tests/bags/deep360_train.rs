@@ -20,12 +20,7 @@ fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
         soiled_fraction: 0.5,
         deep360_fraction: 0.25,
         deep360_disk: mix,
-        objects_fraction: 0.0,
-        street: mode360::synth::StreetStyle::Regular,
-        fisheye_fraction: 0.0,
-        rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
-        blocked_fraction: 0.0,
-        rig_pool: 0,
+        mix: Default::default(),
         camera_effects: false,
     }
 }

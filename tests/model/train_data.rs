@@ -20,12 +20,7 @@ fn cfg(seed: u64) -> DataConfig {
         soiled_fraction: 0.5,
         deep360_fraction: 0.25,
         deep360_disk: None,
-        objects_fraction: 0.0,
-        street: mode360::synth::StreetStyle::Regular,
-        fisheye_fraction: 0.0,
-        rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
-        blocked_fraction: 0.0,
-        rig_pool: 0,
+        mix: Default::default(),
         camera_effects: false,
     }
 }
@@ -136,10 +131,14 @@ fn training_mix_and_validation_split() {
 fn fisheye_samples_enter_the_network_as_panoramas() {
     // With every sample on a fisheye rack: the rig's cameras are fisheyes, their images are
     // panoramas of the ERP width (black where the lens sees nothing), depth is in rack_center.
+    let base = cfg(11);
     let cfg = DataConfig {
-        fisheye_fraction: 1.0,
+        mix: mode360::train::data::SceneMix {
+            fisheye_fraction: 1.0,
+            ..base.mix
+        },
         deep360_fraction: 0.0,
-        ..cfg(11)
+        ..base
     };
     let mut dark_share = Vec::new();
     for index in 0..3 {

@@ -7,8 +7,8 @@ use mode360::geometry::Rig;
 use mode360::synth::noise::Rng;
 use mode360::synth::BlockerKind;
 use mode360::train::data::{
-    render_sample, training_spec, DataConfig, RigChoice, SampleSpec, MAX_TRAIN_BLOCKED_FRACTION,
-    MIN_TRAIN_BLOCKED_FRACTION,
+    render_sample, training_spec, DataConfig, RigChoice, SampleSpec, SceneMix,
+    MAX_TRAIN_BLOCKED_FRACTION, MIN_TRAIN_BLOCKED_FRACTION,
 };
 use mode360::train::rack::random_rig;
 use mode360::train::rig_layouts::{
@@ -27,12 +27,14 @@ fn cfg(seed: u64, rig_layouts: RigLayouts, blocked_fraction: f64) -> DataConfig 
         soiled_fraction: 0.3,
         deep360_fraction: 0.25,
         deep360_disk: None,
-        objects_fraction: 0.2,
-        street: mode360::synth::StreetStyle::Regular,
-        fisheye_fraction: 0.1,
-        rig_layouts,
-        blocked_fraction,
-        rig_pool: 0,
+        mix: SceneMix {
+            objects_fraction: 0.2,
+            street: mode360::synth::StreetStyle::Regular,
+            fisheye_fraction: 0.1,
+            rig_layouts,
+            blocked_fraction,
+            rig_pool: 0,
+        },
         camera_effects: false,
     }
 }
@@ -109,12 +111,12 @@ fn reference_spec_fields(c: &DataConfig, index: u64) -> (u64, usize, bool, RigCh
         RigChoice::Random(rng.next_u64())
     };
     let mut fisheye = Rng::new(&[c.seed, index, 0x7A41_0005]);
-    let rig = if c.fisheye_fraction > 0.0 && fisheye.chance(c.fisheye_fraction) {
+    let rig = if c.mix.fisheye_fraction > 0.0 && fisheye.chance(c.mix.fisheye_fraction) {
         RigChoice::Fisheye(fisheye.next_u64())
     } else {
         rig
     };
-    let objects = Rng::new(&[c.seed, index, 0x7A41_0004]).chance(c.objects_fraction);
+    let objects = Rng::new(&[c.seed, index, 0x7A41_0004]).chance(c.mix.objects_fraction);
     (world_seed, frame_index, soiled, rig, objects)
 }
 
@@ -388,7 +390,7 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
         "width": 64, "seed": 1, "batch_size": 1, "train_s": 1.0}"#;
     let state: CheckpointState = serde_json::from_str(old).unwrap();
     assert_eq!(
-        (state.rig_layouts, state.blocked_fraction),
+        (state.mix.rig_layouts, state.mix.blocked_fraction),
         (RigLayouts::Roof, 0.0)
     );
 
@@ -401,8 +403,11 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
         val_every: 0,
         checkpoint_every_steps: 1,
         seed: 9,
-        rig_layouts: RigLayouts::Any,
-        blocked_fraction: 0.5,
+        mix: SceneMix {
+            rig_layouts: RigLayouts::Any,
+            blocked_fraction: 0.5,
+            ..Default::default()
+        },
         show_progress: false,
         ..TrainOptions::default()
     };
@@ -410,7 +415,7 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
     let text = std::fs::read_to_string(out.path().join(CHECKPOINT_DIR).join(STATE_FILE)).unwrap();
     let state: CheckpointState = serde_json::from_str(&text).unwrap();
     assert_eq!(
-        (state.rig_layouts, state.blocked_fraction),
+        (state.mix.rig_layouts, state.mix.blocked_fraction),
         (RigLayouts::Any, 0.5)
     );
     assert!(text.contains("\"rig_layouts\": \"any\""), "{text}");
@@ -420,7 +425,10 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
             TrainOptions {
                 steps: 2,
                 resume: true,
-                rig_layouts: RigLayouts::Roof,
+                mix: SceneMix {
+                    rig_layouts: RigLayouts::Roof,
+                    ..opts.mix
+                },
                 ..opts.clone()
             },
             "rig_layouts",
@@ -429,7 +437,10 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
             TrainOptions {
                 steps: 2,
                 resume: true,
-                blocked_fraction: 0.1,
+                mix: SceneMix {
+                    blocked_fraction: 0.1,
+                    ..opts.mix
+                },
                 ..opts.clone()
             },
             "blocked_fraction",

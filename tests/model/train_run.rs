@@ -27,12 +27,12 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         init_weights: None,
         fork_from: None,
         until_step: None,
-        objects_fraction: 0.5,
-        street: mode360::synth::StreetStyle::Varied,
-        fisheye_fraction: 0.25,
-        rig_layouts: mode360::train::rig_layouts::RigLayouts::Roof,
-        blocked_fraction: 0.0,
-        rig_pool: 0,
+        mix: mode360::train::data::SceneMix {
+            objects_fraction: 0.5,
+            street: mode360::synth::StreetStyle::Varied,
+            fisheye_fraction: 0.25,
+            ..Default::default()
+        },
         max_grad_norm: Some(5.0),
         loss_weighting: Default::default(),
         camera_effects: false,
@@ -252,8 +252,11 @@ fn forks_and_until_step_body() {
 
     // another data mix: a resume refuses it, a fork takes it and trains on other samples
     let other_mix = |o: TrainOptions| TrainOptions {
-        objects_fraction: 0.0,
-        street: mode360::synth::StreetStyle::Regular,
+        mix: mode360::train::data::SceneMix {
+            objects_fraction: 0.0,
+            street: mode360::synth::StreetStyle::Regular,
+            ..o.mix
+        },
         ..o
     };
     let err = run_training(&other_mix(TrainOptions {

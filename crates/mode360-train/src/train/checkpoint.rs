@@ -5,14 +5,12 @@
 //! it into place, so a crash never leaves a torn checkpoint; [`find_checkpoint`] also accepts
 //! the `checkpoint.old/` a crash between the two renames can leave.
 
-use super::data::Deep360Mix;
+use super::data::{Deep360Mix, SceneMix};
 use super::optim::AdamW;
 use super::options::{io_err, TrainError};
-use super::rig_layouts::RigLayouts;
 use candle_core::Device;
 use candle_nn::VarMap;
 use mode360_estimator::model::{save_weights, SsmodeConfig};
-use mode360_synth::synth::StreetStyle;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -46,24 +44,9 @@ pub struct CheckpointState {
     /// The Deep360-on-disk part of the stream (absent in older checkpoints: none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deep360_disk: Option<Deep360DiskState>,
-    /// Random-objects share of the stream (older checkpoints: none).
-    #[serde(default)]
-    pub objects_fraction: f64,
-    /// Street style of the stream (older checkpoints: regular).
-    #[serde(default)]
-    pub street: StreetStyle,
-    /// Fisheye-rig share of the stream (older checkpoints: none).
-    #[serde(default)]
-    pub fisheye_fraction: f64,
-    /// Layouts of the stream's random rigs (older checkpoints: roof).
-    #[serde(default)]
-    pub rig_layouts: RigLayouts,
-    /// Blocked-lens share of the stream (older checkpoints: none).
-    #[serde(default)]
-    pub blocked_fraction: f64,
-    /// Rig pool size of the stream (older checkpoints: 0, a new rig every sample).
-    #[serde(default)]
-    pub rig_pool: usize,
+    /// What the stream's samples hold (its fields at the top level of `state.json`).
+    #[serde(flatten)]
+    pub mix: SceneMix,
 }
 
 /// What a resume must find again to read the same Deep360 frames for the same samples.
@@ -183,33 +166,33 @@ pub(super) fn load_checkpoint(
         ("seed", state.seed.to_string(), expected.seed.to_string()),
         (
             "objects_fraction",
-            state.objects_fraction.to_string(),
-            expected.objects_fraction.to_string(),
+            state.mix.objects_fraction.to_string(),
+            expected.mix.objects_fraction.to_string(),
         ),
         (
             "fisheye_fraction",
-            state.fisheye_fraction.to_string(),
-            expected.fisheye_fraction.to_string(),
+            state.mix.fisheye_fraction.to_string(),
+            expected.mix.fisheye_fraction.to_string(),
         ),
         (
             "rig_layouts",
-            state.rig_layouts.as_str().to_string(),
-            expected.rig_layouts.as_str().to_string(),
+            state.mix.rig_layouts.as_str().to_string(),
+            expected.mix.rig_layouts.as_str().to_string(),
         ),
         (
             "rig_pool",
-            state.rig_pool.to_string(),
-            expected.rig_pool.to_string(),
+            state.mix.rig_pool.to_string(),
+            expected.mix.rig_pool.to_string(),
         ),
         (
             "blocked_fraction",
-            state.blocked_fraction.to_string(),
-            expected.blocked_fraction.to_string(),
+            state.mix.blocked_fraction.to_string(),
+            expected.mix.blocked_fraction.to_string(),
         ),
         (
             "street",
-            state.street.as_str().to_string(),
-            expected.street.as_str().to_string(),
+            state.mix.street.as_str().to_string(),
+            expected.mix.street.as_str().to_string(),
         ),
         (
             "deep360_disk",

@@ -111,22 +111,8 @@ pub struct DataConfig {
     pub deep360_fraction: f64,
     /// Deep360 training frames from disk mixed into the stream (fine-tuning).
     pub deep360_disk: Option<Deep360Mix>,
-    /// Fraction of rendered training samples that are random-objects scenes.
-    pub objects_fraction: f64,
-    /// Layout variation of the training streets.
-    pub street: StreetStyle,
-    /// Fraction of rendered training samples on random fisheye and dual-fisheye rigs (drawn
-    /// from its own stream, so a stream without them is unchanged).
-    pub fisheye_fraction: f64,
-    /// Layouts of the random ERP rigs: roof racks only, or every family of
-    /// [`super::rig_layouts`] (drawn from its own stream).
-    pub rig_layouts: RigLayouts,
-    /// Fraction of rendered samples where one random camera's lens is partly blocked (drawn
-    /// from its own stream, so a stream without them is unchanged).
-    pub blocked_fraction: f64,
-    /// Random rigs come from a renewed pool of this many (0: a new rig every sample), so that
-    /// sweep tables are reused ([`super::rig_pool`]).
-    pub rig_pool: usize,
+    /// What the rendered samples hold: scenes, streets, rigs, blocked lenses.
+    pub mix: SceneMix,
     /// Every rendered camera image gets a camera's effects (exposure, white balance,
     /// vignetting, blur, noise, JPEG: [`super::camera_effects`]), drawn per camera from the
     /// sample's world seed and frame.
@@ -186,14 +172,45 @@ impl Deep360Mix {
     }
 }
 
+/// What the rendered samples of a stream hold beyond their seed and size. Set once by
+/// [`super::options::TrainOptions`], carried by [`DataConfig`], saved in every checkpoint
+/// ([`super::checkpoint::CheckpointState`]) and compared on resume; a field missing from an
+/// older checkpoint reads as its default (none, regular streets, roof racks, a new rig every
+/// sample).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SceneMix {
+    /// Fraction of rendered samples that are random-objects scenes (1 to pretrain matching).
+    #[serde(default)]
+    pub objects_fraction: f64,
+    /// Layout variation of the training streets.
+    #[serde(default)]
+    pub street: StreetStyle,
+    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs (drawn from its
+    /// own stream, so a stream without them is unchanged).
+    #[serde(default)]
+    pub fisheye_fraction: f64,
+    /// Layouts of the random ERP rigs: roof racks only, or every family of
+    /// [`super::rig_layouts`] (drawn from its own stream).
+    #[serde(default)]
+    pub rig_layouts: RigLayouts,
+    /// Fraction of rendered samples where one random camera's lens is partly blocked (drawn
+    /// from its own stream, so a stream without them is unchanged).
+    #[serde(default)]
+    pub blocked_fraction: f64,
+    /// Random rigs come from a renewed pool of this many (0: a new rig every sample), so that
+    /// sweep tables are reused ([`super::rig_pool`]).
+    #[serde(default)]
+    pub rig_pool: usize,
+}
+
 impl DataConfig {
     fn validate(&self) -> Result<(), DataError> {
         for (name, v) in [
             ("soiled_fraction", self.soiled_fraction),
             ("deep360_fraction", self.deep360_fraction),
-            ("objects_fraction", self.objects_fraction),
-            ("fisheye_fraction", self.fisheye_fraction),
-            ("blocked_fraction", self.blocked_fraction),
+            ("objects_fraction", self.mix.objects_fraction),
+            ("fisheye_fraction", self.mix.fisheye_fraction),
+            ("blocked_fraction", self.mix.blocked_fraction),
         ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(DataError::Config(format!(
@@ -279,7 +296,7 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
     let frame_index = rng.index(STREET_FRAMES);
     let soiled = rng.chance(cfg.soiled_fraction);
     // With a rig pool, every rig draw is taken at the pooled rig's index (super::rig_pool).
-    let rig_index = match cfg.rig_pool {
+    let rig_index = match cfg.mix.rig_pool {
         0 => index,
         rigs => pooled_rig_index(cfg.seed, index, rigs),
     };
@@ -287,12 +304,12 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         RigChoice::Deep360
     } else {
         let own = rng.next_u64();
-        RigChoice::Random(match cfg.rig_pool {
+        RigChoice::Random(match cfg.mix.rig_pool {
             0 => own,
             _ => Rng::new(&[cfg.seed, rig_index, RIG_SEED_TAG]).next_u64(),
         })
     };
-    let rig = match (cfg.rig_layouts, rig) {
+    let rig = match (cfg.mix.rig_layouts, rig) {
         (RigLayouts::Any, RigChoice::Random(seed)) => match draw_family(cfg.seed, rig_index) {
             LayoutFamily::RoofRack => RigChoice::Random(seed),
             family => RigChoice::Layout(family, seed),
@@ -300,24 +317,23 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         (_, rig) => rig,
     };
     let mut fisheye = Rng::new(&[cfg.seed, rig_index, FISHEYE_TAG]);
-    let rig = if cfg.fisheye_fraction > 0.0 && fisheye.chance(cfg.fisheye_fraction) {
+    let rig = if cfg.mix.fisheye_fraction > 0.0 && fisheye.chance(cfg.mix.fisheye_fraction) {
         RigChoice::Fisheye(fisheye.next_u64())
     } else {
         rig
     };
-    let scene = if Rng::new(&[cfg.seed, index, SCENE_TAG]).chance(cfg.objects_fraction) {
+    let scene = if Rng::new(&[cfg.seed, index, SCENE_TAG]).chance(cfg.mix.objects_fraction) {
         SceneKind::Objects
     } else {
         SceneKind::Street
     };
     let mut blocker = Rng::new(&[cfg.seed, index, BLOCKER_TAG]);
-    let blocker = (cfg.blocked_fraction > 0.0 && blocker.chance(cfg.blocked_fraction)).then(|| {
-        SampleBlocker {
+    let blocker = (cfg.mix.blocked_fraction > 0.0 && blocker.chance(cfg.mix.blocked_fraction))
+        .then(|| SampleBlocker {
             camera_pick: blocker.next_u64(),
             fraction: blocker.range(MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION),
             kind: BlockerKind::ALL[blocker.index(BlockerKind::ALL.len())],
-        }
-    });
+        });
     let spec = SampleSpec {
         world_seed,
         frame_index,
@@ -325,7 +341,7 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         rig,
         deep360_frame: None,
         scene,
-        street: cfg.street,
+        street: cfg.mix.street,
         blocker,
     };
     match cfg

@@ -2,12 +2,10 @@
 //! `mode360 train`, checked by `resolve_config`), [`TrainSummary`], [`StepReport`] and
 //! [`TrainError`].
 
-use super::data::DataError;
+use super::data::{DataError, SceneMix};
 use super::log::ValRecord;
 use super::loss::{LossError, LossWeighting};
-use super::rig_layouts::RigLayouts;
 use mode360_estimator::model::{ComputeDevice, ModelError, Preset, SsmodeConfig};
-use mode360_synth::synth::StreetStyle;
 use std::path::{Path, PathBuf};
 
 /// Errors of a training run; each names the file or option at fault.
@@ -79,18 +77,8 @@ pub struct TrainOptions {
     pub deep360_disk: Option<PathBuf>,
     /// Fraction of training samples read from `deep360_disk` (when set).
     pub deep360_disk_fraction: f64,
-    /// Fraction of rendered samples that are random-objects scenes (1 to pretrain matching).
-    pub objects_fraction: f64,
-    /// Layout variation of the training streets.
-    pub street: StreetStyle,
-    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs.
-    pub fisheye_fraction: f64,
-    /// Layouts of the random ERP rigs (roof racks only, or every family).
-    pub rig_layouts: RigLayouts,
-    /// Fraction of rendered samples with one camera's lens partly blocked.
-    pub blocked_fraction: f64,
-    /// Random rigs from a renewed pool of this many (0: a new rig every sample).
-    pub rig_pool: usize,
+    /// What the rendered samples hold (saved in the checkpoint, compared on resume).
+    pub mix: SceneMix,
     /// Clip the global gradient norm to this (`None`: no clipping).
     pub max_grad_norm: Option<f64>,
     /// Extra loss weight of near pixels and too-far predictions (default: none).
@@ -141,12 +129,7 @@ impl Default for TrainOptions {
             deep360_fraction: 0.25,
             deep360_disk: None,
             deep360_disk_fraction: 1.0,
-            objects_fraction: 0.0,
-            street: StreetStyle::Regular,
-            fisheye_fraction: 0.0,
-            rig_layouts: RigLayouts::Roof,
-            blocked_fraction: 0.0,
-            rig_pool: 0,
+            mix: SceneMix::default(),
             max_grad_norm: None,
             loss_weighting: LossWeighting::default(),
             camera_effects: false,

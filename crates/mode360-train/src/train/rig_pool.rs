@@ -63,7 +63,7 @@ mod tests {
 
     #[test]
     fn a_pooled_stream_reuses_its_rigs_and_keeps_its_scenes() {
-        use super::super::data::{training_spec, DataConfig, RigChoice};
+        use super::super::data::{training_spec, DataConfig, RigChoice, SceneMix};
         use super::super::rig_layouts::RigLayouts;
         let rigs = 4;
         let free = DataConfig {
@@ -73,16 +73,21 @@ mod tests {
             soiled_fraction: 0.3,
             deep360_fraction: 0.25,
             deep360_disk: None,
-            objects_fraction: 0.25,
-            street: mode360_synth::synth::StreetStyle::Varied,
-            fisheye_fraction: 0.25,
-            rig_layouts: RigLayouts::Any,
-            blocked_fraction: 0.2,
-            rig_pool: 0,
+            mix: SceneMix {
+                objects_fraction: 0.25,
+                street: mode360_synth::synth::StreetStyle::Varied,
+                fisheye_fraction: 0.25,
+                rig_layouts: RigLayouts::Any,
+                blocked_fraction: 0.2,
+                rig_pool: 0,
+            },
             camera_effects: false,
         };
         let pooled = DataConfig {
-            rig_pool: rigs,
+            mix: SceneMix {
+                rig_pool: rigs,
+                ..free.mix
+            },
             ..free.clone()
         };
         let renew = RENEW_SAMPLES_PER_RIG * rigs as u64;

@@ -99,12 +99,7 @@ impl Trainer {
             batch_size: opts.batch_size,
             train_s: 0.0,
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
-            objects_fraction: opts.objects_fraction,
-            street: opts.street,
-            fisheye_fraction: opts.fisheye_fraction,
-            rig_layouts: opts.rig_layouts,
-            blocked_fraction: opts.blocked_fraction,
-            rig_pool: opts.rig_pool,
+            mix: opts.mix,
         };
         let mut resumed = false;
         if opts.resume {
@@ -163,12 +158,7 @@ impl Trainer {
             soiled_fraction: opts.soiled_fraction,
             deep360_fraction: opts.deep360_fraction,
             deep360_disk,
-            objects_fraction: opts.objects_fraction,
-            street: opts.street,
-            fisheye_fraction: opts.fisheye_fraction,
-            rig_layouts: opts.rig_layouts,
-            blocked_fraction: opts.blocked_fraction,
-            rig_pool: opts.rig_pool,
+            mix: opts.mix,
             camera_effects: opts.camera_effects,
         };
         let loss_cfg = LossConfig {
@@ -209,7 +199,7 @@ impl Trainer {
             None
         };
         // The pool's rigs, the Deep360 rig and the current sample's.
-        let cache = SamplingCache::with_capacity(opts.rig_pool + MIN_SAMPLING_CACHE_RIGS);
+        let cache = SamplingCache::with_capacity(opts.mix.rig_pool + MIN_SAMPLING_CACHE_RIGS);
         Ok(Self {
             opts,
             cfg,
