@@ -16,8 +16,9 @@ pub mod cli;
 pub mod viz;
 
 pub use mode360_core::{frame, geometry, memory, metrics, obstacles, sync};
-pub use mode360_estimator::{cpu, estimator, matching, model};
+pub use mode360_estimator::estimator;
 pub use mode360_io::{bag, deep360, msgs};
+pub use mode360_model::{cpu, matching, model};
 pub use mode360_node::node;
 pub use mode360_synth::synth;
 pub use mode360_train::train;

@@ -21,8 +21,8 @@ use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
 use mode360_estimator::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
 use mode360_estimator::estimator::DepthEstimator;
-use mode360_estimator::model::ops::with_composites;
-use mode360_estimator::model::{
+use mode360_model::model::ops::with_composites;
+use mode360_model::model::{
     input_tensor, load_weights, read_config, ComputeDevice, Preset, Ssmode, SsmodeConfig,
     StageProfiler, SweepSampling,
 };

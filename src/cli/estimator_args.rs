@@ -3,7 +3,7 @@
 
 use clap::Args;
 use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
-use mode360_estimator::model::ComputeDevice;
+use mode360_model::model::ComputeDevice;
 use std::path::PathBuf;
 
 /// Which depth estimator a command runs, flattened into its arguments.

@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use clap::Args;
-use mode360_estimator::model::{ComputeDevice, Preset};
+use mode360_model::model::{ComputeDevice, Preset};
 use mode360_synth::synth::StreetStyle;
 use mode360_train::train::data::SceneMix;
 use mode360_train::train::rig_layouts::RigLayouts;

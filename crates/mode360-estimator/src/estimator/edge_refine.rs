@@ -17,7 +17,7 @@ use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{resample_erp, ErpGrid};
 use rayon::prelude::*;
 
-use crate::matching::INTENSITY_SCALE;
+use mode360_model::matching::INTENSITY_SCALE;
 
 /// Colour scale `sigma_c` of the weights (RGB in [0, 1]). Validation moved by at most 0.3 δ1
 /// points between 0.1 and 1 (models/README.md, "Edge refinement"): the confidence does most.

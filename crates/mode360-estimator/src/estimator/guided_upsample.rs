@@ -17,9 +17,9 @@
 //! shares. Longitude wraps, latitude clamps, as in [`mode360_core::geometry::ErpGrid::bilinear_taps`].
 
 use super::edge_refine::rgb_on_grid;
-use crate::matching::luma;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::{ErpGrid, PixelCoord};
+use mode360_model::matching::luma;
 use rayon::prelude::*;
 
 /// Colour scale of the guide weight (grey levels in [0, 1]).

@@ -28,10 +28,10 @@
 
 use super::photometric::sampling::{bilinear_wrapped, CameraSampler};
 use super::EstimatorError;
-use crate::matching::{luma, INTENSITY_SCALE};
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::panorama::{panorama_rig, RigRemap};
 use mode360_core::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360_model::matching::{luma, INTENSITY_SCALE};
 
 /// Width of the analysis grid (height half of it): coarse enough that a few pixels of depth
 /// error or calibration do not matter, fine enough for regions of a few degrees.

@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use crate::model::ComputeDevice;
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, Rig};
+use mode360_model::model::ComputeDevice;
 
 pub mod calibration;
 pub mod calibration_drift;
@@ -63,7 +63,7 @@ pub enum EstimatorError {
     #[error("{0}")]
     Geometry(#[from] mode360_core::geometry::GeometryError),
     #[error("{0}")]
-    Model(#[from] crate::model::ModelError),
+    Model(#[from] mode360_model::model::ModelError),
 }
 
 /// A depth estimator. Implementations may cache per-rig work (sampling tables) between calls.

@@ -37,11 +37,11 @@ pub use curve::{refine_minimum, CurveMinimum, CONFIDENCE_EXCLUSION};
 
 use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use crate::matching::zncc::{self as cost, PairCostParams, ViewStats};
-use crate::matching::{luma, INTENSITY_SCALE};
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::panorama::{panorama_rig, RigRemap};
 use mode360_core::geometry::{DepthHypotheses, DepthRange, ErpGrid, Rig};
+use mode360_model::matching::zncc::{self as cost, PairCostParams, ViewStats};
+use mode360_model::matching::{luma, INTENSITY_SCALE};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 use sampling::CameraSampler;
@@ -435,14 +435,14 @@ fn masked_validity(
         .collect()
 }
 
-/// Parallax weights of the cached rig's camera pairs ([`crate::matching::pair_parallax_weights`]).
+/// Parallax weights of the cached rig's camera pairs ([`mode360_model::matching::pair_parallax_weights`]).
 fn pair_parallax_weights(key: &CacheKey, exponent: f32) -> Vec<Vec<f32>> {
     let centres: Vec<_> = key
         .cam_from_output
         .iter()
         .map(|c| c.inverse().translation.vector)
         .collect();
-    crate::matching::pair_parallax_weights(key.output, &centres, exponent)
+    mode360_model::matching::pair_parallax_weights(key.output, &centres, exponent)
 }
 
 impl PhotometricSweep {

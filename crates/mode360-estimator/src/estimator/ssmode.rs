@@ -15,14 +15,14 @@ use super::edge_refine::{self, weighted_median_refine, EdgeRefineParams};
 use super::guided_upsample::{grey_on_grid, guided_upsample};
 use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use crate::model::{
-    input_tensor, load_weights, ComputeDevice, ModelError, Ssmode, SsmodeConfig, SweepSampling,
-};
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::panorama::RigRemap;
 pub use mode360_core::geometry::resample_erp;
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::shipped::{self, BuiltinFile};
+use mode360_model::model::{
+    input_tensor, load_weights, ComputeDevice, ModelError, Ssmode, SsmodeConfig, SweepSampling,
+};
 
 /// The estimator's name on the command line and in reports.
 pub const SSMODE_NAME: &str = "ssmode";

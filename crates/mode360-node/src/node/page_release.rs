@@ -37,8 +37,10 @@ pub const TRIM_MIN_INTERVAL: Duration = Duration::from_secs(30);
 /// this long is the working set (model loaded, tables built, the first frames run).
 pub const TRIM_STARTUP: Duration = Duration::from_secs(30);
 /// After a release, the highest resident size seen for this long is measured as the working set
-/// again (the next frames fault their buffers back in).
-pub const TRIM_SETTLE: Duration = Duration::from_secs(10);
+/// again (the next frames fault their buffers back in). As long as the interval: at 512 the
+/// resident size takes 20 to 30 s to grow back (measured: a 10 s window read it 100 to 300 MiB
+/// low, and the node released every 30 s from then on).
+pub const TRIM_SETTLE: Duration = Duration::from_secs(30);
 
 /// When the node hands freed memory back: a burst of large input (oversized images, a backlog
 /// of fragments) leaves the allocator holding pages the node no longer uses, and jemalloc as the

@@ -10,7 +10,7 @@
 use super::params::{ExtrinsicsSource, ImageTransport, NodeParams};
 use super::pipeline::FarValue;
 use mode360_estimator::estimator::EstimatorError;
-use mode360_estimator::model::DeviceError;
+use mode360_model::model::DeviceError;
 use std::net::IpAddr;
 use std::path::PathBuf;
 

@@ -10,7 +10,7 @@ use super::optim::AdamW;
 use super::options::{io_err, TrainError};
 use candle_core::Device;
 use candle_nn::VarMap;
-use mode360_estimator::model::{save_weights, SsmodeConfig};
+use mode360_model::model::{save_weights, SsmodeConfig};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

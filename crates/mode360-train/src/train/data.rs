@@ -49,11 +49,11 @@ use candle_core::{Device, Tensor};
 use mode360_core::frame::{FloatImage, RgbImage, SceneLabels};
 use mode360_core::geometry::panorama::RigRemap;
 use mode360_core::geometry::{ErpGrid, Rig, RigError};
-use mode360_estimator::model::{input_tensor, ModelError};
 use mode360_io::deep360::{
     clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId,
     Deep360FrameVariant, Deep360Split,
 };
+use mode360_model::model::{input_tensor, ModelError};
 use mode360_synth::synth::noise::{hash_words, Rng};
 use mode360_synth::synth::{
     BlockedLens, BlockerKind, SceneKind, StreetStyle, SynthConfig, SynthError, SynthRenderer,

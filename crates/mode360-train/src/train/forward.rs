@@ -11,7 +11,7 @@ use candle_core::backprop::GradStore;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 use mode360_core::metrics::{depth_metrics, FrameAverage};
-use mode360_estimator::model::{Ssmode, SsmodeConfig, SweepSampling};
+use mode360_model::model::{Ssmode, SsmodeConfig, SweepSampling};
 
 /// Sweep tables of the most recently used rigs (the Deep360 rig of validation and part of
 /// training, and a pool of random rigs, see [`super::rig_pool`]), least recently used evicted.

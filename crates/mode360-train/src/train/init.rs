@@ -5,7 +5,7 @@
 use super::options::TrainError;
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
-use mode360_estimator::model::{ModelError, SsmodeConfig};
+use mode360_model::model::{ModelError, SsmodeConfig};
 use std::path::Path;
 
 /// Layer sizes of `cfg` (what weights depend on; not the width, name or readout).
@@ -55,7 +55,7 @@ fn widens_to(file: &SsmodeConfig, cfg: &SsmodeConfig) -> bool {
         }) == architecture(cfg)
 }
 
-/// The logit prior's variable ([`mode360_estimator::model::logit_prior`]): a file without it
+/// The logit prior's variable ([`mode360_model::model::logit_prior`]): a file without it
 /// starts it at its zero initialisation.
 const LOGIT_PRIOR_VAR: &str = "logit_prior";
 
@@ -110,7 +110,7 @@ pub(super) fn load_init_weights(
     cfg: &SsmodeConfig,
     varmap: &mut VarMap,
 ) -> Result<(), TrainError> {
-    let file_cfg = mode360_estimator::model::read_config(path)?;
+    let file_cfg = mode360_model::model::read_config(path)?;
     if widens_to(&file_cfg, cfg) {
         return load_widened(path, varmap);
     }
@@ -267,7 +267,7 @@ impl candle_nn::var_builder::SimpleBackend for SeededVarMap {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use mode360_estimator::model::{Ssmode, SweepSampling};
+    use mode360_model::model::{Ssmode, SweepSampling};
 
     /// Random images in [0, 1], one `(1, H, W, 3)` tensor per camera.
     fn images(cfg: &SsmodeConfig, cameras: usize) -> Vec<Tensor> {
@@ -290,7 +290,7 @@ mod tests {
         let narrow_map = VarMap::new();
         let narrow =
             Ssmode::new(narrow_cfg, seeded_var_builder(&narrow_map, 3, &Device::Cpu)).unwrap();
-        mode360_estimator::model::save_weights(&narrow_map, narrow_cfg, &path).unwrap();
+        mode360_model::model::save_weights(&narrow_map, narrow_cfg, &path).unwrap();
 
         let mut wide_map = VarMap::new();
         let wide = Ssmode::new(wide_cfg, seeded_var_builder(&wide_map, 9, &Device::Cpu)).unwrap();
@@ -378,7 +378,7 @@ mod tests {
         let cfg = SsmodeConfig::tiny();
         let map = VarMap::new();
         Ssmode::new(&cfg, seeded_var_builder(&map, 3, &Device::Cpu)).unwrap();
-        mode360_estimator::model::save_weights(&map, &cfg, &path).unwrap();
+        mode360_model::model::save_weights(&map, &cfg, &path).unwrap();
         let mut wide_map = VarMap::new();
         let wide_cfg = SsmodeConfig::tiny_zncc();
         Ssmode::new(&wide_cfg, seeded_var_builder(&wide_map, 9, &Device::Cpu)).unwrap();

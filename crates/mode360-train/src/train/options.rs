@@ -5,7 +5,7 @@
 use super::data::{DataError, SceneMix};
 use super::log::ValRecord;
 use super::loss::{LossError, LossWeighting};
-use mode360_estimator::model::{ComputeDevice, ModelError, Preset, SsmodeConfig};
+use mode360_model::model::{ComputeDevice, ModelError, Preset, SsmodeConfig};
 use std::path::{Path, PathBuf};
 
 /// Errors of a training run; each names the file or option at fault.

@@ -21,7 +21,7 @@ use super::optim::{AdamW, AdamWParams, LrSchedule};
 use super::options::{io_err, resolve_config, StepReport, TrainError, TrainOptions, TrainSummary};
 use candle_core::{DType, Device};
 use candle_nn::VarMap;
-use mode360_estimator::model::{save_weights, ModelError, Ssmode, SsmodeConfig};
+use mode360_model::model::{save_weights, ModelError, Ssmode, SsmodeConfig};
 use std::path::PathBuf;
 use std::time::Instant;
 

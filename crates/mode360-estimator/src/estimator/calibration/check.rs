@@ -10,10 +10,10 @@ use super::{
 };
 use crate::estimator::photometric::sampling::CameraSampler;
 use crate::estimator::EstimatorError;
-use crate::matching::zncc::{box_mean, ViewStats};
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::panorama::panorama_rig;
 use mode360_core::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360_model::matching::zncc::{box_mean, ViewStats};
 
 /// Added to each window variance so that the ZNCC of flat windows stays finite.
 const VARIANCE_FLOOR: f32 = 1e-6;

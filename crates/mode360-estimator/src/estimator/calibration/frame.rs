@@ -4,10 +4,10 @@ use crate::estimator::lens_health::ranges_on;
 use crate::estimator::lens_mask::LensMask;
 use crate::estimator::photometric::sampling::bilinear_wrapped;
 use crate::estimator::EstimatorError;
-use crate::matching::{luma, INTENSITY_SCALE};
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::panorama::RigRemap;
 use mode360_core::geometry::{ErpGrid, Rig};
+use mode360_model::matching::{luma, INTENSITY_SCALE};
 
 /// One frame, prepared for the check: each camera's grey panorama and where it sees, and the
 /// estimated range on the analysis grid.

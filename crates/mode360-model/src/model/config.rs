@@ -105,7 +105,7 @@ pub struct SsmodeConfig {
     pub far_parallax_cells: f64,
     /// Edge refinement of the readout: the radius in network cells of the confidence-weighted
     /// median that cleans the range before it is upsampled to the output
-    /// ([`crate::estimator::edge_refine`]); 0 turns it off. Chosen on the validation split;
+    /// (`mode360_estimator::estimator::edge_refine`); 0 turns it off. Chosen on the validation split;
     /// files without it get the default.
     #[serde(default = "default_refine_radius_cells")]
     pub refine_radius_cells: usize,

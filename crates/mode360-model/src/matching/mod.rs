@@ -1,11 +1,11 @@
 //! Learning-free photometric matching shared by the photometric sweep
-//! ([`crate::estimator::photometric`]) and SSMODE's photometric cost channel
+//! (`mode360_estimator::estimator::photometric`) and SSMODE's photometric cost channel
 //! ([`crate::model::photometric_cost`]): windowed ZNCC between camera pairs combined over the
 //! best pairs ([`zncc`]) and the per-pair parallax weights ([`pair_parallax_weights`]).
 //!
 //! Pure numerics over row-major `f32` images: no tensors, no ROS.
 
-pub(crate) mod zncc;
+pub mod zncc;
 
 use mode360_core::geometry::{ErpGrid, PixelCoord};
 use nalgebra::Vector3;

@@ -17,7 +17,7 @@
 //! photometric channel, [`crate::cpu`]) gets them in 8-wide vectors too.
 
 /// Cost of a pair that cannot tell hypotheses apart.
-pub(crate) const UNDECIDED_COST: f32 = 0.5;
+pub const UNDECIDED_COST: f32 = 0.5;
 /// Cost of a pair one of whose cameras does not see the point: never among the best.
 const UNSEEN_COST: f32 = f32::INFINITY;
 /// A warped validity mask at least this high counts as seen.
@@ -28,14 +28,7 @@ const SEEN_THRESHOLD: f32 = 0.5;
 /// `out[v][u] = mean_{|dv|<=r, |du|<=r} in[clamp(v+dv)][(u+du) mod W]`; `tmp` is scratch of
 /// the same size.
 #[inline(always)]
-pub(crate) fn box_mean(
-    input: &[f32],
-    w: usize,
-    h: usize,
-    r: usize,
-    tmp: &mut [f32],
-    out: &mut [f32],
-) {
+pub fn box_mean(input: &[f32], w: usize, h: usize, r: usize, tmp: &mut [f32], out: &mut [f32]) {
     // Direct sums of shifted rows (2 r + 1 vectorised adds per element) rather than running
     // sums: no loop-carried dependency, and no rounding error accumulated along a row.
     let taps = 2 * r + 1;
@@ -77,7 +70,7 @@ pub(crate) fn box_mean(
 
 /// Parameters of the pair cost.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct PairCostParams {
+pub struct PairCostParams {
     pub window_radius_px: usize,
     pub variance_floor: f32,
     pub mean_weight: f32,
@@ -87,7 +80,7 @@ pub(crate) struct PairCostParams {
 }
 
 /// Windowed statistics of one warped view.
-pub(crate) struct ViewStats {
+pub struct ViewStats {
     pub image: Vec<f32>,
     pub mean: Vec<f32>,
     /// `E[a^2] - E[a]^2`.
@@ -121,7 +114,7 @@ impl ViewStats {
 /// `c` sees the sphere's point; a pair counts only where both see it, and a pixel no pair
 /// sees is undecided.
 #[inline(always)]
-pub(crate) fn sphere_cost(
+pub fn sphere_cost(
     views: &[&ViewStats],
     seen: &[Option<&[f32]>],
     pair_weights: &[Vec<f32>],
