@@ -87,6 +87,45 @@ struct Receiver {
 }
 
 impl Receiver {
+    /// The receive loop's state for `rig` under `params`: a synchronizer over its cameras,
+    /// the node's clock and the memory trim policy from now.
+    fn new(params: &NodeParams, rig: &Rig, shared: Arc<Shared>) -> Self {
+        let n = rig.cameras.len();
+        Self {
+            sync: ApproxTimeSync::new(
+                n,
+                SyncConfig {
+                    tolerance_ns: (params.sync_tolerance_s * 1e9).round() as u64,
+                    queue_size: params.sync_queue_size,
+                    // max_ahead_ns and reset_jump_ns: not node parameters (yet), the defaults.
+                    ..SyncConfig::default()
+                },
+            )
+            .with_bytes_cap(
+                |img: &RgbImage| img.as_raw().len(),
+                MAX_QUEUED_BYTES_PER_CAMERA,
+            ),
+            clock: NodeClock::new(params.use_sim_time),
+            cams: (0..n)
+                .map(|_| CameraState {
+                    last_receipt_ns: None,
+                    received_in_period: 0,
+                    last_reset_warn: None,
+                    unlogged_resets: 0,
+                })
+                .collect(),
+            started_ns: None,
+            timeout_ns: (params.camera_timeout_s * 1e9).round() as u64,
+            shared,
+            hardware_id: params.fully_qualified_name(),
+            last_diag: Instant::now(),
+            created: Instant::now(),
+            trim: TrimPolicy::new(Instant::now()),
+            tf_static: rig_tf_static(rig),
+            cameras: rig.cameras.clone(),
+        }
+    }
+
     /// Takes one camera message: decodes it and feeds the synchronizer with its receive time,
     /// the node clock's now. With the system clock that is wall-clock time; with `use_sim_time`
     /// it is the newest `/clock` (none before the first, and then only the other cameras bound
@@ -296,40 +335,7 @@ pub(super) fn dds_main(
     let worker = spawn_worker(pipeline, publishers, shared.clone())?;
     let _ = ready.send(Ok(()));
 
-    let n = rig.cameras.len();
-    let mut rx = Receiver {
-        sync: ApproxTimeSync::new(
-            n,
-            SyncConfig {
-                tolerance_ns: (params.sync_tolerance_s * 1e9).round() as u64,
-                queue_size: params.sync_queue_size,
-                // max_ahead_ns and reset_jump_ns: not node parameters (yet), the defaults.
-                ..SyncConfig::default()
-            },
-        )
-        .with_bytes_cap(
-            |img: &RgbImage| img.as_raw().len(),
-            MAX_QUEUED_BYTES_PER_CAMERA,
-        ),
-        clock: NodeClock::new(params.use_sim_time),
-        cams: (0..n)
-            .map(|_| CameraState {
-                last_receipt_ns: None,
-                received_in_period: 0,
-                last_reset_warn: None,
-                unlogged_resets: 0,
-            })
-            .collect(),
-        started_ns: None,
-        timeout_ns: (params.camera_timeout_s * 1e9).round() as u64,
-        shared: shared.clone(),
-        hardware_id: params.fully_qualified_name(),
-        last_diag: Instant::now(),
-        created: Instant::now(),
-        trim: TrimPolicy::new(Instant::now()),
-        tf_static: rig_tf_static(&rig),
-        cameras: rig.cameras.clone(),
-    };
+    let mut rx = Receiver::new(&params, &rig, shared.clone());
 
     rt.block_on(async {
         let raw = futures::stream::select_all(raw_subs.iter().map(|(i, s)| {
