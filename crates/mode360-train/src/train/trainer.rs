@@ -89,7 +89,7 @@ impl Trainer {
                 ..AdamWParams::default()
             },
         )?;
-        let mut state = CheckpointState {
+        let state = CheckpointState {
             version: STATE_VERSION,
             step: 0,
             next_sample_index: 0,
@@ -101,56 +101,8 @@ impl Trainer {
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
             mix: opts.mix,
         };
-        let mut resumed = false;
-        if opts.resume {
-            if let Some(dir) = find_checkpoint(&opts.out_dir) {
-                state = load_checkpoint(
-                    &dir,
-                    &mut varmap,
-                    &mut opt,
-                    &state,
-                    Restore::Resume,
-                    &device,
-                )?;
-                resumed = true;
-            }
-        }
-        match (resumed, &opts.init_weights, &opts.fork_from) {
-            (true, _, _) | (false, None, None) => {}
-            (false, Some(init), None) => load_init_weights(init, &cfg, &mut varmap)?,
-            (false, None, Some(run)) => {
-                let dir = find_checkpoint(run)
-                    .or_else(|| run.join(STATE_FILE).is_file().then(|| run.clone()))
-                    .ok_or_else(|| TrainError::Option {
-                        option: "fork_from",
-                        problem: format!("no checkpoint in {}", run.display()),
-                    })?;
-                state =
-                    load_checkpoint(&dir, &mut varmap, &mut opt, &state, Restore::Fork, &device)?;
-            }
-            (false, Some(_), Some(_)) => {
-                return Err(TrainError::Option {
-                    option: "fork_from",
-                    problem: "a run starts from init_weights or forks a checkpoint, not both"
-                        .into(),
-                })
-            }
-        }
-        let train_csv = opts.out_dir.join(TRAIN_CSV);
-        let val_csv = opts.out_dir.join(VAL_CSV);
-        let curves = opts.out_dir.join(CURVES_PNG);
-        if opts.resume {
-            super::log::truncate_after_step(&train_csv, super::log::TRAIN_CSV_HEADER, state.step)
-                .map_err(io_err(&train_csv))?;
-            super::log::truncate_after_step(&val_csv, super::log::VAL_CSV_HEADER, state.step)
-                .map_err(io_err(&val_csv))?;
-        } else {
-            for p in [&train_csv, &val_csv] {
-                if p.exists() {
-                    std::fs::remove_file(p).map_err(io_err(p))?;
-                }
-            }
-        }
+        let state = restore(&opts, &cfg, &mut varmap, &mut opt, state, &device)?;
+        let (train_csv, val_csv, curves) = prepare_logs(&opts, state.step)?;
         let data_cfg = DataConfig {
             seed: opts.seed,
             width: cfg.width,
@@ -176,17 +128,7 @@ impl Trainer {
             min_lr_fraction: MIN_LR_FRACTION,
         };
         let start_step = state.step;
-        let bar = if opts.show_progress {
-            indicatif::ProgressBar::new(opts.steps as u64)
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {pos}/{len} {msg} ETA {eta_precise}",
-        ) {
-            bar.set_style(style);
-        }
-        bar.set_position(start_step as u64);
+        let bar = progress_bar(&opts, start_step);
         let run_start = Instant::now();
         let last_checkpoint = Instant::now();
         let stream = if start_step < opts.last_step() {
@@ -431,6 +373,83 @@ impl Trainer {
             weights_path,
         })
     }
+}
+
+/// The run's starting point: its own checkpoint when resuming (and one is there), else the
+/// `init_weights` file or a forked run's checkpoint, else the fresh `state`.
+fn restore(
+    opts: &TrainOptions,
+    cfg: &SsmodeConfig,
+    varmap: &mut VarMap,
+    opt: &mut AdamW,
+    state: CheckpointState,
+    device: &Device,
+) -> Result<CheckpointState, TrainError> {
+    if opts.resume {
+        if let Some(dir) = find_checkpoint(&opts.out_dir) {
+            return load_checkpoint(&dir, varmap, opt, &state, Restore::Resume, device);
+        }
+    }
+    match (&opts.init_weights, &opts.fork_from) {
+        (None, None) => Ok(state),
+        (Some(init), None) => {
+            load_init_weights(init, cfg, varmap)?;
+            Ok(state)
+        }
+        (None, Some(run)) => {
+            let dir = find_checkpoint(run)
+                .or_else(|| run.join(STATE_FILE).is_file().then(|| run.clone()))
+                .ok_or_else(|| TrainError::Option {
+                    option: "fork_from",
+                    problem: format!("no checkpoint in {}", run.display()),
+                })?;
+            load_checkpoint(&dir, varmap, opt, &state, Restore::Fork, device)
+        }
+        (Some(_), Some(_)) => Err(TrainError::Option {
+            option: "fork_from",
+            problem: "a run starts from init_weights or forks a checkpoint, not both".into(),
+        }),
+    }
+}
+
+/// The run's CSV logs (cut back to `step` when resuming, removed when starting afresh) and
+/// where its curves go.
+fn prepare_logs(
+    opts: &TrainOptions,
+    step: usize,
+) -> Result<(PathBuf, PathBuf, PathBuf), TrainError> {
+    let train_csv = opts.out_dir.join(TRAIN_CSV);
+    let val_csv = opts.out_dir.join(VAL_CSV);
+    let curves = opts.out_dir.join(CURVES_PNG);
+    if opts.resume {
+        super::log::truncate_after_step(&train_csv, super::log::TRAIN_CSV_HEADER, step)
+            .map_err(io_err(&train_csv))?;
+        super::log::truncate_after_step(&val_csv, super::log::VAL_CSV_HEADER, step)
+            .map_err(io_err(&val_csv))?;
+    } else {
+        for p in [&train_csv, &val_csv] {
+            if p.exists() {
+                std::fs::remove_file(p).map_err(io_err(p))?;
+            }
+        }
+    }
+    Ok((train_csv, val_csv, curves))
+}
+
+/// The training progress bar (hidden without `show_progress`), at `start_step`.
+fn progress_bar(opts: &TrainOptions, start_step: usize) -> indicatif::ProgressBar {
+    let bar = if opts.show_progress {
+        indicatif::ProgressBar::new(opts.steps as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:30}] {pos}/{len} {msg} ETA {eta_precise}",
+    ) {
+        bar.set_style(style);
+    }
+    bar.set_position(start_step as u64);
+    bar
 }
 
 /// Runs (or resumes) a training run; see the module docs.
