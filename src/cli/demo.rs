@@ -11,7 +11,8 @@ use crate::viz::{colorize_range, depth_legend, stack_vertical};
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
 use image::Rgb;
-use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
+use mode360_core::geometry::Rig;
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader};
@@ -27,7 +28,7 @@ use mode360_node::node::{
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// How long to wait for DDS discovery.
@@ -134,24 +135,22 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
         wait_for_subscribers: Some(DISCOVERY_TIMEOUT),
         wait_topics: rig.cameras.iter().map(|c| c.topic.clone()).collect(),
     })?;
-    let mut depths: BTreeMap<u64, Image> = BTreeMap::new();
-    let mut clouds: BTreeMap<u64, PointCloud2> = BTreeMap::new();
-    let mut confs: BTreeMap<u64, Image> = BTreeMap::new();
+    let mut received = Received::default();
     let t0 = Instant::now();
     loop {
         while let Some((m, _)) = depth_sub.take().map_err(dds_read)? {
-            depths.insert(m.header.stamp.to_nanos(), m);
+            received.depths.insert(m.header.stamp.to_nanos(), m);
         }
         while let Some((m, _)) = points_sub.take().map_err(dds_read)? {
-            clouds.insert(m.header.stamp.to_nanos(), m);
+            received.clouds.insert(m.header.stamp.to_nanos(), m);
         }
         while let Some((m, _)) = conf_sub.take().map_err(dds_read)? {
-            confs.insert(m.header.stamp.to_nanos(), m);
+            received.confs.insert(m.header.stamp.to_nanos(), m);
         }
         let h = node.health();
         let settled = (h.groups_processed + h.groups_dropped) as usize >= frames.len()
-            && depths.len() as u64 >= h.groups_processed
-            && clouds.len() as u64 >= h.groups_processed;
+            && received.depths.len() as u64 >= h.groups_processed
+            && received.clouds.len() as u64 >= h.groups_processed;
         if settled || t0.elapsed() > RECEIVE_TIMEOUT {
             break;
         }
@@ -159,13 +158,41 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
     }
     listener.stop()?;
 
-    // Output bag: inputs, then what the node published.
-    let mut out = BagWriter::create(&opts.out_bag)?;
+    write_output_bag(&opts.out_bag, &rig, &frames, &received)?;
+
+    let (average, total_points) =
+        score_and_preview(&opts.png_dir, &rig, &frames, &received, max_depth_m)?;
+    let summary = DemoSummary {
+        frames_played: frames.len(),
+        depth_received: received.depths.len(),
+        points_received: received.clouds.len(),
+        mean_points: total_points as f64 / received.clouds.len().max(1) as f64,
+        metrics: (average.frames() > 0).then(|| average.depth()),
+    };
+    Ok((summary, node))
+}
+
+/// What the demo's listener received from the node, by stamp.
+#[derive(Default)]
+struct Received {
+    depths: BTreeMap<u64, Image>,
+    clouds: BTreeMap<u64, PointCloud2>,
+    confs: BTreeMap<u64, Image>,
+}
+
+/// The demo's output bag: the rig, the input images, then what the node published.
+fn write_output_bag(
+    path: &Path,
+    rig: &Rig,
+    frames: &[RigFrame],
+    received: &Received,
+) -> Result<()> {
+    let mut out = BagWriter::create(path)?;
     out.write_metadata(
         mode360_io::bag::RIG_METADATA,
         BTreeMap::from([(mode360_io::bag::RIG_YAML_KEY.to_string(), rig.to_yaml())]),
     )?;
-    for f in &frames {
+    for f in frames {
         for (cam, img) in rig.cameras.iter().zip(&f.images) {
             out.write(
                 &cam.topic,
@@ -174,24 +201,35 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
             )?;
         }
     }
-    for (stamp, m) in &depths {
+    for (stamp, m) in &received.depths {
         out.write("/mode360/depth", *stamp, m)?;
     }
-    for (stamp, m) in &clouds {
+    for (stamp, m) in &received.clouds {
         out.write("/mode360/points", *stamp, m)?;
     }
-    for (stamp, m) in &confs {
+    for (stamp, m) in &received.confs {
         out.write("/mode360/confidence", *stamp, m)?;
     }
     out.finish()?;
 
-    // Metrics and previews.
-    std::fs::create_dir_all(&opts.png_dir)
-        .with_context(|| format!("creating {}", opts.png_dir.display()))?;
+    Ok(())
+}
+
+/// Scores the received depth against the frames' ground truth and writes the previews (depth
+/// with its legend, the cloud from above) to `png_dir`; returns the metrics and the points
+/// received in all.
+fn score_and_preview(
+    png_dir: &Path,
+    rig: &Rig,
+    frames: &[RigFrame],
+    received: &Received,
+    max_depth_m: f64,
+) -> Result<(FrameAverage, usize)> {
+    std::fs::create_dir_all(png_dir).with_context(|| format!("creating {}", png_dir.display()))?;
     let mut average = FrameAverage::default();
     let mut total_points = 0usize;
     for (n, f) in frames.iter().enumerate() {
-        let Some(depth) = depths.get(&f.stamp_ns) else {
+        let Some(depth) = received.depths.get(&f.stamp_ns) else {
             continue;
         };
         let pred = float_from_image_msg(depth)
@@ -215,26 +253,19 @@ fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
             PREVIEW_MIN_DEPTH_M,
             max_depth_m as f32,
         ));
-        let png = opts.png_dir.join(format!("demo_depth_{n:03}.png"));
+        let png = png_dir.join(format!("demo_depth_{n:03}.png"));
         stack_vertical(&rows)
             .save(&png)
             .with_context(|| format!("writing {}", png.display()))?;
-        if let Some(points) = clouds.get(&f.stamp_ns).and_then(decode_points) {
+        if let Some(points) = received.clouds.get(&f.stamp_ns).and_then(decode_points) {
             total_points += points.len();
-            let png = opts.png_dir.join(format!("demo_points_top_{n:03}.png"));
+            let png = png_dir.join(format!("demo_points_top_{n:03}.png"));
             top_view(&points)
                 .save(&png)
                 .with_context(|| format!("writing {}", png.display()))?;
         }
     }
-    let summary = DemoSummary {
-        frames_played: frames.len(),
-        depth_received: depths.len(),
-        points_received: clouds.len(),
-        mean_points: total_points as f64 / clouds.len().max(1) as f64,
-        metrics: (average.frames() > 0).then(|| average.depth()),
-    };
-    Ok((summary, node))
+    Ok((average, total_points))
 }
 
 /// Keeps the node's live view fed: plays the bag in a loop until SIGINT or SIGTERM.
