@@ -20,7 +20,7 @@ use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{RigBagReader, RigBagWriter};
 use mode360_io::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use mode360_io::msgs::image::float_from_image_msg;
-use mode360_node::node::diagnostics::{diagnostic_array, CameraHealth, NodeHealth};
+use mode360_node::node::diagnostics::{diagnostic_array, NodeHealth};
 use mode360_node::node::pipeline::{Pipeline, PipelineParams};
 use mode360_node::node::{
     resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
@@ -123,24 +123,15 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     };
     let mut obstacles = ObstacleSummary::default();
     let mut average = FrameAverage::default();
-    let mut health = NodeHealth {
-        cameras: rig
-            .cameras
+    let mut health = NodeHealth::of_cameras(
+        rig.cameras
             .iter()
-            .map(|c| CameraHealth {
-                name: c.name.clone(),
-                topic: c.topic.clone(),
-                active: true,
-                ..Default::default()
-            })
-            .collect(),
-        ..Default::default()
-    };
+            .map(|c| (c.name.as_str(), c.topic.clone())),
+    );
     let depth_topic = resolve_topic(REPLAY_NAMESPACE, DEPTH_TOPIC);
     let points_topic = resolve_topic(REPLAY_NAMESPACE, POINTS_TOPIC);
     let confidence_topic = resolve_topic(REPLAY_NAMESPACE, CONFIDENCE_TOPIC);
     let compressed_depth_topic = resolve_topic(REPLAY_NAMESPACE, COMPRESSED_DEPTH_TOPIC);
-    let mut total_latency_ms = 0.0;
     for frame in reader.frames() {
         if opts.max_frames.is_some_and(|n| summary.frames >= n) {
             break;
@@ -184,23 +175,19 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         if let Some(compressed) = &out.compressed_depth {
             bag.write(&compressed_depth_topic, stamp_ns, compressed)?;
         }
-        let latency_ms = out.latency.as_secs_f64() * 1e3;
-        total_latency_ms += latency_ms;
         summary.frames += 1;
         summary.latencies.push(out.latency);
         summary.point_counts.push(points.width as usize);
         for cam in &mut health.cameras {
             cam.record_good();
         }
-        health.groups_processed += 1;
+        health.record_processed(out.latency.as_secs_f64() * 1e3);
         health.record_lens(&out.lens);
         health.record_calibration(&out.calibration);
         health.sync = SyncStats {
             groups: summary.frames as u64,
             ..SyncStats::default()
         };
-        health.last_latency_ms = Some(latency_ms);
-        health.mean_latency_ms = Some(total_latency_ms / summary.frames as f64);
         bag.write(
             DIAGNOSTICS_TOPIC,
             stamp_ns,

@@ -5,7 +5,7 @@
 //! then shuts everything down, reporting a [`NodeRun`].
 
 use super::dds::{runtime, DdsOptions};
-use super::diagnostics::{CameraHealth, NodeHealth};
+use super::diagnostics::NodeHealth;
 use super::live_view::LiveView;
 use super::params::{ExtrinsicsSource, NodeParams};
 use super::pipeline::Pipeline;
@@ -183,19 +183,13 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
             outputs: OutputToggles::of(&params),
         })),
         health: Mutex::new(NodeHealth {
-            cameras: rig
-                .cameras
-                .iter()
-                .map(|c| CameraHealth {
-                    name: c.name.clone(),
-                    topic: camera_topic(&params, &c.name, &c.topic),
-                    active: true,
-                    ..Default::default()
-                })
-                .collect(),
             lens_warn_fraction: params.lens_warn_fraction,
             calibration_warn_deg: params.calibration_warn_deg,
-            ..Default::default()
+            ..NodeHealth::of_cameras(
+                rig.cameras
+                    .iter()
+                    .map(|c| (c.name.as_str(), camera_topic(&params, &c.name, &c.topic))),
+            )
         }),
     });
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -236,6 +230,7 @@ pub fn spawn_node(mut params: NodeParams, dds: DdsOptions) -> Result<NodeHandle,
 
 #[cfg(test)]
 mod tests {
+    use super::super::diagnostics::CameraHealth;
     use super::*;
     use mode360_core::sync::SyncStats;
 

@@ -86,7 +86,6 @@ pub(super) fn worker_main(
     publishers: OutputPublishers,
     shared: Arc<Shared>,
 ) {
-    let mut total_ms = 0.0;
     loop {
         let group = {
             let mut mb = lock(&shared.mailbox);
@@ -126,18 +125,11 @@ pub(super) fn worker_main(
             Ok(out) => {
                 // Counted before the messages go out, so that whoever receives them sees them
                 // counted.
-                let skipped_points = out.points.is_none();
-                let ms = out.latency.as_secs_f64() * 1e3;
-                total_ms += ms;
                 {
                     let mut h = lock(&shared.health);
-                    h.groups_processed += 1;
-                    if skipped_points {
-                        h.clouds_skipped += 1;
-                    }
-                    h.last_latency_ms = Some(ms);
+                    h.record_processed(out.latency.as_secs_f64() * 1e3);
+                    h.clouds_skipped += u64::from(out.points.is_none());
                     h.last_depth_at = Some(std::time::Instant::now());
-                    h.mean_latency_ms = Some(total_ms / h.groups_processed as f64);
                 }
                 if let Some(live) = live {
                     live.depth.log(&out.depth);

@@ -230,6 +230,32 @@ impl NodeHealth {
             cam.calibration = Some(d.clone());
         }
     }
+
+    /// The health of a node starting on these cameras (`(name, topic)` in rig order), each
+    /// active and nothing counted yet.
+    pub fn of_cameras<'a>(cameras: impl IntoIterator<Item = (&'a str, String)>) -> Self {
+        Self {
+            cameras: cameras
+                .into_iter()
+                .map(|(name, topic)| CameraHealth {
+                    name: name.to_string(),
+                    topic,
+                    active: true,
+                    ..Default::default()
+                })
+                .collect(),
+            ..Default::default()
+        }
+    }
+
+    /// Counts a group run through the pipeline in `latency_ms` (the newest latency and the
+    /// running mean over every processed group).
+    pub fn record_processed(&mut self, latency_ms: f64) {
+        self.groups_processed += 1;
+        let mean = self.mean_latency_ms.unwrap_or(0.0);
+        self.mean_latency_ms = Some(mean + (latency_ms - mean) / self.groups_processed as f64);
+        self.last_latency_ms = Some(latency_ms);
+    }
 }
 
 fn kv(key: &str, value: impl ToString) -> KeyValue {

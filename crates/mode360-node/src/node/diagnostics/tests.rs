@@ -245,3 +245,19 @@ fn a_stalled_pipeline_is_error_with_the_reason() {
         .iter()
         .any(|kv| kv.key == "depth_age_s" && kv.value == "n/a"));
 }
+
+#[test]
+fn processed_groups_keep_the_newest_and_the_mean_latency() {
+    let mut h = NodeHealth::of_cameras([("cam1", "/cam1/image_raw".to_string())]);
+    assert_eq!(
+        (h.cameras[0].name.as_str(), h.cameras[0].active),
+        ("cam1", true)
+    );
+    for ms in [300.0, 500.0, 400.0, 1000.0] {
+        h.record_processed(ms);
+    }
+    assert_eq!(h.groups_processed, 4);
+    assert_eq!(h.last_latency_ms, Some(1000.0));
+    let mean = h.mean_latency_ms.unwrap_or(f64::NAN);
+    assert!((mean - 550.0).abs() < 1e-9, "{mean}");
+}
