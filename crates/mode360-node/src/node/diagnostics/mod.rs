@@ -307,99 +307,113 @@ fn calibration_status(cam: &CameraHealth, warn_deg: f64) -> Option<(u8, String)>
 
 /// The `/diagnostics` message of `health` stamped `stamp_ns`.
 pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -> DiagnosticArray {
-    let mut status = Vec::with_capacity(health.cameras.len() + 1);
-    for cam in &health.cameras {
-        let (level, message) = if cam.only_malformed() {
-            let what = match cam.last_bad_kind {
-                Some(BadImageReason::StampAhead) => "images stamped far ahead",
-                _ => "malformed images",
-            };
-            (
-                DiagnosticStatus::ERROR,
-                format!(
-                    "sending only {what}: {}",
-                    cam.last_bad_reason.as_deref().unwrap_or("")
-                ),
-            )
-        } else if !cam.active {
-            (DiagnosticStatus::WARN, "timed out, not waited for".into())
-        } else if cam.received == 0 {
-            (DiagnosticStatus::WARN, "no images yet".into())
-        } else if cam.bad_messages > 0 {
-            (
-                DiagnosticStatus::WARN,
-                "receiving, some messages dropped".into(),
-            )
-        } else {
-            (DiagnosticStatus::OK, "receiving".into())
-        };
-        let (level, message) = match lens_status(cam, health.lens_warn_fraction) {
-            Some((lens_level, lens_message)) if lens_level >= level => (lens_level, lens_message),
-            _ => (level, message),
-        };
-        let (level, message) = match calibration_status(cam, health.calibration_warn_deg) {
-            Some((cal_level, cal_message)) if cal_level > level => (cal_level, cal_message),
-            Some((cal_level, cal_message))
-                if cal_level == level && level != DiagnosticStatus::OK =>
-            {
-                (level, format!("{message}; {cal_message}"))
-            }
-            _ => (level, message),
-        };
-        let mut values = vec![
-            kv("topic", &cam.topic),
-            kv("received", cam.received),
-            kv("rate_hz", format!("{:.2}", cam.rate_hz)),
-            kv(
-                "age_s",
-                cam.age_s
-                    .map_or_else(|| "n/a".into(), |a| format!("{a:.3}")),
-            ),
-            kv("active", cam.active),
-            kv("bad_messages", cam.bad_messages),
-            kv(
-                "last_bad_reason",
-                cam.last_bad_reason.as_deref().unwrap_or(""),
-            ),
-            kv(
-                "blocked_fraction",
-                cam.lens
-                    .as_ref()
-                    .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.blocked_fraction)),
-            ),
-            kv(
-                "lens_decided_fraction",
-                cam.lens
-                    .as_ref()
-                    .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.decided_fraction)),
-            ),
-            kv(
-                "calibration_correction_deg",
-                cam.calibration
-                    .as_ref()
-                    .map_or_else(|| "n/a".into(), |d| format!("{:.3}", d.correction_deg)),
-            ),
-            kv("clock_jumped_back", cam.clock_jumps_back),
-            kv(
-                "last_clock_jump_s",
-                cam.last_clock_jump_s
-                    .map_or_else(|| "n/a".into(), |j| format!("{j:.3}")),
-            ),
-        ];
-        values.extend(BadImageReason::ALL.iter().map(|r| {
-            kv(
-                &format!("bad_{}", r.key()),
-                cam.bad_by_reason.get(r).copied().unwrap_or(0),
-            )
-        }));
-        status.push(DiagnosticStatus {
-            level,
-            name: format!("{DIAGNOSTIC_PREFIX}: camera {}", cam.name),
-            message,
-            hardware_id: hardware_id.to_string(),
-            values,
-        });
+    let mut status: Vec<DiagnosticStatus> = health
+        .cameras
+        .iter()
+        .map(|cam| camera_status(cam, health, hardware_id))
+        .collect();
+    status.push(pipeline_status(health, hardware_id));
+    DiagnosticArray {
+        header: Header::new(stamp_ns, ""),
+        status,
     }
+}
+
+/// One camera's status: its images, then its lens and calibration findings where they are
+/// at least as grave.
+fn camera_status(cam: &CameraHealth, health: &NodeHealth, hardware_id: &str) -> DiagnosticStatus {
+    let (level, message) = if cam.only_malformed() {
+        let what = match cam.last_bad_kind {
+            Some(BadImageReason::StampAhead) => "images stamped far ahead",
+            _ => "malformed images",
+        };
+        (
+            DiagnosticStatus::ERROR,
+            format!(
+                "sending only {what}: {}",
+                cam.last_bad_reason.as_deref().unwrap_or("")
+            ),
+        )
+    } else if !cam.active {
+        (DiagnosticStatus::WARN, "timed out, not waited for".into())
+    } else if cam.received == 0 {
+        (DiagnosticStatus::WARN, "no images yet".into())
+    } else if cam.bad_messages > 0 {
+        (
+            DiagnosticStatus::WARN,
+            "receiving, some messages dropped".into(),
+        )
+    } else {
+        (DiagnosticStatus::OK, "receiving".into())
+    };
+    let (level, message) = match lens_status(cam, health.lens_warn_fraction) {
+        Some((lens_level, lens_message)) if lens_level >= level => (lens_level, lens_message),
+        _ => (level, message),
+    };
+    let (level, message) = match calibration_status(cam, health.calibration_warn_deg) {
+        Some((cal_level, cal_message)) if cal_level > level => (cal_level, cal_message),
+        Some((cal_level, cal_message)) if cal_level == level && level != DiagnosticStatus::OK => {
+            (level, format!("{message}; {cal_message}"))
+        }
+        _ => (level, message),
+    };
+    let mut values = vec![
+        kv("topic", &cam.topic),
+        kv("received", cam.received),
+        kv("rate_hz", format!("{:.2}", cam.rate_hz)),
+        kv(
+            "age_s",
+            cam.age_s
+                .map_or_else(|| "n/a".into(), |a| format!("{a:.3}")),
+        ),
+        kv("active", cam.active),
+        kv("bad_messages", cam.bad_messages),
+        kv(
+            "last_bad_reason",
+            cam.last_bad_reason.as_deref().unwrap_or(""),
+        ),
+        kv(
+            "blocked_fraction",
+            cam.lens
+                .as_ref()
+                .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.blocked_fraction)),
+        ),
+        kv(
+            "lens_decided_fraction",
+            cam.lens
+                .as_ref()
+                .map_or_else(|| "n/a".into(), |l| format!("{:.3}", l.decided_fraction)),
+        ),
+        kv(
+            "calibration_correction_deg",
+            cam.calibration
+                .as_ref()
+                .map_or_else(|| "n/a".into(), |d| format!("{:.3}", d.correction_deg)),
+        ),
+        kv("clock_jumped_back", cam.clock_jumps_back),
+        kv(
+            "last_clock_jump_s",
+            cam.last_clock_jump_s
+                .map_or_else(|| "n/a".into(), |j| format!("{j:.3}")),
+        ),
+    ];
+    values.extend(BadImageReason::ALL.iter().map(|r| {
+        kv(
+            &format!("bad_{}", r.key()),
+            cam.bad_by_reason.get(r).copied().unwrap_or(0),
+        )
+    }));
+    DiagnosticStatus {
+        level,
+        name: format!("{DIAGNOSTIC_PREFIX}: camera {}", cam.name),
+        message,
+        hardware_id: hardware_id.to_string(),
+        values,
+    }
+}
+
+/// The pipeline's status: ERROR when no depth went out for long, WARN when degraded or failing.
+fn pipeline_status(health: &NodeHealth, hardware_id: &str) -> DiagnosticStatus {
     let degraded: Vec<&str> = health
         .cameras
         .iter()
@@ -422,7 +436,7 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
         None if degraded.is_empty() => "all cameras in use".into(),
         None => format!("degraded: without {}", degraded.join(", ")),
     };
-    status.push(DiagnosticStatus {
+    DiagnosticStatus {
         level,
         name: format!("{DIAGNOSTIC_PREFIX}: pipeline"),
         message,
@@ -452,10 +466,6 @@ pub fn diagnostic_array(stamp_ns: u64, hardware_id: &str, health: &NodeHealth) -
                     .map_or_else(|| "n/a".into(), |a| format!("{a:.1}")),
             ),
         ],
-    });
-    DiagnosticArray {
-        header: Header::new(stamp_ns, ""),
-        status,
     }
 }
 
