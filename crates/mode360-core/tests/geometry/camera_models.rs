@@ -2,12 +2,12 @@
 //! over random directions, and `None` (never a wrapped pixel) outside the field of view, off
 //! the image and outside the unprojection region.
 
-use mode360::geometry::camera::{
+use mode360_core::geometry::camera::{
     CameraModel, DoubleSphere, DualFisheye, DualLens, Eucm, FisheyeCamera, FisheyeLens, Focal,
     ImageSize, KannalaBrandt,
 };
-use mode360::geometry::erp::PixelCoord;
-use mode360::geometry::ErpGrid;
+use mode360_core::geometry::erp::PixelCoord;
+use mode360_core::geometry::ErpGrid;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// Deterministic generator (no extra crates).

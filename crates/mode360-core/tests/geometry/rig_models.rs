@@ -2,9 +2,9 @@
 //! intrinsics are errors naming the file, the camera and the field, and the parts that handle
 //! only panoramas refuse such a rig by name.
 
-use mode360::geometry::camera::CameraModel;
-use mode360::geometry::erp::PixelCoord;
-use mode360::geometry::{GeometryError, Projection, Rig};
+use mode360_core::geometry::camera::CameraModel;
+use mode360_core::geometry::erp::PixelCoord;
+use mode360_core::geometry::{GeometryError, Projection, Rig};
 use nalgebra::Vector3;
 
 const RIG: &str = r#"
@@ -288,7 +288,7 @@ fn panorama_only_parts_refuse_a_fisheye_rig_by_name() {
     // A rig of panoramas only passes.
     let deep360 = Rig::from_file(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_deep360.yaml"
+        "/../../launch_configs/rig_deep360.yaml"
     ));
     assert_eq!(deep360.unwrap().require_equirectangular("x"), Ok(()));
 }

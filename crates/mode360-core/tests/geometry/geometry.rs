@@ -1,8 +1,8 @@
 //! Geometry against independent ground truth: GEER's epipolar property, angular disparity to
 //! range, and sweep sampling tables.
 
-use mode360::geometry::erp::PixelCoord;
-use mode360::geometry::{
+use mode360_core::geometry::erp::PixelCoord;
+use mode360_core::geometry::{
     DepthHypotheses, DepthRange, ErpGrid, GeerPair, Rig, SweepGeometry, SweepTable,
 };
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -262,7 +262,7 @@ fn hypotheses_are_uniform_in_inverse_depth() {
 fn deep360_rig_file_is_the_papers_layout() {
     let rig = Rig::from_file(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_deep360.yaml"
+        "/../../launch_configs/rig_deep360.yaml"
     ))
     .unwrap();
     assert_eq!(rig.cameras.len(), 4);

@@ -4,11 +4,11 @@
 //! mark is accepted. The foreign files are the Python-written fixtures of
 //! tests/fixtures/calib, edited here as text, or text literals.
 
-use mode360::geometry::import::{
+use mode360_core::geometry::import::{
     rig_from_basalt_json, rig_from_kalibr_camchain, ImportError, ImportOptions, ModelKind,
     MAX_CALIBRATION_FILE_BYTES,
 };
-use mode360::geometry::Rig;
+use mode360_core::geometry::Rig;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -16,7 +16,11 @@ use std::time::{Duration, Instant};
 const HANG_GUARD: Duration = Duration::from_secs(5);
 
 fn fixture(name: &str) -> String {
-    let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/calib")).join(name);
+    let p = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/fixtures/calib"
+    ))
+    .join(name);
     std::fs::read_to_string(p).unwrap()
 }
 

@@ -2,16 +2,20 @@
 //! tests/fixtures/calib/make_fixtures.py (plain Python, which also composes the Kalibr chain
 //! and projects test points with each tool's own model formula into expected.json).
 
-use mode360::geometry::camera::FisheyeLens;
-use mode360::geometry::import::{
+use mode360_core::geometry::camera::FisheyeLens;
+use mode360_core::geometry::import::{
     rig_from_basalt_json, rig_from_kalibr_camchain, ImportError, ImportOptions,
 };
-use mode360::geometry::{Projection, Rig};
+use mode360_core::geometry::{Projection, Rig};
 use nalgebra::{Point3, Vector3};
 use std::path::PathBuf;
 
 fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/calib")).join(name)
+    PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/fixtures/calib"
+    ))
+    .join(name)
 }
 
 fn expected() -> serde_json::Value {
