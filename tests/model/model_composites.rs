@@ -113,16 +113,15 @@ fn kernels_and_composites_agree(cfg: &SsmodeConfig, rig: &Rig) {
 #[test]
 fn the_network_on_the_composites_matches_the_kernels() {
     let rig = deep360_rig();
-    let with_position = SsmodeConfig {
-        name: "tiny_zncc_log_pos".to_string(),
+    let zncc_log = SsmodeConfig {
+        name: "tiny_zncc_log".to_string(),
         hypothesis_spacing: HypothesisSpacing::LogDepth,
-        position_channels: true,
         ..SsmodeConfig::tiny_zncc()
     };
     for cfg in [
         SsmodeConfig::tiny(),
         SsmodeConfig::tiny_parallax(),
-        with_position,
+        zncc_log,
     ] {
         kernels_and_composites_agree(&cfg, &rig);
     }

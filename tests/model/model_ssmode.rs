@@ -18,10 +18,6 @@ const COMPACT_PARAMS: usize = 404_104;
 const PARALLAX_PARAMS: usize = 152_520;
 /// `parallax_zncc` and `parallax_zncc_log`: the ZNCC channel widens the entry convolution.
 const PARALLAX_ZNCC_PARAMS: usize = 152_736;
-/// `parallax_zncc_log_pos`: two position channels widen it by 2 x 27 x 8 weights.
-const PARALLAX_ZNCC_LOG_POS_PARAMS: usize = 153_168;
-/// `parallax_zncc_log_prior`: the logit prior adds 48 aggregated spheres x 16 latitude bins.
-const PARALLAX_ZNCC_LOG_PRIOR_PARAMS: usize = 153_504;
 
 /// Seed of the reproducible initial weights ([`seed_weights`]) of the test whose pass depends
 /// on where training starts.
@@ -483,24 +479,14 @@ fn parallax_preset_resolves_a_metre_baseline_to_40_m_and_compact_does_not() {
             cfg.name
         );
     }
-    let (varmap, _net) = model(&SsmodeConfig::parallax_zncc_log_pos());
-    assert_eq!(
-        param_count(&varmap),
-        PARALLAX_ZNCC_LOG_POS_PARAMS,
-        "parallax_zncc_log_pos preset (models/README.md, Presets)"
-    );
-    let (varmap, _net) = model(&SsmodeConfig::parallax_zncc_log_prior());
-    assert_eq!(
-        param_count(&varmap),
-        PARALLAX_ZNCC_LOG_PRIOR_PARAMS,
-        "parallax_zncc_log_prior preset (models/README.md, Presets)"
-    );
 }
 
 #[test]
 fn configs_with_unsupported_cost_layouts_are_rejected_by_field() {
     type Spoil = fn(&mut SsmodeConfig);
-    let cases: [(&str, Spoil); 4] = [
+    let cases: [(&str, Spoil); 6] = [
+        ("position_channels", |c| c.position_channels = true),
+        ("logit_prior", |c| c.logit_prior = true),
         ("cost_downsample", |c| c.cost_downsample = 3),
         ("aggregation_stride", |c| c.aggregation_stride = 4),
         ("fine_channels", |c| c.fine_channels = 0),

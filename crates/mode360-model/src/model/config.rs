@@ -125,15 +125,13 @@ pub struct SsmodeConfig {
     /// (files without it: uniform in inverse depth, the paper's).
     #[serde(default)]
     pub hypothesis_spacing: HypothesisSpacing,
-    /// Append two position channels (sphere index, sine of latitude) to the cost volume
-    /// ([`super::position_channels`]; files without it: no), so the aggregation can learn a
-    /// prior where the views give no evidence.
-    #[serde(default)]
+    /// Position channels in the cost volume: an ablation that lost (models/README.md, "Issue
+    /// 22") and is no longer built; a file that sets it is refused.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub position_channels: bool,
-    /// Add a learned prior over hypotheses by latitude to every stage's logits
-    /// ([`super::logit_prior`]; files without it: no), so that where the views give no
-    /// evidence the network answers what is likely there rather than the middle of its range.
-    #[serde(default)]
+    /// A learned logit prior by latitude: an ablation that lost (models/README.md) and is no
+    /// longer built; a file that sets it is refused.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub logit_prior: bool,
 }
 
@@ -225,15 +223,9 @@ impl SsmodeConfig {
     }
 
     /// Channels of the cost volume the aggregation takes: the view aggregation of the matching
-    /// features, plus one with the photometric cost channel and two with the position channels.
+    /// features, plus one with the photometric cost channel.
     pub fn cost_volume_channels(&self) -> usize {
-        self.cost.channels(self.matching_channels())
-            + usize::from(self.photometric_cost)
-            + if self.position_channels {
-                super::position_channels::POSITION_CHANNELS
-            } else {
-                0
-            }
+        self.cost.channels(self.matching_channels()) + usize::from(self.photometric_cost)
     }
 
     /// Spheres of the aggregated cost the regression heads read (`spheres / aggregation_stride`).
@@ -266,6 +258,18 @@ impl SsmodeConfig {
                 problem,
             })
         };
+        for (field, set) in [
+            ("position_channels", self.position_channels),
+            ("logit_prior", self.logit_prior),
+        ] {
+            if set {
+                return bad(
+                    field,
+                    "an ablation that lost (models/README.md) and that this build no longer has"
+                        .into(),
+                );
+            }
+        }
         // The quarter-res ERP must be even-width and its height divisible by HOURGLASS_DIVISOR.
         let width_multiple = FEATURE_DOWNSAMPLE * 2 * HOURGLASS_DIVISOR;
         let limits = [

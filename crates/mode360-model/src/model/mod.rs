@@ -5,8 +5,7 @@
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
-//! [`position_channels`] (sphere and latitude as cost-volume channels), [`seam`] (the
-//! aggregation's longitude wrap),
+//! [`seam`] (the aggregation's longitude wrap),
 //! [`weights`] (safetensors with the config in the header), [`config`] (presets),
 //! [`sweep_sampling`] (per-rig sampling tables), [`device`] (the CPU or a CUDA GPU).
 
@@ -16,10 +15,8 @@ pub mod device;
 pub mod feature;
 pub mod hourglass;
 pub mod input;
-pub mod logit_prior;
 pub mod ops;
 pub mod photometric_cost;
-pub mod position_channels;
 pub mod presets;
 pub mod regression;
 pub mod seam;

@@ -17,9 +17,10 @@ use mode360_core::geometry::HypothesisSpacing;
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "cli", value(rename_all = "snake_case"))]
 ///
-/// Each variant's text is its `--help` line; the ablations that lost (`parallax_zncc_log_pos`,
-/// `parallax_zncc_log_prior`) and the test presets (`tiny*`) are not offered by `train
-/// --preset` (their names still parse in checkpoints, weights files and `bench-model`); the
+/// Each variant's text is its `--help` line; the test presets (`tiny*`) are not offered by
+/// `train --preset` (their names still parse in checkpoints, weights files and `bench-model`).
+/// The ablations that lost (position channels, a learned logit prior; models/README.md) were
+/// removed, and a weights file that asks for them is refused by name; the
 /// configs are [`SsmodeConfig::parallax`],
 /// [`SsmodeConfig::compact`], [`SsmodeConfig::paper`], [`SsmodeConfig::tiny`] and
 /// [`SsmodeConfig::tiny_parallax`].
@@ -31,12 +32,6 @@ pub enum Preset {
     ParallaxZncc,
     /// `parallax_zncc` with spheres and hypotheses uniform in log depth (the shipped weights).
     ParallaxZnccLog,
-    /// `parallax_zncc_log` with two position channels (sphere, latitude) in the cost volume.
-    #[cfg_attr(feature = "cli", value(skip))]
-    ParallaxZnccLogPos,
-    /// `parallax_zncc_log` with a learned prior over hypotheses by latitude on the logits.
-    #[cfg_attr(feature = "cli", value(skip))]
-    ParallaxZnccLogPrior,
     /// The earlier small network with a mean + variance volume, 256x128.
     Compact,
     /// The paper's sizes.
@@ -54,12 +49,10 @@ pub enum Preset {
 
 impl Preset {
     /// Every preset, in the order of [`SsmodeConfig::PRESETS`].
-    pub const ALL: [Self; 10] = [
+    pub const ALL: [Self; 8] = [
         Self::Parallax,
         Self::ParallaxZncc,
         Self::ParallaxZnccLog,
-        Self::ParallaxZnccLogPos,
-        Self::ParallaxZnccLogPrior,
         Self::Compact,
         Self::Paper,
         Self::Tiny,
@@ -73,8 +66,6 @@ impl Preset {
             Self::Parallax => "parallax",
             Self::ParallaxZncc => "parallax_zncc",
             Self::ParallaxZnccLog => "parallax_zncc_log",
-            Self::ParallaxZnccLogPos => "parallax_zncc_log_pos",
-            Self::ParallaxZnccLogPrior => "parallax_zncc_log_prior",
             Self::Compact => "compact",
             Self::Paper => "paper",
             Self::Tiny => "tiny",
@@ -88,8 +79,6 @@ impl Preset {
             Self::Parallax => SsmodeConfig::parallax(),
             Self::ParallaxZncc => SsmodeConfig::parallax_zncc(),
             Self::ParallaxZnccLog => SsmodeConfig::parallax_zncc_log(),
-            Self::ParallaxZnccLogPos => SsmodeConfig::parallax_zncc_log_pos(),
-            Self::ParallaxZnccLogPrior => SsmodeConfig::parallax_zncc_log_prior(),
             Self::Compact => SsmodeConfig::compact(),
             Self::Paper => SsmodeConfig::paper(),
             Self::Tiny => SsmodeConfig::tiny(),
@@ -282,27 +271,6 @@ impl SsmodeConfig {
         }
     }
 
-    /// [`Self::parallax_zncc_log`] with the position channels ([`super::position_channels`]):
-    /// where the matching evidence is flat (an epipole, a textureless floor) the aggregation
-    /// can prefer hypotheses by sphere and latitude instead of answering the middle of the
-    /// range.
-    pub fn parallax_zncc_log_pos() -> Self {
-        Self {
-            name: "parallax_zncc_log_pos".to_string(),
-            position_channels: true,
-            ..Self::parallax_zncc_log()
-        }
-    }
-
-    /// [`Self::parallax_zncc_log`] with the learned logit prior ([`super::logit_prior`]).
-    pub fn parallax_zncc_log_prior() -> Self {
-        Self {
-            name: "parallax_zncc_log_prior".to_string(),
-            logit_prior: true,
-            ..Self::parallax_zncc_log()
-        }
-    }
-
     /// [`Self::tiny_parallax`] with the photometric cost channel, for tests.
     pub fn tiny_zncc() -> Self {
         Self {
@@ -314,7 +282,7 @@ impl SsmodeConfig {
 
     /// Names of the presets, for messages.
     pub const PRESETS: &'static str =
-        "parallax, parallax_zncc, parallax_zncc_log, parallax_zncc_log_pos, parallax_zncc_log_prior, compact, paper, tiny, tiny_parallax, tiny_zncc";
+        "parallax, parallax_zncc, parallax_zncc_log, compact, paper, tiny, tiny_parallax, tiny_zncc";
 
     /// The preset called `name` (see [`Preset`]).
     pub fn preset(name: &str) -> Result<Self, ModelError> {

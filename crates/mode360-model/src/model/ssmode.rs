@@ -5,11 +5,9 @@
 //! feature                   -> (N B, h, w, Cf) -> N x (B, h, w, Cf)   h = H / cost_downsample
 //! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
 //! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
-//! position_channels         -> (B, D, h, w, C'' + 2)      optional sphere and latitude
 //! aggregation               -> K x (B, D/s, h/s, (w + 2 p)/s, Ch) stacked hourglasses, entry
 //!                              stride s, then p/s columns copied across the longitude seam
 //! classif{k}, crop          -> K x (B, D/s, h/s, w/s)
-//! logit_prior               -> K x (B, D/s, h/s, w/s)    optional prior by latitude
 //! regression                -> K x (B, H, W) range, index; confidence of the last
 //! ```
 
@@ -22,9 +20,7 @@ use super::config::{SsmodeConfig, MIN_CAMERAS};
 use super::cost_volume::cost_volume;
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
-use super::logit_prior::LogitPrior;
 use super::photometric_cost::photometric_cost;
-use super::position_channels::position_channels;
 use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
 use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
@@ -114,7 +110,7 @@ impl StageProfiler {
     }
 }
 
-/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`, `logit_prior`.
+/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`.
 #[derive(Clone, Debug)]
 pub struct Ssmode {
     cfg: SsmodeConfig,
@@ -122,7 +118,6 @@ pub struct Ssmode {
     feature: FeatureExtractor,
     aggregation: CostAggregation,
     classif: Vec<RegressionHead>,
-    logit_prior: Option<LogitPrior>,
 }
 
 impl Ssmode {
@@ -137,10 +132,6 @@ impl Ssmode {
             classif: (0..cfg.hourglasses)
                 .map(|k| RegressionHead::new(cfg.hourglass_channels, vb.pp(format!("classif{k}"))))
                 .collect::<Result<_>>()?,
-            logit_prior: cfg
-                .logit_prior
-                .then(|| LogitPrior::new(cfg.aggregated_spheres(), vb.clone()))
-                .transpose()?,
         })
     }
 
@@ -148,14 +139,6 @@ impl Ssmode {
     /// sphere's own columns, without the seam wrap's.
     fn crop_seam(&self, cost: Tensor) -> Result<Tensor> {
         crop_longitude(&cost, self.cfg.seam_pad_cells, self.cfg.aggregation_stride)
-    }
-
-    /// A regression head's cost with the logit prior, when the network has one.
-    fn with_prior(&self, cost: Tensor) -> Result<Tensor> {
-        match &self.logit_prior {
-            Some(prior) => prior.forward(&cost),
-            None => Ok(cost),
-        }
     }
 
     pub fn config(&self) -> &SsmodeConfig {
@@ -257,14 +240,6 @@ impl Ssmode {
         } else {
             volume
         };
-        // (B, D, h, w, C'' + 2) with the position channels
-        let volume = if self.cfg.position_channels {
-            let (b, d, h, w, _) = volume.dims5()?;
-            let position = position_channels(b, d, h, w, volume.device())?;
-            append_channels(&volume, &position)?
-        } else {
-            volume
-        };
         mark("cost_volume");
         // K x (B, D/s, h/s, (w + 2 p)/s, Ch), p columns from across the longitude seam each side
         let aggregated = self.aggregation.forward(&volume, self.cfg.seam_pad_cells)?;
@@ -281,7 +256,7 @@ impl Ssmode {
                     what: "no hourglass stages".to_string(),
                 })?;
             // (B, D/s, h/s, w/s)
-            let cost = self.with_prior(self.crop_seam(head.forward(x)?)?)?;
+            let cost = self.crop_seam(head.forward(x)?)?;
             drop(aggregated);
             // (B, H, W) each
             let r = regress_inference(
@@ -307,7 +282,7 @@ impl Ssmode {
         let mut last_probabilities = None;
         for (head, x) in self.classif.iter().zip(&aggregated) {
             // (B, D/s, h/s, w/s)
-            let cost = self.with_prior(self.crop_seam(head.forward(x)?)?)?;
+            let cost = self.crop_seam(head.forward(x)?)?;
             // (B, H, W)
             let r = regress(
                 &cost,

@@ -12,8 +12,7 @@ use std::path::Path;
 fn architecture(cfg: &SsmodeConfig) -> String {
     format!(
         "features {:?} x {:?} -> {}, fine branch {} at 1/{}, {:?} cost over {} spheres, \
-         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}, \
-         position channels {}, logit prior {}",
+         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}",
         cfg.feature_channels,
         cfg.feature_blocks,
         cfg.feature_out_channels,
@@ -24,40 +23,26 @@ fn architecture(cfg: &SsmodeConfig) -> String {
         cfg.aggregation_stride,
         cfg.hourglasses,
         cfg.hourglass_channels,
-        cfg.photometric_cost,
-        cfg.position_channels,
-        cfg.logit_prior
+        cfg.photometric_cost
     )
 }
 
-/// The aggregation's entry convolution, the one layer that the photometric cost channel and
-/// the position channels widen.
+/// The aggregation's entry convolution, the one layer that the photometric cost channel
+/// widens.
 const ENTRY_CONV_WEIGHT: &str = "aggregation.dres0.0.weight";
 /// Input-channel axis of a 3-D convolution weight `(3, 3, 3, Cin, Cout)`.
 const CONV3D_INPUT_AXIS: usize = 3;
 
-/// Whether `file` is `cfg` without its logit prior or some of its appended cost-volume channels (the photometric
-/// cost channel, the position channels): its weights start a run of `cfg` with the entry
-/// convolution widened by zeros ([`load_widened`]). The channels are appended in that order,
-/// so the file's own extra channels must be a prefix of the run's.
+/// Whether `file` is `cfg` without its photometric cost channel: its weights start a run of
+/// `cfg` with the entry convolution widened by zeros ([`load_widened`]).
 fn widens_to(file: &SsmodeConfig, cfg: &SsmodeConfig) -> bool {
-    let adds_zncc = cfg.photometric_cost && !file.photometric_cost;
-    let adds_position = cfg.position_channels && !file.position_channels;
-    let adds_prior = cfg.logit_prior && !file.logit_prior;
-    let keeps_order = !(adds_zncc && file.position_channels);
-    (adds_zncc || adds_position || adds_prior)
-        && keeps_order
+    cfg.photometric_cost
+        && !file.photometric_cost
         && architecture(&SsmodeConfig {
-            photometric_cost: cfg.photometric_cost,
-            position_channels: cfg.position_channels,
-            logit_prior: cfg.logit_prior,
+            photometric_cost: true,
             ..file.clone()
         }) == architecture(cfg)
 }
-
-/// The logit prior's variable ([`mode360_model::model::logit_prior`]): a file without it
-/// starts it at its zero initialisation.
-const LOGIT_PRIOR_VAR: &str = "logit_prior";
 
 /// Loads `path` into `varmap`, widening the entry convolution by zero weights for the
 /// channels the file lacks: at the start the network computes what the file's network did,
@@ -76,9 +61,6 @@ fn load_widened(path: &Path, varmap: &mut VarMap) -> Result<(), TrainError> {
         .lock()
         .map_err(|_| TrainError::Other("variable map lock poisoned".into()))?;
     for (name, var) in data.iter() {
-        if name == LOGIT_PRIOR_VAR && !file.contains_key(name) {
-            continue;
-        }
         let t = file
             .get(name)
             .ok_or_else(|| weights_err(format!("no tensor '{name}'")))?;
@@ -326,14 +308,6 @@ mod tests {
         assert!(max_diff < 1e-5, "relative difference {max_diff}");
     }
 
-    fn tiny_zncc_pos() -> SsmodeConfig {
-        SsmodeConfig {
-            name: "tiny_zncc_pos".to_string(),
-            position_channels: true,
-            ..SsmodeConfig::tiny_zncc()
-        }
-    }
-
     #[test]
     fn widened_start_weights_compute_what_the_file_network_did() {
         check_widening(
@@ -344,31 +318,15 @@ mod tests {
     }
 
     #[test]
-    fn position_channels_widen_a_zncc_network_without_changing_it() {
-        check_widening(&SsmodeConfig::tiny_zncc(), &tiny_zncc_pos(), 2);
-        check_widening(&SsmodeConfig::tiny_parallax(), &tiny_zncc_pos(), 3);
-    }
-
-    #[test]
-    fn a_logit_prior_starts_at_zero_without_changing_the_network() {
-        let prior = SsmodeConfig {
-            name: "tiny_zncc_prior".to_string(),
-            logit_prior: true,
-            ..SsmodeConfig::tiny_zncc()
-        };
-        check_widening(&SsmodeConfig::tiny_zncc(), &prior, 0);
-        assert!(!widens_to(&prior, &SsmodeConfig::tiny_zncc()));
-    }
-
-    #[test]
-    fn widening_keeps_the_channel_order() {
-        let file = SsmodeConfig {
-            position_channels: true,
-            ..SsmodeConfig::tiny_parallax()
-        };
-        assert!(!widens_to(&file, &tiny_zncc_pos()));
-        assert!(widens_to(&SsmodeConfig::tiny_zncc(), &tiny_zncc_pos()));
-        assert!(!widens_to(&tiny_zncc_pos(), &SsmodeConfig::tiny_zncc()));
+    fn widening_goes_one_way() {
+        assert!(widens_to(
+            &SsmodeConfig::tiny_parallax(),
+            &SsmodeConfig::tiny_zncc()
+        ));
+        assert!(!widens_to(
+            &SsmodeConfig::tiny_zncc(),
+            &SsmodeConfig::tiny_parallax()
+        ));
     }
 
     #[test]
