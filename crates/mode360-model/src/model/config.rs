@@ -252,26 +252,32 @@ impl SsmodeConfig {
 
     /// Checks the sizes the network needs.
     pub fn validate(&self) -> Result<(), ModelError> {
-        let bad = |field: &str, problem: String| {
-            Err(ModelError::BadConfig {
-                field: field.to_string(),
-                problem,
-            })
-        };
+        self.check_removed()?;
+        self.check_limits()?;
+        self.check_layout()?;
+        self.check_readout()?;
+        self.depth_range().map(|_| ())
+    }
+
+    /// Refuses the options of ablations that lost and were removed.
+    fn check_removed(&self) -> Result<(), ModelError> {
         for (field, set) in [
             ("position_channels", self.position_channels),
             ("logit_prior", self.logit_prior),
         ] {
             if set {
-                return bad(
+                return bad_config(
                     field,
                     "an ablation that lost (models/README.md) and that this build no longer has"
                         .into(),
                 );
             }
         }
-        // The quarter-res ERP must be even-width and its height divisible by HOURGLASS_DIVISOR.
-        let width_multiple = FEATURE_DOWNSAMPLE * 2 * HOURGLASS_DIVISOR;
+        Ok(())
+    }
+
+    /// Every size within what this build runs (a weights file cannot make it allocate without bound).
+    fn check_limits(&self) -> Result<(), ModelError> {
         let limits = [
             ("width", self.width, MAX_WIDTH_PX),
             ("spheres", self.spheres, MAX_SPHERES),
@@ -298,14 +304,21 @@ impl SsmodeConfig {
         );
         for (field, value, max) in limits {
             if value > max {
-                return bad(
+                return bad_config(
                     field,
                     format!("{value} is above the largest this build runs, {max}"),
                 );
             }
         }
+        Ok(())
+    }
+
+    /// Sizes the stages fit together with: widths, strides, sphere and channel counts.
+    fn check_layout(&self) -> Result<(), ModelError> {
+        // The quarter-res ERP must be even-width and its height divisible by HOURGLASS_DIVISOR.
+        let width_multiple = FEATURE_DOWNSAMPLE * 2 * HOURGLASS_DIVISOR;
         if self.width == 0 || !self.width.is_multiple_of(width_multiple) {
-            return bad(
+            return bad_config(
                 "width",
                 format!(
                     "{} must be a positive multiple of {width_multiple}",
@@ -314,7 +327,7 @@ impl SsmodeConfig {
             );
         }
         if !COST_DOWNSAMPLES.contains(&self.cost_downsample) {
-            return bad(
+            return bad_config(
                 "cost_downsample",
                 format!(
                     "{} must be one of {COST_DOWNSAMPLES:?}",
@@ -323,7 +336,7 @@ impl SsmodeConfig {
             );
         }
         if !AGGREGATION_STRIDES.contains(&self.aggregation_stride) {
-            return bad(
+            return bad_config(
                 "aggregation_stride",
                 format!(
                     "{} must be one of {AGGREGATION_STRIDES:?}",
@@ -332,7 +345,7 @@ impl SsmodeConfig {
             );
         }
         if self.has_fine_branch() && self.fine_channels == 0 {
-            return bad(
+            return bad_config(
                 "fine_channels",
                 format!(
                     "must be positive when cost_downsample ({}) is below {FEATURE_DOWNSAMPLE}",
@@ -341,7 +354,7 @@ impl SsmodeConfig {
             );
         }
         if self.photometric_cost && self.cost_downsample != 1 {
-            return bad(
+            return bad_config(
                 "photometric_cost",
                 format!(
                     "needs the cost volume at the input resolution (cost_downsample 1), not 1/{}",
@@ -352,13 +365,13 @@ impl SsmodeConfig {
         // The aggregation halves D, H and W twice after its entry stride.
         let divisor = HOURGLASS_DIVISOR * self.aggregation_stride;
         if self.spheres == 0 || !self.spheres.is_multiple_of(divisor) {
-            return bad(
+            return bad_config(
                 "spheres",
                 format!("{} must be a positive multiple of {divisor}", self.spheres),
             );
         }
         if !self.cost_height().is_multiple_of(divisor) {
-            return bad(
+            return bad_config(
                 "width",
                 format!(
                     "{}: the cost volume's height {} must be a multiple of {divisor}",
@@ -368,68 +381,26 @@ impl SsmodeConfig {
             );
         }
         if self.hypotheses < mode360_core::geometry::sweep::MIN_HYPOTHESES {
-            return bad("hypotheses", format!("{} is fewer than 2", self.hypotheses));
+            return bad_config("hypotheses", format!("{} is fewer than 2", self.hypotheses));
         }
         if self.feature_channels.contains(&0)
             || self.feature_out_channels == 0
             || self.hourglass_channels == 0
         {
-            return bad(
+            return bad_config(
                 "channels",
                 "every channel count must be positive".to_string(),
             );
         }
-        if self.far_plane_probability.is_nan() || self.far_plane_probability <= 0.0 {
-            return bad(
-                "far_plane_probability",
-                format!("{} must be positive", self.far_plane_probability),
-            );
-        }
-        if !(self.far_parallax_cells >= 0.0 && self.far_parallax_cells.is_finite()) {
-            return bad(
-                "far_parallax_cells",
-                format!("{} must be finite and at least 0", self.far_parallax_cells),
-            );
-        }
-        if self.refine_radius_cells > MAX_REFINE_RADIUS_CELLS {
-            return bad(
-                "refine_radius_cells",
-                format!(
-                    "{} is above the largest accepted, {MAX_REFINE_RADIUS_CELLS}",
-                    self.refine_radius_cells
-                ),
-            );
-        }
-        // The padded volume must stay a multiple of the divisor, the crop a whole cell count.
-        let pad = self.seam_pad_cells;
-        if !(2 * pad).is_multiple_of(divisor) || !pad.is_multiple_of(self.aggregation_stride) {
-            return bad(
-                "seam_pad_cells",
-                format!(
-                    "{pad}: twice it must be a multiple of {divisor} and it a multiple of the \
-                     aggregation stride {}",
-                    self.aggregation_stride
-                ),
-            );
-        }
-        if pad > self.cost_width() {
-            return bad(
-                "seam_pad_cells",
-                format!(
-                    "{pad} is wider than the cost volume ({})",
-                    self.cost_width()
-                ),
-            );
-        }
         if self.hourglasses == 0 {
-            return bad(
+            return bad_config(
                 "hourglasses",
                 "at least one hourglass is needed".to_string(),
             );
         }
         let cells = self.spheres * self.cost_height() * self.cost_width();
         if cells > MAX_COST_VOLUME_CELLS {
-            return bad(
+            return bad_config(
                 "spheres",
                 format!(
                     "{} spheres of {}x{} cells make {cells} cost-volume cells, above the \
@@ -440,7 +411,55 @@ impl SsmodeConfig {
                 ),
             );
         }
-        self.depth_range().map(|_| ())
+        Ok(())
+    }
+
+    /// The readout's far-plane test, edge refinement and seam wrap.
+    fn check_readout(&self) -> Result<(), ModelError> {
+        let divisor = HOURGLASS_DIVISOR * self.aggregation_stride;
+        if self.far_plane_probability.is_nan() || self.far_plane_probability <= 0.0 {
+            return bad_config(
+                "far_plane_probability",
+                format!("{} must be positive", self.far_plane_probability),
+            );
+        }
+        if !(self.far_parallax_cells >= 0.0 && self.far_parallax_cells.is_finite()) {
+            return bad_config(
+                "far_parallax_cells",
+                format!("{} must be finite and at least 0", self.far_parallax_cells),
+            );
+        }
+        if self.refine_radius_cells > MAX_REFINE_RADIUS_CELLS {
+            return bad_config(
+                "refine_radius_cells",
+                format!(
+                    "{} is above the largest accepted, {MAX_REFINE_RADIUS_CELLS}",
+                    self.refine_radius_cells
+                ),
+            );
+        }
+        // The padded volume must stay a multiple of the divisor, the crop a whole cell count.
+        let pad = self.seam_pad_cells;
+        if !(2 * pad).is_multiple_of(divisor) || !pad.is_multiple_of(self.aggregation_stride) {
+            return bad_config(
+                "seam_pad_cells",
+                format!(
+                    "{pad}: twice it must be a multiple of {divisor} and it a multiple of the \
+                     aggregation stride {}",
+                    self.aggregation_stride
+                ),
+            );
+        }
+        if pad > self.cost_width() {
+            return bad_config(
+                "seam_pad_cells",
+                format!(
+                    "{pad} is wider than the cost volume ({})",
+                    self.cost_width()
+                ),
+            );
+        }
+        Ok(())
     }
 
     /// The sweep's depth range.
@@ -465,4 +484,12 @@ impl SsmodeConfig {
             self.hypothesis_spacing,
         )?)
     }
+}
+
+/// A `BadConfig` error naming `field`.
+fn bad_config(field: &str, problem: String) -> Result<(), ModelError> {
+    Err(ModelError::BadConfig {
+        field: field.to_string(),
+        problem,
+    })
 }
