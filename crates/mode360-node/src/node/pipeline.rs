@@ -309,6 +309,78 @@ impl Pipeline {
         // The checks of the previous group come first: its masks apply to this one.
         self.run_deferred_checks()?;
         let t0 = Instant::now();
+        let UsableImages {
+            present,
+            images,
+            missing_cameras,
+        } = self.usable_images(group)?;
+        let checked = self.params.rig_health_checks;
+        // The estimate before REP 117 that a deferred check reads (with the images, moved in
+        // once the point cloud is built).
+        let mut deferred_range_m = None;
+        let mut estimate = if !missing_cameras.is_empty() {
+            let sub = self.rig.subset(&present)?;
+            self.lens
+                .estimate_partial(self.estimator.as_mut(), &sub, &images, self.grid)?
+        } else if checked && defer && self.lens.has_checked() {
+            let estimate = self.lens.estimate_masked(
+                self.estimator.as_mut(),
+                &self.rig,
+                &images,
+                self.grid,
+            )?;
+            deferred_range_m = Some(estimate.range_m.clone());
+            estimate
+        } else if checked {
+            // The first group is checked at once: a blocked lens found there is masked in it.
+            let estimate =
+                self.lens
+                    .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
+            self.drift
+                .add(&images, &estimate.range_m, self.lens.masks())?;
+            estimate
+        } else {
+            self.lens
+                .estimate_partial(self.estimator.as_mut(), &self.rig, &images, self.grid)?
+        };
+        apply_rep117(&mut estimate.range_m, &estimate.confidence, &self.params);
+        let header = Header::new(stamp_ns, self.rig.output_frame_id.clone());
+        let points = if want.points {
+            Some(self.coloured_points(header.clone(), &estimate.range_m, &present, &images)?)
+        } else {
+            None
+        };
+        let compressed_depth = if want.compressed_depth {
+            Some(encode_compressed_depth(
+                header.clone(),
+                &estimate.range_m,
+                self.params.depth_quantization,
+                self.params.max_depth_m,
+            )?)
+        } else {
+            None
+        };
+        if let Some(range_m) = deferred_range_m {
+            self.deferred = Some(DeferredChecks { images, range_m });
+        }
+        Ok(PipelineOutput {
+            depth: image_msg_from_float(header.clone(), &estimate.range_m),
+            compressed_depth,
+            points,
+            confidence: image_msg_from_float(header, &estimate.confidence),
+            missing_cameras,
+            lens: self.lens_health(),
+            calibration: self.calibration_drift(),
+            latency: t0.elapsed(),
+        })
+    }
+    /// The group's images that can be used, with their cameras' positions in the rig, and the
+    /// names of the cameras left out: absent ones, and those whose image does not fit their
+    /// camera while enough others do (as if they had sent nothing).
+    fn usable_images(
+        &mut self,
+        group: Vec<Option<RgbImage>>,
+    ) -> Result<UsableImages, PipelineError> {
         if group.len() != self.rig.cameras.len() {
             return Err(PipelineError::GroupSize {
                 got: group.len(),
@@ -361,86 +433,47 @@ impl Pipeline {
             images.remove(k);
             missing_cameras.push(self.rig.cameras[i].name.clone());
         }
-        let checked = self.params.rig_health_checks;
-        // The estimate before REP 117 that a deferred check reads (with the images, moved in
-        // once the point cloud is built).
-        let mut deferred_range_m = None;
-        let mut estimate = if !missing_cameras.is_empty() {
-            let sub = self.rig.subset(&present)?;
-            self.lens
-                .estimate_partial(self.estimator.as_mut(), &sub, &images, self.grid)?
-        } else if checked && defer && self.lens.has_checked() {
-            let estimate = self.lens.estimate_masked(
-                self.estimator.as_mut(),
-                &self.rig,
-                &images,
-                self.grid,
-            )?;
-            deferred_range_m = Some(estimate.range_m.clone());
-            estimate
-        } else if checked {
-            // The first group is checked at once: a blocked lens found there is masked in it.
-            let estimate =
-                self.lens
-                    .estimate(self.estimator.as_mut(), &self.rig, &images, self.grid)?;
-            self.drift
-                .add(&images, &estimate.range_m, self.lens.masks())?;
-            estimate
-        } else {
-            self.lens
-                .estimate_partial(self.estimator.as_mut(), &self.rig, &images, self.grid)?
-        };
-        apply_rep117(&mut estimate.range_m, &estimate.confidence, &self.params);
-        // Colour source: the reference camera when present, else the first camera present.
+        Ok(UsableImages {
+            present,
+            images,
+            missing_cameras,
+        })
+    }
+
+    /// The estimate as a coloured cloud: colours from the reference camera when present (else
+    /// the first present), then from the others where a fisheye lens does not see.
+    fn coloured_points(
+        &self,
+        header: Header,
+        range_m: &FloatImage,
+        present: &[usize],
+        images: &[RgbImage],
+    ) -> Result<PointCloud2, PipelineError> {
         let colour_slot = present
             .iter()
             .position(|&i| i == self.rig.reference)
             .unwrap_or(0);
-        let header = Header::new(stamp_ns, self.rig.output_frame_id.clone());
-        let points = if want.points {
-            // The colour source first, then the others for what a fisheye lens does not see.
-            let order = std::iter::once(colour_slot)
-                .chain((0..present.len()).filter(|&k| k != colour_slot));
-            let colours: Vec<ColourSource> = order
-                .map(|k| ColourSource {
-                    image: &images[k],
-                    cam_from_output: self.rig.cam_from_output(present[k]),
-                    projection: &self.rig.cameras[present[k]].projection,
-                })
-                .collect();
-            Some(point_cloud(
-                header.clone(),
-                &estimate.range_m,
-                self.params.max_depth_m,
-                &colours,
-            )?)
-        } else {
-            None
-        };
-        let compressed_depth = if want.compressed_depth {
-            Some(encode_compressed_depth(
-                header.clone(),
-                &estimate.range_m,
-                self.params.depth_quantization,
-                self.params.max_depth_m,
-            )?)
-        } else {
-            None
-        };
-        if let Some(range_m) = deferred_range_m {
-            self.deferred = Some(DeferredChecks { images, range_m });
-        }
-        Ok(PipelineOutput {
-            depth: image_msg_from_float(header.clone(), &estimate.range_m),
-            compressed_depth,
-            points,
-            confidence: image_msg_from_float(header, &estimate.confidence),
-            missing_cameras,
-            lens: self.lens_health(),
-            calibration: self.calibration_drift(),
-            latency: t0.elapsed(),
-        })
+        let order =
+            std::iter::once(colour_slot).chain((0..present.len()).filter(|&k| k != colour_slot));
+        let colours: Vec<ColourSource> = order
+            .map(|k| ColourSource {
+                image: &images[k],
+                cam_from_output: self.rig.cam_from_output(present[k]),
+                projection: &self.rig.cameras[present[k]].projection,
+            })
+            .collect();
+        point_cloud(header, range_m, self.params.max_depth_m, &colours)
     }
+}
+
+/// What of a group the pipeline can use ([`Pipeline::usable_images`]).
+struct UsableImages {
+    /// Rig positions of the cameras used, in rig order.
+    present: Vec<usize>,
+    /// Their images, in the same order.
+    images: Vec<RgbImage>,
+    /// Names of the cameras left out.
+    missing_cameras: Vec<String>,
 }
 
 impl Pipeline {
