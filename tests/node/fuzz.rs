@@ -11,7 +11,7 @@
 //! within [`RESUME_TIMEOUT`], the hostile samples that arrive are counted under a reason, the pipeline never fails, and the process's resident
 //! memory (node, sender and listener) grows by less than [`MEMORY_GROWTH_LIMIT_MIB`].
 
-use super::harness::loopback;
+use super::harness::{loopback, render};
 use crate::common::{TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::memory::resident_mib;
@@ -21,7 +21,6 @@ use mode360::node::{
     create_publisher, create_subscription, dds_context, sensor_qos, spawn_node, NodeParams,
     SpunNode,
 };
-use mode360::synth::{SynthConfig, SynthRenderer};
 use ros2_client::qos::History;
 use ros2_client::{Publisher, QosProfile};
 use serde::ser::SerializeTuple;
@@ -206,12 +205,7 @@ fn hostile(kind: Hostile, good: &Image, rng: &mut Rng) -> Result<Vec<u8>, String
 fn hostile_camera_samples_are_counted_and_depth_keeps_flowing() -> TestResult {
     let _one_node_at_a_time = crate::common::live_node_lock();
     let rig = Rig::from_file(RIG_PATH)?;
-    let frame = SynthRenderer::new(SynthConfig {
-        seed: 11,
-        width: WIDTH,
-        ..Default::default()
-    })?
-    .render_frame(&rig, 0);
+    let frame = render(&rig, 11, WIDTH)?;
     let dds = loopback(DOMAIN_ID);
     let node = spawn_node(
         NodeParams {
