@@ -11,17 +11,19 @@ use super::drops::DropTally;
 use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
+use mode360_core::frame::RigFrame;
 use mode360_core::geometry::rig_match::check_same_cameras;
 use mode360_core::geometry::Rig;
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
 use mode360_core::obstacles::{frame_obstacles, ObstacleMeasure, ObstacleReport, ObstacleSummary};
 use mode360_core::sync::SyncStats;
 use mode360_estimator::estimator::EstimatorSpec;
-use mode360_io::bag::{RigBagReader, RigBagWriter};
+use mode360_io::bag::{BagWriter, RigBagReader, RigBagWriter};
 use mode360_io::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use mode360_io::msgs::image::float_from_image_msg;
+use mode360_io::msgs::{Image, PointCloud2};
 use mode360_node::node::diagnostics::{diagnostic_array, NodeHealth};
-use mode360_node::node::pipeline::{Pipeline, PipelineParams};
+use mode360_node::node::pipeline::{Pipeline, PipelineOutput, PipelineParams};
 use mode360_node::node::{
     resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
     POINTS_TOPIC,
@@ -128,10 +130,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             .iter()
             .map(|c| (c.name.as_str(), c.topic.clone())),
     );
-    let depth_topic = resolve_topic(REPLAY_NAMESPACE, DEPTH_TOPIC);
-    let points_topic = resolve_topic(REPLAY_NAMESPACE, POINTS_TOPIC);
-    let confidence_topic = resolve_topic(REPLAY_NAMESPACE, CONFIDENCE_TOPIC);
-    let compressed_depth_topic = resolve_topic(REPLAY_NAMESPACE, COMPRESSED_DEPTH_TOPIC);
+    let topics = ReplayTopics::new();
     for frame in reader.frames() {
         if opts.max_frames.is_some_and(|n| summary.frames >= n) {
             break;
@@ -147,34 +146,15 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         let stamp_ns = frame.stamp_ns;
         let pipe = match &mut pipeline {
             Some(p) => p,
-            None => {
-                let width = match (opts.output_width, frame.images.first()) {
-                    (Some(w), _) => w,
-                    (None, Some(img)) => img.width() as usize,
-                    (None, None) => bail!("bag '{file}': frame at {stamp_ns} ns without images"),
-                };
-                let params = PipelineParams {
-                    output_width: width,
-                    max_depth_m: max_depth_m as f32,
-                    ..PipelineParams::default()
-                };
-                let p = Pipeline::new(rig.clone(), opts.estimator.build()?, params)
-                    .with_context(|| format!("frame at {stamp_ns} ns"))?;
-                pipeline.insert(p)
-            }
+            None => pipeline.insert(replay_pipeline(opts, &rig, &frame, max_depth_m, &file)?),
         };
-        let out = pipe
+        let mut out = pipe
             .process(frame.images.iter().cloned().map(Some).collect(), stamp_ns)
             .with_context(|| format!("frame at {stamp_ns} ns"))?;
         // replay always builds the cloud (process asks for it)
-        let points = out.points.unwrap_or_default();
+        let points = out.points.take().unwrap_or_default();
         let bag = writer.bag_mut();
-        bag.write(&depth_topic, stamp_ns, &out.depth)?;
-        bag.write(&points_topic, stamp_ns, &points)?;
-        bag.write(&confidence_topic, stamp_ns, &out.confidence)?;
-        if let Some(compressed) = &out.compressed_depth {
-            bag.write(&compressed_depth_topic, stamp_ns, compressed)?;
-        }
+        topics.write(bag, stamp_ns, &out, &points)?;
         summary.frames += 1;
         summary.latencies.push(out.latency);
         summary.point_counts.push(points.width as usize);
@@ -193,20 +173,14 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             stamp_ns,
             &diagnostic_array(stamp_ns, REPLAY_HARDWARE_ID, &health),
         )?;
-        if let Some(gt) = &frame.ground_truth {
-            let pred = float_from_image_msg(&out.depth)
-                .with_context(|| format!("frame at {stamp_ns} ns: own depth output unreadable"))?;
-            if pred.width == gt.width && pred.height == gt.height {
-                let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
-                    .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
-                average.push(m, None);
-                if let Some(labels) = &frame.labels {
-                    let scores = frame_obstacles(&pred.data, &gt.data, labels, max_depth_m)
-                        .with_context(|| format!("frame at {stamp_ns} ns: obstacle metrics"))?;
-                    obstacles.add_frame(&file, stamp_ns, &scores);
-                }
-            }
-        }
+        score_frame(
+            &frame,
+            &out.depth,
+            max_depth_m,
+            &file,
+            &mut average,
+            &mut obstacles,
+        )?;
     }
     writer.finish()?;
     if summary.frames == 0 {
@@ -220,6 +194,94 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     }
     summary.obstacles = obstacles.report();
     Ok(summary)
+}
+
+/// The pipeline of a replay, sized by its first frame unless the output width is given.
+fn replay_pipeline(
+    opts: &ReplayOptions,
+    rig: &Rig,
+    frame: &RigFrame,
+    max_depth_m: f64,
+    file: &str,
+) -> Result<Pipeline> {
+    let stamp_ns = frame.stamp_ns;
+    let width = match (opts.output_width, frame.images.first()) {
+        (Some(w), _) => w,
+        (None, Some(img)) => img.width() as usize,
+        (None, None) => bail!("bag '{file}': frame at {stamp_ns} ns without images"),
+    };
+    let params = PipelineParams {
+        output_width: width,
+        max_depth_m: max_depth_m as f32,
+        ..PipelineParams::default()
+    };
+    Pipeline::new(rig.clone(), opts.estimator.build()?, params)
+        .with_context(|| format!("frame at {stamp_ns} ns"))
+}
+
+/// The replay's output topics, in the node's namespace for replays.
+struct ReplayTopics {
+    depth: String,
+    points: String,
+    confidence: String,
+    compressed_depth: String,
+}
+
+impl ReplayTopics {
+    fn new() -> Self {
+        Self {
+            depth: resolve_topic(REPLAY_NAMESPACE, DEPTH_TOPIC),
+            points: resolve_topic(REPLAY_NAMESPACE, POINTS_TOPIC),
+            confidence: resolve_topic(REPLAY_NAMESPACE, CONFIDENCE_TOPIC),
+            compressed_depth: resolve_topic(REPLAY_NAMESPACE, COMPRESSED_DEPTH_TOPIC),
+        }
+    }
+
+    /// Writes one frame's outputs into the bag.
+    fn write(
+        &self,
+        bag: &mut BagWriter,
+        stamp_ns: u64,
+        out: &PipelineOutput,
+        points: &PointCloud2,
+    ) -> Result<()> {
+        bag.write(&self.depth, stamp_ns, &out.depth)?;
+        bag.write(&self.points, stamp_ns, points)?;
+        bag.write(&self.confidence, stamp_ns, &out.confidence)?;
+        if let Some(compressed) = &out.compressed_depth {
+            bag.write(&self.compressed_depth, stamp_ns, compressed)?;
+        }
+        Ok(())
+    }
+}
+
+/// Scores a frame's published depth against its ground truth (and labels) where it has them.
+fn score_frame(
+    frame: &RigFrame,
+    depth: &Image,
+    max_depth_m: f64,
+    file: &str,
+    average: &mut FrameAverage,
+    obstacles: &mut ObstacleSummary,
+) -> Result<()> {
+    let Some(gt) = &frame.ground_truth else {
+        return Ok(());
+    };
+    let stamp_ns = frame.stamp_ns;
+    let pred = float_from_image_msg(depth)
+        .with_context(|| format!("frame at {stamp_ns} ns: own depth output unreadable"))?;
+    if pred.width != gt.width || pred.height != gt.height {
+        return Ok(());
+    }
+    let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
+        .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
+    average.push(m, None);
+    if let Some(labels) = &frame.labels {
+        let scores = frame_obstacles(&pred.data, &gt.data, labels, max_depth_m)
+            .with_context(|| format!("frame at {stamp_ns} ns: obstacle metrics"))?;
+        obstacles.add_frame(file, stamp_ns, &scores);
+    }
+    Ok(())
 }
 
 #[derive(Args)]
