@@ -305,6 +305,70 @@ fn pace(t0: Instant, at: Duration, stop: &AtomicBool) -> bool {
     }
 }
 
+/// A publisher for every topic of the bag whose type the player knows (the others are listed
+/// in `summary.skipped_topics`), with its type name.
+fn topic_publishers(
+    bag: &BagReader,
+    spun: &mut SpunNode,
+    summary: &mut PlaySummary,
+) -> Result<BTreeMap<String, (AnyPublisher, String)>, PlayError> {
+    let mut publishers = BTreeMap::new();
+    for info in bag.topics() {
+        match publisher_for(&mut spun.node, &info.topic, &info.type_name)? {
+            Some(p) => {
+                publishers.insert(info.topic.clone(), (p, info.type_name.clone()));
+            }
+            None => summary.skipped_topics.push(info.topic.clone()),
+        }
+    }
+    Ok(publishers)
+}
+
+/// Timing of one pass over the messages played in the loop (all but `/tf_static`).
+fn loop_timing(bag: &BagReader) -> Result<Option<LoopTiming>, PlayError> {
+    let mut log_times: BTreeMap<&str, Vec<u64>> = BTreeMap::new();
+    for msg in bag.messages() {
+        let msg = msg?;
+        if msg.topic != TF_STATIC_TOPIC {
+            log_times
+                .entry(msg.topic)
+                .or_default()
+                .push(msg.log_time_ns);
+        }
+    }
+    Ok(LoopTiming::from_log_times(
+        log_times.values().map(|v| v.as_slice()),
+    ))
+}
+
+/// Waits up to `limit` until every topic of `topics` the bag has is subscribed to, or `stop`.
+fn wait_for_subscribers(
+    topics: &[String],
+    publishers: &BTreeMap<String, (AnyPublisher, String)>,
+    spun: &SpunNode,
+    stop: &AtomicBool,
+    limit: Duration,
+) -> Result<(), PlayError> {
+    let matched = futures::future::join_all(
+        topics
+            .iter()
+            .filter_map(|t| publishers.get(t))
+            .map(|(p, _)| p.wait_for_subscription(&spun.node)),
+    );
+    let stopped = async {
+        while !stop.load(Ordering::SeqCst) {
+            tokio::time::sleep(STOP_POLL).await;
+        }
+    };
+    runtime()?.block_on(async {
+        tokio::select! {
+            _ = tokio::time::timeout(limit, matched) => {}
+            _ = stopped => {}
+        }
+    });
+    Ok(())
+}
+
 /// Plays `opts.input` on DDS until done or until `stop` turns true, calling `on_published`
 /// right after each message went out.
 pub fn play_bag_until(
@@ -322,53 +386,18 @@ pub fn play_bag_until(
         "/",
         &format!("mode360_play_{}", std::process::id()),
     )?;
-    let mut publishers: BTreeMap<String, (AnyPublisher, String)> = BTreeMap::new();
     let mut summary = PlaySummary::default();
-    for info in bag.topics() {
-        match publisher_for(&mut spun.node, &info.topic, &info.type_name)? {
-            Some(p) => {
-                publishers.insert(info.topic.clone(), (p, info.type_name.clone()));
-            }
-            None => summary.skipped_topics.push(info.topic.clone()),
-        }
-    }
+    let publishers = topic_publishers(&bag, &mut spun, &mut summary)?;
     let clock: Option<Publisher<Clock>> =
         if opts.publish_clock && !publishers.contains_key(CLOCK_TOPIC) {
             Some(create_publisher(&mut spun.node, CLOCK_TOPIC, output_qos())?)
         } else {
             None
         };
-    // Timing of one pass over the messages played in the loop.
-    let mut log_times: BTreeMap<&str, Vec<u64>> = BTreeMap::new();
-    for msg in bag.messages() {
-        let msg = msg?;
-        if msg.topic != TF_STATIC_TOPIC {
-            log_times
-                .entry(msg.topic)
-                .or_default()
-                .push(msg.log_time_ns);
-        }
-    }
-    let timing = LoopTiming::from_log_times(log_times.values().map(|v| v.as_slice()));
+    let timing = loop_timing(&bag)?;
     summary.timing = timing;
     if let Some(limit) = opts.wait_for_subscribers {
-        let matched = futures::future::join_all(
-            opts.wait_topics
-                .iter()
-                .filter_map(|t| publishers.get(t))
-                .map(|(p, _)| p.wait_for_subscription(&spun.node)),
-        );
-        let stopped = async {
-            while !stop.load(Ordering::SeqCst) {
-                tokio::time::sleep(STOP_POLL).await;
-            }
-        };
-        runtime()?.block_on(async {
-            tokio::select! {
-                _ = tokio::time::timeout(limit, matched) => {}
-                _ = stopped => {}
-            }
-        });
+        wait_for_subscribers(&opts.wait_topics, &publishers, &spun, stop, limit)?;
     }
     // Latched topics first: /tf_static may be logged at time 0, long before the data.
     if let Some((p, type_name)) = publishers.get(TF_STATIC_TOPIC) {
