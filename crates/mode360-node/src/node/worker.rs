@@ -7,7 +7,7 @@
 
 use super::diagnostics::NodeHealth;
 use super::live_view::LiveView;
-use super::pipeline::{OutputRequest, Pipeline};
+use super::pipeline::{OutputRequest, Pipeline, PipelineOutput};
 use super::ros_params::RuntimeParams;
 use mode360_core::frame::RgbImage;
 use mode360_core::sync::SyncGroup;
@@ -78,6 +78,32 @@ pub(super) struct OutputPublishers {
     pub(super) confidence: Publisher<Image>,
 }
 
+impl OutputPublishers {
+    /// Publishes a group's outputs (confidence when `confidence`); returns what failed.
+    fn publish(&self, out: PipelineOutput, confidence: bool) -> Vec<String> {
+        let mut errors = Vec::new();
+        if let Err(e) = self.depth.publish(out.depth) {
+            errors.push(format!("publishing depth: {e:?}"));
+        }
+        if let Some(compressed) = out.compressed_depth {
+            if let Err(e) = self.compressed_depth.publish(compressed) {
+                errors.push(format!("publishing depth/compressedDepth: {e:?}"));
+            }
+        }
+        if let Some(points) = out.points {
+            if let Err(e) = self.points.publish(points) {
+                errors.push(format!("publishing points: {e:?}"));
+            }
+        }
+        if confidence {
+            if let Err(e) = self.confidence.publish(out.confidence) {
+                errors.push(format!("publishing confidence: {e:?}"));
+            }
+        }
+        errors
+    }
+}
+
 /// The inference thread: takes the newest group until shutdown, runs the pipeline, publishes,
 /// runs the group's lens and drift checks (after publishing: off the latency path) and updates
 /// the health counters.
@@ -143,25 +169,7 @@ pub(super) fn worker_main(
                         live.confidence.log(&out.confidence);
                     }
                 }
-                let mut errors = Vec::new();
-                if let Err(e) = publishers.depth.publish(out.depth) {
-                    errors.push(format!("publishing depth: {e:?}"));
-                }
-                if let Some(compressed) = out.compressed_depth {
-                    if let Err(e) = publishers.compressed_depth.publish(compressed) {
-                        errors.push(format!("publishing depth/compressedDepth: {e:?}"));
-                    }
-                }
-                if let Some(points) = out.points {
-                    if let Err(e) = publishers.points.publish(points) {
-                        errors.push(format!("publishing points: {e:?}"));
-                    }
-                }
-                if outputs.confidence {
-                    if let Err(e) = publishers.confidence.publish(out.confidence) {
-                        errors.push(format!("publishing confidence: {e:?}"));
-                    }
-                }
+                let mut errors = publishers.publish(out, outputs.confidence);
                 // The lens and drift checks of this group, after its messages are out.
                 if let Err(e) = pipeline.run_deferred_checks() {
                     errors.push(format!("rig health checks: {e}"));
