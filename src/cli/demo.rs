@@ -85,11 +85,7 @@ pub fn run_demo(opts: &DemoOptions) -> Result<DemoSummary> {
 fn demo_with_node(opts: &DemoOptions) -> Result<(DemoSummary, NodeHandle)> {
     let reader = RigBagReader::open(&opts.bag)?;
     let rig = reader.rig().clone();
-    let max_depth_m = reader
-        .info()
-        .get(mode360_io::bag::MAX_DEPTH_KEY)
-        .and_then(|v| v.parse::<f64>().ok())
-        .unwrap_or(mode360_io::bag::DEFAULT_MAX_DEPTH_M);
+    let max_depth_m = reader.max_depth_m()?;
     let frames: Vec<_> = reader.frames().collect::<Result<_, _>>()?;
     let width = frames
         .first()

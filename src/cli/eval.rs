@@ -17,7 +17,7 @@ pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
 use super::drops::{DropCount, DropTally};
 use super::estimator_args::EstimatorArgs;
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
 use mode360_core::geometry::{ErpGrid, GeerPair, Rig};
@@ -27,9 +27,7 @@ use mode360_core::progress::frames_bar;
 use mode360_estimator::estimator::lens_guard::LensGuard;
 use mode360_estimator::estimator::lens_window::LENS_WINDOW_FRAMES;
 use mode360_estimator::estimator::DepthEstimator;
-use mode360_io::bag::{
-    RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, MAX_DEPTH_KEY, SOILED_KEY,
-};
+use mode360_io::bag::{RigBagReader, DEFAULT_MAX_DEPTH_M, GROUND_TRUTH_TOPIC, SOILED_KEY};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -187,19 +185,13 @@ impl Group {
 }
 
 /// A bag's condition (`soiled` or `clean`) and maximum depth, from its metadata.
-fn bag_condition(info: &BTreeMap<String, String>, bag_name: &str) -> Result<(&'static str, f64)> {
-    let condition = if info.get(SOILED_KEY).map(String::as_str) == Some("true") {
+fn bag_condition(reader: &RigBagReader) -> Result<(&'static str, f64)> {
+    let condition = if reader.info().get(SOILED_KEY).map(String::as_str) == Some("true") {
         "soiled"
     } else {
         "clean"
     };
-    let max_depth_m = match info.get(MAX_DEPTH_KEY) {
-        None => DEFAULT_MAX_DEPTH_M,
-        Some(v) => v.parse().map_err(|_| {
-            anyhow!("{bag_name}: metadata '{MAX_DEPTH_KEY}' = '{v}' is not a number")
-        })?,
-    };
-    Ok((condition, max_depth_m))
+    Ok((condition, reader.max_depth_m()?))
 }
 
 /// Writes a preview: the reference image, the estimate and the ground truth colour-mapped, and
@@ -233,7 +225,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
     for path in &opts.bags {
         let bag_name = path.display().to_string();
         let reader = RigBagReader::open(path).with_context(|| format!("opening {bag_name}"))?;
-        let (condition, max_depth_m) = bag_condition(&reader.info(), &bag_name)?;
+        let (condition, max_depth_m) = bag_condition(&reader)?;
         let full_rig = reader.rig().clone();
         let selection: Vec<usize> = opts
             .cameras

@@ -9,7 +9,7 @@
 
 use super::drops::DropTally;
 use super::estimator_args::EstimatorArgs;
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::RigFrame;
 use mode360_core::geometry::rig_match::check_same_cameras;
@@ -19,7 +19,6 @@ use mode360_core::obstacles::{frame_obstacles, ObstacleMeasure, ObstacleReport, 
 use mode360_core::sync::SyncStats;
 use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader, RigBagWriter};
-use mode360_io::bag::{DEFAULT_MAX_DEPTH_M, MAX_DEPTH_KEY};
 use mode360_io::msgs::image::float_from_image_msg;
 use mode360_io::msgs::{Image, PointCloud2};
 use mode360_node::node::diagnostics::{diagnostic_array, NodeHealth};
@@ -104,12 +103,9 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
     let file = opts.input.display().to_string();
     let rig = calibration_for(&reader, opts.rig.as_deref(), &file)?;
     let info = reader.info();
-    let max_depth_m = match (opts.max_depth_m, info.get(MAX_DEPTH_KEY)) {
-        (Some(m), _) => m,
-        (None, Some(text)) => text
-            .parse::<f64>()
-            .map_err(|e| anyhow!("bag '{file}': metadata '{MAX_DEPTH_KEY}' = '{text}': {e}"))?,
-        (None, None) => DEFAULT_MAX_DEPTH_M,
+    let max_depth_m = match opts.max_depth_m {
+        Some(m) => m,
+        None => reader.max_depth_m()?,
     };
     let mut writer = RigBagWriter::create(&opts.output, &rig, &info)
         .with_context(|| format!("creating {}", opts.output.display()))?;

@@ -601,3 +601,41 @@ fn tf_static_carries_the_stamp_it_is_given() {
         );
     }
 }
+
+#[test]
+fn max_depth_comes_from_the_metadata_and_a_bad_value_is_named() {
+    let dir = temp_dir();
+    let cases = [
+        (None, Ok(DEFAULT_MAX_DEPTH_M)),
+        (Some("250"), Ok(250.0)),
+        (Some("far"), Err("'far'")),
+        (Some("-5"), Err("'-5'")),
+    ];
+    for (k, (value, expected)) in cases.into_iter().enumerate() {
+        let path = dir.path().join(format!("max_depth_{k}.mcap"));
+        let mut meta = info();
+        if let Some(v) = value {
+            meta.insert(MAX_DEPTH_KEY.to_string(), v.to_string());
+        }
+        let writer = match RigBagWriter::create(&path, &rig(), &meta) {
+            Ok(w) => w,
+            Err(err) => panic!("{err}"),
+        };
+        assert!(writer.finish().is_ok());
+        let reader = match RigBagReader::open(&path) {
+            Ok(r) => r,
+            Err(err) => panic!("{err}"),
+        };
+        match (reader.max_depth_m(), expected) {
+            (Ok(m), Ok(want)) => assert_eq!(m, want, "{value:?}"),
+            (Err(e), Err(named)) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains(named) && text.contains(MAX_DEPTH_KEY),
+                    "{text}"
+                );
+            }
+            (got, want) => panic!("{value:?}: got {got:?}, expected {want:?}"),
+        }
+    }
+}

@@ -50,6 +50,13 @@ pub enum BagError {
         name: String,
         key: String,
     },
+    #[error("{file}: metadata key '{key}' = '{value}' is not a {expected}")]
+    BadMetadata {
+        file: String,
+        key: String,
+        value: String,
+        expected: &'static str,
+    },
     #[error("{file}: rig from metadata: {source}")]
     Rig {
         file: String,
@@ -86,6 +93,7 @@ impl BagError {
             | Self::TypeMismatch { file, .. }
             | Self::MissingTopic { file, .. }
             | Self::MissingMetadata { file, .. }
+            | Self::BadMetadata { file, .. }
             | Self::Rig { file, .. }
             | Self::Image { file, .. }
             | Self::Frame { file, .. } => file,
@@ -120,6 +128,12 @@ impl BagError {
             Self::MissingMetadata { name, key, .. } => {
                 format!("metadata record '{name}' (key '{key}') is missing")
             }
+            Self::BadMetadata {
+                key,
+                value,
+                expected,
+                ..
+            } => format!("metadata key '{key}' = '{value}' is not a {expected}"),
             Self::Rig { source, .. } => format!("rig from metadata: {source}"),
             Self::Image { source, .. } => source.to_string(),
             Self::Frame { field, problem, .. } => format!("field '{field}': {problem}"),

@@ -273,6 +273,24 @@ impl RigBagReader {
         self.info.clone()
     }
 
+    /// The ground truth's sky / clamp range from the [`MAX_DEPTH_KEY`] metadata:
+    /// [`DEFAULT_MAX_DEPTH_M`] when the bag does not say, an error naming the value when it is
+    /// not a positive number.
+    pub fn max_depth_m(&self) -> Result<f64, BagError> {
+        let Some(text) = self.info.get(MAX_DEPTH_KEY) else {
+            return Ok(DEFAULT_MAX_DEPTH_M);
+        };
+        text.parse::<f64>()
+            .ok()
+            .filter(|m| m.is_finite() && *m > 0.0)
+            .ok_or_else(|| BagError::BadMetadata {
+                file: self.bag.file().to_string(),
+                key: MAX_DEPTH_KEY.to_string(),
+                value: text.clone(),
+                expected: "positive number",
+            })
+    }
+
     /// The underlying bag.
     pub fn bag(&self) -> &BagReader {
         &self.bag
