@@ -17,12 +17,13 @@ pub use geometry_share::{geometry_share, GeometryShareReport, GeometryShareRow};
 
 use super::drops::{DropCount, DropTally};
 use super::estimator_args::EstimatorArgs;
+use super::scores::FrameScores;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
 use mode360_core::geometry::{ErpGrid, GeerPair, Rig};
-use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics, FrameAverage};
-use mode360_core::obstacles::{self, ObstacleReport, ObstacleSummary};
+use mode360_core::metrics::{self, DepthMetrics, DisparityMetrics};
+use mode360_core::obstacles::ObstacleReport;
 use mode360_core::progress::frames_bar;
 use mode360_estimator::estimator::lens_guard::LensGuard;
 use mode360_estimator::estimator::lens_window::LENS_WINDOW_FRAMES;
@@ -147,9 +148,8 @@ pub struct EvalReport {
 struct Group {
     bags: Vec<String>,
     cameras: Vec<String>,
-    average: FrameAverage,
+    scores: FrameScores,
     bands: metrics::RangeBands,
-    obstacles: ObstacleSummary,
     max_depth_m: f64,
     elapsed_s: f64,
 }
@@ -168,18 +168,13 @@ impl Group {
             bail!("no ground truth");
         };
         let output = ErpGrid::new(gt.width)?;
-        let depth = metrics::depth_metrics(&range_m.data, &gt.data, self.max_depth_m)?;
         let disp_pred = metrics::disparity_image(rig, output, pair, range_m);
         let disp_gt = metrics::disparity_image(rig, output, pair, gt);
         let disparity = metrics::disparity_metrics(&disp_pred, &disp_gt).ok();
-        self.average.push(depth, disparity);
+        self.scores
+            .add(range_m, gt, frame, self.max_depth_m, bag_name, disparity)?;
         self.bands
             .add_frame(&range_m.data, &gt.data, self.max_depth_m);
-        if let Some(labels) = &frame.labels {
-            let scores =
-                obstacles::frame_obstacles(&range_m.data, &gt.data, labels, self.max_depth_m)?;
-            self.obstacles.add_frame(bag_name, frame.stamp_ns, &scores);
-        }
         Ok(())
     }
 }
@@ -239,9 +234,8 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
             .or_insert_with(|| Group {
                 bags: Vec::new(),
                 cameras: rig.cameras.iter().map(|c| c.name.clone()).collect(),
-                average: FrameAverage::default(),
+                scores: FrameScores::default(),
                 bands: metrics::RangeBands::default(),
-                obstacles: ObstacleSummary::default(),
                 max_depth_m,
                 elapsed_s: 0.0,
             });
@@ -312,15 +306,15 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
     }
     let rows: Vec<EvalRow> = groups
         .into_iter()
-        .filter(|(_, g)| g.average.frames() > 0)
+        .filter(|(_, g)| g.scores.average.frames() > 0)
         .map(|(condition, g)| EvalRow {
             condition,
-            frames: g.average.frames(),
-            depth: g.average.depth(),
-            disparity: g.average.disparity(),
-            s_per_frame: g.elapsed_s / g.average.frames() as f64,
+            frames: g.scores.average.frames(),
+            depth: g.scores.average.depth(),
+            disparity: g.scores.average.disparity(),
+            s_per_frame: g.elapsed_s / g.scores.average.frames() as f64,
             range_bands: g.bands,
-            obstacles: g.obstacles.report(),
+            obstacles: g.scores.obstacles.report(),
             max_depth_m: g.max_depth_m,
             bags: g.bags,
             cameras: g.cameras,

@@ -38,5 +38,6 @@ pub mod play;
 pub mod replay;
 pub mod rig;
 pub mod same_image_bag;
+pub mod scores;
 pub mod synth;
 pub mod train;

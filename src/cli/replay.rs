@@ -9,13 +9,14 @@
 
 use super::drops::DropTally;
 use super::estimator_args::EstimatorArgs;
+use super::scores::FrameScores;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::RigFrame;
 use mode360_core::geometry::rig_match::check_same_cameras;
 use mode360_core::geometry::Rig;
-use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
-use mode360_core::obstacles::{frame_obstacles, ObstacleMeasure, ObstacleReport, ObstacleSummary};
+use mode360_core::metrics::DepthMetrics;
+use mode360_core::obstacles::{ObstacleMeasure, ObstacleReport};
 use mode360_core::sync::SyncStats;
 use mode360_estimator::estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader, RigBagWriter};
@@ -119,8 +120,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
         obstacles: None,
         max_depth_m,
     };
-    let mut obstacles = ObstacleSummary::default();
-    let mut average = FrameAverage::default();
+    let mut scores = FrameScores::default();
     let mut health = NodeHealth::of_cameras(
         rig.cameras
             .iter()
@@ -169,14 +169,7 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             stamp_ns,
             &diagnostic_array(stamp_ns, REPLAY_HARDWARE_ID, &health),
         )?;
-        score_frame(
-            &frame,
-            &out.depth,
-            max_depth_m,
-            &file,
-            &mut average,
-            &mut obstacles,
-        )?;
+        score_frame(&frame, &out.depth, max_depth_m, &file, &mut scores)?;
     }
     writer.finish()?;
     if summary.frames == 0 {
@@ -185,10 +178,10 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             summary.drops.summary()
         );
     }
-    if average.frames() > 0 {
-        summary.metrics = Some(average.depth());
+    if scores.average.frames() > 0 {
+        summary.metrics = Some(scores.average.depth());
     }
-    summary.obstacles = obstacles.report();
+    summary.obstacles = scores.obstacles.report();
     Ok(summary)
 }
 
@@ -257,8 +250,7 @@ fn score_frame(
     depth: &Image,
     max_depth_m: f64,
     file: &str,
-    average: &mut FrameAverage,
-    obstacles: &mut ObstacleSummary,
+    scores: &mut FrameScores,
 ) -> Result<()> {
     let Some(gt) = &frame.ground_truth else {
         return Ok(());
@@ -269,15 +261,9 @@ fn score_frame(
     if pred.width != gt.width || pred.height != gt.height {
         return Ok(());
     }
-    let m = depth_metrics(&pred.data, &gt.data, max_depth_m)
-        .with_context(|| format!("frame at {stamp_ns} ns: metrics"))?;
-    average.push(m, None);
-    if let Some(labels) = &frame.labels {
-        let scores = frame_obstacles(&pred.data, &gt.data, labels, max_depth_m)
-            .with_context(|| format!("frame at {stamp_ns} ns: obstacle metrics"))?;
-        obstacles.add_frame(file, stamp_ns, &scores);
-    }
-    Ok(())
+    scores
+        .add(&pred, gt, frame, max_depth_m, file, None)
+        .with_context(|| format!("frame at {stamp_ns} ns: metrics"))
 }
 
 #[derive(Args)]
