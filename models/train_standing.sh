@@ -19,7 +19,10 @@
 #   runs/clutter_obst      near pixels weigh 8, the pixels of an obstacle as `eval` counts it
 #                          (an object instance within 10 m) 4 more and a thin one's (under
 #                          3 degrees) 2 more again (`--obstacle-weight 4 --thin-weight 2`),
-#                          forked once from runs/clutter_near at its step 3,550.
+#                          forked once from runs/clutter_near at its step 3,550;
+#   runs/clutter_obst2     the same at half the obstacle and thin weights (x2, x1): obstacles
+#                          as `obst` keeps them without its loss of δ1 off the obstacles,
+#                          forked once from runs/clutter_obst at its step 4,550.
 # `near` stopped at 3,550 (its obstacle recall had not moved since 1,750).
 # History (models/README.md, "Obstacles"): `plain` (the plain loss) against `weighted` (near x4,
 # too-far x2), both from the weights shipped on 2026-11-27; the plain arm stopped at 500 (it
@@ -34,12 +37,12 @@
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("near10 obst"), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("obst2"), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-near10 obst}"
+arms="${ARMS:-obst2}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
@@ -55,8 +58,11 @@ for arm in $arms; do
   near) loss=(--near-weight 8 --fork-from runs/clutter_nearfar) ;;
   near10) loss=(--near-weight 8 --near-range-m 10 --fork-from runs/clutter_near) ;;
   obst) loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 2 --fork-from runs/clutter_near) ;;
+  obst2)
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --fork-from runs/clutter_obst)
+    ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10 or obst)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst or obst2)" >&2
     exit 2
     ;;
   esac

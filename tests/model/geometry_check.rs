@@ -34,6 +34,11 @@ const MIN_SHARE_PTS: f64 = 30.0;
 /// share is the check. The bounds leave margin.
 const SSMODE_MIN_DELTA1_TRUE_PCT: f64 = 75.0;
 const SSMODE_MAX_DELTA1_SAME_PCT: f64 = 55.0;
+/// PSMODE (stage 1: the shipped SSMODE weights on each pair; most confident pair) on the same
+/// frames: true views [85.78 %], same image [43.53 %], share [42.25 points]. The bounds leave
+/// margin.
+const PSMODE_MIN_DELTA1_TRUE_PCT: f64 = 75.0;
+const PSMODE_MAX_DELTA1_SAME_PCT: f64 = 55.0;
 
 fn street_bag(dir: &Path, name: &str, width: usize, frames: usize) -> Result<PathBuf, String> {
     let out = dir.join(name);
@@ -279,4 +284,17 @@ fn same_image_views_use_the_reference_of_the_selected_cameras() -> TestResult {
         }
     }
     Ok(())
+}
+
+/// PSMODE (stage 1 with the shipped SSMODE weights on each of the six pairs in its GEER frame,
+/// the most confident pair per pixel): a matcher of pairs, so with every camera fed the same
+/// image each pair loses its parallax and the estimate collapses as SSMODE's does. Same bag.
+#[test]
+fn same_image_views_collapse_psmode() -> TestResult {
+    check_share(
+        "psmode",
+        PSMODE_MIN_DELTA1_TRUE_PCT,
+        PSMODE_MAX_DELTA1_SAME_PCT,
+        MIN_SHARE_PTS,
+    )
 }

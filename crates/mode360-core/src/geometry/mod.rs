@@ -8,6 +8,9 @@
 //!   ERP grid) behind one `project` / `unproject` interface.
 //! * [`rig`]: the rig calibration, validated by `Rig::new`; [`rig_yaml`] reads and writes it.
 //! * [`import`]: a Kalibr camchain or a Basalt `calibration.json` into a rig.
+//! * [`erp_rotation`]: an ERP panorama resampled into a rotated frame at the same centre.
+//! * [`pair_view`]: a camera pair in its GEER frame (PSMODE's first stage): the pair as a
+//!   two-camera rig, panoramas turned into it, its range brought back into the output frame.
 //! * [`panorama`]: every camera as a panorama (its REP 103 frame, which directions it sees,
 //!   a fisheye image resampled into an ERP panorama with a validity mask).
 //! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
@@ -15,9 +18,11 @@
 
 pub mod camera;
 pub mod erp;
+pub mod erp_rotation;
 pub mod far_field;
 pub mod geer;
 pub mod import;
+pub mod pair_view;
 pub mod panorama;
 pub mod rig;
 pub mod rig_match;
@@ -26,8 +31,10 @@ pub mod sweep;
 
 pub use camera::{CameraModel, ImageSize, IntrinsicsError};
 pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
+pub use erp_rotation::ErpRotation;
 pub use far_field::FarField;
 pub use geer::{GeerAngles, GeerPair};
+pub use pair_view::{AlignedRange, CameraPair, PairSide, PairView};
 pub use rig::{ImageSizeError, Projection, Rig, RigCamera, RigError, RigOutput};
 pub use sweep::{DepthHypotheses, DepthRange, HypothesisSpacing, SweepGeometry, SweepTable};
 

@@ -17,6 +17,7 @@ pub mod lens_mask;
 pub mod lens_motion;
 pub mod lens_window;
 pub mod photometric;
+pub mod psmode;
 pub mod ssmode;
 
 /// What an estimator returns for one frame.
@@ -102,23 +103,28 @@ pub enum EstimatorKind {
     /// estimator: ahead of the sweep on every held-out row of issue 19 (models/README.md).
     #[default]
     Ssmode,
+    /// PSMODE, the paper's two-stage method: SSMODE's network on each camera pair in its GEER
+    /// frame, then the pairs fused (`estimator::psmode`). Its weights are the stage-1
+    /// network's (default: SSMODE's shipped weights).
+    Psmode,
 }
 
 impl EstimatorKind {
     /// Every kind, in the order help texts list them.
-    pub const ALL: [Self; 2] = [Self::Photometric, Self::Ssmode];
+    pub const ALL: [Self; 3] = [Self::Photometric, Self::Ssmode, Self::Psmode];
 
     /// The name on the command line and in reports.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Photometric => photometric::PHOTOMETRIC_NAME,
             Self::Ssmode => ssmode::SSMODE_NAME,
+            Self::Psmode => psmode::PSMODE_NAME,
         }
     }
 
     /// Whether this estimator loads a weights file.
     pub fn has_weights(self) -> bool {
-        self == Self::Ssmode
+        matches!(self, Self::Ssmode | Self::Psmode)
     }
 }
 
@@ -142,8 +148,8 @@ impl std::str::FromStr for EstimatorKind {
     }
 }
 
-/// An estimator and, for SSMODE, its weights file (`None`: the shipped weights) and the device
-/// its network runs on.
+/// An estimator and, for SSMODE and PSMODE, its weights file (`None`: the shipped weights), the
+/// device its network runs on and, for PSMODE, the camera pairs it matches.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct EstimatorSpec {
     pub kind: EstimatorKind,
@@ -151,6 +157,8 @@ pub struct EstimatorSpec {
     /// Where SSMODE runs (`--device`, the node's `device`); the photometric sweep runs on the
     /// CPU only, and asking it for another device is an error at [`Self::build`].
     pub device: ComputeDevice,
+    /// The camera pairs PSMODE matches (ignored by the others).
+    pub pairs: psmode::PairChoice,
 }
 
 impl EstimatorSpec {
@@ -213,6 +221,11 @@ impl EstimatorSpec {
                 weights.clone().unwrap_or_else(ssmode::default_weights_path),
                 self.device,
             )?)),
+            (EstimatorKind::Psmode, weights) => Ok(Box::new(psmode::PsmodeEstimator::load_on(
+                weights.clone().unwrap_or_else(ssmode::default_weights_path),
+                self.device,
+                self.pairs.clone(),
+            )?)),
         }
     }
 }
@@ -235,7 +248,7 @@ mod tests {
         }
         let e = "sgbm".parse::<EstimatorKind>().unwrap_err().to_string();
         assert!(
-            e.contains("sgbm") && e.contains("photometric, ssmode"),
+            e.contains("sgbm") && e.contains("photometric, ssmode, psmode"),
             "{e}"
         );
     }

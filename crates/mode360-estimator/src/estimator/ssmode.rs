@@ -156,6 +156,16 @@ impl SsmodeEstimator {
         estimator
     }
 
+    /// The network (its weights are shared by clones).
+    pub fn model(&self) -> &Ssmode {
+        &self.model
+    }
+
+    /// Where the network's weights live.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
     pub fn config(&self) -> &SsmodeConfig {
         self.model.config()
     }

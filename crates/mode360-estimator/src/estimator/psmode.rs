@@ -1,0 +1,445 @@
+//! PSMODE, the paper's two-stage estimator (section 4.2), as a [`DepthEstimator`].
+//!
+//! Stage 1, pairwise stereo in GEER: for each chosen camera pair both panoramas are turned into
+//! the pair's GEER frame ([`PairView`]: GEER stored transposed, so epipolar lines are columns
+//! and the network's longitude wrap serves GEER's azimuth); a two-camera network matches them
+//! along those lines, its range is from the left camera, and it is brought into the rig's
+//! output frame by splatting ([`PairView::align`]), dropping what either camera does not see.
+//! The stage-1 network is SSMODE's architecture on the two-camera pair rig (its sweep over the
+//! pair rig is a search along the epipolar columns; its hypotheses are uniform in log range,
+//! that is, per row a set of angular disparities), so SSMODE's features, cost volume,
+//! aggregation and readout are shared, not copied.
+//!
+//! Stage 2, fusion: [`PairFusion::MostConfident`] keeps, per output pixel, the pair with the
+//! highest confidence (the paper's "PSMODE without fusion" baseline).
+
+use std::path::{Path, PathBuf};
+
+use super::lens_health::analysis_grid;
+use super::lens_mask::LensMask;
+use super::ssmode::{locate_weights, SsmodeEstimator};
+use super::{DepthEstimate, DepthEstimator, EstimatorError};
+use mode360_core::frame::RgbImage;
+use mode360_core::geometry::panorama::RigRemap;
+use mode360_core::geometry::{
+    AlignedRange, CameraPair, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord, Rig,
+};
+use mode360_model::model::ComputeDevice;
+
+/// The estimator's name on the command line and in reports.
+pub const PSMODE_NAME: &str = "psmode";
+
+/// Separator of the two camera names of a pair in [`PairChoice::parse`].
+pub const PAIR_SEPARATOR: char = '-';
+
+/// Which camera pairs stage 1 matches.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum PairChoice {
+    /// Every pair of cameras whose views overlap.
+    #[default]
+    All,
+    /// These pairs, by camera name, the left camera first.
+    Named(Vec<(String, String)>),
+}
+
+impl PairChoice {
+    /// `all`, or comma-separated pairs of camera names, `left-right` (`front-back,left-right`).
+    pub fn parse(text: &str) -> Result<Self, EstimatorError> {
+        let text = text.trim();
+        if text.is_empty() || text == "all" {
+            return Ok(Self::All);
+        }
+        let bad = |problem: String| EstimatorError::BadConfig {
+            field: "pairs".to_string(),
+            problem,
+        };
+        let pairs = text
+            .split(',')
+            .map(|item| {
+                let item = item.trim();
+                let (l, r) = item.split_once(PAIR_SEPARATOR).ok_or_else(|| {
+                    bad(format!(
+                        "'{item}' is not a pair: write two camera names as left{PAIR_SEPARATOR}right"
+                    ))
+                })?;
+                if l.is_empty() || r.is_empty() || l == r {
+                    return Err(bad(format!("'{item}' does not name two different cameras")));
+                }
+                Ok((l.to_string(), r.to_string()))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self::Named(pairs))
+    }
+
+    /// The pairs of `rig` by index; an error naming an unknown camera.
+    fn resolve(&self, rig: &Rig) -> Result<Vec<CameraPair>, EstimatorError> {
+        match self {
+            Self::All => Ok(CameraPair::all(rig.cameras.len())),
+            Self::Named(names) => names
+                .iter()
+                .map(|(l, r)| {
+                    let index = |name: &str| {
+                        rig.cameras
+                            .iter()
+                            .position(|c| c.name == name)
+                            .ok_or_else(|| EstimatorError::BadConfig {
+                                field: "pairs".to_string(),
+                                problem: format!(
+                                    "no camera '{name}' in the rig (cameras: {})",
+                                    camera_names(rig)
+                                ),
+                            })
+                    };
+                    Ok(CameraPair {
+                        left: index(l)?,
+                        right: index(r)?,
+                    })
+                })
+                .collect(),
+        }
+    }
+}
+
+fn camera_names(rig: &Rig) -> String {
+    rig.cameras
+        .iter()
+        .map(|c| c.name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn pair_name(rig: &Rig, pair: CameraPair) -> String {
+    format!(
+        "{}{PAIR_SEPARATOR}{}",
+        rig.cameras[pair.left].name, rig.cameras[pair.right].name
+    )
+}
+
+/// How the pairs' aligned ranges become one.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PairFusion {
+    /// Per pixel, the pair with the highest confidence.
+    #[default]
+    MostConfident,
+}
+
+/// One pair's stage 1: its view, its network (weights shared with the others) and its
+/// panorama rotations (built for the panoramas' grid).
+struct PairStage {
+    view: PairView,
+    stage1: SsmodeEstimator,
+    rotations: Option<(ErpGrid, [ErpRotation; 2])>,
+}
+
+/// The pairs of the last rig seen.
+struct Setup {
+    rig: Rig,
+    stages: Vec<PairStage>,
+}
+
+/// PSMODE inference: stage 1 per pair, then fusion.
+pub struct PsmodeEstimator {
+    stage1_path: PathBuf,
+    base: SsmodeEstimator,
+    pairs: PairChoice,
+    fusion: PairFusion,
+    setup: Option<Setup>,
+    remap: Option<RigRemap>,
+    lens_masks: Vec<Option<LensMask>>,
+}
+
+impl PsmodeEstimator {
+    /// Stage-1 weights from `path` (found as [`locate_weights`] says) on `device`.
+    pub fn load_on(
+        path: impl AsRef<Path>,
+        device: ComputeDevice,
+        pairs: PairChoice,
+    ) -> Result<Self, EstimatorError> {
+        let base = SsmodeEstimator::load_on(path.as_ref(), device)?;
+        Ok(Self::from_stage1(base, pairs))
+    }
+
+    /// A PSMODE over an already loaded stage-1 network.
+    pub fn from_stage1(base: SsmodeEstimator, pairs: PairChoice) -> Self {
+        Self {
+            stage1_path: locate_weights(base.weights_path()),
+            base,
+            pairs,
+            fusion: PairFusion::default(),
+            setup: None,
+            remap: None,
+            lens_masks: Vec::new(),
+        }
+    }
+
+    pub fn stage1_weights_path(&self) -> &Path {
+        &self.stage1_path
+    }
+
+    /// Builds the pairs of `rig` when it changed: every chosen pair must exist, have two
+    /// distinct centres and share some view; with [`PairChoice::All`] pairs that share no view
+    /// are left out, and a rig none of whose pairs share one is an error.
+    fn refresh_setup(&mut self, rig: &Rig) -> Result<(), EstimatorError> {
+        if self.setup.as_ref().is_some_and(|s| &s.rig == rig) {
+            return Ok(());
+        }
+        let probe = analysis_grid();
+        let mut stages = Vec::new();
+        for pair in self.pairs.resolve(rig)? {
+            let name = pair_name(rig, pair);
+            let view = PairView::new(rig, pair).map_err(|e| EstimatorError::BadConfig {
+                field: "pairs".to_string(),
+                problem: format!("pair {name}: {e}"),
+            })?;
+            let left = view.seen_in_pair(PairSide::Left, probe);
+            let right = view.seen_in_pair(PairSide::Right, probe);
+            let shared = left.iter().zip(&right).any(|(&l, &r)| l && r);
+            if !shared {
+                if self.pairs == PairChoice::All {
+                    continue;
+                }
+                return Err(EstimatorError::BadConfig {
+                    field: "pairs".to_string(),
+                    problem: format!("cameras {name} share no view"),
+                });
+            }
+            let stage1 = SsmodeEstimator::from_model_on(
+                self.base.model().clone(),
+                self.stage1_path.clone(),
+                self.base.device().clone(),
+            );
+            stages.push(PairStage {
+                view,
+                stage1,
+                rotations: None,
+            });
+        }
+        if stages.is_empty() {
+            return Err(EstimatorError::BadConfig {
+                field: "rig".to_string(),
+                problem: format!(
+                    "PSMODE needs two cameras that share a view; none of [{}] do",
+                    camera_names(rig)
+                ),
+            });
+        }
+        self.setup = Some(Setup {
+            rig: rig.clone(),
+            stages,
+        });
+        Ok(())
+    }
+
+    /// The cameras' panoramas (fisheyes resampled at the network's width) and their grid.
+    fn panoramas<'a>(
+        &mut self,
+        rig: &Rig,
+        images: &'a [RgbImage],
+    ) -> Result<(Vec<std::borrow::Cow<'a, RgbImage>>, ErpGrid), EstimatorError> {
+        let net = ErpGrid::new(self.base.config().width)?;
+        if !self.remap.as_ref().is_some_and(|r| r.serves(rig, net)) {
+            self.remap = Some(RigRemap::new(rig, net));
+        }
+        let panoramas = match &self.remap {
+            Some(remap) if remap.any_fisheye() => {
+                remap
+                    .panoramas(images)
+                    .map_err(|(camera, e)| EstimatorError::BadImage {
+                        camera,
+                        problem: e.to_string(),
+                    })?
+            }
+            _ => images.iter().map(std::borrow::Cow::Borrowed).collect(),
+        };
+        // every panorama must be one ERP size so one rotation table serves each pair side
+        let first = &panoramas[0];
+        let grid = ErpGrid::new(first.width() as usize)
+            .ok()
+            .filter(|g| g.height() == first.height() as usize);
+        for (cam, img) in panoramas.iter().enumerate() {
+            let ok = grid.is_some_and(|g| {
+                (img.width() as usize, img.height() as usize) == (g.width(), g.height())
+            });
+            if !ok {
+                return Err(EstimatorError::BadImageSize {
+                    camera: rig.cameras[cam].name.clone(),
+                    width: img.width(),
+                    height: img.height(),
+                });
+            }
+        }
+        let grid = grid.ok_or_else(|| EstimatorError::BadImageSize {
+            camera: rig.cameras[0].name.clone(),
+            width: first.width(),
+            height: first.height(),
+        })?;
+        Ok((panoramas, grid))
+    }
+
+    /// The masks of a pair's two cameras in the pair frame: blocked where the camera's lens does
+    /// not see (fisheyes) or its lens mask says blocked; `None` for a side with neither.
+    fn pair_masks(&self, rig: &Rig, view: &PairView) -> [Option<LensMask>; 2] {
+        let probe = analysis_grid();
+        let pair = view.pair();
+        [(PairSide::Left, pair.left), (PairSide::Right, pair.right)].map(|(side, cam)| {
+            let mask = self.lens_masks.get(cam).and_then(Option::as_ref);
+            let fisheye = !rig.cameras[cam].projection.is_equirectangular();
+            if mask.is_none() && !fisheye {
+                return None;
+            }
+            let seen = view.seen_in_pair(side, probe);
+            let pano_from_pair = view.panorama_from_pair(side);
+            let blocked = (0..probe.len())
+                .map(|k| {
+                    let p = PixelCoord {
+                        u: (k % probe.width()) as f64,
+                        v: (k / probe.width()) as f64,
+                    };
+                    let masked = mask.is_some_and(|m| {
+                        let at = probe.pixel_from_dir(&(pano_from_pair * probe.dir_from_pixel(p)));
+                        let u = (at.u.round() as i64).rem_euclid(probe.width() as i64) as usize;
+                        let v = (at.v.round().max(0.0) as usize).min(probe.height() - 1);
+                        m.cells()[v * probe.width() + u]
+                    });
+                    !seen[k] || masked
+                })
+                .collect();
+            LensMask::from_cells(blocked)
+        })
+    }
+}
+
+/// Per output pixel, the aligned pair with the highest confidence (NaN and 0 where none).
+fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut range = vec![f32::NAN; pixels];
+    let mut conf = vec![0.0f32; pixels];
+    for a in aligned {
+        for k in 0..pixels {
+            if !a.range_m[k].is_nan() && (range[k].is_nan() || a.confidence[k] > conf[k]) {
+                range[k] = a.range_m[k];
+                conf[k] = a.confidence[k];
+            }
+        }
+    }
+    (range, conf)
+}
+
+impl DepthEstimator for PsmodeEstimator {
+    fn name(&self) -> &str {
+        PSMODE_NAME
+    }
+
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        if images.len() != rig.cameras.len() {
+            return Err(EstimatorError::ImageCount {
+                got: images.len(),
+                expected: rig.cameras.len(),
+            });
+        }
+        self.refresh_setup(rig)?;
+        let (panoramas, src) = self.panoramas(rig, images)?;
+        let net = ErpGrid::new(self.base.config().width)?;
+        // stage 1 reads out at the output's resolution (or finer), so that splatting fills it
+        let pair_out = if output.width() > net.width() {
+            output
+        } else {
+            net
+        };
+        let masks: Vec<[Option<LensMask>; 2]> = match &self.setup {
+            Some(setup) => setup
+                .stages
+                .iter()
+                .map(|s| self.pair_masks(rig, &s.view))
+                .collect(),
+            None => Vec::new(),
+        };
+        let Some(setup) = self.setup.as_mut() else {
+            return Err(EstimatorError::BadConfig {
+                field: "rig".to_string(),
+                problem: "PSMODE's pairs were not built".to_string(),
+            });
+        };
+        let mut aligned = Vec::with_capacity(setup.stages.len());
+        for (stage, masks) in setup.stages.iter_mut().zip(&masks) {
+            if !stage.rotations.as_ref().is_some_and(|(g, _)| *g == src) {
+                let rot = |side| stage.view.rotation_into_pair(side, src, net);
+                stage.rotations = Some((src, [rot(PairSide::Left), rot(PairSide::Right)]));
+            }
+            let Some((_, rotations)) = &stage.rotations else {
+                continue;
+            };
+            let pair = stage.view.pair();
+            let pair_images =
+                [(&rotations[0], pair.left), (&rotations[1], pair.right)].map(|(rot, cam)| {
+                    rot.apply_rgb(&panoramas[cam])
+                        .map_err(|e| EstimatorError::BadImage {
+                            camera: rig.cameras[cam].name.clone(),
+                            problem: e.to_string(),
+                        })
+                });
+            let [left, right] = pair_images;
+            let pair_images = [left?, right?];
+            stage.stage1.set_lens_masks(masks);
+            let est = stage
+                .stage1
+                .estimate(stage.view.pair_rig(), &pair_images, pair_out)?;
+            aligned.push(stage.view.align(
+                pair_out,
+                &est.range_m.data,
+                &est.confidence.data,
+                &rig.rig_from_output,
+                output,
+            )?);
+        }
+        let (range, conf) = match self.fusion {
+            PairFusion::MostConfident => most_confident(&aligned, output.len()),
+        };
+        Ok(DepthEstimate::on_grid(output, range, conf))
+    }
+
+    fn set_lens_masks(&mut self, masks: &[Option<LensMask>]) {
+        self.lens_masks = masks.to_vec();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairs_parse_and_name_what_is_wrong() {
+        assert_eq!(PairChoice::parse("all").unwrap(), PairChoice::All);
+        assert_eq!(PairChoice::parse("").unwrap(), PairChoice::All);
+        assert_eq!(
+            PairChoice::parse("front-back, left-right").unwrap(),
+            PairChoice::Named(vec![
+                ("front".into(), "back".into()),
+                ("left".into(), "right".into())
+            ])
+        );
+        let e = PairChoice::parse("front").unwrap_err().to_string();
+        assert!(e.contains("'front'") && e.contains("pairs"), "{e}");
+        let e = PairChoice::parse("front-front").unwrap_err().to_string();
+        assert!(e.contains("two different cameras"), "{e}");
+    }
+
+    #[test]
+    fn the_most_confident_pair_wins_each_pixel() {
+        let a = AlignedRange {
+            range_m: vec![1.0, f32::NAN, 3.0],
+            confidence: vec![0.9, 0.0, 0.2],
+        };
+        let b = AlignedRange {
+            range_m: vec![2.0, 5.0, 4.0],
+            confidence: vec![0.5, 0.1, 0.6],
+        };
+        let (r, c) = most_confident(&[a, b], 3);
+        assert_eq!(r, vec![1.0, 5.0, 4.0]);
+        assert_eq!(c, vec![0.9, 0.1, 0.6]);
+    }
+}
