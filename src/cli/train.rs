@@ -86,6 +86,10 @@ pub struct TrainArgs {
     /// their sweep tables are reused (0: a new rig every sample, the stream of older runs).
     #[arg(long, default_value_t = 0)]
     pub rig_pool: usize,
+    /// PSMODE's stage 1: train on one camera pair of each sample's rig, seen in the pair's GEER
+    /// frame (two cameras turned into the pair frame, range from the left camera).
+    #[arg(long)]
+    pub camera_pairs: bool,
     /// Fraction of samples with lens soiling.
     #[arg(long, default_value_t = 0.3)]
     pub soiled_fraction: f64,
@@ -152,6 +156,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             rig_layouts: a.rig_layouts,
             blocked_fraction: a.blocked_fraction,
             rig_pool: a.rig_pool,
+            camera_pairs: a.camera_pairs,
         },
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,

@@ -34,6 +34,7 @@ fn cfg(seed: u64, rig_layouts: RigLayouts, blocked_fraction: f64) -> DataConfig 
             rig_layouts,
             blocked_fraction,
             rig_pool: 0,
+            camera_pairs: false,
         },
         camera_effects: false,
     }

@@ -185,6 +185,11 @@ pub(super) fn load_checkpoint(
             expected.mix.rig_pool.to_string(),
         ),
         (
+            "camera_pairs",
+            state.mix.camera_pairs.to_string(),
+            expected.mix.camera_pairs.to_string(),
+        ),
+        (
             "blocked_fraction",
             state.mix.blocked_fraction.to_string(),
             expected.mix.blocked_fraction.to_string(),

@@ -48,7 +48,7 @@ use super::rig_pool::pooled_rig_index;
 use candle_core::{Device, Tensor};
 use mode360_core::frame::{FloatImage, RgbImage, SceneLabels};
 use mode360_core::geometry::panorama::RigRemap;
-use mode360_core::geometry::{ErpGrid, Rig, RigError};
+use mode360_core::geometry::{CameraPair, ErpGrid, PairView, Rig, RigError};
 use mode360_io::deep360::{
     clamp_range_to_max, deep360_rig, Deep360Dataset, Deep360Error, Deep360FrameId,
     Deep360FrameVariant, Deep360Split,
@@ -73,6 +73,8 @@ const FISHEYE_TAG: u64 = 0x7A41_0005;
 const BLOCKER_TAG: u64 = 0x7A41_0007;
 /// The random rig seed of a pooled rig index.
 const RIG_SEED_TAG: u64 = 0x7A41_0008;
+/// The camera pair of a pooled rig index (PSMODE stage 1).
+const PAIR_TAG: u64 = 0x7A41_0009;
 /// Range of the view fraction a training blocker covers.
 pub const MIN_TRAIN_BLOCKED_FRACTION: f64 = 0.05;
 pub const MAX_TRAIN_BLOCKED_FRACTION: f64 = 0.40;
@@ -201,6 +203,12 @@ pub struct SceneMix {
     /// sweep tables are reused ([`super::rig_pool`]).
     #[serde(default)]
     pub rig_pool: usize,
+    /// PSMODE's stage 1: every rendered sample is one camera pair of its rig seen in the pair's
+    /// GEER frame ([`PairView::pair_rig`]: two ERP cameras turned into the pair frame, ground
+    /// truth from the left camera), drawn at the pooled rig's index so that a pooled rig is
+    /// always the same pair.
+    #[serde(default)]
+    pub camera_pairs: bool,
 }
 
 impl DataConfig {
@@ -254,6 +262,9 @@ pub struct SampleSpec {
     pub street: StreetStyle,
     /// A blocked lens (rendered samples).
     pub blocker: Option<SampleBlocker>,
+    /// `Some`: the sample is pair `pick % pairs` of [`CameraPair::all`] of its rig, in the
+    /// pair's GEER frame ([`SceneMix::camera_pairs`]; rendered samples).
+    pub pair_pick: Option<u64>,
 }
 
 /// A training sample's blocked lens; the camera is picked once the rig is known.
@@ -334,6 +345,10 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
             fraction: blocker.range(MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION),
             kind: BlockerKind::ALL[blocker.index(BlockerKind::ALL.len())],
         });
+    let pair_pick = cfg
+        .mix
+        .camera_pairs
+        .then(|| Rng::new(&[cfg.seed, rig_index, PAIR_TAG]).next_u64());
     let spec = SampleSpec {
         world_seed,
         frame_index,
@@ -343,6 +358,7 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         scene,
         street: cfg.mix.street,
         blocker,
+        pair_pick,
     };
     match cfg
         .deep360_disk
@@ -354,6 +370,7 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
             rig: RigChoice::Deep360,
             deep360_frame: Some(v.id),
             blocker: None,
+            pair_pick: None,
             ..spec
         },
         None => spec,
@@ -375,6 +392,7 @@ pub fn validation_specs(count: usize) -> Vec<SampleSpec> {
                 scene: SceneKind::Street,
                 street: StreetStyle::Regular,
                 blocker: None,
+                pair_pick: None,
             }
         })
         .collect()
@@ -397,6 +415,10 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
         RigChoice::Random(seed) => random_rig(seed)?,
         RigChoice::Layout(family, seed) => layout_rig(family, seed)?,
         RigChoice::Fisheye(seed) => random_fisheye_rig(seed, cfg.width)?,
+    };
+    let rig = match spec.pair_pick {
+        Some(pick) => pair_rig(&rig, pick)?,
+        None => rig,
     };
     let renderer = SynthRenderer::new(SynthConfig {
         seed: spec.world_seed,
@@ -438,6 +460,17 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
         range_m,
         labels: frame.labels,
     })
+}
+
+/// Pair `pick % pairs` of `rig` ([`CameraPair::all`]) as a two-camera rig in its GEER frame.
+pub fn pair_rig(rig: &Rig, pick: u64) -> Result<Rig, DataError> {
+    let pairs = CameraPair::all(rig.cameras.len());
+    let pair = pairs
+        .get((pick % pairs.len().max(1) as u64) as usize)
+        .copied()
+        .ok_or_else(|| DataError::Config("a camera pair needs a rig of two cameras".into()))?;
+    let view = PairView::new(rig, pair).map_err(|e| DataError::Config(e.to_string()))?;
+    Ok(view.pair_rig().clone())
 }
 
 /// Reads Deep360 training frame `id` at `cfg.width`, sky and far range clamped to

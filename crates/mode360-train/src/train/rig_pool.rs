@@ -80,6 +80,7 @@ mod tests {
                 rig_layouts: RigLayouts::Any,
                 blocked_fraction: 0.2,
                 rig_pool: 0,
+                camera_pairs: false,
             },
             camera_effects: false,
         };

@@ -9,7 +9,7 @@ use super::checkpoint::{
     STATE_FILE, STATE_VERSION,
 };
 use super::data::{
-    render_sample, validation_specs, DataConfig, Deep360Mix, SampleStream, TrainSample,
+    render_sample, validation_specs, DataConfig, Deep360Mix, SampleSpec, SampleStream, TrainSample,
 };
 use super::forward::{
     accumulate_grads, forward_sample, validation_pass, SamplingCache, MIN_SAMPLING_CACHE_RIGS,
@@ -270,9 +270,16 @@ impl Trainer {
             });
         }
         if self.val_set.is_none() {
+            // PSMODE stage 1 validates on one pair of each held-out frame, pairs in turn
+            let pairs = self.opts.mix.camera_pairs;
             let set = validation_specs(self.opts.val_samples)
-                .iter()
-                .map(|spec| render_sample(&self.data_cfg, spec))
+                .into_iter()
+                .enumerate()
+                .map(|(k, spec)| SampleSpec {
+                    pair_pick: pairs.then_some(k as u64),
+                    ..spec
+                })
+                .map(|spec| render_sample(&self.data_cfg, &spec))
                 .collect::<Result<Vec<_>, _>>()?;
             self.val_set = Some(set);
         }
