@@ -22,7 +22,12 @@
 #                          forked once from runs/clutter_near at its step 3,550;
 #   runs/clutter_obst2     the same at half the obstacle and thin weights (x2, x1): obstacles
 #                          as `obst` keeps them without its loss of δ1 off the obstacles,
-#                          forked once from runs/clutter_obst at its step 4,550.
+#                          forked once from runs/clutter_obst at its step 4,550;
+#   runs/psmode_pairs      PSMODE's stage 1 (issue 41): the shipped weights fine-tuned on one
+#                          camera pair of each rig in the pair's GEER frame (`--camera-pairs`),
+#                          obst2's loss;
+#   runs/psmode_fusion     PSMODE's stage 2 (issue 41): the fusion network, trained on stage
+#                          1's cached pairwise output (`--stage fusion`).
 # `near` stopped at 3,550 (its obstacle recall had not moved since 1,750).
 # History (models/README.md, "Obstacles"): `plain` (the plain loss) against `weighted` (near x4,
 # too-far x2), both from the weights shipped on 2026-11-27; the plain arm stopped at 500 (it
@@ -37,16 +42,23 @@
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("obst2"), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("pairs fusion"), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-obst2}"
+arms="${ARMS:-pairs fusion}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1
 pids=()
+# where an arm's run lives
+run_dir() {
+  case "$1" in
+  pairs) echo psmode_pairs ;;
+  *) echo "clutter_$1" ;;
+  esac
+}
 for arm in $arms; do
   case "$arm" in
   plain) loss=(--init-weights "$init") ;;
@@ -61,14 +73,32 @@ for arm in $arms; do
   obst2)
     loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --fork-from runs/clutter_obst)
     ;;
+  pairs)
+    # PSMODE stage 1 (issue 41): the shipped SSMODE weights fine-tuned on camera pairs in
+    # their GEER frame, with obst2's loss
+    loss=(--camera-pairs --near-weight 8 --obstacle-weight 2 --thin-weight 1
+      --init-weights "$init")
+    ;;
+  fusion)
+    # PSMODE stage 2 (issue 41): the fusion network on stage 1's pairwise output (stage 1: the
+    # shipped SSMODE weights on each pair), 200 cached samples of the same scenes (no fisheye
+    # rigs), validated on 8 held-out Deep360-rig frames
+    "$bin" train --stage fusion --stage1-weights "$init" --fusion-samples 200 \
+      --fusion-val-samples 8 --width 256 --steps "${STEPS:-20000}" --lr 1e-3 --warmup-steps 50 \
+      --objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --rig-layouts any \
+      --blocked-fraction 0.2 --camera-effects --rig-pool 6 --val-every 250 --checkpoint-every 50 \
+      --seed 6 --resume --out runs/psmode_fusion &
+    pids+=($!)
+    continue
+    ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst or obst2)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, pairs or fusion)" >&2
     exit 2
     ;;
   esac
   "$bin" train --preset parallax_zncc_log --width 256 --steps "${STEPS:-20000}" --lr 2e-5 \
     --warmup-steps 50 "${mix[@]}" "${loss[@]}" --rig-pool 6 --val-every 250 \
-    --checkpoint-every 50 --seed 6 --resume --out "runs/clutter_$arm" &
+    --checkpoint-every 50 --seed 6 --resume --out "runs/$(run_dir "$arm")" &
   pids+=($!)
 done
 wait "${pids[@]}"

@@ -2,6 +2,7 @@
 //! `bench-node`.
 
 use clap::Args;
+use mode360_estimator::estimator::psmode::PairChoice;
 use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
 use mode360_model::model::ComputeDevice;
 use std::path::PathBuf;
@@ -20,11 +21,28 @@ pub struct EstimatorArgs {
     /// feature; the photometric estimator runs on the CPU only).
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
     pub device: ComputeDevice,
+    /// PSMODE: the fusion network's weights (stage 2, `train --stage fusion`); without it the
+    /// most confident pair wins each pixel (the paper's "without fusion").
+    #[arg(long)]
+    pub fusion_weights: Option<PathBuf>,
+    /// PSMODE: the camera pairs of stage 1, `all` or `left-right` camera names separated by
+    /// commas (e.g. `cam1-cam2,cam3-cam4`).
+    #[arg(long, default_value = "all", value_parser = parse_pairs)]
+    pub pairs: PairChoice,
+}
+
+fn parse_pairs(text: &str) -> Result<PairChoice, String> {
+    PairChoice::parse(text).map_err(|e| e.to_string())
 }
 
 impl EstimatorArgs {
     /// The estimator these arguments name, not yet loaded.
     pub fn spec(&self) -> EstimatorSpec {
-        EstimatorSpec::with_weights(self.estimator, self.weights.clone()).on_device(self.device)
+        EstimatorSpec {
+            pairs: self.pairs.clone(),
+            fusion_weights: self.fusion_weights.clone(),
+            ..EstimatorSpec::with_weights(self.estimator, self.weights.clone())
+                .on_device(self.device)
+        }
     }
 }

@@ -9,8 +9,33 @@ use mode360_train::train::rig_layouts::RigLayouts;
 use mode360_train::train::{run_training, TrainOptions};
 use std::path::PathBuf;
 
+/// Which network `mode360 train` trains.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum TrainStage {
+    /// SSMODE, also PSMODE's stage 1 with --camera-pairs.
+    #[default]
+    Ssmode,
+    /// PSMODE's fusion network (stage 2) on stage 1's pairwise output (--stage1-weights).
+    Fusion,
+}
+
 #[derive(Args)]
 pub struct TrainArgs {
+    /// The network to train: ssmode (also PSMODE's stage 1, with --camera-pairs) or fusion
+    /// (PSMODE's stage 2: --stage1-weights, --fusion-samples, --width; the data options apply).
+    #[arg(long, value_enum, default_value_t = TrainStage::Ssmode)]
+    pub stage: TrainStage,
+    /// Fusion: the stage-1 weights whose pairwise output it learns to fuse (default: the shipped
+    /// SSMODE weights).
+    #[arg(long)]
+    pub stage1_weights: Option<PathBuf>,
+    /// Fusion: training set size (the stream's first samples; stage 1's output for each is
+    /// cached in <out>/stage1_cache/).
+    #[arg(long, default_value_t = 400)]
+    pub fusion_samples: usize,
+    /// Fusion: held-out validation frames.
+    #[arg(long, default_value_t = 8)]
+    pub fusion_val_samples: usize,
     /// Network preset (the shipped weights are parallax_zncc_log).
     #[arg(long, value_enum, default_value_t = Preset::Parallax)]
     pub preset: Preset,
@@ -132,6 +157,9 @@ pub struct TrainArgs {
 
 /// `mode360 train`: trains (or resumes) and prints where the weights went.
 pub fn run(a: TrainArgs) -> Result<()> {
+    if a.stage == TrainStage::Fusion {
+        return run_fusion(a);
+    }
     let opts = TrainOptions {
         preset: a.preset,
         width: a.width,
@@ -184,6 +212,65 @@ pub fn run(a: TrainArgs) -> Result<()> {
     );
     if let Some(v) = s.last_validation {
         println!("last validation: {v:?}");
+    }
+    Ok(())
+}
+
+/// `mode360 train --stage fusion`.
+fn run_fusion(a: TrainArgs) -> Result<()> {
+    use anyhow::Context;
+    use mode360_model::model::FusionConfig;
+    use mode360_train::train::data::DataConfig;
+    use mode360_train::train::fusion::{run_fusion_training, FusionTrainOptions};
+    let config = FusionConfig {
+        width: a.width.unwrap_or(FusionConfig::small().width),
+        ..FusionConfig::small()
+    };
+    let stage1_weights = a
+        .stage1_weights
+        .unwrap_or_else(mode360_estimator::estimator::ssmode::default_weights_path);
+    let opts = FusionTrainOptions {
+        out_dir: a.out,
+        stage1_weights,
+        samples: a.fusion_samples,
+        steps: a.steps,
+        until_step: a.until_step,
+        lr: a.lr,
+        warmup_steps: a.warmup_steps,
+        val_samples: a.fusion_val_samples,
+        val_every: a.val_every,
+        checkpoint_every: a.checkpoint_every,
+        resume: a.resume,
+        data: DataConfig {
+            seed: a.seed,
+            width: config.width,
+            max_depth_m: config.max_depth_m,
+            soiled_fraction: a.soiled_fraction,
+            deep360_fraction: a.deep360_rig_fraction,
+            deep360_disk: None,
+            mix: SceneMix {
+                objects_fraction: a.objects_fraction,
+                street: a.street,
+                fisheye_fraction: a.fisheye_fraction,
+                rig_layouts: a.rig_layouts,
+                blocked_fraction: a.blocked_fraction,
+                rig_pool: a.rig_pool,
+                camera_pairs: false,
+            },
+            camera_effects: a.camera_effects,
+        },
+        config,
+        show_progress: true,
+    };
+    let s = run_fusion_training(&opts).context("training PSMODE's fusion network")?;
+    println!(
+        "trained fusion steps {}..{}; weights: {}",
+        s.start_step,
+        s.final_step,
+        s.weights.display()
+    );
+    if let Some((fused, pair)) = s.last_val_delta1_pct {
+        println!("last validation: δ1 fused {fused:.2} %, most confident pair {pair:.2} %");
     }
     Ok(())
 }

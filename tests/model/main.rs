@@ -17,6 +17,7 @@ mod model_ssmode_layers;
 mod photometric_channel;
 mod photometric_scene;
 mod photometric_sweep;
+mod psmode;
 mod train_data;
 mod train_loss;
 mod train_rig_layouts;

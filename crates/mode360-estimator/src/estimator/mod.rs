@@ -159,6 +159,8 @@ pub struct EstimatorSpec {
     pub device: ComputeDevice,
     /// The camera pairs PSMODE matches (ignored by the others).
     pub pairs: psmode::PairChoice,
+    /// PSMODE's fusion network (stage 2); `None`: the most confident pair per pixel.
+    pub fusion_weights: Option<PathBuf>,
 }
 
 impl EstimatorSpec {
@@ -206,6 +208,16 @@ impl EstimatorSpec {
                 ),
             });
         }
+        if let (Some(path), false) = (&self.fusion_weights, self.kind == EstimatorKind::Psmode) {
+            return Err(EstimatorError::BadConfig {
+                field: "fusion_weights".to_string(),
+                problem: format!(
+                    "only PSMODE has a fusion network (got {} for {})",
+                    path.display(),
+                    self.kind
+                ),
+            });
+        }
         match (self.kind, &self.weights) {
             (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
                 photometric::PhotometricConfig::default(),
@@ -223,6 +235,7 @@ impl EstimatorSpec {
             )?)),
             (EstimatorKind::Psmode, weights) => Ok(Box::new(psmode::PsmodeEstimator::load_on(
                 weights.clone().unwrap_or_else(ssmode::default_weights_path),
+                self.fusion_weights.as_deref(),
                 self.device,
                 self.pairs.clone(),
             )?)),

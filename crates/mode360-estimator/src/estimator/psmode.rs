@@ -10,8 +10,10 @@
 //! that is, per row a set of angular disparities), so SSMODE's features, cost volume,
 //! aggregation and readout are shared, not copied.
 //!
-//! Stage 2, fusion: [`PairFusion::MostConfident`] keeps, per output pixel, the pair with the
-//! highest confidence (the paper's "PSMODE without fusion" baseline).
+//! Stage 2, fusion: the trained fusion network ([`Fusion`], [`PairFusion::Network`]) takes the
+//! pairs' aligned ranges and confidences and the reference panorama on its own grid; without
+//! it, [`PairFusion::MostConfident`] keeps per output pixel the pair with the highest
+//! confidence (the paper's "PSMODE without fusion").
 
 use std::path::{Path, PathBuf};
 
@@ -19,12 +21,15 @@ use super::lens_health::analysis_grid;
 use super::lens_mask::LensMask;
 use super::ssmode::{locate_weights, SsmodeEstimator};
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
+use candle_core::{Device, Tensor};
 use mode360_core::frame::RgbImage;
-use mode360_core::geometry::panorama::RigRemap;
+use mode360_core::geometry::panorama::{CameraPanorama, RigRemap};
 use mode360_core::geometry::{
-    AlignedRange, CameraPair, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord, Rig,
+    resample_erp, AlignedRange, CameraPair, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord,
+    Rig,
 };
-use mode360_model::model::ComputeDevice;
+use mode360_model::model::fusion::pair_input;
+use mode360_model::model::{load_fusion_weights, ComputeDevice, Fusion, FusionConfig, ModelError};
 
 /// The estimator's name on the command line and in reports.
 pub const PSMODE_NAME: &str = "psmode";
@@ -116,11 +121,59 @@ fn pair_name(rig: &Rig, pair: CameraPair) -> String {
 }
 
 /// How the pairs' aligned ranges become one.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default)]
 pub enum PairFusion {
-    /// Per pixel, the pair with the highest confidence.
+    /// Per pixel, the pair with the highest confidence (the paper's "without fusion").
     #[default]
     MostConfident,
+    /// The trained fusion network (stage 2) on its own grid, resampled to the output.
+    Network(Box<Fusion>),
+}
+
+/// Stage 1's result on one grid: every pair's range in the output frame, and the reference
+/// camera's panorama turned into the output frame (the fusion network's RGB input).
+#[derive(Clone, Debug)]
+pub struct PairwiseEstimate {
+    pub grid: ErpGrid,
+    pub aligned: Vec<AlignedRange>,
+    /// Row-major RGB in [0, 1], interleaved, on `grid`.
+    pub reference_rgb: Vec<f32>,
+}
+
+/// The fusion network's input tensors from stage 1's result on the network's grid:
+/// `pairs (1, P, H, W, 2)`, `base (1, H, W, 2)` (the most confident pair) and `rgb (1, H, W, 3)`.
+pub fn fusion_tensors(
+    cfg: &FusionConfig,
+    pairwise: &PairwiseEstimate,
+    device: &Device,
+) -> Result<(Tensor, Tensor, Tensor), EstimatorError> {
+    let grid = pairwise.grid;
+    let (h, w) = (grid.height(), grid.width());
+    if (h, w) != (cfg.height(), cfg.width) {
+        return Err(EstimatorError::BadConfig {
+            field: "fusion".to_string(),
+            problem: format!(
+                "stage 1 ran on {w}x{h}, the fusion network needs {}x{}",
+                cfg.width,
+                cfg.height()
+            ),
+        });
+    }
+    let p = pairwise.aligned.len();
+    let pairs: Vec<f32> = pairwise
+        .aligned
+        .iter()
+        .flat_map(|a| pair_input(cfg, &a.range_m, &a.confidence))
+        .collect();
+    let (base_range, base_conf) = most_confident(&pairwise.aligned, grid.len());
+    let base = pair_input(cfg, &base_range, &base_conf);
+    let tensor_err = |e: candle_core::Error| EstimatorError::Model(ModelError::Candle(e));
+    Ok((
+        Tensor::from_vec(pairs, (1, p, h, w, 2), device).map_err(tensor_err)?,
+        Tensor::from_vec(base, (1, h, w, 2), device).map_err(tensor_err)?,
+        Tensor::from_vec(pairwise.reference_rgb.clone(), (1, h, w, 3), device)
+            .map_err(tensor_err)?,
+    ))
 }
 
 /// One pair's stage 1: its view, its network (weights shared with the others) and its
@@ -149,14 +202,34 @@ pub struct PsmodeEstimator {
 }
 
 impl PsmodeEstimator {
-    /// Stage-1 weights from `path` (found as [`locate_weights`] says) on `device`.
+    /// Stage-1 weights from `path` (found as [`locate_weights`] says) on `device`, and the
+    /// fusion network from `fusion` (`None`: the most confident pair per pixel).
     pub fn load_on(
         path: impl AsRef<Path>,
+        fusion: Option<&Path>,
         device: ComputeDevice,
         pairs: PairChoice,
     ) -> Result<Self, EstimatorError> {
         let base = SsmodeEstimator::load_on(path.as_ref(), device)?;
-        Ok(Self::from_stage1(base, pairs))
+        let mut est = Self::from_stage1(base, pairs);
+        if let Some(path) = fusion {
+            let located = locate_weights(path);
+            if !located.exists() {
+                return Err(EstimatorError::BadConfig {
+                    field: "fusion_weights".to_string(),
+                    problem: format!("PSMODE fusion weights file {} not found", located.display()),
+                });
+            }
+            let (cfg, vb) = load_fusion_weights(&located, est.base.device()).map_err(model_err)?;
+            let net = Fusion::new(&cfg, vb).map_err(|e| {
+                model_err(ModelError::Weights {
+                    path: located.display().to_string(),
+                    problem: format!("building the fusion network: {e}"),
+                })
+            })?;
+            est.fusion = PairFusion::Network(Box::new(net));
+        }
+        Ok(est)
     }
 
     /// A PSMODE over an already loaded stage-1 network.
@@ -174,6 +247,14 @@ impl PsmodeEstimator {
 
     pub fn stage1_weights_path(&self) -> &Path {
         &self.stage1_path
+    }
+
+    /// The fusion network, when one is loaded.
+    pub fn fusion(&self) -> Option<&Fusion> {
+        match &self.fusion {
+            PairFusion::Network(net) => Some(net),
+            PairFusion::MostConfident => None,
+        }
     }
 
     /// Builds the pairs of `rig` when it changed: every chosen pair must exist, have two
@@ -324,17 +405,15 @@ fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f32>, Vec<f32
     (range, conf)
 }
 
-impl DepthEstimator for PsmodeEstimator {
-    fn name(&self) -> &str {
-        PSMODE_NAME
-    }
-
-    fn estimate(
+impl PsmodeEstimator {
+    /// Stage 1 on every pair of `rig`, each pair's range brought into the output frame on
+    /// `grid`.
+    pub fn pairwise(
         &mut self,
         rig: &Rig,
         images: &[RgbImage],
-        output: ErpGrid,
-    ) -> Result<DepthEstimate, EstimatorError> {
+        grid: ErpGrid,
+    ) -> Result<PairwiseEstimate, EstimatorError> {
         if images.len() != rig.cameras.len() {
             return Err(EstimatorError::ImageCount {
                 got: images.len(),
@@ -345,8 +424,8 @@ impl DepthEstimator for PsmodeEstimator {
         let (panoramas, src) = self.panoramas(rig, images)?;
         let net = ErpGrid::new(self.base.config().width)?;
         // stage 1 reads out at the output's resolution (or finer), so that splatting fills it
-        let pair_out = if output.width() > net.width() {
-            output
+        let pair_out = if grid.width() > net.width() {
+            grid
         } else {
             net
         };
@@ -358,6 +437,7 @@ impl DepthEstimator for PsmodeEstimator {
                 .collect(),
             None => Vec::new(),
         };
+        let reference_rgb = reference_rgb(rig, &panoramas[rig.reference], src, grid)?;
         let Some(setup) = self.setup.as_mut() else {
             return Err(EstimatorError::BadConfig {
                 field: "rig".to_string(),
@@ -374,16 +454,17 @@ impl DepthEstimator for PsmodeEstimator {
                 continue;
             };
             let pair = stage.view.pair();
-            let pair_images =
-                [(&rotations[0], pair.left), (&rotations[1], pair.right)].map(|(rot, cam)| {
-                    rot.apply_rgb(&panoramas[cam])
-                        .map_err(|e| EstimatorError::BadImage {
-                            camera: rig.cameras[cam].name.clone(),
-                            problem: e.to_string(),
-                        })
-                });
-            let [left, right] = pair_images;
-            let pair_images = [left?, right?];
+            let turn = |rot: &ErpRotation, cam: usize| {
+                rot.apply_rgb(&panoramas[cam])
+                    .map_err(|e| EstimatorError::BadImage {
+                        camera: rig.cameras[cam].name.clone(),
+                        problem: e.to_string(),
+                    })
+            };
+            let pair_images = [
+                turn(&rotations[0], pair.left)?,
+                turn(&rotations[1], pair.right)?,
+            ];
             stage.stage1.set_lens_masks(masks);
             let est = stage
                 .stage1
@@ -393,13 +474,82 @@ impl DepthEstimator for PsmodeEstimator {
                 &est.range_m.data,
                 &est.confidence.data,
                 &rig.rig_from_output,
-                output,
+                grid,
             )?);
         }
-        let (range, conf) = match self.fusion {
-            PairFusion::MostConfident => most_confident(&aligned, output.len()),
+        Ok(PairwiseEstimate {
+            grid,
+            aligned,
+            reference_rgb,
+        })
+    }
+}
+
+/// The reference camera's panorama (on `src`) turned into the output frame on `grid`, RGB in
+/// [0, 1] (the output frame's own view when it is the reference camera's).
+fn reference_rgb(
+    rig: &Rig,
+    panorama: &RgbImage,
+    src: ErpGrid,
+    grid: ErpGrid,
+) -> Result<Vec<f32>, EstimatorError> {
+    let pano = CameraPanorama::new(&rig.cameras[rig.reference]);
+    let pano_from_output = pano.rig_from_panorama.rotation.inverse() * rig.rig_from_output.rotation;
+    let turned = ErpRotation::new(src, grid, &pano_from_output.to_rotation_matrix())
+        .apply_rgb(panorama)
+        .map_err(|e| EstimatorError::BadImage {
+            camera: rig.cameras[rig.reference].name.clone(),
+            problem: e.to_string(),
+        })?;
+    Ok(turned
+        .as_raw()
+        .iter()
+        .map(|&v| f32::from(v) / u8::MAX as f32)
+        .collect())
+}
+
+fn model_err(e: impl Into<ModelError>) -> EstimatorError {
+    EstimatorError::Model(e.into())
+}
+
+impl DepthEstimator for PsmodeEstimator {
+    fn name(&self) -> &str {
+        PSMODE_NAME
+    }
+
+    fn estimate(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        output: ErpGrid,
+    ) -> Result<DepthEstimate, EstimatorError> {
+        let grid = match &self.fusion {
+            PairFusion::MostConfident => output,
+            PairFusion::Network(net) => ErpGrid::new(net.config().width)?,
         };
-        Ok(DepthEstimate::on_grid(output, range, conf))
+        let pairwise = self.pairwise(rig, images, grid)?;
+        match &self.fusion {
+            PairFusion::MostConfident => {
+                let (range, conf) = most_confident(&pairwise.aligned, output.len());
+                Ok(DepthEstimate::on_grid(output, range, conf))
+            }
+            PairFusion::Network(net) => {
+                let device = self.base.device().clone();
+                let (pairs, base, rgb) = fusion_tensors(net.config(), &pairwise, &device)?;
+                let out = net.forward(&pairs, &base, &rgb).map_err(model_err)?;
+                let to_vec = |t: candle_core::Result<Tensor>| -> Result<Vec<f32>, EstimatorError> {
+                    t.and_then(|t| t.flatten_all()?.to_vec1::<f32>())
+                        .map_err(model_err)
+                };
+                let range = to_vec(net.range_m(&out))?;
+                let conf = to_vec(net.confidence(&out))?;
+                Ok(DepthEstimate::on_grid(
+                    output,
+                    resample_erp(&range, 1, grid, output),
+                    resample_erp(&conf, 1, grid, output),
+                ))
+            }
+        }
     }
 
     fn set_lens_masks(&mut self, masks: &[Option<LensMask>]) {

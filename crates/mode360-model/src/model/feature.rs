@@ -96,6 +96,21 @@ impl ErpConv {
         })
     }
 
+    /// A `kernel x kernel` conv, stride 1, whose weight and bias start at zero (a head whose
+    /// output starts at 0).
+    pub fn zeros(c_in: usize, c_out: usize, kernel: usize, vb: VarBuilder) -> Result<Self> {
+        let weight =
+            vb.get_with_hints((1, kernel, kernel, c_in, c_out), "weight", Init::Const(0.0))?;
+        let bias = vb.get_with_hints(c_out, "bias", Init::Const(0.0))?;
+        Ok(Self {
+            weight,
+            bias,
+            kernel,
+            stride: 1,
+            dilation: 1,
+        })
+    }
+
     /// Undilated conv: `(B, H, W, Cin)` -> `(B, H / stride, W / stride, Cout)`.
     fn forward_plain(&self, x: &Tensor) -> Result<Tensor> {
         // (B, 1, H + 2p, W + 2p, Cin)

@@ -5,7 +5,8 @@
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
-//! [`seam`] (the aggregation's longitude wrap),
+//! [`seam`] (the aggregation's longitude wrap), [`fusion`] (PSMODE's second stage: the pairs'
+//! ranges fused with the reference panorama),
 //! [`weights`] (safetensors with the config in the header), [`config`] (presets),
 //! [`sweep_sampling`] (per-rig sampling tables), [`device`] (the CPU or a CUDA GPU).
 
@@ -13,6 +14,7 @@ pub mod config;
 pub mod cost_volume;
 pub mod device;
 pub mod feature;
+pub mod fusion;
 pub mod hourglass;
 pub mod input;
 pub mod ops;
@@ -27,11 +29,14 @@ pub mod weights;
 
 pub use config::SsmodeConfig;
 pub use device::{ComputeDevice, DeviceError};
+pub use fusion::{Fusion, FusionConfig, FusionOutput};
 pub use input::input_tensor;
 pub use presets::Preset;
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use sweep_sampling::SweepSampling;
-pub use weights::{load_weights, read_config, save_weights};
+pub use weights::{
+    load_fusion_weights, load_weights, read_config, save_fusion_weights, save_weights,
+};
 
 /// Errors of the model code (configs, sampling tables, weight files).
 #[derive(Debug, thiserror::Error)]

@@ -8,10 +8,12 @@ use std::path::Path;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 
-use super::{ModelError, SsmodeConfig};
+use super::{FusionConfig, ModelError, SsmodeConfig};
 
 /// Header metadata key holding the config JSON.
 pub const CONFIG_METADATA_KEY: &str = "mode360.config";
+/// Header metadata key holding a PSMODE fusion network's config JSON ([`FusionConfig`]).
+pub const FUSION_CONFIG_METADATA_KEY: &str = "mode360.fusion_config";
 
 /// Writes every variable of `varmap` and `cfg` (as JSON metadata) to `path`.
 pub fn save_weights(
@@ -19,7 +21,24 @@ pub fn save_weights(
     cfg: &SsmodeConfig,
     path: impl AsRef<Path>,
 ) -> Result<(), ModelError> {
-    let path = path.as_ref();
+    save_with_config(varmap, cfg, CONFIG_METADATA_KEY, path.as_ref())
+}
+
+/// Writes a PSMODE fusion network's variables and `cfg` to `path`.
+pub fn save_fusion_weights(
+    varmap: &VarMap,
+    cfg: &FusionConfig,
+    path: impl AsRef<Path>,
+) -> Result<(), ModelError> {
+    save_with_config(varmap, cfg, FUSION_CONFIG_METADATA_KEY, path.as_ref())
+}
+
+fn save_with_config(
+    varmap: &VarMap,
+    cfg: &impl serde::Serialize,
+    key: &str,
+    path: &Path,
+) -> Result<(), ModelError> {
     let weights_err = |problem: String| ModelError::Weights {
         path: path.display().to_string(),
         problem,
@@ -35,7 +54,7 @@ pub fn save_weights(
     };
     let config_json =
         serde_json::to_string(cfg).map_err(|e| weights_err(format!("config to JSON: {e}")))?;
-    let metadata = HashMap::from([(CONFIG_METADATA_KEY.to_string(), config_json)]);
+    let metadata = HashMap::from([(key.to_string(), config_json)]);
     safetensors::serialize_to_file(tensors, Some(metadata), path)
         .map_err(|e| weights_err(format!("writing safetensors: {e}")))
 }
@@ -48,9 +67,14 @@ fn config_from_bytes(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelErr
     };
     let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
         .map_err(|e| weights_err(format!("not a safetensors file: {e}")))?;
-    let json = metadata
-        .metadata()
-        .as_ref()
+    let header = metadata.metadata().as_ref();
+    if header.is_some_and(|m| m.contains_key(FUSION_CONFIG_METADATA_KEY)) {
+        return Err(weights_err(
+            "holds PSMODE's fusion network (stage 2), not an SSMODE or PSMODE stage-1 network"
+                .to_string(),
+        ));
+    }
+    let json = header
         .and_then(|m| m.get(CONFIG_METADATA_KEY))
         .ok_or_else(|| weights_err(format!("no '{CONFIG_METADATA_KEY}' header metadata")))?;
     let cfg: SsmodeConfig = serde_json::from_str(json).map_err(|e| {
@@ -69,6 +93,51 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>, ModelError> {
         path: path.display().to_string(),
         source,
     })
+}
+
+/// The fusion config stored in a safetensors buffer's metadata.
+fn fusion_config_from_bytes(bytes: &[u8], path: &Path) -> Result<FusionConfig, ModelError> {
+    let weights_err = |problem: String| ModelError::Weights {
+        path: path.display().to_string(),
+        problem,
+    };
+    let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| weights_err(format!("not a safetensors file: {e}")))?;
+    let header = metadata.metadata().as_ref();
+    let Some(json) = header.and_then(|m| m.get(FUSION_CONFIG_METADATA_KEY)) else {
+        let what = if header.is_some_and(|m| m.contains_key(CONFIG_METADATA_KEY)) {
+            "holds an SSMODE (PSMODE stage-1) network, not PSMODE's fusion network (stage 2)"
+                .to_string()
+        } else {
+            format!("no '{FUSION_CONFIG_METADATA_KEY}' header metadata")
+        };
+        return Err(weights_err(what));
+    };
+    let cfg: FusionConfig = serde_json::from_str(json).map_err(|e| {
+        weights_err(format!(
+            "metadata '{FUSION_CONFIG_METADATA_KEY}': {e} (a fusion configuration this mode360 \
+                 does not know)"
+        ))
+    })?;
+    cfg.validate()
+        .map_err(|e| weights_err(format!("metadata '{FUSION_CONFIG_METADATA_KEY}': {e}")))?;
+    Ok(cfg)
+}
+
+/// The fusion config and a `VarBuilder` over the tensors of a PSMODE fusion weights file.
+pub fn load_fusion_weights(
+    path: impl AsRef<Path>,
+    device: &Device,
+) -> Result<(FusionConfig, VarBuilder<'static>), ModelError> {
+    let path = path.as_ref();
+    let bytes = read_bytes(path)?;
+    let cfg = fusion_config_from_bytes(&bytes, path)?;
+    let tensors =
+        candle_core::safetensors::load_buffer(&bytes, device).map_err(|e| ModelError::Weights {
+            path: path.display().to_string(),
+            problem: format!("reading tensors: {e}"),
+        })?;
+    Ok((cfg, VarBuilder::from_tensors(tensors, DType::F32, device)))
 }
 
 /// Only the config of a weights file.

@@ -404,12 +404,42 @@ pub fn image_tensor(img: &RgbImage) -> Result<Tensor, ModelError> {
     input_tensor(img, img.width() as usize, &Device::Cpu)
 }
 
+/// A rendered sample before it becomes tensors: the cameras' images as panoramas of their own
+/// frames (fisheye images resampled, as at inference).
+#[derive(Clone, Debug)]
+pub struct RenderedSample {
+    pub rig: Rig,
+    /// Per camera (rig order), at `cfg.width`.
+    pub panoramas: Vec<RgbImage>,
+    /// Ground-truth range of the output frame, metres; sky = `max_depth_m`.
+    pub range_m: FloatImage,
+    pub labels: Option<SceneLabels>,
+}
+
 /// Renders the sample `spec` at `cfg.width` (or reads it from disk, see
 /// [`SampleSpec::deep360_frame`]).
 pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample, DataError> {
     if let Some(id) = spec.deep360_frame {
         return load_deep360_sample(cfg, spec, id);
     }
+    let r = render_panoramas(cfg, spec)?;
+    let images = r
+        .panoramas
+        .iter()
+        .map(image_tensor)
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(TrainSample {
+        spec: spec.clone(),
+        rig: r.rig,
+        images,
+        range_m: r.range_m,
+        labels: r.labels,
+    })
+}
+
+/// Renders the sample `spec` (a rendered one: not a Deep360 frame from disk) at `cfg.width`,
+/// its images as panoramas.
+pub fn render_panoramas(cfg: &DataConfig, spec: &SampleSpec) -> Result<RenderedSample, DataError> {
     let rig = match spec.rig {
         RigChoice::Deep360 => deep360_rig()?,
         RigChoice::Random(seed) => random_rig(seed)?,
@@ -445,18 +475,16 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
     );
     let panoramas = remap
         .panoramas(&frame.images)
-        .map_err(|(camera, e)| DataError::Config(format!("camera {camera}: {e}")))?;
-    let images = panoramas
-        .iter()
-        .map(|p| image_tensor(p))
-        .collect::<Result<Vec<_>, _>>()?;
+        .map_err(|(camera, e)| DataError::Config(format!("camera {camera}: {e}")))?
+        .into_iter()
+        .map(std::borrow::Cow::into_owned)
+        .collect();
     let range_m = frame.ground_truth.ok_or_else(|| {
         DataError::Config("renderer returned no ground truth for the output frame".into())
     })?;
-    Ok(TrainSample {
-        spec: spec.clone(),
+    Ok(RenderedSample {
         rig,
-        images,
+        panoramas,
         range_m,
         labels: frame.labels,
     })

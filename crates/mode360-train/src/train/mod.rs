@@ -27,10 +27,14 @@
 //! `Trainer::new(opts)?.run()`. Beside it: `options.rs` (options, summary, errors), `init.rs`
 //! (seeded initialisation, fine-tuning start weights) and `forward.rs` (one sample through the
 //! network, the validation pass).
+//!
+//! PSMODE's fusion network (stage 2) trains apart from it, on stage 1's cached output:
+//! [`fusion`] (`mode360 train --stage fusion`).
 
 pub mod camera_effects;
 pub mod data;
 pub mod fisheye_rigs;
+pub mod fusion;
 pub mod log;
 pub mod loss;
 pub mod optim;

@@ -1,0 +1,227 @@
+//! PSMODE (issue 41): the fusion network's training (fits, resumes exactly), the estimator with
+//! and without it, and the stages' weights files refused where the other is expected.
+
+use crate::common::{deep360_rig, TestResult};
+use mode360::estimator::psmode::{PairChoice, PsmodeEstimator};
+use mode360::estimator::ssmode::{default_weights_path, SsmodeEstimator};
+use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
+use mode360::geometry::ErpGrid;
+use mode360::model::{ComputeDevice, FusionConfig};
+use mode360::synth::{SynthConfig, SynthRenderer};
+use mode360::train::data::{DataConfig, SceneMix};
+use mode360::train::fusion::{run_fusion_training, FusionTrainOptions, FUSION_WEIGHTS_FILE};
+use std::path::Path;
+
+/// The test network: 32 wide.
+fn tiny() -> FusionConfig {
+    FusionConfig::tiny()
+}
+
+fn options(out: &Path, steps: usize, until: Option<usize>) -> FusionTrainOptions {
+    let config = tiny();
+    FusionTrainOptions {
+        out_dir: out.to_path_buf(),
+        stage1_weights: default_weights_path(),
+        samples: 2,
+        steps,
+        until_step: until,
+        lr: 3e-3,
+        warmup_steps: 1,
+        val_samples: 1,
+        val_every: steps,
+        checkpoint_every: 10,
+        resume: true,
+        data: DataConfig {
+            seed: 3,
+            width: config.width,
+            max_depth_m: config.max_depth_m,
+            soiled_fraction: 0.0,
+            deep360_fraction: 0.0,
+            deep360_disk: None,
+            mix: SceneMix::default(),
+            camera_effects: false,
+        },
+        config,
+        show_progress: false,
+    }
+}
+
+fn losses(csv: &Path) -> Vec<f64> {
+    std::fs::read_to_string(csv)
+        .unwrap_or_default()
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').nth(1)?.parse().ok())
+        .collect()
+}
+
+/// Trained on two samples, the fusion network fits them (its loss falls from the most
+/// confident pair's), and a run stopped at step 10 and resumed ends with the same weights as a
+/// straight one.
+#[test]
+fn fusion_training_fits_its_samples_and_resumes_exactly() -> TestResult {
+    const STEPS: usize = 30;
+    let dir = tempfile::tempdir()?;
+    let (straight, resumed) = (dir.path().join("straight"), dir.path().join("resumed"));
+    let a = run_fusion_training(&options(&straight, STEPS, None))?;
+    assert_eq!((a.start_step, a.final_step), (0, STEPS));
+    let (fused, pair) = a.last_val_delta1_pct.ok_or("no validation")?;
+    println!("held-out δ1: fused {fused:.2} %, most confident pair {pair:.2} %");
+    let l = losses(&straight.join("train.csv"));
+    assert_eq!(l.len(), STEPS);
+    // steps 1-2 see both samples with the untrained (most-confident-pair) network
+    let (first, last) = ((l[0] + l[1]) / 2.0, (l[STEPS - 2] + l[STEPS - 1]) / 2.0);
+    println!("loss: first epoch {first:.4}, last epoch {last:.4}");
+    assert!(last < 0.8 * first, "loss {first} -> {last}");
+
+    // stage 1's cache is the straight run's (the same samples), so the resumed run renders none
+    std::fs::create_dir_all(&resumed)?;
+    let cache = straight.join("stage1_cache");
+    std::fs::create_dir_all(resumed.join("stage1_cache"))?;
+    for entry in std::fs::read_dir(&cache)? {
+        let entry = entry?;
+        std::fs::copy(
+            entry.path(),
+            resumed.join("stage1_cache").join(entry.file_name()),
+        )?;
+    }
+    let b1 = run_fusion_training(&options(&resumed, STEPS, Some(10)))?;
+    assert_eq!(b1.final_step, 10);
+    let b2 = run_fusion_training(&options(&resumed, STEPS, None))?;
+    assert_eq!((b2.start_step, b2.final_step), (10, STEPS));
+    let load = |p: &Path| candle_core::safetensors::load(p, &candle_core::Device::Cpu);
+    let (wa, wb) = (
+        load(&straight.join(FUSION_WEIGHTS_FILE))?,
+        load(&resumed.join(FUSION_WEIGHTS_FILE))?,
+    );
+    assert_eq!(wa.len(), wb.len());
+    for (name, t) in &wa {
+        let u = &wb[name];
+        let diff = (t - u)?.abs()?.max_all()?.to_scalar::<f32>()?;
+        assert!(diff == 0.0, "{name}: resumed differs by {diff}");
+    }
+    // a run with other data options refuses the checkpoint, naming it
+    let mut other = options(&resumed, STEPS + 5, None);
+    other.samples = 3;
+    let e = run_fusion_training(&other)
+        .err()
+        .ok_or("mismatched resume accepted")?;
+    assert!(e.to_string().contains("another run"), "{e}");
+    Ok(())
+}
+
+/// The untrained fusion network returns the most confident pair, so PSMODE with it equals
+/// PSMODE without it on the same frame (the wiring from stage 1 to the fusion's tensors and
+/// back to ranges is exact); its output is a real estimate (δ1 against the ground truth).
+#[test]
+fn psmode_with_an_untrained_fusion_equals_the_most_confident_pair() -> TestResult {
+    let dir = tempfile::tempdir()?;
+    let out = dir.path().join("run");
+    run_fusion_training(&FusionTrainOptions {
+        lr: 0.0,
+        val_samples: 0,
+        samples: 1,
+        ..options(&out, 1, None)
+    })?;
+    let rig = deep360_rig();
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: 21,
+        width: 256,
+        ..SynthConfig::default()
+    })?
+    .render_frame(&rig, 0);
+    let grid = ErpGrid::new(tiny().width)?;
+    let with = PsmodeEstimator::load_on(
+        default_weights_path(),
+        Some(&out.join(FUSION_WEIGHTS_FILE)),
+        ComputeDevice::Cpu,
+        PairChoice::All,
+    )?
+    .estimate(&rig, &frame.images, grid)?;
+    let without = PsmodeEstimator::load_on(
+        default_weights_path(),
+        None,
+        ComputeDevice::Cpu,
+        PairChoice::All,
+    )?
+    .estimate(&rig, &frame.images, grid)?;
+    let mut worst = 0.0f32;
+    for (a, b) in with.range_m.data.iter().zip(&without.range_m.data) {
+        worst = worst.max((a - b).abs() / b.max(0.5));
+    }
+    assert!(worst < 2e-3, "relative difference {worst}");
+    Ok(())
+}
+
+/// Each stage's weights file is refused where the other stage's is expected, naming the file
+/// and what it holds; fusion weights given to another estimator are an error.
+#[test]
+fn a_stages_weights_are_refused_where_the_other_is_expected() -> TestResult {
+    let dir = tempfile::tempdir()?;
+    let out = dir.path().join("run");
+    run_fusion_training(&FusionTrainOptions {
+        lr: 0.0,
+        val_samples: 0,
+        samples: 1,
+        ..options(&out, 1, None)
+    })?;
+    let fusion = out.join(FUSION_WEIGHTS_FILE);
+    let e = SsmodeEstimator::load(&fusion)
+        .err()
+        .ok_or("fusion as SSMODE")?
+        .to_string();
+    assert!(
+        e.contains("fusion network (stage 2)") && e.contains(&fusion.display().to_string()),
+        "{e}"
+    );
+    let shipped = default_weights_path();
+    let e = PsmodeEstimator::load_on(
+        &shipped,
+        Some(&shipped),
+        ComputeDevice::Cpu,
+        PairChoice::All,
+    )
+    .err()
+    .ok_or("stage 1 as fusion")?
+    .to_string();
+    assert!(
+        e.contains("stage-1") && e.contains("not PSMODE's fusion"),
+        "{e}"
+    );
+    let e = EstimatorSpec {
+        fusion_weights: Some(fusion.clone()),
+        ..EstimatorSpec::new(EstimatorKind::Ssmode)
+    }
+    .build()
+    .err()
+    .ok_or("fusion weights for SSMODE")?
+    .to_string();
+    assert!(e.contains("only PSMODE"), "{e}");
+    Ok(())
+}
+
+/// Pairs that name a camera the rig does not have are refused, naming it and the rig's cameras.
+#[test]
+fn pairs_naming_an_unknown_camera_are_refused() -> TestResult {
+    let rig = deep360_rig();
+    let images = SynthRenderer::new(SynthConfig {
+        seed: 1,
+        width: 64,
+        ..SynthConfig::default()
+    })?
+    .render_frame(&rig, 0)
+    .images;
+    let mut est = PsmodeEstimator::load_on(
+        default_weights_path(),
+        None,
+        ComputeDevice::Cpu,
+        PairChoice::parse("cam1-bumper")?,
+    )?;
+    let e = est
+        .estimate(&rig, &images, ErpGrid::new(64)?)
+        .err()
+        .ok_or("unknown camera accepted")?
+        .to_string();
+    assert!(e.contains("'bumper'") && e.contains("cam1, cam2"), "{e}");
+    Ok(())
+}
