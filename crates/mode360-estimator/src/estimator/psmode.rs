@@ -105,6 +105,22 @@ impl PairChoice {
     }
 }
 
+impl std::fmt::Display for PairChoice {
+    /// The text [`PairChoice::parse`] reads back: `all`, or `left-right` pairs joined by commas.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::All => f.write_str("all"),
+            Self::Named(pairs) => {
+                let text: Vec<String> = pairs
+                    .iter()
+                    .map(|(l, r)| format!("{l}{PAIR_SEPARATOR}{r}"))
+                    .collect();
+                f.write_str(&text.join(","))
+            }
+        }
+    }
+}
+
 fn camera_names(rig: &Rig) -> String {
     rig.cameras
         .iter()
@@ -572,6 +588,9 @@ mod tests {
                 ("left".into(), "right".into())
             ])
         );
+        for text in ["all", "front-back,left-right"] {
+            assert_eq!(PairChoice::parse(text).unwrap().to_string(), text);
+        }
         let e = PairChoice::parse("front").unwrap_err().to_string();
         assert!(e.contains("'front'") && e.contains("pairs"), "{e}");
         let e = PairChoice::parse("front-front").unwrap_err().to_string();

@@ -9,6 +9,7 @@
 
 use super::params::{ExtrinsicsSource, ImageTransport, NodeParams};
 use super::pipeline::FarValue;
+use mode360_estimator::estimator::psmode::PairChoice;
 use mode360_estimator::estimator::EstimatorError;
 use mode360_model::model::DeviceError;
 use std::net::IpAddr;
@@ -152,6 +153,27 @@ pub const PARAMETERS: &[ParamSpec] = &[
         },
         set: |p, v| {
             p.estimator.weights = (!v.is_empty()).then(|| PathBuf::from(v));
+            Ok(())
+        },
+    },
+    ParamSpec {
+        name: "fusion_weights",
+        runtime: false,
+        get: |p| {
+            let w = p.estimator.fusion_weights.as_ref();
+            ParamValue::String(w.map(|w| w.display().to_string()).unwrap_or_default())
+        },
+        set: |p, v| {
+            p.estimator.fusion_weights = (!v.is_empty()).then(|| PathBuf::from(v));
+            Ok(())
+        },
+    },
+    ParamSpec {
+        name: "pairs",
+        runtime: false,
+        get: |p| ParamValue::String(p.estimator.pairs.to_string()),
+        set: |p, v| {
+            p.estimator.pairs = PairChoice::parse(v).map_err(|e| e.to_string())?;
             Ok(())
         },
     },
