@@ -24,7 +24,14 @@ use super::panorama::{rig_panoramas, CameraPanorama};
 use super::rig::{Projection, Rig, RigCamera};
 use super::GeometryError;
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use std::f64::consts::PI;
 
+/// Neighbouring pair pixels whose ranges differ by at most this share lie on one surface, and
+/// the output pixels between their points are filled ([`PairView::align`]).
+const SAME_SURFACE_REL: f32 = 0.1;
+/// A splat footprint larger than this many output pixels on a side (columns counted at their
+/// width on the sphere) is a tear: the point then fills only the 2x2 pixels around it.
+const MAX_FOOTPRINT_PX: f64 = 16.0;
 /// Passes of the hole filling after splatting ([`PairView::align`]).
 const HOLE_FILL_PASSES: usize = 2;
 /// A filled hole keeps this share of its neighbour's confidence.
@@ -178,10 +185,13 @@ impl PairView {
     }
 
     /// The pair's range (from the left camera, on the pair panorama `pair_grid`) as range from
-    /// the rig's output frame on `output`: each pixel's point is splatted onto the 2x2 output
-    /// pixels around it, the nearest range winning; points either camera does not see are
-    /// dropped; then up to [`HOLE_FILL_PASSES`] passes fill an empty pixel from its nearest
-    /// 8-neighbour at [`HOLE_CONFIDENCE_SCALE`] of its confidence.
+    /// the rig's output frame on `output`: each pixel's point is splatted over the output
+    /// pixels between it and its right, lower and diagonal neighbours on the same surface
+    /// (ranges within [`SAME_SURFACE_REL`]; at least the 2x2 pixels around it), the nearest
+    /// range winning; points either camera does not see are dropped; the confidence is scaled
+    /// by `sin(phi)` (no parallax along the baseline: the blind points get none); then up to
+    /// [`HOLE_FILL_PASSES`] passes fill an empty pixel from its nearest 8-neighbour at
+    /// [`HOLE_CONFIDENCE_SCALE`] of its confidence.
     pub fn align(
         &self,
         pair_grid: ErpGrid,
@@ -203,32 +213,78 @@ impl PairView {
         let output_from_rig = rig_from_output.inverse();
         let left_from_rig = self.left.rig_from_panorama.inverse();
         let right_from_rig = self.right.rig_from_panorama.inverse();
+        // each pair pixel's point in the output frame: continuous pixel and range
+        let projected: Vec<Option<(f64, f64, f32)>> = (0..pair_grid.len())
+            .map(|k| {
+                let rho = f64::from(range_m[k]);
+                if !(rho.is_finite() && rho > 0.0) {
+                    return None;
+                }
+                let dir_rig = self.rig_from_pair * pair_grid.dir_from_pixel(pixel(pair_grid, k));
+                let p_rig = Point3::from(left_origin + rho * dir_rig);
+                let seen = self.left.sees(&(left_from_rig * p_rig).coords)
+                    && self.right.sees(&(right_from_rig * p_rig).coords);
+                if !seen {
+                    return None;
+                }
+                let p_out = output_from_rig * p_rig;
+                let at = output.pixel_from_dir(&p_out.coords);
+                Some((at.u, at.v, p_out.coords.norm() as f32))
+            })
+            .collect();
         let mut range = vec![f32::NAN; output.len()];
         let mut conf = vec![0.0f32; output.len()];
         let (w, h) = (output.width() as i64, output.height() as i64);
+        let (pw, ph) = (pair_grid.width(), pair_grid.height());
+        let half_w = output.width() as f64 / 2.0;
         for k in 0..pair_grid.len() {
-            let rho = f64::from(range_m[k]);
-            if !(rho.is_finite() && rho > 0.0) {
+            let Some((u, v, r)) = projected[k] else {
                 continue;
+            };
+            // blind points: no parallax along the baseline, phi = pi (row + 1/2) / H
+            let phi = PI * ((k / pw) as f64 + 0.5) / ph as f64;
+            let c = confidence[k] * phi.sin() as f32;
+            // the footprint: the box spanned with the right, lower and diagonal neighbours
+            // that lie on the same surface (columns wrap, rows stop at the poles)
+            let (col, row) = (k % pw, k / pw);
+            let (mut u_lo, mut u_hi, mut v_lo, mut v_hi) = (u, u, v, v);
+            for (dc, dr) in [(1, 0), (0, 1), (1, 1)] {
+                if row + dr >= ph {
+                    continue;
+                }
+                let n = (row + dr) * pw + (col + dc) % pw;
+                let Some((nu, nv, nr)) = projected[n] else {
+                    continue;
+                };
+                if (nr - r).abs() > SAME_SURFACE_REL * r {
+                    continue;
+                }
+                // the neighbour's column unwrapped next to this one's
+                let du = (nu - u + half_w).rem_euclid(2.0 * half_w) - half_w;
+                u_lo = u_lo.min(u + du);
+                u_hi = u_hi.max(u + du);
+                v_lo = v_lo.min(nv);
+                v_hi = v_hi.max(nv);
             }
-            let dir_rig = self.rig_from_pair * pair_grid.dir_from_pixel(pixel(pair_grid, k));
-            let p_rig = Point3::from(left_origin + rho * dir_rig);
-            if !(self.left.sees(&(left_from_rig * p_rig).coords)
-                && self.right.sees(&(right_from_rig * p_rig).coords))
-            {
-                continue;
-            }
-            let p_out = output_from_rig * p_rig;
-            let r = p_out.coords.norm() as f32;
-            let at = output.pixel_from_dir(&p_out.coords);
-            let (u0, v0) = (at.u.floor() as i64, at.v.floor() as i64);
-            for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                let v = (v0 + dv).clamp(0, h - 1);
-                let u = (u0 + du).rem_euclid(w);
-                let o = (v * w + u) as usize;
-                if range[o].is_nan() || r < range[o] {
-                    range[o] = r;
-                    conf[o] = confidence[k];
+            // the box's width on the sphere: columns shrink by cos(latitude) towards the poles
+            let lat_cos = |v: f64| (PI * (v + 0.5) / h as f64).sin();
+            let arc_width = (u_hi - u_lo) * lat_cos(v_lo).max(lat_cos(v_hi));
+            let too_big = arc_width > MAX_FOOTPRINT_PX
+                || u_hi - u_lo > half_w
+                || v_hi - v_lo > MAX_FOOTPRINT_PX;
+            let (u0, u1, v0, v1) = if too_big {
+                (u.floor(), u.floor() + 1.0, v.floor(), v.floor() + 1.0)
+            } else {
+                (u_lo.floor(), u_hi.ceil(), v_lo.floor(), v_hi.ceil())
+            };
+            for vv in (v0 as i64)..=(v1 as i64) {
+                let vv = vv.clamp(0, h - 1);
+                for uu in (u0 as i64)..=(u1 as i64) {
+                    let o = (vv * w + uu.rem_euclid(w)) as usize;
+                    if range[o].is_nan() || r < range[o] {
+                        range[o] = r;
+                        conf[o] = c;
+                    }
                 }
             }
         }
@@ -379,31 +435,51 @@ mod tests {
     #[test]
     fn a_sphere_of_range_seen_by_a_pair_comes_back_as_the_same_sphere_from_the_output_frame() {
         let rig = square();
-        let (pair_grid, output) = (ErpGrid::new(128).unwrap(), ErpGrid::new(64).unwrap());
         let view = PairView::new(&rig, CameraPair { left: 1, right: 2 }).unwrap();
-        let radius_m = 6.0;
-        // range from the left camera to the sphere of radius 6 m about the output origin
         let left_origin = view.pair_rig().rig_from_output.translation.vector;
-        let range: Vec<f32> = (0..pair_grid.len())
-            .map(|k| {
-                let d = view.rig_from_pair * pair_grid.dir_from_pixel(pixel(pair_grid, k));
-                let b = left_origin.dot(&d);
-                let c = left_origin.norm_squared() - radius_m * radius_m;
-                (-b + (b * b - c).sqrt()) as f32
-            })
-            .collect();
-        let conf = vec![0.8f32; pair_grid.len()];
-        let out = view
-            .align(pair_grid, &range, &conf, &rig.rig_from_output, output)
-            .unwrap();
-        let filled = out.range_m.iter().filter(|r| !r.is_nan()).count();
-        assert_eq!(filled, output.len(), "holes left");
-        let worst = out
-            .range_m
-            .iter()
-            .map(|r| (f64::from(*r) - radius_m).abs())
-            .fold(0.0, f64::max);
-        assert!(worst < 1e-3, "worst range error {worst} m");
-        assert!(out.confidence.iter().all(|&c| c == 0.8 || c == 0.4));
+        // 6 m: the pair's pixels are about the output's; 1 m (the cameras 0.42 m from the
+        // centre): the near side is magnified about 1.7 times, so points alone leave holes
+        for (radius_m, pair_width, out_width) in [(6.0, 128, 64), (1.0, 128, 128)] {
+            let (pair_grid, output) = (
+                ErpGrid::new(pair_width).unwrap(),
+                ErpGrid::new(out_width).unwrap(),
+            );
+            // range from the left camera to the sphere about the output origin
+            let range: Vec<f32> = (0..pair_grid.len())
+                .map(|k| {
+                    let d = view.rig_from_pair * pair_grid.dir_from_pixel(pixel(pair_grid, k));
+                    let b = left_origin.dot(&d);
+                    let c = left_origin.norm_squared() - radius_m * radius_m;
+                    (-b + (b * b - c).sqrt()) as f32
+                })
+                .collect();
+            let conf = vec![0.8f32; pair_grid.len()];
+            let out = view
+                .align(pair_grid, &range, &conf, &rig.rig_from_output, output)
+                .unwrap();
+            let filled = out.range_m.iter().filter(|r| !r.is_nan()).count();
+            assert_eq!(filled, output.len(), "{radius_m} m: holes left");
+            let worst = out
+                .range_m
+                .iter()
+                .map(|r| (f64::from(*r) - radius_m).abs())
+                .fold(0.0, f64::max);
+            assert!(worst < 1e-3, "{radius_m} m: worst range error {worst} m");
+            assert!(out.confidence.iter().all(|&c| (0.0..=0.8).contains(&c)));
+            // along the baseline the pair has no parallax: the confidence vanishes where the
+            // left camera's ray along it meets the sphere
+            let d = view.rig_from_pair * Vector3::z();
+            let b = left_origin.dot(&d);
+            let rho = -b + (b * b - (left_origin.norm_squared() - radius_m * radius_m)).sqrt();
+            let p_out = rig.rig_from_output.inverse() * Point3::from(left_origin + rho * d);
+            let at = output.pixel_from_dir(&p_out.coords);
+            let k = (at.v.round().max(0.0) as usize).min(output.height() - 1) * output.width()
+                + (at.u.round().max(0.0) as usize) % output.width();
+            assert!(
+                out.confidence[k] < 0.15,
+                "{radius_m} m: {} along the baseline",
+                out.confidence[k]
+            );
+        }
     }
 }
