@@ -225,3 +225,41 @@ fn pairs_naming_an_unknown_camera_are_refused() -> TestResult {
     assert!(e.contains("'bumper'") && e.contains("cam1, cam2"), "{e}");
     Ok(())
 }
+
+/// `rig pair` writes a pair as stage 1 sees it: two 360° cameras in the pair's GEER frame, the
+/// depth frame the left camera's, so that `synth` and `eval` score stage 1 on its own.
+#[test]
+fn rig_pair_writes_the_pair_in_its_geer_frame() -> TestResult {
+    use mode360::cli::rig::{run_pair, RigPairArgs};
+    use mode360::geometry::{CameraPair, PairView, Rig};
+    let dir = tempfile::tempdir()?;
+    let out = dir.path().join("pair.yaml");
+    run_pair(RigPairArgs {
+        rig: crate::common::repo_path(crate::common::DEEP360_RIG),
+        pair: "cam2-cam4".into(),
+        out: out.clone(),
+    })?;
+    let pair = Rig::from_file(&out)?;
+    let rig = deep360_rig();
+    let view = PairView::new(&rig, CameraPair { left: 1, right: 3 })?;
+    assert_eq!(pair.cameras.len(), 2);
+    assert_eq!(
+        (pair.cameras[0].name.as_str(), pair.cameras[1].name.as_str()),
+        ("cam2", "cam4")
+    );
+    for (a, b) in pair.cameras.iter().zip(&view.pair_rig().cameras) {
+        let d = a.rig_from_cam.inverse() * b.rig_from_cam;
+        assert!(d.translation.vector.norm() < 1e-6 && d.rotation.angle() < 1e-6);
+    }
+    let d = pair.rig_from_output.inverse() * pair.cameras[0].rig_from_cam;
+    assert!(d.translation.vector.norm() < 1e-6 && d.rotation.angle() < 1e-6);
+    let e = run_pair(RigPairArgs {
+        rig: crate::common::repo_path(crate::common::DEEP360_RIG),
+        pair: "cam2-roof".into(),
+        out: dir.path().join("bad.yaml"),
+    })
+    .err()
+    .ok_or("unknown camera accepted")?;
+    assert!(format!("{e:#}").contains("no camera 'roof'"), "{e:#}");
+    Ok(())
+}

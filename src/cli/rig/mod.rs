@@ -25,6 +25,53 @@ pub enum RigCommand {
     Import(RigImportArgs),
     /// Refine the cameras' rotations from a bag's images and write the corrected rig YAML.
     Refine(refine::RigRefineArgs),
+    /// Write one camera pair as PSMODE's stage 1 sees it: two 360° cameras turned into the
+    /// pair's GEER frame, the depth frame the left camera's (so `synth` renders its ground truth
+    /// and `eval` scores stage 1 on its own, with GEER disparity metrics).
+    Pair(RigPairArgs),
+}
+
+#[derive(Args)]
+pub struct RigPairArgs {
+    /// The rig YAML.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// The pair, `left-right` camera names (e.g. cam1-cam2).
+    #[arg(long)]
+    pub pair: String,
+    /// Rig YAML to write.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Writes the pair rig of `a.pair`.
+pub fn run_pair(a: RigPairArgs) -> Result<()> {
+    use mode360_core::geometry::{CameraPair, PairView};
+    let rig = Rig::from_file(&a.rig)?;
+    let (left, right) = a
+        .pair
+        .split_once('-')
+        .with_context(|| format!("--pair '{}': write two camera names as left-right", a.pair))?;
+    let index = |name: &str| {
+        rig.cameras
+            .iter()
+            .position(|c| c.name == name)
+            .with_context(|| format!("{}: no camera '{name}'", a.rig.display()))
+    };
+    let pair = CameraPair {
+        left: index(left)?,
+        right: index(right)?,
+    };
+    let view = PairView::new(&rig, pair)
+        .with_context(|| format!("{}: pair {}", a.rig.display(), a.pair))?;
+    write_rig(view.pair_rig(), &a.out)?;
+    println!(
+        "wrote {} (pair {}, baseline {:.3} m)",
+        a.out.display(),
+        a.pair,
+        view.baseline_m()
+    );
+    Ok(())
 }
 
 #[derive(Args)]
@@ -53,6 +100,7 @@ pub fn run(a: RigArgs) -> Result<()> {
     match a.command {
         RigCommand::Import(i) => run_import(i),
         RigCommand::Refine(r) => refine::run_refine(r),
+        RigCommand::Pair(p) => run_pair(p),
     }
 }
 
