@@ -32,6 +32,9 @@ const SAME_SURFACE_REL: f32 = 0.1;
 /// A splat footprint larger than this many output pixels on a side (columns counted at their
 /// width on the sphere) is a tear: the point then fills only the 2x2 pixels around it.
 const MAX_FOOTPRINT_PX: f64 = 16.0;
+/// Within this angle of the baseline a pair has too little parallax to trust: its confidence
+/// there is scaled by `sin(phi) / sin(BLIND_CONE_RAD)` (0 on the baseline, 1 from here out).
+const BLIND_CONE_RAD: f64 = 15.0 * PI / 180.0;
 /// Passes of the hole filling after splatting ([`PairView::align`]).
 const HOLE_FILL_PASSES: usize = 2;
 /// A filled hole keeps this share of its neighbour's confidence.
@@ -188,8 +191,8 @@ impl PairView {
     /// the rig's output frame on `output`: each pixel's point is splatted over the output
     /// pixels between it and its right, lower and diagonal neighbours on the same surface
     /// (ranges within [`SAME_SURFACE_REL`]; at least the 2x2 pixels around it), the nearest
-    /// range winning; points either camera does not see are dropped; the confidence is scaled
-    /// by `sin(phi)` (no parallax along the baseline: the blind points get none); then up to
+    /// range winning; points either camera does not see are dropped; within [`BLIND_CONE_RAD`]
+    /// of the baseline the confidence falls with `sin(phi)` to 0 (the blind points); then up to
     /// [`HOLE_FILL_PASSES`] passes fill an empty pixel from its nearest 8-neighbour at
     /// [`HOLE_CONFIDENCE_SCALE`] of its confidence.
     pub fn align(
@@ -243,7 +246,7 @@ impl PairView {
             };
             // blind points: no parallax along the baseline, phi = pi (row + 1/2) / H
             let phi = PI * ((k / pw) as f64 + 0.5) / ph as f64;
-            let c = confidence[k] * phi.sin() as f32;
+            let c = confidence[k] * (phi.sin() / BLIND_CONE_RAD.sin()).min(1.0) as f32;
             // the footprint: the box spanned with the right, lower and diagonal neighbours
             // that lie on the same surface (columns wrap, rows stop at the poles)
             let (col, row) = (k % pw, k / pw);
