@@ -28,6 +28,9 @@
 #                          obst2's loss;
 #   runs/psmode_fusion     PSMODE's stage 2 (issue 41): the fusion network, trained on stage
 #                          1's cached pairwise output (`--stage fusion`).
+# `obst2` stopped at 4,950 (2026-11-28): on the validation seed it kept exactly the shipped
+# file's obstacles (2-5 m 7 of 19, 5-10 m 53.7 %, thin 30.6 %) at lower δ1 (streets 95.51,
+# objects 72.82, cluttered 94.00 against 95.77, 75.60, 93.98); not kept.
 # `near` stopped at 3,550 (its obstacle recall had not moved since 1,750).
 # History (models/README.md, "Obstacles"): `plain` (the plain loss) against `weighted` (near x4,
 # too-far x2), both from the weights shipped on 2026-11-27; the plain arm stopped at 500 (it
@@ -84,10 +87,10 @@ for arm in $arms; do
     # shipped SSMODE weights on each pair), 200 cached samples of the same scenes (no fisheye
     # rigs), validated on 8 held-out Deep360-rig frames
     "$bin" train --stage fusion --stage1-weights "$init" --fusion-samples 200 \
-      --fusion-val-samples 8 --width 256 --steps "${STEPS:-20000}" --lr 1e-3 --warmup-steps 50 \
+      --fusion-val-samples 8 --width 256 --steps "${STEPS:-20000}" --lr 3e-4 --warmup-steps 50 \
       --objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --rig-layouts any \
       --blocked-fraction 0.2 --camera-effects --rig-pool 6 --val-every 250 --checkpoint-every 50 \
-      --seed 6 --resume --out runs/psmode_fusion &
+      --fusion-loss log-l1 --seed 6 --resume --out runs/psmode_fusion &
     pids+=($!)
     continue
     ;;

@@ -21,8 +21,9 @@ pub struct EstimatorArgs {
     /// feature; the photometric estimator runs on the CPU only).
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
     pub device: ComputeDevice,
-    /// PSMODE: the fusion network's weights (stage 2, `train --stage fusion`); without it the
-    /// most confident pair wins each pixel (the paper's "without fusion").
+    /// PSMODE: the fusion network's weights (stage 2, `train --stage fusion`), e.g. the shipped
+    /// models/psmode_fusion.safetensors; without it (or `none`) the most confident pair wins
+    /// each pixel (the paper's "without fusion").
     #[arg(long)]
     pub fusion_weights: Option<PathBuf>,
     /// PSMODE: the camera pairs of stage 1, `all` or `left-right` camera names separated by

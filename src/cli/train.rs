@@ -33,6 +33,10 @@ pub struct TrainArgs {
     /// cached in <out>/stage1_cache/).
     #[arg(long, default_value_t = 400)]
     pub fusion_samples: usize,
+    /// Fusion: the range loss, log-l1 (absolute error of log range) or silog (the paper's,
+    /// lambda 0.5).
+    #[arg(long, value_enum, default_value_t = mode360_train::train::fusion::FusionLoss::LogL1)]
+    pub fusion_loss: mode360_train::train::fusion::FusionLoss,
     /// Fusion: held-out validation frames.
     #[arg(long, default_value_t = 8)]
     pub fusion_val_samples: usize,
@@ -260,6 +264,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
             camera_effects: a.camera_effects,
         },
         config,
+        loss: a.fusion_loss,
         show_progress: true,
     };
     let s = run_fusion_training(&opts).context("training PSMODE's fusion network")?;

@@ -42,6 +42,7 @@ fn options(out: &Path, steps: usize, until: Option<usize>) -> FusionTrainOptions
             camera_effects: false,
         },
         config,
+        loss: Default::default(),
         show_progress: false,
     }
 }
@@ -57,9 +58,18 @@ fn losses(csv: &Path) -> Vec<f64> {
 
 /// Trained on two samples, the fusion network fits them (its loss falls from the most
 /// confident pair's), and a run stopped at step 10 and resumed ends with the same weights as a
-/// straight one.
+/// straight one. Bit-exact needs a fixed reduction order, so it runs in a one-thread pool (as
+/// SSMODE's resume test does).
 #[test]
 fn fusion_training_fits_its_samples_and_resumes_exactly() -> TestResult {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()?
+        .install(|| fits_and_resumes().map_err(|e| e.to_string()))?;
+    Ok(())
+}
+
+fn fits_and_resumes() -> TestResult {
     const STEPS: usize = 30;
     let dir = tempfile::tempdir()?;
     let (straight, resumed) = (dir.path().join("straight"), dir.path().join("resumed"));
@@ -197,6 +207,15 @@ fn a_stages_weights_are_refused_where_the_other_is_expected() -> TestResult {
     .ok_or("fusion weights for SSMODE")?
     .to_string();
     assert!(e.contains("only PSMODE"), "{e}");
+    // the shipped fusion network is found (or unpacked from the binary); unset and `none` are
+    // no network
+    use mode360::estimator::psmode::{fusion_weights_path, DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION};
+    let shipped = fusion_weights_path(Some(Path::new(DEFAULT_FUSION_WEIGHTS_PATH)))
+        .ok_or("no shipped fusion")?;
+    let (cfg, _) = mode360::model::load_fusion_weights(&shipped, &candle_core::Device::Cpu)?;
+    assert_eq!(cfg, FusionConfig::small());
+    assert_eq!(fusion_weights_path(Some(Path::new(NO_FUSION))), None);
+    assert_eq!(fusion_weights_path(None), None);
     Ok(())
 }
 

@@ -179,6 +179,19 @@ impl PairView {
             .collect()
     }
 
+    /// Per pixel of `output` (an ERP grid of the frame `rig_from_output`), the pair's parallax
+    /// for a point one metre out along the pixel's ray, `B |dir x b_hat|` in metres (0 along
+    /// the baseline, `B` across it): how well the pair can range that pixel at all.
+    pub fn parallax_on(&self, output: ErpGrid, rig_from_output: &Isometry3<f64>) -> Vec<f32> {
+        let b_hat = self.rig_from_pair * Vector3::z();
+        (0..output.len())
+            .map(|k| {
+                let dir = rig_from_output.rotation * output.dir_from_pixel(pixel(output, k));
+                (self.baseline_m() * dir.cross(&b_hat).norm()) as f32
+            })
+            .collect()
+    }
+
     /// The angular disparity, in rows of a pair panorama `grid`, of the point at `range_m`
     /// from the left camera in row `v`: `(phi_l - phi_r) H / pi`.
     pub fn disparity_rows(&self, grid: ErpGrid, v: f64, range_m: f64) -> f64 {

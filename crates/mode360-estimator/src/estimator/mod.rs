@@ -159,7 +159,9 @@ pub struct EstimatorSpec {
     pub device: ComputeDevice,
     /// The camera pairs PSMODE matches (ignored by the others).
     pub pairs: psmode::PairChoice,
-    /// PSMODE's fusion network (stage 2); `None`: the most confident pair per pixel.
+    /// PSMODE's fusion network (stage 2): `None` or `none` no network (the most confident pair
+    /// per pixel), else a file such as the shipped `models/psmode_fusion.safetensors`
+    /// ([`psmode::fusion_weights_path`]).
     pub fusion_weights: Option<PathBuf>,
 }
 
@@ -235,7 +237,7 @@ impl EstimatorSpec {
             )?)),
             (EstimatorKind::Psmode, weights) => Ok(Box::new(psmode::PsmodeEstimator::load_on(
                 weights.clone().unwrap_or_else(ssmode::default_weights_path),
-                self.fusion_weights.as_deref(),
+                psmode::fusion_weights_path(self.fusion_weights.as_deref()).as_deref(),
                 self.device,
                 self.pairs.clone(),
             )?)),

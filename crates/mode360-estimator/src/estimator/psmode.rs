@@ -28,11 +28,38 @@ use mode360_core::geometry::{
     resample_erp, AlignedRange, CameraPair, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord,
     Rig,
 };
-use mode360_model::model::fusion::pair_input;
+use mode360_core::shipped::{self, BuiltinFile};
+use mode360_model::model::fusion::{index_and_confidence, pair_input, PAIR_INPUT_CHANNELS};
 use mode360_model::model::{load_fusion_weights, ComputeDevice, Fusion, FusionConfig, ModelError};
 
 /// The estimator's name on the command line and in reports.
 pub const PSMODE_NAME: &str = "psmode";
+
+/// The shipped fusion network (stage 2), found like every shipped file
+/// ([`mode360_core::shipped`]). Not PSMODE's default: on held-out cluttered streets it costs
+/// more than it gains on clean ones (models/README.md); `--fusion-weights` names it.
+pub const DEFAULT_FUSION_WEIGHTS_PATH: &str = "models/psmode_fusion.safetensors";
+
+/// `--fusion-weights none` (the node's `fusion_weights: none`, and the default): no fusion
+/// network, the most confident pair per pixel (the paper's "without fusion").
+pub const NO_FUSION: &str = "none";
+
+/// The shipped fusion network, built into the binary.
+pub const BUILTIN_FUSION_WEIGHTS: &[BuiltinFile] = &[BuiltinFile {
+    relative: DEFAULT_FUSION_WEIGHTS_PATH,
+    bytes: include_bytes!("../../../../models/psmode_fusion.safetensors"),
+}];
+
+/// The fusion weights a setting names: `None` (unset) and [`NO_FUSION`] none, anything else
+/// that file, located as [`mode360_core::shipped`] says (so the shipped
+/// [`DEFAULT_FUSION_WEIGHTS_PATH`] is found wherever the binary runs).
+pub fn fusion_weights_path(setting: Option<&Path>) -> Option<PathBuf> {
+    match setting {
+        None => None,
+        Some(p) if p == Path::new(NO_FUSION) => None,
+        Some(p) => Some(shipped::locate_path(p, BUILTIN_FUSION_WEIGHTS)),
+    }
+}
 
 /// Separator of the two camera names of a pair in [`PairChoice::parse`].
 pub const PAIR_SEPARATOR: char = '-';
@@ -152,6 +179,8 @@ pub enum PairFusion {
 pub struct PairwiseEstimate {
     pub grid: ErpGrid,
     pub aligned: Vec<AlignedRange>,
+    /// Per pair (as `aligned`), its parallax on `grid` ([`PairView::parallax_on`]).
+    pub parallax_m: Vec<Vec<f32>>,
     /// Row-major RGB in [0, 1], interleaved, on `grid`.
     pub reference_rgb: Vec<f32>,
 }
@@ -179,13 +208,14 @@ pub fn fusion_tensors(
     let pairs: Vec<f32> = pairwise
         .aligned
         .iter()
-        .flat_map(|a| pair_input(cfg, &a.range_m, &a.confidence))
+        .zip(&pairwise.parallax_m)
+        .flat_map(|(a, p)| pair_input(cfg, &a.range_m, &a.confidence, p))
         .collect();
     let (base_range, base_conf) = most_confident(&pairwise.aligned, grid.len());
-    let base = pair_input(cfg, &base_range, &base_conf);
+    let base = index_and_confidence(cfg, &base_range, &base_conf);
     let tensor_err = |e: candle_core::Error| EstimatorError::Model(ModelError::Candle(e));
     Ok((
-        Tensor::from_vec(pairs, (1, p, h, w, 2), device).map_err(tensor_err)?,
+        Tensor::from_vec(pairs, (1, p, h, w, PAIR_INPUT_CHANNELS), device).map_err(tensor_err)?,
         Tensor::from_vec(base, (1, h, w, 2), device).map_err(tensor_err)?,
         Tensor::from_vec(pairwise.reference_rgb.clone(), (1, h, w, 3), device)
             .map_err(tensor_err)?,
@@ -219,7 +249,8 @@ pub struct PsmodeEstimator {
 
 impl PsmodeEstimator {
     /// Stage-1 weights from `path` (found as [`locate_weights`] says) on `device`, and the
-    /// fusion network from `fusion` (`None`: the most confident pair per pixel).
+    /// fusion network from the file `fusion` (`None`: the most confident pair per pixel; see
+    /// [`fusion_weights_path`] for what a setting names).
     pub fn load_on(
         path: impl AsRef<Path>,
         fusion: Option<&Path>,
@@ -228,15 +259,14 @@ impl PsmodeEstimator {
     ) -> Result<Self, EstimatorError> {
         let base = SsmodeEstimator::load_on(path.as_ref(), device)?;
         let mut est = Self::from_stage1(base, pairs);
-        if let Some(path) = fusion {
-            let located = locate_weights(path);
+        if let Some(located) = fusion {
             if !located.exists() {
                 return Err(EstimatorError::BadConfig {
                     field: "fusion_weights".to_string(),
                     problem: format!("PSMODE fusion weights file {} not found", located.display()),
                 });
             }
-            let (cfg, vb) = load_fusion_weights(&located, est.base.device()).map_err(model_err)?;
+            let (cfg, vb) = load_fusion_weights(located, est.base.device()).map_err(model_err)?;
             let net = Fusion::new(&cfg, vb).map_err(|e| {
                 model_err(ModelError::Weights {
                     path: located.display().to_string(),
@@ -430,6 +460,20 @@ impl PsmodeEstimator {
         images: &[RgbImage],
         grid: ErpGrid,
     ) -> Result<PairwiseEstimate, EstimatorError> {
+        let mut all = self.pairwise_on(rig, images, &[grid])?;
+        all.pop().ok_or_else(|| EstimatorError::BadConfig {
+            field: "rig".to_string(),
+            problem: "PSMODE's stage 1 returned nothing".to_string(),
+        })
+    }
+
+    /// Stage 1 once, each pair's range brought into the output frame on each of `grids`.
+    pub fn pairwise_on(
+        &mut self,
+        rig: &Rig,
+        images: &[RgbImage],
+        grids: &[ErpGrid],
+    ) -> Result<Vec<PairwiseEstimate>, EstimatorError> {
         if images.len() != rig.cameras.len() {
             return Err(EstimatorError::ImageCount {
                 got: images.len(),
@@ -439,12 +483,14 @@ impl PsmodeEstimator {
         self.refresh_setup(rig)?;
         let (panoramas, src) = self.panoramas(rig, images)?;
         let net = ErpGrid::new(self.base.config().width)?;
-        // stage 1 reads out at the output's resolution (or finer), so that splatting fills it
-        let pair_out = if grid.width() > net.width() {
-            grid
-        } else {
-            net
-        };
+        // stage 1 reads out at the finest grid asked for (or the network's), so that splatting
+        // fills it
+        let pair_out = grids
+            .iter()
+            .copied()
+            .chain([net])
+            .max_by_key(|g| g.width())
+            .unwrap_or(net);
         let masks: Vec<[Option<LensMask>; 2]> = match &self.setup {
             Some(setup) => setup
                 .stages
@@ -453,14 +499,23 @@ impl PsmodeEstimator {
                 .collect(),
             None => Vec::new(),
         };
-        let reference_rgb = reference_rgb(rig, &panoramas[rig.reference], src, grid)?;
+        let mut out: Vec<PairwiseEstimate> = grids
+            .iter()
+            .map(|&grid| {
+                Ok(PairwiseEstimate {
+                    grid,
+                    aligned: Vec::new(),
+                    parallax_m: Vec::new(),
+                    reference_rgb: reference_rgb(rig, &panoramas[rig.reference], src, grid)?,
+                })
+            })
+            .collect::<Result<_, EstimatorError>>()?;
         let Some(setup) = self.setup.as_mut() else {
             return Err(EstimatorError::BadConfig {
                 field: "rig".to_string(),
                 problem: "PSMODE's pairs were not built".to_string(),
             });
         };
-        let mut aligned = Vec::with_capacity(setup.stages.len());
         for (stage, masks) in setup.stages.iter_mut().zip(&masks) {
             if !stage.rotations.as_ref().is_some_and(|(g, _)| *g == src) {
                 let rot = |side| stage.view.rotation_into_pair(side, src, net);
@@ -485,19 +540,19 @@ impl PsmodeEstimator {
             let est = stage
                 .stage1
                 .estimate(stage.view.pair_rig(), &pair_images, pair_out)?;
-            aligned.push(stage.view.align(
-                pair_out,
-                &est.range_m.data,
-                &est.confidence.data,
-                &rig.rig_from_output,
-                grid,
-            )?);
+            for pw in &mut out {
+                pw.parallax_m
+                    .push(stage.view.parallax_on(pw.grid, &rig.rig_from_output));
+                pw.aligned.push(stage.view.align(
+                    pair_out,
+                    &est.range_m.data,
+                    &est.confidence.data,
+                    &rig.rig_from_output,
+                    pw.grid,
+                )?);
+            }
         }
-        Ok(PairwiseEstimate {
-            grid,
-            aligned,
-            reference_rgb,
-        })
+        Ok(out)
     }
 }
 
@@ -539,30 +594,62 @@ impl DepthEstimator for PsmodeEstimator {
         images: &[RgbImage],
         output: ErpGrid,
     ) -> Result<DepthEstimate, EstimatorError> {
-        let grid = match &self.fusion {
-            PairFusion::MostConfident => output,
-            PairFusion::Network(net) => ErpGrid::new(net.config().width)?,
-        };
-        let pairwise = self.pairwise(rig, images, grid)?;
-        match &self.fusion {
+        // the network's weights are shared by the clone
+        let fusion = self.fusion.clone();
+        match fusion {
             PairFusion::MostConfident => {
+                let pairwise = self.pairwise(rig, images, output)?;
                 let (range, conf) = most_confident(&pairwise.aligned, output.len());
                 Ok(DepthEstimate::on_grid(output, range, conf))
             }
             PairFusion::Network(net) => {
+                // the network runs on its grid; its correction of the most confident pair is
+                // added to that pair's index on the output grid, which keeps the splat's detail
+                let cfg = net.config().clone();
+                let fgrid = ErpGrid::new(cfg.width)?;
+                let grids = if output == fgrid {
+                    vec![fgrid]
+                } else {
+                    vec![fgrid, output]
+                };
+                let mut pw = self.pairwise_on(rig, images, &grids)?;
+                let on_output = pw.pop().ok_or_else(|| EstimatorError::BadConfig {
+                    field: "rig".to_string(),
+                    problem: "PSMODE's stage 1 returned nothing".to_string(),
+                })?;
+                let on_net = pw.pop().unwrap_or_else(|| on_output.clone());
                 let device = self.base.device().clone();
-                let (pairs, base, rgb) = fusion_tensors(net.config(), &pairwise, &device)?;
+                let (pairs, base, rgb) = fusion_tensors(&cfg, &on_net, &device)?;
                 let out = net.forward(&pairs, &base, &rgb).map_err(model_err)?;
                 let to_vec = |t: candle_core::Result<Tensor>| -> Result<Vec<f32>, EstimatorError> {
                     t.and_then(|t| t.flatten_all()?.to_vec1::<f32>())
                         .map_err(model_err)
                 };
-                let range = to_vec(net.range_m(&out))?;
+                // (H, W) on the network's grid: the correction of the base index
+                let delta = to_vec(
+                    out.index
+                        .clamp(0.0, 1.0)
+                        .and_then(|i| i - base.narrow(3, 0, 1)?.squeeze(3)?),
+                )?;
                 let conf = to_vec(net.confidence(&out))?;
+                let delta = resample_erp(&delta, 1, fgrid, output);
+                let (base_range, _) = most_confident(&on_output.aligned, output.len());
+                let range = base_range
+                    .iter()
+                    .zip(&delta)
+                    .map(|(&r, &d)| {
+                        let t = if r.is_finite() && r > 0.0 {
+                            cfg.index_of_range(f64::from(r))
+                        } else {
+                            0.0
+                        };
+                        cfg.range_of_index((t + f64::from(d)).clamp(0.0, 1.0)) as f32
+                    })
+                    .collect();
                 Ok(DepthEstimate::on_grid(
                     output,
-                    resample_erp(&range, 1, grid, output),
-                    resample_erp(&conf, 1, grid, output),
+                    range,
+                    resample_erp(&conf, 1, fgrid, output),
                 ))
             }
         }

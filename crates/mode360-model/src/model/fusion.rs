@@ -9,7 +9,7 @@
 //! most-confident-pair baseline).
 //!
 //! ```text
-//! pairs (B, P, H, W, 2) [index, confidence] -> pair0, pair1 (shared)  (B, P, H, W, Cp)
+//! pairs (B, P, H, W, 3) [index, confidence, parallax] -> pair0, pair1 (shared) (B, P, H, W, Cp)
 //!   pooled: conf-weighted mean, max over P; with base (B, H, W, 2)    (B, H, W, 2 Cp + 2)
 //! depth encoder: depth0 (s1), depth1 (s2), depth2 (s2)    (B, H/2^k, W/2^k, C_k)
 //! rgb (B, H, W, 3) -> rgb0 (s1), rgb1 (s2), rgb2 (s2)     (B, H/2^k, W/2^k, C_k)
@@ -27,8 +27,8 @@ use candle_nn::VarBuilder;
 
 use super::feature::{upsample_nearest, ErpConv, ResidualBlock};
 
-/// Channels per pair of the fusion input: index and confidence.
-pub const PAIR_INPUT_CHANNELS: usize = 2;
+/// Channels per pair of the fusion input: index, confidence and the pair's parallax there.
+pub const PAIR_INPUT_CHANNELS: usize = 3;
 /// Channels of the base estimate (the most confident pair): index and confidence.
 pub const BASE_CHANNELS: usize = 2;
 /// Channels of the RGB panorama.
@@ -240,7 +240,8 @@ impl Fusion {
         &self.cfg
     }
 
-    /// `pairs (B, P, H, W, 2)` (index, confidence; both 0 where a pair says nothing),
+    /// `pairs (B, P, H, W, 3)` (index, confidence, both 0 where a pair says nothing, and the
+    /// pair's parallax in metres, [`PairView::parallax_on`]),
     /// `base (B, H, W, 2)` (the most confident pair's index and confidence), `rgb (B, H, W, 3)`
     /// in [0, 1], all on the network's grid.
     pub fn forward(&self, pairs: &Tensor, base: &Tensor, rgb: &Tensor) -> Result<FusionOutput> {
@@ -260,6 +261,7 @@ impl Fusion {
         let f = f.reshape((b, p, h, w, self.cfg.pair_channels))?;
         // (B, P, H, W, 1)
         let conf = pairs.narrow(4, 1, 1)?;
+        // (B, P, H, W, 2) -> (B, H, W, 2): the base estimate is index and confidence
         let wsum = (conf.sum_keepdim(1)? + WEIGHT_EPS)?;
         // (B, H, W, Cp) each
         let mean = f
@@ -307,10 +309,10 @@ impl Fusion {
     }
 }
 
-/// Per pixel of one pair's aligned estimate, the fusion input `[index, confidence]`
-/// (both 0 where the range is NaN), interleaved.
-pub fn pair_input(cfg: &FusionConfig, range_m: &[f32], confidence: &[f32]) -> Vec<f32> {
-    let mut out = Vec::with_capacity(range_m.len() * PAIR_INPUT_CHANNELS);
+/// Per pixel of one pair's aligned estimate, `[index, confidence]` (both 0 where the range is
+/// NaN), interleaved.
+pub fn index_and_confidence(cfg: &FusionConfig, range_m: &[f32], confidence: &[f32]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(range_m.len() * 2);
     for (&r, &c) in range_m.iter().zip(confidence) {
         if r.is_finite() && r > 0.0 {
             let t = cfg.index_of_range(f64::from(r)).clamp(0.0, 1.0) as f32;
@@ -318,6 +320,22 @@ pub fn pair_input(cfg: &FusionConfig, range_m: &[f32], confidence: &[f32]) -> Ve
         } else {
             out.extend([0.0, 0.0]);
         }
+    }
+    out
+}
+
+/// Per pixel of one pair's aligned estimate, the fusion input `[index, confidence, parallax]`
+/// interleaved ([`index_and_confidence`] and the pair's parallax in metres).
+pub fn pair_input(
+    cfg: &FusionConfig,
+    range_m: &[f32],
+    confidence: &[f32],
+    parallax_m: &[f32],
+) -> Vec<f32> {
+    let ic = index_and_confidence(cfg, range_m, confidence);
+    let mut out = Vec::with_capacity(range_m.len() * PAIR_INPUT_CHANNELS);
+    for (pair, &p) in ic.chunks_exact(2).zip(parallax_m) {
+        out.extend([pair[0], pair[1], p]);
     }
     out
 }
@@ -338,14 +356,11 @@ mod tests {
         let n = h * w;
         let ranges: Vec<f32> = (0..n).map(|k| 1.0 + (k % 50) as f32).collect();
         let conf = vec![0.7f32; n];
-        let one = pair_input(&cfg, &ranges, &conf);
-        let pairs = Tensor::from_vec(
-            [one.clone(), one.clone()].concat(),
-            (1, 2, h, w, 2),
-            &Device::Cpu,
-        )
-        .unwrap();
-        let base = Tensor::from_vec(one, (1, h, w, 2), &Device::Cpu).unwrap();
+        let one = pair_input(&cfg, &ranges, &conf, &vec![0.5; n]);
+        let pairs =
+            Tensor::from_vec([one.clone(), one].concat(), (1, 2, h, w, 3), &Device::Cpu).unwrap();
+        let base = index_and_confidence(&cfg, &ranges, &conf);
+        let base = Tensor::from_vec(base, (1, h, w, 2), &Device::Cpu).unwrap();
         let rgb = Tensor::zeros((1, h, w, 3), DType::F32, &Device::Cpu).unwrap();
         let out = net.forward(&pairs, &base, &rgb).unwrap();
         let range: Vec<f32> = net
@@ -367,7 +382,7 @@ mod tests {
             .unwrap();
         assert!(c.iter().all(|&v| (v - 0.5).abs() < 1e-6));
         // a wrong grid is refused
-        let wrong = Tensor::zeros((1, 2, h, w + 2, 2), DType::F32, &Device::Cpu).unwrap();
+        let wrong = Tensor::zeros((1, 2, h, w + 2, 3), DType::F32, &Device::Cpu).unwrap();
         assert!(net.forward(&wrong, &base, &rgb).is_err());
     }
 

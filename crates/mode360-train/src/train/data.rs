@@ -440,16 +440,7 @@ pub fn render_sample(cfg: &DataConfig, spec: &SampleSpec) -> Result<TrainSample,
 /// Renders the sample `spec` (a rendered one: not a Deep360 frame from disk) at `cfg.width`,
 /// its images as panoramas.
 pub fn render_panoramas(cfg: &DataConfig, spec: &SampleSpec) -> Result<RenderedSample, DataError> {
-    let rig = match spec.rig {
-        RigChoice::Deep360 => deep360_rig()?,
-        RigChoice::Random(seed) => random_rig(seed)?,
-        RigChoice::Layout(family, seed) => layout_rig(family, seed)?,
-        RigChoice::Fisheye(seed) => random_fisheye_rig(seed, cfg.width)?,
-    };
-    let rig = match spec.pair_pick {
-        Some(pick) => pair_rig(&rig, pick)?,
-        None => rig,
-    };
+    let rig = sample_rig(cfg, spec)?;
     let renderer = SynthRenderer::new(SynthConfig {
         seed: spec.world_seed,
         width: cfg.width,
@@ -488,6 +479,20 @@ pub fn render_panoramas(cfg: &DataConfig, spec: &SampleSpec) -> Result<RenderedS
         range_m,
         labels: frame.labels,
     })
+}
+
+/// The rig a rendered sample is taken on (its pair rig for a camera-pair sample).
+pub fn sample_rig(cfg: &DataConfig, spec: &SampleSpec) -> Result<Rig, DataError> {
+    let rig = match spec.rig {
+        RigChoice::Deep360 => deep360_rig()?,
+        RigChoice::Random(seed) => random_rig(seed)?,
+        RigChoice::Layout(family, seed) => layout_rig(family, seed)?,
+        RigChoice::Fisheye(seed) => random_fisheye_rig(seed, cfg.width)?,
+    };
+    match spec.pair_pick {
+        Some(pick) => pair_rig(&rig, pick),
+        None => Ok(rig),
+    }
 }
 
 /// Pair `pick % pairs` of `rig` ([`CameraPair::all`]) as a two-camera rig in its GEER frame.

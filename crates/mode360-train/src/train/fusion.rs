@@ -7,9 +7,9 @@
 //!   first `samples` of the stream are the training set: stage 1's output for each is cached
 //!   in `out_dir/stage1_cache/` on first use, so later epochs cost only the fusion network.
 //!   Step `s` uses sample `perm(s)`, a seeded shuffle per epoch.
-//! * Loss: SILog on log range (paper Eq. 6, `lambda = 0.5`) over the pixels with ground truth,
-//!   plus [`CONFIDENCE_LOSS_WEIGHT`] times the binary cross-entropy of the confidence against
-//!   "within δ1 of the truth".
+//! * Loss ([`FusionLoss`]): the mean absolute error of log range, or the paper's SILog (Eq. 6,
+//!   `lambda = 0.5`), over the pixels with ground truth, plus [`CONFIDENCE_LOSS_WEIGHT`] times
+//!   the binary cross-entropy of the confidence against "within δ1 of the truth".
 //! * Held out: `val_samples` frames of [`validation_specs`] (never trained on), also cached;
 //!   `val.csv` has the fused δ1 and the line printed beside it the most confident pair's
 //!   (the gain of fusion over pairwise).
@@ -24,17 +24,32 @@ use std::time::Instant;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
-use super::data::{render_panoramas, training_spec, validation_specs, DataConfig, SampleSpec};
+use super::data::{
+    render_panoramas, sample_rig, training_spec, validation_specs, DataConfig, SampleSpec,
+};
 use super::init::{named_vars, seeded_var_builder};
 use super::log::{self, TrainRecord, ValRecord};
 use super::optim::{AdamW, AdamWParams, LrSchedule};
 use super::options::{io_err, TrainError};
 use mode360_core::geometry::panorama::panorama_rig;
-use mode360_core::geometry::ErpGrid;
+use mode360_core::geometry::{CameraPair, ErpGrid, PairView};
 use mode360_core::metrics::{depth_metrics, FrameAverage};
 use mode360_core::progress::frames_bar;
 use mode360_estimator::estimator::psmode::{fusion_tensors, PairChoice, PsmodeEstimator};
 use mode360_model::model::{save_fusion_weights, ComputeDevice, Fusion, FusionConfig};
+
+/// The fusion's range loss.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
+pub enum FusionLoss {
+    /// The paper's SILog on log range, `lambda = SILOG_LAMBDA`: squared, so where the pairs
+    /// disagree between a near surface and the sky it settles between them.
+    Silog,
+    /// The mean absolute error of log range: settles on one of the pairs' answers.
+    #[default]
+    LogL1,
+}
 
 /// SILog's `lambda` (paper: 0.5, half scale-invariant, half absolute).
 pub const SILOG_LAMBDA: f64 = 0.5;
@@ -56,6 +71,7 @@ pub struct FusionTrainOptions {
     /// Stage-1 (SSMODE-architecture) weights whose pairwise output the fusion learns to fuse.
     pub stage1_weights: PathBuf,
     pub config: FusionConfig,
+    pub loss: FusionLoss,
     /// Training set size (the stream's first samples).
     pub samples: usize,
     pub steps: usize,
@@ -79,6 +95,13 @@ struct FusionState {
     seed: u64,
     width: usize,
     stage1_weights: String,
+    #[serde(default = "silog")]
+    loss: FusionLoss,
+}
+
+/// The loss of checkpoints written before the choice existed.
+fn silog() -> FusionLoss {
+    FusionLoss::Silog
 }
 
 /// One cached stage-1 result.
@@ -113,9 +136,10 @@ fn epoch_order(seed: u64, epoch: u64, n: usize) -> Vec<usize> {
     order
 }
 
-/// SILog on log range plus the confidence's cross-entropy, over pixels with ground truth
-/// (`gt > 0`); the fused δ1-hit share rides along for the log.
+/// The range loss (`kind`) plus the confidence's cross-entropy, over pixels with ground truth
+/// (`gt > 0`).
 pub fn fusion_loss(
+    kind: FusionLoss,
     net: &Fusion,
     out: &mode360_model::model::FusionOutput,
     gt: &Tensor,
@@ -128,14 +152,19 @@ pub fn fusion_loss(
     // log y_hat = ln max - t ln(max / min)
     let log_pred = ((&out.index * (-cfg.log_span()))? + cfg.max_depth_m.ln())?;
     let d = ((log_pred - log_gt)? * &valid)?;
-    let mean_d = (d.sum_all()? / n)?;
-    let silog = ((d.sqr()?.sum_all()? / n)? - (mean_d.sqr()? * SILOG_LAMBDA)?)?;
+    let range_loss = match kind {
+        FusionLoss::Silog => {
+            let mean_d = (d.sum_all()? / n)?;
+            ((d.sqr()?.sum_all()? / n)? - (mean_d.sqr()? * SILOG_LAMBDA)?)?
+        }
+        FusionLoss::LogL1 => (d.abs()?.sum_all()? / n)?,
+    };
     // BCE(sigmoid(z), y) = softplus(z) - y z, softplus(z) = relu(z) + ln(1 + exp(-|z|))
     let z = &out.confidence_logit;
     let hit = d.abs()?.lt(DELTA1_LOG)?.to_dtype(DType::F32)?.detach();
     let softplus = (z.relu()? + (z.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
     let bce = ((softplus - (hit * z)?)? * &valid)?.sum_all()?;
-    Ok((silog + ((bce / n)? * CONFIDENCE_LOSS_WEIGHT)?)?)
+    Ok((range_loss + ((bce / n)? * CONFIDENCE_LOSS_WEIGHT)?)?)
 }
 
 /// A fusion run.
@@ -194,6 +223,7 @@ impl FusionTrainer {
             seed: opts.data.seed,
             width: opts.config.width,
             stage1_weights: opts.stage1_weights.display().to_string(),
+            loss: opts.loss,
         };
         let ckpt = opts.out_dir.join(super::CHECKPOINT_DIR);
         if opts.resume && ckpt.join(super::STATE_FILE).is_file() {
@@ -231,12 +261,14 @@ impl FusionTrainer {
                     problem: format!("no tensor '{k}'"),
                 })
             };
-            return Ok(CachedSample {
-                pairs: take("pairs")?,
+            let pairs = take("pairs")?;
+            let cached = CachedSample {
+                pairs: self.with_parallax(pairs, spec)?,
                 base: take("base")?,
                 rgb: take("rgb")?,
                 gt: take("gt")?,
-            });
+            };
+            return Ok(cached);
         }
         let r = render_panoramas(&self.opts.data, spec)?;
         let grid = ErpGrid::new(self.opts.config.width).map_err(other)?;
@@ -269,6 +301,32 @@ impl FusionTrainer {
         })
     }
 
+    /// Cached pairs written before the parallax channel existed, `(1, P, H, W, 2)`, with it
+    /// appended (from the sample's rig: every pair, as stage 1 ran them on 360° rigs); newer
+    /// ones as they are.
+    fn with_parallax(&self, pairs: Tensor, spec: &SampleSpec) -> Result<Tensor, TrainError> {
+        let (_, p, h, w, c) = pairs.dims5()?;
+        if c != 2 {
+            return Ok(pairs);
+        }
+        let rig = panorama_rig(&sample_rig(&self.opts.data, spec)?);
+        let all = CameraPair::all(rig.cameras.len());
+        if all.len() != p {
+            return Err(other(format!(
+                "a cached sample has {p} pairs, its rig {} (cached by another stage 1?)",
+                all.len()
+            )));
+        }
+        let grid = ErpGrid::new(w).map_err(other)?;
+        let mut maps = Vec::with_capacity(p * h * w);
+        for pair in all {
+            let view = PairView::new(&rig, pair).map_err(other)?;
+            maps.extend(view.parallax_on(grid, &rig.rig_from_output));
+        }
+        let parallax = Tensor::from_vec(maps, (1, p, h, w, 1), &self.device)?;
+        Ok(Tensor::cat(&[&pairs, &parallax], 4)?)
+    }
+
     /// One step on the next training sample; its loss.
     fn step(&mut self) -> Result<f64, TrainError> {
         let step = self.state.step;
@@ -277,7 +335,7 @@ impl FusionTrainer {
         let spec = training_spec(&self.opts.data, index as u64);
         let s = self.sample(&format!("train_{index:05}"), &spec)?;
         let out = self.net.forward(&s.pairs, &s.base, &s.rgb)?;
-        let loss = fusion_loss(&self.net, &out, &s.gt)?;
+        let loss = fusion_loss(self.opts.loss, &self.net, &out, &s.gt)?;
         let grads = loss.backward()?;
         self.opt.step(&grads, self.schedule.lr(step))?;
         self.state.step += 1;
@@ -293,7 +351,8 @@ impl FusionTrainer {
         for (k, spec) in specs.iter().enumerate() {
             let s = self.sample(&format!("val_{k:03}"), spec)?;
             let out = self.net.forward(&s.pairs, &s.base, &s.rgb)?;
-            loss_sum += f64::from(fusion_loss(&self.net, &out, &s.gt)?.to_scalar::<f32>()?);
+            loss_sum +=
+                f64::from(fusion_loss(self.opts.loss, &self.net, &out, &s.gt)?.to_scalar::<f32>()?);
             let gt: Vec<f32> = s.gt.flatten_all()?.to_vec1()?;
             let pred: Vec<f32> = self.net.range_m(&out)?.flatten_all()?.to_vec1()?;
             let base_index: Vec<f32> = s.base.narrow(3, 0, 1)?.flatten_all()?.to_vec1()?;
