@@ -164,6 +164,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if a.stage == TrainStage::Fusion {
         return run_fusion(a);
     }
+    let mix = scene_mix(&a);
     let opts = TrainOptions {
         preset: a.preset,
         width: a.width,
@@ -181,15 +182,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         init_weights: a.init_weights,
         fork_from: a.fork_from,
         until_step: a.until_step,
-        mix: SceneMix {
-            objects_fraction: a.objects_fraction,
-            street: a.street,
-            fisheye_fraction: a.fisheye_fraction,
-            rig_layouts: a.rig_layouts,
-            blocked_fraction: a.blocked_fraction,
-            rig_pool: a.rig_pool,
-            camera_pairs: a.camera_pairs,
-        },
+        mix,
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,
@@ -220,6 +213,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
     Ok(())
 }
 
+/// The data mix the arguments name.
+fn scene_mix(a: &TrainArgs) -> SceneMix {
+    SceneMix {
+        objects_fraction: a.objects_fraction,
+        street: a.street,
+        fisheye_fraction: a.fisheye_fraction,
+        rig_layouts: a.rig_layouts,
+        blocked_fraction: a.blocked_fraction,
+        rig_pool: a.rig_pool,
+        camera_pairs: a.camera_pairs,
+    }
+}
+
 /// `mode360 train --stage fusion`.
 fn run_fusion(a: TrainArgs) -> Result<()> {
     use anyhow::Context;
@@ -229,6 +235,11 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
     let config = FusionConfig {
         width: a.width.unwrap_or(FusionConfig::small().width),
         ..FusionConfig::small()
+    };
+    // the fusion trains on whole rigs: stage 1 makes the pairs
+    let mix = SceneMix {
+        camera_pairs: false,
+        ..scene_mix(&a)
     };
     let stage1_weights = a
         .stage1_weights
@@ -252,15 +263,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
             soiled_fraction: a.soiled_fraction,
             deep360_fraction: a.deep360_rig_fraction,
             deep360_disk: None,
-            mix: SceneMix {
-                objects_fraction: a.objects_fraction,
-                street: a.street,
-                fisheye_fraction: a.fisheye_fraction,
-                rig_layouts: a.rig_layouts,
-                blocked_fraction: a.blocked_fraction,
-                rig_pool: a.rig_pool,
-                camera_pairs: false,
-            },
+            mix,
             camera_effects: a.camera_effects,
         },
         config,

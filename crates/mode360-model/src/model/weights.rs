@@ -59,8 +59,33 @@ fn save_with_config(
         .map_err(|e| weights_err(format!("writing safetensors: {e}")))
 }
 
-/// The config stored in a safetensors buffer's metadata.
-fn config_from_bytes(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelError> {
+/// One kind of weights file: the metadata key of its config, what it holds, and the other
+/// kind's key (a file of the other kind is refused by name).
+struct FileKind {
+    key: &'static str,
+    holds: &'static str,
+    other_key: &'static str,
+}
+
+const SSMODE_FILE: FileKind = FileKind {
+    key: CONFIG_METADATA_KEY,
+    holds: "an SSMODE (PSMODE stage-1) network",
+    other_key: FUSION_CONFIG_METADATA_KEY,
+};
+
+const FUSION_FILE: FileKind = FileKind {
+    key: FUSION_CONFIG_METADATA_KEY,
+    holds: "PSMODE's fusion network (stage 2)",
+    other_key: CONFIG_METADATA_KEY,
+};
+
+/// The config of `kind` stored in a safetensors buffer's metadata, parsed and validated.
+fn config_from_bytes<T: serde::de::DeserializeOwned>(
+    bytes: &[u8],
+    path: &Path,
+    kind: &FileKind,
+    validate: impl FnOnce(&T) -> Result<(), String>,
+) -> Result<T, ModelError> {
     let weights_err = |problem: String| ModelError::Weights {
         path: path.display().to_string(),
         problem,
@@ -68,24 +93,32 @@ fn config_from_bytes(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelErr
     let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
         .map_err(|e| weights_err(format!("not a safetensors file: {e}")))?;
     let header = metadata.metadata().as_ref();
-    if header.is_some_and(|m| m.contains_key(FUSION_CONFIG_METADATA_KEY)) {
-        return Err(weights_err(
-            "holds PSMODE's fusion network (stage 2), not an SSMODE or PSMODE stage-1 network"
-                .to_string(),
-        ));
-    }
-    let json = header
-        .and_then(|m| m.get(CONFIG_METADATA_KEY))
-        .ok_or_else(|| weights_err(format!("no '{CONFIG_METADATA_KEY}' header metadata")))?;
-    let cfg: SsmodeConfig = serde_json::from_str(json).map_err(|e| {
+    let key = kind.key;
+    let Some(json) = header.and_then(|m| m.get(key)) else {
+        let other = [&SSMODE_FILE, &FUSION_FILE]
+            .into_iter()
+            .find(|k| k.key == kind.other_key);
+        let what = match other {
+            Some(o) if header.is_some_and(|m| m.contains_key(o.key)) => {
+                format!("holds {}, not {}", o.holds, kind.holds)
+            }
+            _ => format!("no '{key}' header metadata"),
+        };
+        return Err(weights_err(what));
+    };
+    let cfg: T = serde_json::from_str(json).map_err(|e| {
         weights_err(format!(
-            "metadata '{CONFIG_METADATA_KEY}': {e} (a network configuration this mode360 \
-                 does not know)"
+            "metadata '{key}': {e} (a configuration this mode360 does not know)"
         ))
     })?;
-    cfg.validate()
-        .map_err(|e| weights_err(format!("metadata '{CONFIG_METADATA_KEY}': {e}")))?;
+    validate(&cfg).map_err(|e| weights_err(format!("metadata '{key}': {e}")))?;
     Ok(cfg)
+}
+
+fn ssmode_config(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelError> {
+    config_from_bytes(bytes, path, &SSMODE_FILE, |c: &SsmodeConfig| {
+        c.validate().map_err(|e| e.to_string())
+    })
 }
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, ModelError> {
@@ -95,33 +128,18 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>, ModelError> {
     })
 }
 
-/// The fusion config stored in a safetensors buffer's metadata.
-fn fusion_config_from_bytes(bytes: &[u8], path: &Path) -> Result<FusionConfig, ModelError> {
-    let weights_err = |problem: String| ModelError::Weights {
-        path: path.display().to_string(),
-        problem,
-    };
-    let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| weights_err(format!("not a safetensors file: {e}")))?;
-    let header = metadata.metadata().as_ref();
-    let Some(json) = header.and_then(|m| m.get(FUSION_CONFIG_METADATA_KEY)) else {
-        let what = if header.is_some_and(|m| m.contains_key(CONFIG_METADATA_KEY)) {
-            "holds an SSMODE (PSMODE stage-1) network, not PSMODE's fusion network (stage 2)"
-                .to_string()
-        } else {
-            format!("no '{FUSION_CONFIG_METADATA_KEY}' header metadata")
-        };
-        return Err(weights_err(what));
-    };
-    let cfg: FusionConfig = serde_json::from_str(json).map_err(|e| {
-        weights_err(format!(
-            "metadata '{FUSION_CONFIG_METADATA_KEY}': {e} (a fusion configuration this mode360 \
-                 does not know)"
-        ))
-    })?;
-    cfg.validate()
-        .map_err(|e| weights_err(format!("metadata '{FUSION_CONFIG_METADATA_KEY}': {e}")))?;
-    Ok(cfg)
+/// A `VarBuilder` over a weights file's tensors (f32 on `device`).
+fn tensors_of(
+    bytes: &[u8],
+    path: &Path,
+    device: &Device,
+) -> Result<VarBuilder<'static>, ModelError> {
+    let tensors =
+        candle_core::safetensors::load_buffer(bytes, device).map_err(|e| ModelError::Weights {
+            path: path.display().to_string(),
+            problem: format!("reading tensors: {e}"),
+        })?;
+    Ok(VarBuilder::from_tensors(tensors, DType::F32, device))
 }
 
 /// The fusion config and a `VarBuilder` over the tensors of a PSMODE fusion weights file.
@@ -131,19 +149,16 @@ pub fn load_fusion_weights(
 ) -> Result<(FusionConfig, VarBuilder<'static>), ModelError> {
     let path = path.as_ref();
     let bytes = read_bytes(path)?;
-    let cfg = fusion_config_from_bytes(&bytes, path)?;
-    let tensors =
-        candle_core::safetensors::load_buffer(&bytes, device).map_err(|e| ModelError::Weights {
-            path: path.display().to_string(),
-            problem: format!("reading tensors: {e}"),
-        })?;
-    Ok((cfg, VarBuilder::from_tensors(tensors, DType::F32, device)))
+    let cfg = config_from_bytes(&bytes, path, &FUSION_FILE, |c: &FusionConfig| {
+        c.validate().map_err(|e| e.to_string())
+    })?;
+    Ok((cfg, tensors_of(&bytes, path, device)?))
 }
 
 /// Only the config of a weights file.
 pub fn read_config(path: impl AsRef<Path>) -> Result<SsmodeConfig, ModelError> {
     let path = path.as_ref();
-    config_from_bytes(&read_bytes(path)?, path)
+    ssmode_config(&read_bytes(path)?, path)
 }
 
 /// The config and a `VarBuilder` over the tensors of a weights file (f32 on `device`).
@@ -154,13 +169,8 @@ pub fn load_weights(
 ) -> Result<(SsmodeConfig, VarBuilder<'static>), ModelError> {
     let path = path.as_ref();
     let bytes = read_bytes(path)?;
-    let cfg = config_from_bytes(&bytes, path)?;
-    let tensors =
-        candle_core::safetensors::load_buffer(&bytes, device).map_err(|e| ModelError::Weights {
-            path: path.display().to_string(),
-            problem: format!("reading tensors: {e}"),
-        })?;
-    Ok((cfg, VarBuilder::from_tensors(tensors, DType::F32, device)))
+    let cfg = ssmode_config(&bytes, path)?;
+    Ok((cfg, tensors_of(&bytes, path, device)?))
 }
 
 #[cfg(test)]
