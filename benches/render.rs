@@ -1,9 +1,11 @@
-//! Synthetic street rendering speed: one full rig frame (4 ERP views and the ground truth)
-//! at 512x256 and 256x128, and the per-frame scene build.
+//! Synthetic rendering speed: one full rig frame (4 ERP views and the ground truth) of streets
+//! at 512x256 and 256x128, and of random objects and varied streets at 256x128 (objects trace
+//! more primitives per ray; they should stay within about 2x of streets), with the per-frame
+//! scene build.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use mode360::geometry::Rig;
-use mode360::synth::{SynthConfig, SynthRenderer};
+use mode360::synth::{SceneKind, StreetStyle, SynthConfig, SynthRenderer};
 use std::hint::black_box;
 
 fn rig() -> Option<Rig> {
@@ -22,10 +24,37 @@ fn rig() -> Option<Rig> {
 
 fn bench_render(c: &mut Criterion) {
     let Some(rig) = rig() else { return };
-    for (width, soiled) in [(512usize, false), (512, true), (256, false)] {
+    let cases = [
+        (512usize, false, SceneKind::Street, StreetStyle::Regular, ""),
+        (
+            512,
+            true,
+            SceneKind::Street,
+            StreetStyle::Regular,
+            "_soiled",
+        ),
+        (256, false, SceneKind::Street, StreetStyle::Regular, ""),
+        (
+            256,
+            false,
+            SceneKind::Objects,
+            StreetStyle::Regular,
+            "_objects",
+        ),
+        (
+            256,
+            false,
+            SceneKind::Street,
+            StreetStyle::Varied,
+            "_varied",
+        ),
+    ];
+    for (width, soiled, scene, street, suffix) in cases {
         let cfg = SynthConfig {
             width,
             soiled,
+            scene,
+            street,
             ..SynthConfig::default()
         };
         let renderer = match SynthRenderer::new(cfg) {
@@ -36,11 +65,7 @@ fn bench_render(c: &mut Criterion) {
             }
         };
         let mut index = 0usize;
-        let name = format!(
-            "render_frame_{width}x{}{}",
-            width / 2,
-            if soiled { "_soiled" } else { "" }
-        );
+        let name = format!("render_frame_{width}x{}{suffix}", width / 2);
         c.bench_function(&name, |b| {
             b.iter(|| {
                 index += 1;
