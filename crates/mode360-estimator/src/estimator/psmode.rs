@@ -15,11 +15,13 @@
 //! it, [`PairFusion::MostConfident`] keeps per output pixel the pair with the highest
 //! confidence (the paper's "PSMODE without fusion").
 
+use nalgebra::Isometry3;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use super::lens_health::analysis_grid;
 use super::lens_mask::LensMask;
-use super::ssmode::{locate_weights, SsmodeEstimator};
+use super::ssmode::{camera_panoramas, locate_weights, SsmodeEstimator};
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use candle_core::{Device, Tensor};
 use mode360_core::frame::RgbImage;
@@ -179,8 +181,9 @@ pub enum PairFusion {
 pub struct PairwiseEstimate {
     pub grid: ErpGrid,
     pub aligned: Vec<AlignedRange>,
-    /// Per pair (as `aligned`), its parallax on `grid` ([`PairView::parallax_on`]).
-    pub parallax_m: Vec<Vec<f32>>,
+    /// Per pair (as `aligned`), its parallax on `grid` ([`PairView::parallax_on`]); empty
+    /// unless the fusion's inputs were asked for on `grid`.
+    pub parallax_m: Vec<Arc<[f32]>>,
     /// Row-major RGB in [0, 1], interleaved, on `grid`.
     pub reference_rgb: Vec<f32>,
 }
@@ -205,6 +208,13 @@ pub fn fusion_tensors(
         });
     }
     let p = pairwise.aligned.len();
+    if pairwise.parallax_m.len() != p || pairwise.reference_rgb.len() != grid.len() * 3 {
+        return Err(EstimatorError::BadConfig {
+            field: "fusion".to_string(),
+            problem: "stage 1 ran without the fusion's inputs (parallax, reference panorama)"
+                .to_string(),
+        });
+    }
     let pairs: Vec<f32> = pairwise
         .aligned
         .iter()
@@ -222,12 +232,34 @@ pub fn fusion_tensors(
     ))
 }
 
-/// One pair's stage 1: its view, its network (weights shared with the others) and its
-/// panorama rotations (built for the panoramas' grid).
+/// A pair's two cameras' masks in the pair frame, left then right.
+type PairMasks = [Option<LensMask>; 2];
+
+/// One pair's stage 1: its view, its network (weights shared with the others), its panorama
+/// rotations (built for the panoramas' grid) and the per-rig tables it keeps.
 struct PairStage {
     view: PairView,
     stage1: SsmodeEstimator,
     rotations: Option<(ErpGrid, [ErpRotation; 2])>,
+    /// The pair's parallax on a grid ([`PairView::parallax_on`]): fixed per rig.
+    parallax: Option<(ErpGrid, Arc<[f32]>)>,
+    /// The two cameras' masks in the pair frame ([`PsmodeEstimator::pair_masks`]) and the lens
+    /// masks they were built from.
+    masks: Option<(Vec<Option<LensMask>>, PairMasks)>,
+}
+
+impl PairStage {
+    /// The pair's parallax on `grid`, built once per rig and grid.
+    fn parallax(&mut self, grid: ErpGrid, rig_from_output: &Isometry3<f64>) -> Arc<[f32]> {
+        match &self.parallax {
+            Some((g, p)) if *g == grid => p.clone(),
+            _ => {
+                let p: Arc<[f32]> = self.view.parallax_on(grid, rig_from_output).into();
+                self.parallax = Some((grid, p.clone()));
+                p
+            }
+        }
+    }
 }
 
 /// The pairs of the last rig seen.
@@ -245,6 +277,8 @@ pub struct PsmodeEstimator {
     setup: Option<Setup>,
     remap: Option<RigRemap>,
     lens_masks: Vec<Option<LensMask>>,
+    /// The reference panorama into the output frame, for the last rig and grids seen.
+    reference_rotation: Option<(ErpGrid, ErpGrid, ErpRotation)>,
 }
 
 impl PsmodeEstimator {
@@ -288,6 +322,7 @@ impl PsmodeEstimator {
             setup: None,
             remap: None,
             lens_masks: Vec::new(),
+            reference_rotation: None,
         }
     }
 
@@ -339,6 +374,8 @@ impl PsmodeEstimator {
                 view,
                 stage1,
                 rotations: None,
+                parallax: None,
+                masks: None,
             });
         }
         if stages.is_empty() {
@@ -354,6 +391,7 @@ impl PsmodeEstimator {
             rig: rig.clone(),
             stages,
         });
+        self.reference_rotation = None;
         Ok(())
     }
 
@@ -364,20 +402,7 @@ impl PsmodeEstimator {
         images: &'a [RgbImage],
     ) -> Result<(Vec<std::borrow::Cow<'a, RgbImage>>, ErpGrid), EstimatorError> {
         let net = ErpGrid::new(self.base.config().width)?;
-        if !self.remap.as_ref().is_some_and(|r| r.serves(rig, net)) {
-            self.remap = Some(RigRemap::new(rig, net));
-        }
-        let panoramas = match &self.remap {
-            Some(remap) if remap.any_fisheye() => {
-                remap
-                    .panoramas(images)
-                    .map_err(|(camera, e)| EstimatorError::BadImage {
-                        camera,
-                        problem: e.to_string(),
-                    })?
-            }
-            _ => images.iter().map(std::borrow::Cow::Borrowed).collect(),
-        };
+        let panoramas = camera_panoramas(&mut self.remap, rig, images, net)?;
         // every panorama must be one ERP size so one rotation table serves each pair side
         let first = &panoramas[0];
         let grid = ErpGrid::new(first.width() as usize)
@@ -403,9 +428,75 @@ impl PsmodeEstimator {
         Ok((panoramas, grid))
     }
 
+    /// Rebuilds each pair's masks when the lens masks changed since they were built.
+    fn refresh_masks(&mut self, rig: &Rig) {
+        let Some(setup) = &self.setup else {
+            return;
+        };
+        let stale: Vec<bool> = setup
+            .stages
+            .iter()
+            .map(|s| !s.masks.as_ref().is_some_and(|(m, _)| *m == self.lens_masks))
+            .collect();
+        if !stale.contains(&true) {
+            return;
+        }
+        let built: Vec<Option<PairMasks>> = setup
+            .stages
+            .iter()
+            .zip(&stale)
+            .map(|(s, &stale)| stale.then(|| self.pair_masks(rig, &s.view)))
+            .collect();
+        let lens_masks = self.lens_masks.clone();
+        if let Some(setup) = self.setup.as_mut() {
+            for (stage, masks) in setup.stages.iter_mut().zip(built) {
+                if let Some(masks) = masks {
+                    stage.masks = Some((lens_masks.clone(), masks));
+                }
+            }
+        }
+    }
+
+    /// The reference camera's panorama (on `src`) turned into the output frame on `grid`, RGB
+    /// in [0, 1] (the output frame's own view when it is the reference camera's); the rotation
+    /// table is kept for the rig and grids.
+    fn reference_rgb(
+        &mut self,
+        rig: &Rig,
+        panoramas: &[std::borrow::Cow<'_, RgbImage>],
+        src: ErpGrid,
+        grid: ErpGrid,
+    ) -> Result<Vec<f32>, EstimatorError> {
+        let stale = !self
+            .reference_rotation
+            .as_ref()
+            .is_some_and(|(s, g, _)| (*s, *g) == (src, grid));
+        if stale {
+            let pano = CameraPanorama::new(&rig.cameras[rig.reference]);
+            let pano_from_output =
+                pano.rig_from_panorama.rotation.inverse() * rig.rig_from_output.rotation;
+            let rotation = ErpRotation::new(src, grid, &pano_from_output.to_rotation_matrix());
+            self.reference_rotation = Some((src, grid, rotation));
+        }
+        let Some((_, _, rotation)) = &self.reference_rotation else {
+            return Ok(Vec::new());
+        };
+        let turned = rotation.apply_rgb(&panoramas[rig.reference]).map_err(|e| {
+            EstimatorError::BadImage {
+                camera: rig.cameras[rig.reference].name.clone(),
+                problem: e.to_string(),
+            }
+        })?;
+        Ok(turned
+            .as_raw()
+            .iter()
+            .map(|&v| f32::from(v) / u8::MAX as f32)
+            .collect())
+    }
+
     /// The masks of a pair's two cameras in the pair frame: blocked where the camera's lens does
     /// not see (fisheyes) or its lens mask says blocked; `None` for a side with neither.
-    fn pair_masks(&self, rig: &Rig, view: &PairView) -> [Option<LensMask>; 2] {
+    fn pair_masks(&self, rig: &Rig, view: &PairView) -> PairMasks {
         let probe = analysis_grid();
         let pair = view.pair();
         [(PairSide::Left, pair.left), (PairSide::Right, pair.right)].map(|(side, cam)| {
@@ -453,26 +544,28 @@ fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f32>, Vec<f32
 
 impl PsmodeEstimator {
     /// Stage 1 on every pair of `rig`, each pair's range brought into the output frame on
-    /// `grid`.
+    /// `grid`, with the fusion's inputs (parallax, reference panorama) there.
     pub fn pairwise(
         &mut self,
         rig: &Rig,
         images: &[RgbImage],
         grid: ErpGrid,
     ) -> Result<PairwiseEstimate, EstimatorError> {
-        let mut all = self.pairwise_on(rig, images, &[grid])?;
+        let mut all = self.pairwise_on(rig, images, &[grid], Some(grid))?;
         all.pop().ok_or_else(|| EstimatorError::BadConfig {
             field: "rig".to_string(),
             problem: "PSMODE's stage 1 returned nothing".to_string(),
         })
     }
 
-    /// Stage 1 once, each pair's range brought into the output frame on each of `grids`.
+    /// Stage 1 once, each pair's range brought into the output frame on each of `grids`; the
+    /// estimate on `fusion_grid` also gets the fusion's inputs (parallax, reference panorama).
     pub fn pairwise_on(
         &mut self,
         rig: &Rig,
         images: &[RgbImage],
         grids: &[ErpGrid],
+        fusion_grid: Option<ErpGrid>,
     ) -> Result<Vec<PairwiseEstimate>, EstimatorError> {
         if images.len() != rig.cameras.len() {
             return Err(EstimatorError::ImageCount {
@@ -491,22 +584,19 @@ impl PsmodeEstimator {
             .chain([net])
             .max_by_key(|g| g.width())
             .unwrap_or(net);
-        let masks: Vec<[Option<LensMask>; 2]> = match &self.setup {
-            Some(setup) => setup
-                .stages
-                .iter()
-                .map(|s| self.pair_masks(rig, &s.view))
-                .collect(),
-            None => Vec::new(),
-        };
+        self.refresh_masks(rig);
         let mut out: Vec<PairwiseEstimate> = grids
             .iter()
             .map(|&grid| {
+                let reference_rgb = match fusion_grid {
+                    Some(g) if g == grid => self.reference_rgb(rig, &panoramas, src, grid)?,
+                    _ => Vec::new(),
+                };
                 Ok(PairwiseEstimate {
                     grid,
                     aligned: Vec::new(),
                     parallax_m: Vec::new(),
-                    reference_rgb: reference_rgb(rig, &panoramas[rig.reference], src, grid)?,
+                    reference_rgb,
                 })
             })
             .collect::<Result<_, EstimatorError>>()?;
@@ -516,7 +606,7 @@ impl PsmodeEstimator {
                 problem: "PSMODE's pairs were not built".to_string(),
             });
         };
-        for (stage, masks) in setup.stages.iter_mut().zip(&masks) {
+        for stage in setup.stages.iter_mut() {
             if !stage.rotations.as_ref().is_some_and(|(g, _)| *g == src) {
                 let rot = |side| stage.view.rotation_into_pair(side, src, net);
                 stage.rotations = Some((src, [rot(PairSide::Left), rot(PairSide::Right)]));
@@ -536,13 +626,17 @@ impl PsmodeEstimator {
                 turn(&rotations[0], pair.left)?,
                 turn(&rotations[1], pair.right)?,
             ];
-            stage.stage1.set_lens_masks(masks);
+            if let Some((_, masks)) = &stage.masks {
+                stage.stage1.set_lens_masks(masks);
+            }
             let est = stage
                 .stage1
                 .estimate(stage.view.pair_rig(), &pair_images, pair_out)?;
             for pw in &mut out {
-                pw.parallax_m
-                    .push(stage.view.parallax_on(pw.grid, &rig.rig_from_output));
+                if fusion_grid == Some(pw.grid) {
+                    pw.parallax_m
+                        .push(stage.parallax(pw.grid, &rig.rig_from_output));
+                }
                 pw.aligned.push(stage.view.align(
                     pair_out,
                     &est.range_m.data,
@@ -554,29 +648,6 @@ impl PsmodeEstimator {
         }
         Ok(out)
     }
-}
-
-/// The reference camera's panorama (on `src`) turned into the output frame on `grid`, RGB in
-/// [0, 1] (the output frame's own view when it is the reference camera's).
-fn reference_rgb(
-    rig: &Rig,
-    panorama: &RgbImage,
-    src: ErpGrid,
-    grid: ErpGrid,
-) -> Result<Vec<f32>, EstimatorError> {
-    let pano = CameraPanorama::new(&rig.cameras[rig.reference]);
-    let pano_from_output = pano.rig_from_panorama.rotation.inverse() * rig.rig_from_output.rotation;
-    let turned = ErpRotation::new(src, grid, &pano_from_output.to_rotation_matrix())
-        .apply_rgb(panorama)
-        .map_err(|e| EstimatorError::BadImage {
-            camera: rig.cameras[rig.reference].name.clone(),
-            problem: e.to_string(),
-        })?;
-    Ok(turned
-        .as_raw()
-        .iter()
-        .map(|&v| f32::from(v) / u8::MAX as f32)
-        .collect())
 }
 
 fn model_err(e: impl Into<ModelError>) -> EstimatorError {
@@ -598,7 +669,11 @@ impl DepthEstimator for PsmodeEstimator {
         let fusion = self.fusion.clone();
         match fusion {
             PairFusion::MostConfident => {
-                let pairwise = self.pairwise(rig, images, output)?;
+                let pairwise = self.pairwise_on(rig, images, &[output], None)?;
+                let pairwise = pairwise.first().ok_or_else(|| EstimatorError::BadConfig {
+                    field: "rig".to_string(),
+                    problem: "PSMODE's stage 1 returned nothing".to_string(),
+                })?;
                 let (range, conf) = most_confident(&pairwise.aligned, output.len());
                 Ok(DepthEstimate::on_grid(output, range, conf))
             }
@@ -612,7 +687,7 @@ impl DepthEstimator for PsmodeEstimator {
                 } else {
                     vec![fgrid, output]
                 };
-                let mut pw = self.pairwise_on(rig, images, &grids)?;
+                let mut pw = self.pairwise_on(rig, images, &grids, Some(fgrid))?;
                 let on_output = pw.pop().ok_or_else(|| EstimatorError::BadConfig {
                     field: "rig".to_string(),
                     problem: "PSMODE's stage 1 returned nothing".to_string(),

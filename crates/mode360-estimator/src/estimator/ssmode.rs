@@ -236,6 +236,29 @@ impl SsmodeEstimator {
     }
 }
 
+/// Each camera's image as a panorama of its own frame: fisheye images resampled into `grid`
+/// (with `remap`, rebuilt when the rig or grid changed), ERP images as they are; an image of
+/// the wrong size is an error naming the camera.
+pub(super) fn camera_panoramas<'a>(
+    remap: &mut Option<RigRemap>,
+    rig: &Rig,
+    images: &'a [RgbImage],
+    grid: ErpGrid,
+) -> Result<Vec<std::borrow::Cow<'a, RgbImage>>, EstimatorError> {
+    if !remap.as_ref().is_some_and(|r| r.serves(rig, grid)) {
+        *remap = Some(RigRemap::new(rig, grid));
+    }
+    match remap {
+        Some(remap) => remap
+            .panoramas(images)
+            .map_err(|(camera, e)| EstimatorError::BadImage {
+                camera,
+                problem: e.to_string(),
+            }),
+        None => Ok(images.iter().map(std::borrow::Cow::Borrowed).collect()),
+    }
+}
+
 /// Rotation angle (rad) and translation (m) below which the output frame is the reference
 /// camera's.
 const SAME_FRAME_TOLERANCE: f64 = 1e-9;
@@ -288,20 +311,7 @@ impl DepthEstimator for SsmodeEstimator {
         }
         let cfg = self.model.config().clone();
         let net_grid = ErpGrid::new(cfg.width)?;
-        if !self.remap.as_ref().is_some_and(|r| r.serves(rig, net_grid)) {
-            self.remap = Some(RigRemap::new(rig, net_grid));
-        }
-        let panoramas = match &self.remap {
-            Some(remap) => {
-                remap
-                    .panoramas(images)
-                    .map_err(|(camera, e)| EstimatorError::BadImage {
-                        camera,
-                        problem: e.to_string(),
-                    })?
-            }
-            None => images.iter().map(std::borrow::Cow::Borrowed).collect(),
-        };
+        let panoramas = camera_panoramas(&mut self.remap, rig, images, net_grid)?;
         let mut tensors = Vec::with_capacity(images.len());
         for (cam, img) in panoramas.iter().enumerate() {
             let t = input_tensor(img, cfg.width, &self.device).map_err(|e| match e {
