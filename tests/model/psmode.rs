@@ -282,3 +282,35 @@ fn rig_pair_writes_the_pair_in_its_geer_frame() -> TestResult {
     assert!(format!("{e:#}").contains("no camera 'roof'"), "{e:#}");
     Ok(())
 }
+
+/// `bench-model --presets psmode,psmode_fusion`: the whole estimator per frame, with both
+/// stages' parameters counted and every pair of the Deep360 rig matched.
+#[test]
+fn bench_model_times_psmode_with_and_without_fusion() -> TestResult {
+    use mode360::cli::bench_model::psmode::{
+        bench_psmode_case, case_fusion_weights, PsmodeBenchOptions, PSMODE, PSMODE_FUSION,
+    };
+    let case = |name: &str| {
+        bench_psmode_case(&PsmodeBenchOptions {
+            stage1_weights: None,
+            fusion_weights: case_fusion_weights(name),
+            width: 64,
+            rig: deep360_rig(),
+            runs: 1,
+            seed: 3,
+            device: ComputeDevice::Cpu,
+        })
+    };
+    let (plain, fused) = (case(PSMODE)?, case(PSMODE_FUSION)?);
+    // the shipped files: SSMODE 152,736 parameters, the fusion network 92,570
+    assert_eq!(plain.parameters, 152_736);
+    assert_eq!(fused.parameters, 152_736 + 92_570);
+    for c in [&plain, &fused] {
+        assert!(c.preset.contains("6 pairs"), "{}", c.preset);
+        assert_eq!((c.width, c.height, c.cameras, c.runs), (64, 32, 4, 1));
+        assert_eq!(c.stages.len(), 1);
+        assert!(c.end_to_end_median_s > 0.0 && c.peak_rss_mib > 0.0);
+    }
+    assert!(plain.preset.starts_with("psmode (") && fused.preset.starts_with("psmode_fusion ("));
+    Ok(())
+}

@@ -330,6 +330,11 @@ impl PsmodeEstimator {
         &self.stage1_path
     }
 
+    /// The camera pairs stage 1 matched on the last rig seen (0 before the first frame).
+    pub fn pair_count(&self) -> usize {
+        self.setup.as_ref().map_or(0, |s| s.stages.len())
+    }
+
     /// The fusion network, when one is loaded.
     pub fn fusion(&self) -> Option<&Fusion> {
         match &self.fusion {

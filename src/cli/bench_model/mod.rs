@@ -2,7 +2,8 @@
 //! SSMODE forward passes (inference, on the CPU or a CUDA GPU), plus the estimator's end-to-end time per frame
 //! (panorama resize in, network, resize out).
 //!
-//! One [`ModelBenchCase`] per preset and width. Peak memory is the process's high-water mark
+//! One [`ModelBenchCase`] per preset and width; PSMODE's cases ([`psmode`]: `psmode`,
+//! `psmode_fusion`) time the whole estimator per frame. Peak memory is the process's high-water mark
 //! (`VmHWM`), reset at the start of the case where the kernel allows it; run each case in its
 //! own process (the binary does) so that one case's freed heap does not count in the next.
 
@@ -27,6 +28,51 @@ use mode360_model::model::{
     StageProfiler, SweepSampling,
 };
 use mode360_synth::synth::{SynthConfig, SynthRenderer};
+
+pub mod psmode;
+
+use psmode::{bench_psmode_case, case_fusion_weights, PsmodeBenchOptions, PSMODE, PSMODE_FUSION};
+
+/// What `--presets` names: an SSMODE preset, or PSMODE without or with its fusion network.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BenchSubject {
+    Ssmode(Preset),
+    /// `psmode` (`fusion` false: the most confident pair, the default) or `psmode_fusion`.
+    Psmode {
+        fusion: bool,
+    },
+}
+
+impl BenchSubject {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Self::Ssmode(p) => p.as_str(),
+            Self::Psmode { fusion: false } => PSMODE,
+            Self::Psmode { fusion: true } => PSMODE_FUSION,
+        }
+    }
+}
+
+impl std::fmt::Display for BenchSubject {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for BenchSubject {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        match name {
+            PSMODE => Ok(Self::Psmode { fusion: false }),
+            PSMODE_FUSION => Ok(Self::Psmode { fusion: true }),
+            _ => name
+                .parse()
+                .map(Self::Ssmode)
+                .map_err(|e| format!("{e}, or {PSMODE}, {PSMODE_FUSION}")),
+        }
+    }
+}
 
 /// What one case measures.
 #[derive(Clone, Debug)]
@@ -133,7 +179,7 @@ fn count_parameters(cfg: &SsmodeConfig, device: &Device) -> Result<usize> {
     Ok(varmap.all_vars().iter().map(|v| v.elem_count()).sum())
 }
 
-fn median(values: &mut [f64]) -> f64 {
+pub(crate) fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     match values.len() {
         0 => 0.0,
@@ -263,7 +309,7 @@ fn measure_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
 /// The kernel updates the high-water mark lazily (when mappings change, not when pages are
 /// given back with `madvise`), so in a process where other threads allocate and free, as in a
 /// test binary, `VmHWM` can read below a resident size sampled earlier.
-fn observed_peak_mib(samples: &[f64]) -> f64 {
+pub(crate) fn observed_peak_mib(samples: &[f64]) -> f64 {
     samples
         .iter()
         .copied()
@@ -343,15 +389,18 @@ pub fn format_table(cases: &[ModelBenchCase]) -> String {
 
 #[derive(Args)]
 pub struct BenchModelArgs {
-    /// Presets to measure (comma separated): any preset name, also the ones training does not
-    /// offer (tiny, tiny_parallax, tiny_zncc, the lost ablations).
-    #[arg(long, value_parser = <Preset as std::str::FromStr>::from_str, value_delimiter = ',', default_values_t = [Preset::Parallax, Preset::Compact])]
-    pub presets: Vec<Preset>,
+    /// What to measure (comma separated): any SSMODE preset name, also the ones training does
+    /// not offer (tiny, tiny_parallax, tiny_zncc), or psmode / psmode_fusion: PSMODE's whole
+    /// estimator per frame at the width (its networks at their trained widths), without and
+    /// with the shipped fusion network.
+    #[arg(long, value_parser = <BenchSubject as std::str::FromStr>::from_str, value_delimiter = ',', default_values_t = [BenchSubject::Ssmode(Preset::Parallax), BenchSubject::Ssmode(Preset::Compact)])]
+    pub presets: Vec<BenchSubject>,
     /// Input widths (comma separated, height = width / 2).
     #[arg(long, value_delimiter = ',', default_value = "256,512")]
     pub widths: Vec<usize>,
     /// Trained weights, used for the preset they were trained as (default: the shipped weights
-    /// of each preset when present; random weights cost the same).
+    /// of each preset when present; random weights cost the same); PSMODE's stage 1 (default:
+    /// the shipped default weights).
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Rig calibration YAML (its camera count is the number of views).
@@ -392,15 +441,22 @@ pub fn run(a: BenchModelArgs) -> Result<()> {
         }
     }
     let mut cases: Vec<ModelBenchCase> = Vec::new();
-    for preset in &a.presets {
+    // the weights of a case: the first candidate of an SSMODE preset, PSMODE's stage 1 as given
+    let weights_of = |subject: &BenchSubject| match subject {
+        BenchSubject::Ssmode(preset) => candidates
+            .iter()
+            .find(|(name, _)| name == preset.as_str())
+            .map(|(_, path)| path.clone()),
+        BenchSubject::Psmode { .. } => a.weights.clone(),
+    };
+    let in_process = a.in_process || (a.presets.len() == 1 && a.widths.len() == 1);
+    for subject in &a.presets {
         for &width in &a.widths {
-            let weights = candidates
-                .iter()
-                .find(|(name, _)| name == preset.as_str())
-                .map(|(_, path)| path.clone());
-            eprintln!("bench-model: {preset} at {width}x{} ...", width / 2);
-            let case = if a.in_process || (a.presets.len() == 1 && a.widths.len() == 1) {
-                bench_model_case(&ModelBenchOptions {
+            eprintln!("bench-model: {subject} at {width}x{} ...", width / 2);
+            let weights = weights_of(subject);
+            let case = match subject {
+                _ if !in_process => bench_model_child(&a, *subject, width, weights.as_deref())?,
+                BenchSubject::Ssmode(preset) => bench_model_case(&ModelBenchOptions {
                     preset: *preset,
                     width: Some(width),
                     weights,
@@ -409,9 +465,16 @@ pub fn run(a: BenchModelArgs) -> Result<()> {
                     seed: 1,
                     device: a.device,
                     composites: a.composites,
-                })?
-            } else {
-                bench_model_child(&a, *preset, width, weights.as_deref())?
+                })?,
+                BenchSubject::Psmode { .. } => bench_psmode_case(&PsmodeBenchOptions {
+                    stage1_weights: weights,
+                    fusion_weights: case_fusion_weights(subject.as_str()),
+                    width,
+                    rig: rig.clone(),
+                    runs: a.runs,
+                    seed: 1,
+                    device: a.device,
+                })?,
             };
             cases.push(case);
         }
@@ -426,7 +489,7 @@ pub fn run(a: BenchModelArgs) -> Result<()> {
 /// One case in a child process, so that its peak memory is its own.
 fn bench_model_child(
     a: &BenchModelArgs,
-    preset: Preset,
+    preset: BenchSubject,
     width: usize,
     weights: Option<&std::path::Path>,
 ) -> Result<ModelBenchCase> {
