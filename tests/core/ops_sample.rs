@@ -355,3 +355,77 @@ fn sweep_variance_matches_reference(c: usize, masked: bool) {
     let bad = [tables[0].clone(), short, tables[2].clone()];
     assert!(sweep_variance(features.as_tensor(), &bad).is_err());
 }
+
+/// The sweep's tables in compact form (12 bytes a sample: corner and fractions, expanded on
+/// read) hold exactly the taps of the flat form (32 bytes), unseen fisheye samples included,
+/// and the ops give bit-identical results on either.
+#[test]
+fn compact_sweep_tables_equal_the_flat_ones_bit_for_bit() -> Result<(), Box<dyn std::error::Error>>
+{
+    use mode360::geometry::{DepthHypotheses, DepthRange, Rig, SweepGeometry};
+    let rig = Rig::from_file(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/launch_configs/rig_omnimvs.yaml"
+    ))?;
+    let grid = ErpGrid::new(32)?;
+    let cameras = rig.cameras.len();
+    let geometry = SweepGeometry::new(
+        &rig,
+        grid,
+        vec![grid; cameras],
+        DepthHypotheses::new(DepthRange::paper(), 6)?,
+    )?;
+    let (mut flat, mut compact) = (Vec::new(), Vec::new());
+    let mut unseen = 0;
+    for cam in 0..cameras {
+        let f = SampleTable::new(&geometry.camera_taps(cam));
+        let c = SampleTable::from_erp(geometry.camera_grid(cam), geometry.camera_samples(cam));
+        assert_eq!(f.len(), c.len());
+        for n in 0..f.len() {
+            assert_eq!(f.taps(n), c.taps(n), "camera {cam}, sample {n}");
+            unseen += usize::from(c.taps(n).weight == [0.0; 4]);
+        }
+        assert_eq!((f.tap_bytes(), c.tap_bytes()), (32 * f.len(), 12 * f.len()));
+        flat.push(f);
+        compact.push(c);
+    }
+    // the fisheyes do not see everything: the unseen samples are kept as such
+    assert!(unseen > 0);
+    let ch = 4;
+    let features = Tensor::from_vec(
+        pseudo_random(cameras * grid.len() * ch, 17)
+            .into_iter()
+            .map(|x| x as f32)
+            .collect::<Vec<_>>(),
+        (cameras, grid.height(), grid.width(), ch),
+        &Device::Cpu,
+    )?;
+    let bits = |t: &Tensor| -> candle_core::Result<Vec<u32>> {
+        Ok(t.flatten_all()?
+            .to_vec1::<f32>()?
+            .into_iter()
+            .map(f32::to_bits)
+            .collect())
+    };
+    let scale = view_scale(&flat);
+    assert_eq!(scale, view_scale(&compact));
+    assert_eq!(
+        bits(&sweep_variance_visible(&features, &flat, &scale)?)?,
+        bits(&sweep_variance_visible(&features, &compact, &scale)?)?
+    );
+    // table_sample and its gradient (the transposed table)
+    let one = features.narrow(0, 0, 1)?;
+    let var = Var::from_tensor(&one)?;
+    let (a, b) = (
+        table_sample(var.as_tensor(), &flat[0])?,
+        table_sample(var.as_tensor(), &compact[0])?,
+    );
+    assert_eq!(bits(&a)?, bits(&b)?);
+    let (ga, gb) = (a.sum_all()?.backward()?, b.sum_all()?.backward()?);
+    let grad = |g: &candle_core::backprop::GradStore| g.get(var.as_tensor()).cloned();
+    assert_eq!(
+        bits(&grad(&ga).ok_or("no gradient")?)?,
+        bits(&grad(&gb).ok_or("no gradient")?)?
+    );
+    Ok(())
+}

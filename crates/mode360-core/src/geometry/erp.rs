@@ -42,9 +42,16 @@ pub struct BilinearTaps {
 }
 
 impl BilinearTaps {
+    /// Taps of a sample a camera does not see: zero weights, so it contributes nothing.
+    pub const UNSEEN: Self = Self {
+        index: [0; 4],
+        weight: [0.0; 4],
+    };
+
     /// Taps at fractional offsets `(fu, fv)` from the top-left of four corners given as
     /// `[top-left, top-right, bottom-left, bottom-right]` indices:
     /// `w = [(1-fu)(1-fv), fu (1-fv), (1-fu) fv, fu fv]`.
+    #[inline(always)]
     pub fn from_corners(index: [u32; 4], fu: f32, fv: f32) -> Self {
         Self {
             index,
@@ -133,20 +140,78 @@ impl ErpGrid {
     }
 
     /// Bilinear taps at a continuous pixel position: columns wrap around the longitude seam,
-    /// rows clamp at the poles.
+    /// rows clamp at the poles. The same as [`Self::taps_of`] of [`Self::bilinear_sample`].
     pub fn bilinear_taps(&self, p: PixelCoord) -> BilinearTaps {
+        self.taps_of(self.bilinear_sample(p))
+    }
+
+    /// The bilinear sample at a continuous pixel position in compact form: the top-left
+    /// corner `(floor(u) mod W, floor(clamp(v, 0, H - 1)))` and the fractional offsets.
+    pub fn bilinear_sample(&self, p: PixelCoord) -> ErpSample {
         let (w, h) = (self.width as i64, self.height as i64);
         let u0 = p.u.floor();
         let fu = (p.u - u0) as f32;
         let u0 = (u0 as i64).rem_euclid(w);
-        let u1 = (u0 + 1) % w;
         let v_clamped = p.v.clamp(0.0, (h - 1) as f64);
         let v0 = v_clamped.floor();
         let fv = (v_clamped - v0) as f32;
-        let v0 = v0 as i64;
+        // u0 < W and v0 < H, both at most MAX_ERP_WIDTH < 2^16
+        ErpSample {
+            u0: u0 as u16,
+            v0: v0 as u16,
+            fu,
+            fv,
+        }
+    }
+
+    /// The four taps of `s` (of this grid): corners `(u0, v0)`, `(u0 + 1 mod W, v0)`,
+    /// `(u0, min(v0 + 1, H - 1))`, `(u0 + 1 mod W, min(v0 + 1, H - 1))`, weights
+    /// [`BilinearTaps::from_corners`]; [`BilinearTaps::UNSEEN`] for [`ErpSample::UNSEEN`].
+    #[inline(always)]
+    pub fn taps_of(&self, s: ErpSample) -> BilinearTaps {
+        if !s.is_seen() {
+            return BilinearTaps::UNSEEN;
+        }
+        let (w, h) = (self.width as u32, self.height as u32);
+        let (u0, v0) = (u32::from(s.u0), u32::from(s.v0));
+        let u1 = if u0 + 1 == w { 0 } else { u0 + 1 };
         let v1 = (v0 + 1).min(h - 1);
-        let idx = |u: i64, v: i64| (v * w + u) as u32;
-        BilinearTaps::from_corners([idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)], fu, fv)
+        let idx = |u: u32, v: u32| v * w + u;
+        BilinearTaps::from_corners(
+            [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
+            s.fu,
+            s.fv,
+        )
+    }
+}
+
+/// A bilinear sample of an [`ErpGrid`] in 12 bytes instead of [`BilinearTaps`]' 32: the
+/// top-left corner and the fractional offsets, expanded by [`ErpGrid::taps_of`] (the sweep's
+/// tables hold millions of samples per camera).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ErpSample {
+    /// Column of the top-left corner; `u16::MAX` for [`Self::UNSEEN`].
+    u0: u16,
+    /// Row of the top-left corner.
+    v0: u16,
+    fu: f32,
+    fv: f32,
+}
+
+impl ErpSample {
+    /// A sample the camera does not see: it expands to [`BilinearTaps::UNSEEN`].
+    pub const UNSEEN: Self = Self {
+        u0: u16::MAX,
+        v0: 0,
+        fu: 0.0,
+        fv: 0.0,
+    };
+
+    /// Whether the sample has taps (is not [`Self::UNSEEN`]); widths stay below `u16::MAX`
+    /// ([`MAX_ERP_WIDTH`]).
+    #[inline(always)]
+    pub fn is_seen(&self) -> bool {
+        self.u0 != u16::MAX
     }
 }
 

@@ -30,7 +30,7 @@ pub mod rig_yaml;
 pub mod sweep;
 
 pub use camera::{CameraModel, ImageSize, IntrinsicsError};
-pub use erp::{resample_erp, BilinearTaps, ErpGrid, LonLat, PixelCoord};
+pub use erp::{resample_erp, BilinearTaps, ErpGrid, ErpSample, LonLat, PixelCoord};
 pub use erp_rotation::ErpRotation;
 pub use far_field::FarField;
 pub use geer::{GeerAngles, GeerPair};

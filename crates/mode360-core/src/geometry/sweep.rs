@@ -11,7 +11,7 @@
 //! camera `c` is swept through its panorama (see [`super::panorama`]): `cam_from_output` is then
 //! `panorama_from_output`, and [`SweepGeometry::sees`] tells whether its lens sees the point.
 
-use super::erp::{BilinearTaps, ErpGrid, PixelCoord};
+use super::erp::{BilinearTaps, ErpGrid, ErpSample, PixelCoord};
 use super::panorama::{rig_panoramas, CameraPanorama};
 use super::rig::Rig;
 use super::GeometryError;
@@ -277,11 +277,23 @@ impl SweepGeometry {
 
     /// Bilinear taps of camera `cam` for every sphere and output pixel, sphere-major then
     /// row-major (sample index `(sphere H + v) W + u`); all-zero taps where the camera's lens
-    /// does not see the point. The same samples as [`Self::sample`] and [`Self::sees`], built
-    /// from the camera's rotated output rays: with `cam_from_output = (R, t)`, the point of
-    /// pixel `k` on sphere `rho` is `rho (R dir_k) + t`, so a sample costs a multiply-add and
-    /// the two arctangents of its longitude and latitude.
+    /// does not see the point. [`Self::camera_samples`] expanded.
     pub fn camera_taps(&self, cam: usize) -> Vec<BilinearTaps> {
+        let grid = self.camera_grids[cam];
+        self.camera_samples(cam)
+            .into_par_iter()
+            .with_min_len(self.output.width())
+            .map(|s| grid.taps_of(s))
+            .collect()
+    }
+
+    /// [`Self::camera_taps`] in compact form, on the camera's grid
+    /// ([`Self::camera_grid`]): [`ErpSample::UNSEEN`] where the lens does not see the point.
+    /// The same samples as [`Self::sample`] and [`Self::sees`], built from the camera's
+    /// rotated output rays: with `cam_from_output = (R, t)`, the point of pixel `k` on sphere
+    /// `rho` is `rho (R dir_k) + t`, so a sample costs a multiply-add and the two arctangents
+    /// of its longitude and latitude.
+    pub fn camera_samples(&self, cam: usize) -> Vec<ErpSample> {
         let w = self.output.width();
         let pixels = self.output.len();
         let pose = self.cam_from_output[cam];
@@ -307,9 +319,9 @@ impl SweepGeometry {
             .map(|n| {
                 let point = ranges_m[n / pixels] * rotated[n % pixels] + t;
                 if check_sight && !panorama.sees(&point) {
-                    UNSEEN_TAPS
+                    ErpSample::UNSEEN
                 } else {
-                    grid.bilinear_taps(grid.pixel_from_dir(&point))
+                    grid.bilinear_sample(grid.pixel_from_dir(&point))
                 }
             })
             .collect()
@@ -336,10 +348,7 @@ impl SweepGeometry {
 }
 
 /// Taps of a sample the camera does not see: zero weights, so it contributes nothing.
-pub const UNSEEN_TAPS: BilinearTaps = BilinearTaps {
-    index: [0; 4],
-    weight: [0.0; 4],
-};
+pub const UNSEEN_TAPS: BilinearTaps = BilinearTaps::UNSEEN;
 
 /// Precomputed sample positions for every camera, sphere and output pixel
 /// (layout `[camera][sphere][v][u]`), built once per rig and resolution.

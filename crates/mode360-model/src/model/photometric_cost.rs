@@ -72,14 +72,13 @@ fn grey_images(images: &[Tensor], b: usize) -> Result<Vec<Vec<f32>>> {
 /// per-cell tap weight (1 where the camera sees the sample, 0 where it does not).
 #[inline(always)]
 fn warp(grey: &[f32], table: &SampleTable, first: usize, out: &mut [f32], seen: &mut [f32]) {
-    let (index, weight) = (table.flat_indices(), table.flat_weights());
     for (k, (o, s)) in out.iter_mut().zip(seen.iter_mut()).enumerate() {
-        let t = (first + k) * SampleTable::TAPS;
+        let taps = table.taps(first + k);
         let mut value = 0.0;
         let mut total = 0.0;
-        for j in t..t + SampleTable::TAPS {
-            value += weight[j] * grey[index[j] as usize];
-            total += weight[j];
+        for (&i, &w) in taps.index.iter().zip(&taps.weight) {
+            value += w * grey[i as usize];
+            total += w;
         }
         *o = value;
         *s = total;

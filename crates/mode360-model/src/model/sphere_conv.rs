@@ -147,12 +147,7 @@ mod tests {
         let grid = ErpGrid::new(WIDTH).expect("grid");
         let t = SphereConvTable::new(grid);
         assert_eq!(t.table().len(), grid.len() * SPHERE_TAPS);
-        let idx = t.table().flat_indices();
-        let wts = t.table().flat_weights();
-        let tap = |p: usize, k: usize| mode360_core::geometry::BilinearTaps {
-            index: [0, 1, 2, 3].map(|i| idx[(p * SPHERE_TAPS + k) * 4 + i]),
-            weight: [0, 1, 2, 3].map(|i| wts[(p * SPHERE_TAPS + k) * 4 + i]),
-        };
+        let tap = |p: usize, k: usize| t.table().taps(p * SPHERE_TAPS + k);
         // Centre tap (k = 4) of pixel (10, 5): all weight on that pixel.
         let p = 5 * WIDTH + 10;
         let c = tap(p, 4);

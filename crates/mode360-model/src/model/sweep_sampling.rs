@@ -8,7 +8,7 @@ use super::sphere_conv::SphereConvTable;
 use super::ModelError;
 use crate::model::ops::{view_scale, SampleTable};
 
-use mode360_core::geometry::{BilinearTaps, ErpGrid, FarField, Rig, SweepGeometry};
+use mode360_core::geometry::{BilinearTaps, ErpGrid, ErpSample, FarField, Rig, SweepGeometry};
 
 /// Exponent `k` of the pair parallax weight `|dir x b_hat|^k` of the photometric cost channel.
 pub const PARALLAX_EXPONENT: f32 = 1.0;
@@ -56,7 +56,7 @@ impl SweepSampling {
             SweepGeometry::new(rig, grid, vec![grid; cameras], cfg.sphere_hypotheses()?)?;
         let pixels = grid.len();
         let sweep_tables = (0..cameras)
-            .map(|cam| SampleTable::new(&geometry.camera_taps(cam)))
+            .map(|cam| SampleTable::from_erp(grid, geometry.camera_samples(cam)))
             .collect::<Vec<_>>();
         let view_scale = (!geometry.all_see_everything()).then(|| view_scale(&sweep_tables));
         let coverage = view_scale
@@ -175,27 +175,31 @@ fn coverage_of(view_scale: &[f32], pixels: usize, spheres: usize) -> Vec<f32> {
         .collect()
 }
 
-/// `table` with every sample that has a tap of non-zero weight on a `blocked` pixel zeroed.
+/// `table` with every sample that has a tap of non-zero weight on a `blocked` pixel zeroed
+/// (unseen), in the table's own storage.
 fn mask_table(table: &SampleTable, blocked: &[bool]) -> SampleTable {
-    let (index, weight) = (table.flat_indices(), table.flat_weights());
-    let taps: Vec<BilinearTaps> = index
-        .chunks_exact(SampleTable::TAPS)
-        .zip(weight.chunks_exact(SampleTable::TAPS))
-        .map(|(i, w)| {
-            let mut t = BilinearTaps {
-                index: [i[0], i[1], i[2], i[3]],
-                weight: [w[0], w[1], w[2], w[3]],
-            };
-            let hit = t
-                .index
-                .iter()
-                .zip(&t.weight)
-                .any(|(&p, &wt)| wt > 0.0 && blocked.get(p as usize).copied().unwrap_or(false));
-            if hit {
-                t.weight = [0.0; SampleTable::TAPS];
-            }
-            t
-        })
+    let hits = |t: &BilinearTaps| {
+        t.index
+            .iter()
+            .zip(&t.weight)
+            .any(|(&p, &wt)| wt > 0.0 && blocked.get(p as usize).copied().unwrap_or(false))
+    };
+    if let Some((grid, samples)) = table.erp_samples() {
+        let masked = samples
+            .iter()
+            .map(|&s| {
+                if hits(&grid.taps_of(s)) {
+                    ErpSample::UNSEEN
+                } else {
+                    s
+                }
+            })
+            .collect();
+        return SampleTable::from_erp(grid, masked);
+    }
+    let taps: Vec<BilinearTaps> = table
+        .iter()
+        .map(|t| if hits(&t) { BilinearTaps::UNSEEN } else { t })
         .collect();
     SampleTable::new(&taps)
 }

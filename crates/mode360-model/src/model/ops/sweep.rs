@@ -16,6 +16,7 @@
 //! that show something else.
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor};
+use mode360_core::geometry::BilinearTaps;
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -64,9 +65,7 @@ impl SweepShape {
         let c = self.channels;
         let table = &self.tables[cam];
         let base = (cam * self.batch + b) * self.pixels * c;
-        let s = n * SampleTable::TAPS;
-        let index = &table.flat_indices()[s..s + SampleTable::TAPS];
-        let weight = &table.flat_weights()[s..s + SampleTable::TAPS];
+        let BilinearTaps { index, weight } = table.taps(n);
         let p = |k: usize| &f[base + index[k] as usize * c..base + (index[k] as usize + 1) * c];
         let (p0, p1, p2, p3) = (p(0), p(1), p(2), p(3));
         for (j, o) in out.iter_mut().enumerate() {
@@ -107,11 +106,7 @@ impl SweepShape {
                 &f[base..base + self.pixels * C]
             })
             .collect();
-        let tables: Vec<(&[u32], &[f32])> = self
-            .tables
-            .iter()
-            .map(|t| (t.flat_indices(), t.flat_weights()))
-            .collect();
+        let tables: Vec<&SampleTable> = self.tables.iter().collect();
         let avx2_fma = crate::cpu::avx2_fma();
         let run = |t: usize, mean_t: Option<&mut [f32]>, var_t: Option<&mut [f32]>| {
             #[cfg(target_arch = "x86_64")]
@@ -150,7 +145,7 @@ impl SweepShape {
     unsafe fn moments_task_avx2<const C: usize>(
         &self,
         planes: &[&[f32]],
-        tables: &[(&[u32], &[f32])],
+        tables: &[&SampleTable],
         t: usize,
         mean_t: Option<&mut [f32]>,
         var_t: Option<&mut [f32]>,
@@ -164,7 +159,7 @@ impl SweepShape {
     fn moments_task<const C: usize>(
         &self,
         planes: &[&[f32]],
-        tables: &[(&[u32], &[f32])],
+        tables: &[&SampleTable],
         t: usize,
         mut mean_t: Option<&mut [f32]>,
         mut var_t: Option<&mut [f32]>,
@@ -177,9 +172,11 @@ impl SweepShape {
         for j in 0..len / C {
             let n = t * SAMPLES_PER_TASK + j;
             let (mut m, mut sq) = ([0f32; C], [0f32; C]);
-            let s = n * TAPS;
-            for (plane, (index, weight)) in planes.iter().zip(tables) {
-                let (i, w) = (&index[s..s + TAPS], &weight[s..s + TAPS]);
+            for (plane, table) in planes.iter().zip(tables) {
+                let BilinearTaps {
+                    index: i,
+                    weight: w,
+                } = table.taps(n);
                 let mut v = [0f32; C];
                 for k in 0..TAPS {
                     let o = i[k] as usize * C;
@@ -280,14 +277,9 @@ pub fn view_scale(tables: &[SampleTable]) -> Arc<[f32]> {
         .into_par_iter()
         .with_min_len(SAMPLES_PER_TASK)
         .map(|n| {
-            let s = n * SampleTable::TAPS;
             let views: f32 = tables
                 .iter()
-                .map(|t| {
-                    t.flat_weights()[s..s + SampleTable::TAPS]
-                        .iter()
-                        .sum::<f32>()
-                })
+                .map(|t| t.taps(n).weight.iter().sum::<f32>())
                 .sum();
             if views + 0.5 >= MIN_VIEWS as f32 {
                 1.0 / views

@@ -9,6 +9,7 @@
 //! is faster and is used instead. The table itself gets no gradient.
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
+use mode360_core::geometry::BilinearTaps;
 use rayon::prelude::*;
 
 use super::composite;
@@ -71,8 +72,6 @@ impl CustomOp1 for TableSampleOp {
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
         let f = cpu_slice(storage, layout, self.name())?;
         let (n, c) = (self.table.len(), self.channels);
-        let index = self.table.flat_indices();
-        let weight = self.table.flat_weights();
         let mut out = vec![0f32; self.batch * n * c];
         for (b, out_b) in out.chunks_mut(n * c).enumerate() {
             let f_b = &f[b * self.pixels * c..(b + 1) * self.pixels * c];
@@ -81,9 +80,10 @@ impl CustomOp1 for TableSampleOp {
                 .enumerate()
                 .for_each(|(task, out_task)| {
                     for (j, o) in out_task.chunks_mut(c).enumerate() {
-                        let s = (task * SAMPLES_PER_TASK + j) * SampleTable::TAPS;
-                        let taps = s..s + SampleTable::TAPS;
-                        let (i, w) = (&index[taps.clone()], &weight[taps]);
+                        let BilinearTaps {
+                            index: i,
+                            weight: w,
+                        } = self.table.taps(task * SAMPLES_PER_TASK + j);
                         let p = |k: usize| &f_b[i[k] as usize * c..(i[k] as usize + 1) * c];
                         let (p0, p1, p2, p3) = (p(0), p(1), p(2), p(3));
                         let taps = p0.iter().zip(p1).zip(p2).zip(p3);
@@ -141,7 +141,6 @@ fn gather_transposed(t: &TransposedTable, g: &[f32], out: &mut [f32], c: usize) 
 /// `out[index[n][k]] += weight[n][k] · g[n]` streaming through `g` in sample order, one
 /// private accumulator per thread (summed at the end): for many more samples than pixels.
 fn scatter_add(table: &SampleTable, g: &[f32], out: &mut [f32], c: usize, threads: usize) {
-    let (index, weight) = (table.flat_indices(), table.flat_weights());
     let n = table.len();
     let per_thread = n.div_ceil(threads);
     let partials: Vec<Vec<f32>> = (0..threads)
@@ -150,8 +149,9 @@ fn scatter_add(table: &SampleTable, g: &[f32], out: &mut [f32], c: usize, thread
             let mut acc = vec![0f32; out.len()];
             for s in t * per_thread..((t + 1) * per_thread).min(n) {
                 let src = &g[s * c..(s + 1) * c];
-                for k in s * SampleTable::TAPS..(s + 1) * SampleTable::TAPS {
-                    let (p, w) = (index[k] as usize, weight[k]);
+                let taps = table.taps(s);
+                for (&p, &w) in taps.index.iter().zip(&taps.weight) {
+                    let p = p as usize;
                     for (o, v) in acc[p * c..(p + 1) * c].iter_mut().zip(src) {
                         *o += w * v;
                     }

@@ -11,7 +11,7 @@ use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, Device, Layout, Result, Shape, Tensor};
 use thiserror::Error;
 
-use mode360_core::geometry::BilinearTaps;
+use mode360_core::geometry::{BilinearTaps, ErpGrid, ErpSample};
 
 /// Number of spatial axes of a 3-D convolution (D, H, W).
 pub const SPATIAL_AXES_3D: usize = 3;
@@ -298,17 +298,31 @@ pub(super) struct TransposedTable {
     pub(super) weight: Vec<f32>,
 }
 
+/// How a table keeps its taps.
+#[derive(Debug)]
+enum TapStore {
+    /// Any taps: `4 N` pixel indices into `H·W` and `4 N` weights, sample-major (32 bytes a
+    /// sample).
+    Flat { index: Vec<u32>, weight: Vec<f32> },
+    /// Bilinear samples of one ERP grid, expanded on read (12 bytes a sample): the sweep's
+    /// tables, millions of samples per camera.
+    Erp {
+        grid: ErpGrid,
+        samples: Vec<ErpSample>,
+    },
+}
+
 #[derive(Debug)]
 struct TableData {
-    /// `4 N` pixel indices into `H·W`, row-major per sample.
-    index: Vec<u32>,
-    /// `4 N` bilinear weights.
-    weight: Vec<f32>,
+    taps: TapStore,
+    /// Number of output samples N.
+    len: usize,
     /// Largest index + 1 (0 for an empty table): the fewest pixels the features must have.
     min_pixels: usize,
     /// Built on first backward, for the pixel count seen then.
     transposed: OnceLock<TransposedTable>,
-    /// `index` and `weight` as tensors on the devices the composite ran on, uploaded once.
+    /// The taps as index and weight tensors on the devices the composite ran on, uploaded
+    /// once.
     on_device: Mutex<Vec<DeviceTable>>,
 }
 
@@ -319,8 +333,8 @@ pub(super) struct DeviceTable {
     pub(super) weight: Tensor,
 }
 
-/// A precomputed bilinear sampling table: 4 pixel indices and 4 weights per output sample.
-/// Cheap to clone (shared).
+/// A precomputed bilinear sampling table: 4 pixel indices and 4 weights per output sample
+/// ([`SampleTable::taps`]). Cheap to clone (shared).
 #[derive(Clone, Debug)]
 pub struct SampleTable {
     data: Arc<TableData>,
@@ -341,10 +355,28 @@ impl SampleTable {
         let index: Vec<u32> = taps.iter().flat_map(|t| t.index).collect();
         let weight: Vec<f32> = taps.iter().flat_map(|t| t.weight).collect();
         let min_pixels = index.iter().max().map_or(0, |&m| m as usize + 1);
+        Self::with_store(TapStore::Flat { index, weight }, taps.len(), min_pixels)
+    }
+
+    /// A table of bilinear samples of `grid`, one output sample per element of `samples`, in
+    /// order: the same taps as [`Self::new`] of their [`ErpGrid::taps_of`], in 12 bytes a
+    /// sample instead of 32.
+    pub fn from_erp(grid: ErpGrid, samples: Vec<ErpSample>) -> Self {
+        let min_pixels = samples
+            .iter()
+            .filter(|s| s.is_seen())
+            .flat_map(|&s| grid.taps_of(s).index)
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let len = samples.len();
+        Self::with_store(TapStore::Erp { grid, samples }, len, min_pixels)
+    }
+
+    fn with_store(taps: TapStore, len: usize, min_pixels: usize) -> Self {
         Self {
             data: Arc::new(TableData {
-                index,
-                weight,
+                taps,
+                len,
                 min_pixels,
                 transposed: OnceLock::new(),
                 on_device: Mutex::new(Vec::new()),
@@ -354,21 +386,49 @@ impl SampleTable {
 
     /// Number of output samples N.
     pub fn len(&self) -> usize {
-        self.data.index.len() / Self::TAPS
+        self.data.len
     }
 
     pub fn is_empty(&self) -> bool {
-        self.data.index.is_empty()
+        self.data.len == 0
     }
 
-    /// All indices, `4 N`, sample-major.
-    pub fn flat_indices(&self) -> &[u32] {
-        &self.data.index
+    /// The taps of sample `n` (`n < len`).
+    #[inline(always)]
+    pub fn taps(&self, n: usize) -> BilinearTaps {
+        match &self.data.taps {
+            TapStore::Flat { index, weight } => {
+                let s = n * Self::TAPS;
+                BilinearTaps {
+                    index: [index[s], index[s + 1], index[s + 2], index[s + 3]],
+                    weight: [weight[s], weight[s + 1], weight[s + 2], weight[s + 3]],
+                }
+            }
+            TapStore::Erp { grid, samples } => grid.taps_of(samples[n]),
+        }
     }
 
-    /// All weights, `4 N`, sample-major.
-    pub fn flat_weights(&self) -> &[f32] {
-        &self.data.weight
+    /// Every sample's taps, in order.
+    pub fn iter(&self) -> impl Iterator<Item = BilinearTaps> + '_ {
+        (0..self.len()).map(|n| self.taps(n))
+    }
+
+    /// The grid and samples of a table built by [`Self::from_erp`].
+    pub fn erp_samples(&self) -> Option<(ErpGrid, &[ErpSample])> {
+        match &self.data.taps {
+            TapStore::Erp { grid, samples } => Some((*grid, samples)),
+            TapStore::Flat { .. } => None,
+        }
+    }
+
+    /// Bytes the taps take in memory.
+    pub fn tap_bytes(&self) -> usize {
+        match &self.data.taps {
+            TapStore::Flat { index, weight } => {
+                std::mem::size_of_val(index.as_slice()) + std::mem::size_of_val(weight.as_slice())
+            }
+            TapStore::Erp { samples, .. } => std::mem::size_of_val(samples.as_slice()),
+        }
     }
 
     /// The table as tensors on `device`, uploaded on first use and kept (the rig's tables are
@@ -383,9 +443,11 @@ impl SampleTable {
             return Ok(t.clone());
         }
         let n = self.len();
+        let index: Vec<u32> = self.iter().flat_map(|t| t.index).collect();
+        let weight: Vec<f32> = self.iter().flat_map(|t| t.weight).collect();
         let table = DeviceTable {
-            index: Tensor::from_slice(&self.data.index, n * Self::TAPS, device)?,
-            weight: Tensor::from_slice(&self.data.weight, (1, n, Self::TAPS, 1), device)?,
+            index: Tensor::from_vec(index, n * Self::TAPS, device)?,
+            weight: Tensor::from_vec(weight, (1, n, Self::TAPS, 1), device)?,
         };
         cache.push(table.clone());
         Ok(table)
@@ -409,36 +471,37 @@ impl SampleTable {
         let cached = self
             .data
             .transposed
-            .get_or_init(|| build_transposed(&self.data.index, &self.data.weight, pixels));
+            .get_or_init(|| build_transposed(self, pixels));
         if cached.pixels == pixels {
             Cow::Borrowed(cached)
         } else {
-            Cow::Owned(build_transposed(
-                &self.data.index,
-                &self.data.weight,
-                pixels,
-            ))
+            Cow::Owned(build_transposed(self, pixels))
         }
     }
 }
 
-/// Counting sort of the `(sample, weight)` pairs by pixel.
-fn build_transposed(index: &[u32], weight: &[f32], pixels: usize) -> TransposedTable {
+/// Counting sort of the table's `(sample, weight)` pairs by pixel.
+fn build_transposed(table: &SampleTable, pixels: usize) -> TransposedTable {
     let mut start = vec![0usize; pixels + 1];
-    for &p in index {
-        start[p as usize + 1] += 1;
+    for t in table.iter() {
+        for p in t.index {
+            start[p as usize + 1] += 1;
+        }
     }
     for p in 0..pixels {
         start[p + 1] += start[p];
     }
     let mut fill = start.clone();
-    let mut sample = vec![0u32; index.len()];
-    let mut w = vec![0f32; index.len()];
-    for (k, (&p, &wk)) in index.iter().zip(weight).enumerate() {
-        let slot = &mut fill[p as usize];
-        sample[*slot] = (k / SampleTable::TAPS) as u32;
-        w[*slot] = wk;
-        *slot += 1;
+    let entries = table.len() * SampleTable::TAPS;
+    let mut sample = vec![0u32; entries];
+    let mut w = vec![0f32; entries];
+    for (n, t) in table.iter().enumerate() {
+        for (&p, &wk) in t.index.iter().zip(&t.weight) {
+            let slot = &mut fill[p as usize];
+            sample[*slot] = n as u32;
+            w[*slot] = wk;
+            *slot += 1;
+        }
     }
     TransposedTable {
         pixels,
