@@ -233,10 +233,13 @@ impl Ssmode {
         // (B, D, h, w, C')
         let volume = cost_volume(&features, sampling, self.cfg.cost)?;
         drop(features);
-        // (B, D, h, w, C' + 1) with the photometric cost channel
+        // (B, D, h, w, C' + 1) with the photometric cost channel; the volume without it is
+        // dropped here, not at the end of the pass (a shadowed binding would live on)
         let volume = if self.cfg.photometric_cost {
             let photometric = photometric_cost(images, sampling)?;
-            append_channels(&volume, &photometric)?
+            let with = append_channels(&volume, &photometric)?;
+            drop(volume);
+            with
         } else {
             volume
         };
