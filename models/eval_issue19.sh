@@ -19,7 +19,8 @@
 #   models/eval_issue19.sh [BAGS_DIR]
 # env: SEED (2^63 + 19; another top-bit seed gives a validation set for tuning a readout, never
 # the held-out rows), WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
-# models/ssmode_parallax_zncc_log.safetensors, for ssmode), OUT (BAGS_DIR/out), MODE360_BIN
+# models/ssmode_parallax_zncc_log.safetensors, for ssmode and PSMODE's stage 1), FUSION (PSMODE's
+# fusion weights; unset: none, the most confident pair), OUT (BAGS_DIR/out), MODE360_BIN
 # (target/release/mode360).
 set -euo pipefail
 bags="${1:-/tmp/mode360_issue19}"
@@ -77,7 +78,8 @@ summary="$out/summary.md"
 } >"$summary"
 for est in $estimators; do
   w=()
-  [[ $est == ssmode ]] && w=(--weights "$weights")
+  [[ $est == ssmode || $est == psmode ]] && w=(--weights "$weights")
+  [[ $est == psmode && -n "${FUSION:-}" ]] && w+=(--fusion-weights "$FUSION")
   for row in "${rows[@]}"; do
     name="${row%%|*}"
     json="$out/${name}_${est}.json"

@@ -16,7 +16,7 @@
 //! | [`play`] | `play` | publishes a bag on DDS with its recorded timing |
 //! | [`bench_node`] | `bench-node` | the live node under a looped bag: latency, rates, memory |
 //! | [`demo`] | `demo` | node + play + listener end to end, previews and metrics |
-//! | [`bench_model`] | `bench-model` | SSMODE forward passes: time per stage, GFLOP/s, peak memory |
+//! | [`bench_model`] | `bench-model` | SSMODE forward passes: time per stage, GFLOP/s, peak memory; PSMODE per frame |
 //! | [`deep360_bag`] | `deep360-bag` | the paper's Deep360 frames on disk into a rig bag |
 //! | [`same_image_bag`] | `same-image-bag` | a bag with the reference image on every camera |
 //! | [`rig`] | `rig import` | a Kalibr camchain or Basalt calibration into a rig YAML |
