@@ -134,7 +134,7 @@ enum Command {
     BenchNode(cli::bench_node::BenchNodeArgs),
     /// The whole thing: node + bag played into it over loopback DDS, outputs recorded, previews, metrics.
     Demo(cli::demo::DemoArgs),
-    /// Benchmark SSMODE forward passes: time and GFLOP/s per stage, end-to-end time, peak memory.
+    /// Benchmark SSMODE forward passes: time and GFLOP/s per stage, end-to-end time, peak memory; PSMODE per frame.
     BenchModel(cli::bench_model::BenchModelArgs),
     /// Convert frames of the paper's Deep360 dataset on disk into a rig bag (for eval, replay).
     Deep360Bag(cli::deep360_bag::Deep360BagArgs),

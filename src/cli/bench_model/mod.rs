@@ -105,6 +105,24 @@ pub struct StageSummary {
     pub gflops_per_s: f64,
 }
 
+impl StageSummary {
+    /// A stage's `times` (seconds, one per run) and `flops` per pass.
+    fn of((stage, mut times, flops): (String, Vec<f64>, u64)) -> Self {
+        let median_s = median(&mut times);
+        let gflop = flops as f64 / 1e9;
+        Self {
+            stage,
+            median_s,
+            gflop,
+            gflops_per_s: if median_s > 0.0 {
+                gflop / median_s
+            } else {
+                0.0
+            },
+        }
+    }
+}
+
 /// Result of one preset at one width.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct ModelBenchCase {
@@ -246,23 +264,7 @@ fn measure_case(opts: &ModelBenchOptions) -> Result<ModelBenchCase> {
             }
         }
     }
-    let stages = stage_times
-        .into_iter()
-        .map(|(stage, mut times, flops)| {
-            let median_s = median(&mut times);
-            let gflop = flops as f64 / 1e9;
-            StageSummary {
-                stage,
-                median_s,
-                gflop,
-                gflops_per_s: if median_s > 0.0 {
-                    gflop / median_s
-                } else {
-                    0.0
-                },
-            }
-        })
-        .collect();
+    let stages = stage_times.into_iter().map(StageSummary::of).collect();
 
     let label = opts
         .weights

@@ -252,47 +252,14 @@ impl PairView {
         let mut conf = vec![0.0f32; output.len()];
         let (w, h) = (output.width() as i64, output.height() as i64);
         let (pw, ph) = (pair_grid.width(), pair_grid.height());
-        let half_w = output.width() as f64 / 2.0;
         for k in 0..pair_grid.len() {
-            let Some((u, v, r)) = projected[k] else {
+            let Some((_, _, r)) = projected[k] else {
                 continue;
             };
             // blind points: no parallax along the baseline, phi = pi (row + 1/2) / H
             let phi = PI * ((k / pw) as f64 + 0.5) / ph as f64;
             let c = confidence[k] * (phi.sin() / BLIND_CONE_RAD.sin()).min(1.0) as f32;
-            // the footprint: the box spanned with the right, lower and diagonal neighbours
-            // that lie on the same surface (columns wrap, rows stop at the poles)
-            let (col, row) = (k % pw, k / pw);
-            let (mut u_lo, mut u_hi, mut v_lo, mut v_hi) = (u, u, v, v);
-            for (dc, dr) in [(1, 0), (0, 1), (1, 1)] {
-                if row + dr >= ph {
-                    continue;
-                }
-                let n = (row + dr) * pw + (col + dc) % pw;
-                let Some((nu, nv, nr)) = projected[n] else {
-                    continue;
-                };
-                if (nr - r).abs() > SAME_SURFACE_REL * r {
-                    continue;
-                }
-                // the neighbour's column unwrapped next to this one's
-                let du = (nu - u + half_w).rem_euclid(2.0 * half_w) - half_w;
-                u_lo = u_lo.min(u + du);
-                u_hi = u_hi.max(u + du);
-                v_lo = v_lo.min(nv);
-                v_hi = v_hi.max(nv);
-            }
-            // the box's width on the sphere: columns shrink by cos(latitude) towards the poles
-            let lat_cos = |v: f64| (PI * (v + 0.5) / h as f64).sin();
-            let arc_width = (u_hi - u_lo) * lat_cos(v_lo).max(lat_cos(v_hi));
-            let too_big = arc_width > MAX_FOOTPRINT_PX
-                || u_hi - u_lo > half_w
-                || v_hi - v_lo > MAX_FOOTPRINT_PX;
-            let (u0, u1, v0, v1) = if too_big {
-                (u.floor(), u.floor() + 1.0, v.floor(), v.floor() + 1.0)
-            } else {
-                (u_lo.floor(), u_hi.ceil(), v_lo.floor(), v_hi.ceil())
-            };
+            let (u0, u1, v0, v1) = footprint(&projected, k, pair_grid, output);
             for vv in (v0 as i64)..=(v1 as i64) {
                 let vv = vv.clamp(0, h - 1);
                 for uu in (u0 as i64)..=(u1 as i64) {
@@ -330,6 +297,52 @@ fn pixel(grid: ErpGrid, k: usize) -> PixelCoord {
     PixelCoord {
         u: (k % grid.width()) as f64,
         v: (k / grid.width()) as f64,
+    }
+}
+
+/// The output pixels pair pixel `k` covers, `(u0, u1, v0, v1)` inclusive: the box spanned
+/// with its right, lower and diagonal neighbours that lie on the same surface (range within
+/// [`SAME_SURFACE_REL`]; columns wrap, rows stop at the poles), or its own 2x2 pixels where
+/// that box is wider than [`MAX_FOOTPRINT_PX`] on the sphere (columns shrink by cos(latitude)).
+fn footprint(
+    projected: &[Option<(f64, f64, f32)>],
+    k: usize,
+    pair_grid: ErpGrid,
+    output: ErpGrid,
+) -> (f64, f64, f64, f64) {
+    let (pw, ph) = (pair_grid.width(), pair_grid.height());
+    let half_w = output.width() as f64 / 2.0;
+    let Some((u, v, r)) = projected[k] else {
+        return (0.0, -1.0, 0.0, -1.0);
+    };
+    let (col, row) = (k % pw, k / pw);
+    let (mut u_lo, mut u_hi, mut v_lo, mut v_hi) = (u, u, v, v);
+    for (dc, dr) in [(1, 0), (0, 1), (1, 1)] {
+        if row + dr >= ph {
+            continue;
+        }
+        let n = (row + dr) * pw + (col + dc) % pw;
+        let Some((nu, nv, nr)) = projected[n] else {
+            continue;
+        };
+        if (nr - r).abs() > SAME_SURFACE_REL * r {
+            continue;
+        }
+        // the neighbour's column unwrapped next to this one's
+        let du = (nu - u + half_w).rem_euclid(2.0 * half_w) - half_w;
+        u_lo = u_lo.min(u + du);
+        u_hi = u_hi.max(u + du);
+        v_lo = v_lo.min(nv);
+        v_hi = v_hi.max(nv);
+    }
+    let lat_cos = |v: f64| (PI * (v + 0.5) / output.height() as f64).sin();
+    let arc_width = (u_hi - u_lo) * lat_cos(v_lo).max(lat_cos(v_hi));
+    let too_big =
+        arc_width > MAX_FOOTPRINT_PX || u_hi - u_lo > half_w || v_hi - v_lo > MAX_FOOTPRINT_PX;
+    if too_big {
+        (u.floor(), u.floor() + 1.0, v.floor(), v.floor() + 1.0)
+    } else {
+        (u_lo.floor(), u_hi.ceil(), v_lo.floor(), v_hi.ceil())
     }
 }
 

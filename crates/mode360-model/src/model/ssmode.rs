@@ -198,6 +198,44 @@ impl Ssmode {
         Ok(())
     }
 
+    /// Inference's readout: only the last hourglass `(B, D/s, h/s, (w + 2 p)/s, Ch)`, regressed
+    /// by the fused kernel into `(B, H, W)` range, index and confidence.
+    fn regress_last(
+        &self,
+        mut aggregated: Vec<Tensor>,
+        sampling: &SweepSampling,
+    ) -> Result<SsmodeOutput> {
+        let (head, x) = self
+            .classif
+            .last()
+            .zip(aggregated.pop())
+            .ok_or(OpsError::Shape {
+                op: "Ssmode::forward",
+                what: "no hourglass stages".to_string(),
+            })?;
+        drop(aggregated);
+        // (B, D/s, h/s, w/s)
+        let cost = self.crop_seam(head.forward(&x)?)?;
+        drop(x);
+        // (B, H, W) each
+        let r = regress_inference(
+            &cost,
+            &self.hypotheses,
+            self.cfg.height(),
+            self.cfg.width,
+            FarReadout {
+                probability: self.cfg.far_plane_probability,
+                far_counts: sampling.far_counts(),
+            },
+        )?;
+        Ok(SsmodeOutput {
+            stages: vec![r.range_m],
+            inverse_depth_stages: vec![r.inverse_depth_index],
+            confidence: r.confidence,
+            probabilities: None,
+        })
+    }
+
     /// images: one `(B, H, W, 3)` f32 tensor in [0, 1] per camera, rig order (any count >= 2).
     /// With `train` every hourglass is regressed (for the stacked loss); without it only the
     /// last one, so `stages` and `inverse_depth_stages` then hold just the final estimate.
@@ -249,36 +287,9 @@ impl Ssmode {
         drop(volume);
         mark("aggregation");
         if !train {
-            // Inference: only the last hourglass, regressed by the fused kernel.
-            let (head, x) = self
-                .classif
-                .last()
-                .zip(aggregated.last())
-                .ok_or(OpsError::Shape {
-                    op: "Ssmode::forward",
-                    what: "no hourglass stages".to_string(),
-                })?;
-            // (B, D/s, h/s, w/s)
-            let cost = self.crop_seam(head.forward(x)?)?;
-            drop(aggregated);
-            // (B, H, W) each
-            let r = regress_inference(
-                &cost,
-                &self.hypotheses,
-                self.cfg.height(),
-                self.cfg.width,
-                FarReadout {
-                    probability: self.cfg.far_plane_probability,
-                    far_counts: sampling.far_counts(),
-                },
-            )?;
+            let out = self.regress_last(aggregated, sampling)?;
             mark("regression");
-            return Ok(SsmodeOutput {
-                stages: vec![r.range_m],
-                inverse_depth_stages: vec![r.inverse_depth_index],
-                confidence: r.confidence,
-                probabilities: None,
-            });
+            return Ok(out);
         }
         let mut stages = Vec::with_capacity(aggregated.len());
         let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
