@@ -162,3 +162,79 @@ fn compact_weights_beat_the_photometric_sweep_on_held_out_frames() {
         "SSMODE AbsRel {net_abs_rel:.3} not below the photometric sweep's {photo_abs_rel:.3}"
     );
 }
+
+/// The near pass (`--near-pass-width`): the same weights at the trained width and at the finer
+/// one, the finer one's range taken only where it is nearer by the margin and within the near
+/// range; the width is checked, and other estimators refuse it by name.
+#[test]
+fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles() {
+    use mode360::estimator::near_pass::{
+        combine, NearPassEstimator, NEAR_PASS_MAX_RANGE_M, NEAR_PASS_RATIO,
+    };
+    use mode360::estimator::{EstimatorKind, EstimatorSpec};
+    use mode360::model::ComputeDevice;
+    let cfg = SsmodeConfig::tiny();
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    let _net = Ssmode::new(&cfg, vb).expect("network");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tiny.safetensors");
+    save_weights(&varmap, &cfg, &path).unwrap();
+    let fine_width = 2 * cfg.width;
+    let mut near = NearPassEstimator::load_on(&path, ComputeDevice::Cpu, fine_width).unwrap();
+    assert_eq!(near.fine_width(), fine_width);
+    let mut coarse = SsmodeEstimator::load(&path).unwrap();
+    let mut fine = SsmodeEstimator::load_at_width(&path, ComputeDevice::Cpu, fine_width).unwrap();
+    // the far field stays the same angle: twice the cells at twice the width
+    assert_eq!(
+        fine.config().far_parallax_cells,
+        2.0 * cfg.far_parallax_cells
+    );
+    let rig = rig();
+    let frame = SynthRenderer::new(SynthConfig {
+        width: 128,
+        ..SynthConfig::default()
+    })
+    .unwrap()
+    .render_frame(&rig, 0);
+    let output = ErpGrid::new(64).unwrap();
+    let got = near.estimate(&rig, &frame.images, output).unwrap();
+    let (c, f) = (
+        coarse.estimate(&rig, &frame.images, output).unwrap(),
+        fine.estimate(&rig, &frame.images, output).unwrap(),
+    );
+    assert_eq!(got.range_m.data, combine(&c, &f).range_m.data);
+    // pixel by pixel: the fine pass's reading exactly where the rule says, else the coarse one
+    let mut taken = 0;
+    for ((&g, &rc), &rf) in got
+        .range_m
+        .data
+        .iter()
+        .zip(&c.range_m.data)
+        .zip(&f.range_m.data)
+    {
+        if rf < NEAR_PASS_MAX_RANGE_M && NEAR_PASS_RATIO * rf < rc {
+            assert_eq!(g, rf);
+            taken += 1;
+        } else {
+            assert_eq!(g, rc);
+        }
+    }
+    assert!(
+        taken < output.len(),
+        "{taken} of {} pixels from the fine pass",
+        output.len()
+    );
+    // a width the network cannot run at is named; other estimators refuse the near pass
+    let err = SsmodeEstimator::load_at_width(&path, ComputeDevice::Cpu, 100)
+        .err()
+        .expect("width 100")
+        .to_string();
+    assert!(err.contains("100"), "{err}");
+    let spec = EstimatorSpec {
+        near_pass_width: Some(512),
+        ..EstimatorSpec::new(EstimatorKind::Photometric)
+    };
+    let err = spec.build().err().expect("photometric").to_string();
+    assert!(err.contains("near_pass_width"), "{err}");
+}

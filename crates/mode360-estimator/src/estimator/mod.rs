@@ -16,6 +16,7 @@ pub mod lens_health;
 pub mod lens_mask;
 pub mod lens_motion;
 pub mod lens_window;
+pub mod near_pass;
 pub mod photometric;
 pub mod psmode;
 pub mod ssmode;
@@ -163,6 +164,9 @@ pub struct EstimatorSpec {
     /// per pixel), else a file such as the shipped `models/psmode_fusion.safetensors`
     /// ([`psmode::fusion_weights_path`]).
     pub fusion_weights: Option<PathBuf>,
+    /// SSMODE's second pass for near obstacles at this input width (`None`: off;
+    /// [`near_pass`]); an error at [`Self::build`] for the other estimators.
+    pub near_pass_width: Option<usize>,
 }
 
 impl EstimatorSpec {
@@ -220,6 +224,15 @@ impl EstimatorSpec {
                 ),
             });
         }
+        if let (Some(width), false) = (self.near_pass_width, self.kind == EstimatorKind::Ssmode) {
+            return Err(EstimatorError::BadConfig {
+                field: "near_pass_width".to_string(),
+                problem: format!(
+                    "only SSMODE has a near pass (got width {width} for {})",
+                    self.kind
+                ),
+            });
+        }
         match (self.kind, &self.weights) {
             (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
                 photometric::PhotometricConfig::default(),
@@ -231,10 +244,17 @@ impl EstimatorSpec {
                     path.display()
                 ),
             }),
-            (EstimatorKind::Ssmode, weights) => Ok(Box::new(ssmode::SsmodeEstimator::load_on(
-                weights.clone().unwrap_or_else(ssmode::default_weights_path),
-                self.device,
-            )?)),
+            (EstimatorKind::Ssmode, weights) => {
+                let path = weights.clone().unwrap_or_else(ssmode::default_weights_path);
+                Ok(match self.near_pass_width {
+                    None => Box::new(ssmode::SsmodeEstimator::load_on(path, self.device)?),
+                    Some(width) => Box::new(near_pass::NearPassEstimator::load_on(
+                        path,
+                        self.device,
+                        width,
+                    )?),
+                })
+            }
             (EstimatorKind::Psmode, weights) => Ok(Box::new(psmode::PsmodeEstimator::load_on(
                 weights.clone().unwrap_or_else(ssmode::default_weights_path),
                 psmode::fusion_weights_path(self.fusion_weights.as_deref()).as_deref(),

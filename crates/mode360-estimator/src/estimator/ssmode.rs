@@ -106,7 +106,27 @@ impl SsmodeEstimator {
     /// Loads weights (with their config) from `path` onto `device`; an error naming CUDA and
     /// what was found when a CUDA device cannot be opened.
     pub fn load_on(path: impl AsRef<Path>, device: ComputeDevice) -> Result<Self, EstimatorError> {
-        let located = locate_weights(path.as_ref());
+        Self::load_with(path.as_ref(), device, None)
+    }
+
+    /// [`Self::load_on`], the network run at input width `width` instead of the width it was
+    /// trained at (the far field's threshold kept at the same angle,
+    /// [`SsmodeConfig::at_width`]); an error naming the width when the network cannot run
+    /// at it.
+    pub fn load_at_width(
+        path: impl AsRef<Path>,
+        device: ComputeDevice,
+        width: usize,
+    ) -> Result<Self, EstimatorError> {
+        Self::load_with(path.as_ref(), device, Some(width))
+    }
+
+    fn load_with(
+        path: &Path,
+        device: ComputeDevice,
+        width: Option<usize>,
+    ) -> Result<Self, EstimatorError> {
+        let located = locate_weights(path);
         let path = located.as_path();
         if !path.exists() {
             return Err(EstimatorError::BadConfig {
@@ -118,7 +138,10 @@ impl SsmodeEstimator {
             });
         }
         let device = device.open().map_err(model_err)?;
-        let (cfg, vb) = load_weights(path, &device).map_err(model_err)?;
+        let (mut cfg, vb) = load_weights(path, &device).map_err(model_err)?;
+        if let Some(width) = width {
+            cfg = cfg.at_width(width).map_err(model_err)?;
+        }
         let model = Ssmode::new(&cfg, vb).map_err(|e| {
             model_err(ModelError::Weights {
                 path: path.display().to_string(),

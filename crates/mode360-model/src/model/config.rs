@@ -250,6 +250,26 @@ impl SsmodeConfig {
         Ok(by_cells.min(sphere1_m))
     }
 
+    /// This network run at input width `width` instead of the width it was trained at: the
+    /// far field's threshold, counted in cost cells, scales with the width so that it stays
+    /// the same angle (`far_parallax_cells width / self.width`); every other setting is kept.
+    /// An error naming the width where the network cannot run at it.
+    pub fn at_width(&self, width: usize) -> Result<Self, ModelError> {
+        let cfg = Self {
+            width,
+            far_parallax_cells: self.far_parallax_cells * width as f64 / self.width.max(1) as f64,
+            ..self.clone()
+        };
+        cfg.validate().map_err(|e| ModelError::BadConfig {
+            field: "width".to_string(),
+            problem: format!(
+                "the network trained at {} cannot run at {width}: {e}",
+                self.width
+            ),
+        })?;
+        Ok(cfg)
+    }
+
     /// Checks the sizes the network needs.
     pub fn validate(&self) -> Result<(), ModelError> {
         self.check_removed()?;

@@ -178,6 +178,19 @@ pub const PARAMETERS: &[ParamSpec] = &[
         },
     },
     ParamSpec {
+        name: "near_pass_width",
+        runtime: false,
+        get: |p| ParamValue::Integer(p.estimator.near_pass_width.unwrap_or(0) as i64),
+        set: |p, v| {
+            // 0: off
+            p.estimator.near_pass_width = match v.trim().parse::<usize>() {
+                Ok(0) => None,
+                _ => Some(positive_usize(v)?),
+            };
+            Ok(())
+        },
+    },
+    ParamSpec {
         name: "device",
         runtime: false,
         get: |p| ParamValue::String(p.estimator.device.to_string()),
