@@ -20,7 +20,8 @@
 # env: SEED (2^63 + 19; another top-bit seed gives a validation set for tuning a readout, never
 # the held-out rows), WIDTH (512), FRAMES (4), ESTIMATORS ("ssmode photometric"), WEIGHTS (the shipped
 # models/ssmode_parallax_zncc_log.safetensors, for ssmode and PSMODE's stage 1), FUSION (PSMODE's
-# fusion weights; unset: none, the most confident pair), OUT (BAGS_DIR/out), MODE360_BIN
+# fusion weights; unset: none, the most confident pair), NEAR_PASS (SSMODE's near-pass width;
+# unset: off), OUT (BAGS_DIR/out), MODE360_BIN
 # (target/release/mode360).
 set -euo pipefail
 bags="${1:-/tmp/mode360_issue19}"
@@ -80,6 +81,7 @@ for est in $estimators; do
   w=()
   [[ $est == ssmode || $est == psmode ]] && w=(--weights "$weights")
   [[ $est == psmode && -n "${FUSION:-}" ]] && w+=(--fusion-weights "$FUSION")
+  [[ $est == ssmode && -n "${NEAR_PASS:-}" ]] && w+=(--near-pass-width "$NEAR_PASS")
   for row in "${rows[@]}"; do
     name="${row%%|*}"
     json="$out/${name}_${est}.json"
