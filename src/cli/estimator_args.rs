@@ -31,8 +31,8 @@ pub struct EstimatorArgs {
     #[arg(long, default_value = "all", value_parser = parse_pairs)]
     pub pairs: PairChoice,
     /// SSMODE: a second pass of the network at this input width (e.g. 512) for near
-    /// obstacles; its range replaces the first pass's where it is over 1.25 times nearer and
-    /// within 30 m. About 3.5 times the time at 512 on a 2-core CPU. Off by default.
+    /// obstacles; its range replaces the first pass's where it is over 1.25 times nearer,
+    /// within 30 m and confident (at least 0.8). About 3.5 times the time at 512 on a 2-core CPU. Off by default.
     #[arg(long)]
     pub near_pass_width: Option<usize>,
 }
