@@ -39,15 +39,21 @@ fn weights_whose_config_does_not_match_their_tensors_name_the_file_and_the_misma
     );
 }
 
+/// A randomly initialised network of `cfg` saved in `dir`; returns the file.
+fn tiny_weights(cfg: &SsmodeConfig, dir: &std::path::Path) -> std::path::PathBuf {
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    let _net = Ssmode::new(cfg, vb).expect("network");
+    let path = dir.join("tiny.safetensors");
+    save_weights(&varmap, cfg, &path).unwrap();
+    path
+}
+
 #[test]
 fn estimator_resizes_in_and_out() {
     let cfg = SsmodeConfig::tiny();
-    let varmap = VarMap::new();
-    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-    let _net = Ssmode::new(&cfg, vb).expect("network");
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("tiny.safetensors");
-    save_weights(&varmap, &cfg, &path).unwrap();
+    let path = tiny_weights(&cfg, dir.path());
     let mut est = SsmodeEstimator::load(&path).expect("load");
     assert_eq!(est.config(), &cfg);
     let rig = rig();
@@ -174,26 +180,24 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
     };
     use mode360::estimator::{EstimatorKind, EstimatorSpec};
     use mode360::model::ComputeDevice;
-    let cfg = SsmodeConfig::tiny();
-    let varmap = VarMap::new();
-    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-    let _net = Ssmode::new(&cfg, vb).expect("network");
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("tiny.safetensors");
-    save_weights(&varmap, &cfg, &path).unwrap();
-    let fine_width = 2 * cfg.width;
+    // the shipped weights (deterministic, unlike a random network) on a cluttered street
+    let path = mode360::estimator::ssmode::default_weights_path();
+    let mut coarse = SsmodeEstimator::load(&path).unwrap();
+    let cfg = coarse.config().clone();
+    let fine_width = 3 * cfg.width / 2;
     let mut near = NearPassEstimator::load_on(&path, ComputeDevice::Cpu, fine_width).unwrap();
     assert_eq!(near.fine_width(), fine_width);
-    let mut coarse = SsmodeEstimator::load(&path).unwrap();
     let mut fine = SsmodeEstimator::load_at_width(&path, ComputeDevice::Cpu, fine_width).unwrap();
-    // the far field stays the same angle: twice the cells at twice the width
+    // the far field stays the same angle: 1.5 times the cells at 1.5 times the width
     assert_eq!(
         fine.config().far_parallax_cells,
-        2.0 * cfg.far_parallax_cells
+        1.5 * cfg.far_parallax_cells
     );
     let rig = rig();
     let frame = SynthRenderer::new(SynthConfig {
-        width: 128,
+        width: 256,
+        seed: 5,
+        street: mode360::synth::StreetStyle::Cluttered,
         ..SynthConfig::default()
     })
     .unwrap()
@@ -223,7 +227,7 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
             assert_eq!(g, rc);
         }
     }
-    // the random network reads some pixels nearer at the finer width, not all
+    // the finer pass reads some pixels nearer, not all
     assert!(
         taken > 0 && taken < output.len(),
         "{taken} of {} pixels from the fine pass",

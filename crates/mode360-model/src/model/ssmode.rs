@@ -198,6 +198,14 @@ impl Ssmode {
         Ok(())
     }
 
+    /// The far-plane test of the readout on `sampling`'s rig.
+    fn far_readout<'a>(&self, sampling: &'a SweepSampling) -> FarReadout<'a> {
+        FarReadout {
+            probability: self.cfg.far_plane_probability,
+            far_counts: sampling.far_counts(),
+        }
+    }
+
     /// Inference's readout: only the last hourglass `(B, D/s, h/s, (w + 2 p)/s, Ch)`, regressed
     /// by the fused kernel into `(B, H, W)` range, index and confidence.
     fn regress_last(
@@ -223,10 +231,7 @@ impl Ssmode {
             &self.hypotheses,
             self.cfg.height(),
             self.cfg.width,
-            FarReadout {
-                probability: self.cfg.far_plane_probability,
-                far_counts: sampling.far_counts(),
-            },
+            self.far_readout(sampling),
         )?;
         Ok(SsmodeOutput {
             stages: vec![r.range_m],
@@ -303,10 +308,7 @@ impl Ssmode {
                 &self.hypotheses,
                 self.cfg.height(),
                 self.cfg.width,
-                FarReadout {
-                    probability: self.cfg.far_plane_probability,
-                    far_counts: sampling.far_counts(),
-                },
+                self.far_readout(sampling),
             )?;
             stages.push(r.range_m);
             inverse_depth_stages.push(r.inverse_depth_index);
