@@ -32,7 +32,7 @@ pub struct EstimatorArgs {
     pub pairs: PairChoice,
     /// SSMODE: a second pass of the network at this input width (e.g. 512) for near
     /// obstacles; its range replaces the first pass's where it is over 1.25 times nearer,
-    /// within 30 m and confident (at least 0.8). About 3.5 times the time at 512 on a 2-core CPU. Off by default.
+    /// within 30 m and confident (at least 0.8). A second forward pass at that width. Off by default.
     #[arg(long)]
     pub near_pass_width: Option<usize>,
 }
