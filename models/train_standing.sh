@@ -29,7 +29,13 @@
 #   runs/psmode_fusion     PSMODE's stage 2 (issue 41): the fusion network, trained on stage
 #                          1's cached pairwise output (`--stage fusion`).
 #   runs/psmode_pairs_lr   `pairs` at 5 times the rate (lr 1e-4 against 2e-5), forked once from
-#                          `pairs` at its step 950.
+#                          `pairs` at its step 950; stopped at about 1,600 (2026-11-29) for
+#                          `w512` (at 1,250 and 1,500: 66.58, 66.90 against `pairs` 66.74, 66.93);
+#   runs/ssmode_w512       issue 38: the shipped weights fine-tuned at a 512 input (the network
+#                          has only seen 256; at 512 it keeps thin obstacles but reads the sky
+#                          too near), obst2's loss. Tried 2026-11-29 and stopped after 3 steps:
+#                          56 to 113 s a step (a CI build beside it), 8.7 GB: a GPU's job (about
+#                          a minute a step here against 3 s at 256).
 # `fusion` stopped at 5,700 (2026-11-29): its validation δ1 wandered between 71.5 and 75.5 from
 # step 1,500 on, and its best step (4,250, 75.5) was no better than the shipped file (1,250)
 # on the held-out rows (streets 93.09 / 93.55, soiled 91.76 / 91.97, cluttered 77.56 / 77.21):
@@ -53,12 +59,12 @@
 # streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("pairs pairs_lr"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("pairs"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-pairs pairs_lr}"
+arms="${ARMS:-pairs}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS="${THREADS:-1}" CANDLE_NUM_THREADS="${THREADS:-1}"
@@ -68,11 +74,13 @@ run_dir() {
   case "$1" in
   pairs) echo psmode_pairs ;;
   pairs_lr) echo psmode_pairs_lr ;;
+  w512) echo ssmode_w512 ;;
   *) echo "clutter_$1" ;;
   esac
 }
 for arm in $arms; do
   lr=2e-5
+  width=256
   case "$arm" in
   plain) loss=(--init-weights "$init") ;;
   weighted) loss=(--near-weight 4 --too-far-weight 2 --init-weights "$init") ;;
@@ -85,6 +93,13 @@ for arm in $arms; do
   obst) loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 2 --fork-from runs/clutter_near) ;;
   obst2)
     loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --fork-from runs/clutter_obst)
+    ;;
+  w512)
+    # issue 38: the shipped weights fine-tuned at a 512 input, where the cost volume's cells
+    # are half as wide and thin obstacles survive (models/README.md, "Resolution, and the
+    # near pass"), obst2's loss
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init")
+    width=512
     ;;
   pairs)
     # PSMODE stage 1 (issue 41): the shipped SSMODE weights fine-tuned on camera pairs in
@@ -112,11 +127,11 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, pairs or fusion)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, w512, pairs, pairs_lr or fusion)" >&2
     exit 2
     ;;
   esac
-  "$bin" train --preset parallax_zncc_log --width 256 --steps "${STEPS:-20000}" --lr "$lr" \
+  "$bin" train --preset parallax_zncc_log --width "$width" --steps "${STEPS:-20000}" --lr "$lr" \
     --warmup-steps 50 "${mix[@]}" "${loss[@]}" --rig-pool 6 --val-every 250 \
     --checkpoint-every 50 --seed 6 --resume --out "runs/$(run_dir "$arm")" &
   pids+=($!)

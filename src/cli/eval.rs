@@ -155,6 +155,23 @@ struct Group {
 }
 
 impl Group {
+    /// The report row of a condition's bags.
+    fn into_row(self, condition: String) -> EvalRow {
+        let frames = self.scores.average.frames();
+        EvalRow {
+            condition,
+            frames,
+            depth: self.scores.average.depth(),
+            disparity: self.scores.average.disparity(),
+            s_per_frame: self.elapsed_s / frames.max(1) as f64,
+            range_bands: self.bands,
+            obstacles: self.scores.obstacles.report(),
+            max_depth_m: self.max_depth_m,
+            bags: self.bags,
+            cameras: self.cameras,
+        }
+    }
+
     /// Scores one frame's estimate against its ground truth (and labels, where it has them).
     fn score(
         &mut self,
@@ -211,6 +228,20 @@ fn write_preview(
     picture
         .save(png)
         .with_context(|| format!("writing preview {}", png.display()))
+}
+
+/// Where frame `n`'s preview of `bag` goes in `dir`: the bag's stem, the estimator, `_same_image`
+/// for the geometry check's views, the frame number.
+fn preview_path(dir: &Path, bag: &Path, views: ViewMode, estimator: &str, n: usize) -> PathBuf {
+    let stem = bag
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let views = match views {
+        ViewMode::True => "",
+        ViewMode::SameImage => "_same_image",
+    };
+    dir.join(format!("{stem}_{estimator}{views}_{n:03}.png"))
 }
 
 /// Runs `estimator` over every frame of the bags and scores it.
@@ -288,15 +319,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
                 .score(&est.range_m, &frame, &rig, &pair, &bag_name)
                 .with_context(at)?;
             if let Some(dir) = opts.png_dir.as_ref().filter(|_| n < PREVIEW_FRAMES) {
-                let stem = path
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().to_string())
-                    .unwrap_or_default();
-                let views = match opts.views {
-                    ViewMode::True => "",
-                    ViewMode::SameImage => "_same_image",
-                };
-                let png = dir.join(format!("{stem}_{}{views}_{n:03}.png", estimator.name()));
+                let png = preview_path(dir, path, opts.views, estimator.name(), n);
                 write_preview(&png, &images[rig.reference], &est.range_m, gt, max_depth_m)?;
             }
             progress.inc(1);
@@ -307,18 +330,7 @@ pub fn evaluate(opts: &EvalOptions, estimator: &mut dyn DepthEstimator) -> Resul
     let rows: Vec<EvalRow> = groups
         .into_iter()
         .filter(|(_, g)| g.scores.average.frames() > 0)
-        .map(|(condition, g)| EvalRow {
-            condition,
-            frames: g.scores.average.frames(),
-            depth: g.scores.average.depth(),
-            disparity: g.scores.average.disparity(),
-            s_per_frame: g.elapsed_s / g.scores.average.frames() as f64,
-            range_bands: g.bands,
-            obstacles: g.scores.obstacles.report(),
-            max_depth_m: g.max_depth_m,
-            bags: g.bags,
-            cameras: g.cameras,
-        })
+        .map(|(condition, g)| g.into_row(condition))
         .collect();
     if rows.is_empty() {
         bail!("no frames evaluated; {}", drops.summary());
