@@ -429,3 +429,69 @@ fn compact_sweep_tables_equal_the_flat_ones_bit_for_bit() -> Result<(), Box<dyn 
     );
     Ok(())
 }
+
+/// `sweep_variance_appended` (the cost volume with the photometric channel written in one
+/// pass) equals `append_channels(sweep_variance(..), extra)` bit for bit, forward and both
+/// gradients, with and without per-sample view scales.
+#[test]
+fn sweep_variance_with_a_channel_appended_equals_the_two_ops(
+) -> Result<(), Box<dyn std::error::Error>> {
+    use mode360::model::ops::{append_channels, sweep_variance_appended};
+    let grid = ErpGrid::new(16)?;
+    let (cameras, c, n) = (3, 8, 300);
+    let tables: Vec<SampleTable> = (0..cameras)
+        .map(|cam| {
+            let coords = pseudo_random(2 * n, 40 + cam as u64);
+            SampleTable::from(
+                (0..n)
+                    .map(|k| {
+                        grid.bilinear_taps(PixelCoord {
+                            u: coords[2 * k] * 16.0,
+                            v: coords[2 * k + 1] * 8.0,
+                        })
+                    })
+                    .collect::<Vec<_>>(),
+            )
+        })
+        .collect();
+    let features = Var::from_tensor(&tensor(
+        &pseudo_random(cameras * grid.len() * c, 7),
+        &[cameras, grid.height(), grid.width(), c],
+    ))?;
+    let extra = Var::from_tensor(&tensor(&pseudo_random(n, 8), &[1, n, 1]))?;
+    let bits = |t: &Tensor| -> candle_core::Result<Vec<u32>> {
+        Ok(t.flatten_all()?
+            .to_vec1::<f32>()?
+            .into_iter()
+            .map(f32::to_bits)
+            .collect())
+    };
+    let r = tensor(&pseudo_random(n * (c + 1), 9), &[1, n, c + 1]);
+    for scale in [None, Some(view_scale(&tables))] {
+        let two = match &scale {
+            None => sweep_variance(features.as_tensor(), &tables)?,
+            Some(s) => sweep_variance_visible(features.as_tensor(), &tables, s)?,
+        };
+        let two = append_channels(&two, extra.as_tensor())?;
+        let one = sweep_variance_appended(
+            features.as_tensor(),
+            &tables,
+            scale.as_ref(),
+            extra.as_tensor(),
+        )?;
+        assert_eq!(one.dims(), [1, n, c + 1]);
+        assert_eq!(bits(&one)?, bits(&two)?);
+        let (g1, g2) = (
+            (one * &r)?.sum_all()?.backward()?,
+            (two * &r)?.sum_all()?.backward()?,
+        );
+        for v in [&features, &extra] {
+            let (a, b) = (g1.get(v.as_tensor()), g2.get(v.as_tensor()));
+            assert_eq!(
+                bits(a.ok_or("no gradient")?)?,
+                bits(b.ok_or("no gradient")?)?
+            );
+        }
+    }
+    Ok(())
+}

@@ -20,7 +20,10 @@ use candle_core::{Result, Tensor};
 
 use super::config::CostKind;
 use super::sweep_sampling::SweepSampling;
-use crate::model::ops::{sweep_variance, sweep_variance_visible, table_sample, OpsError};
+use crate::model::ops::{
+    append_channels, sweep_variance, sweep_variance_appended, sweep_variance_visible, table_sample,
+    OpsError,
+};
 
 /// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
 /// `(M B, H, W, C)` (camera `c`'s batch at rows `c B .. (c + 1) B`), with
@@ -115,4 +118,32 @@ pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) 
         // (B, D, H, W, C)
         CostKind::Variance => Ok(var),
     }
+}
+
+/// [`cost_volume`] with `extra (B, D, H, W, 1)` appended as its last channel,
+/// `(B, D, H, W, C' + 1)`; for a variance-only volume written in one pass, so that the volume
+/// without the channel never sits beside the result.
+pub fn cost_volume_appended(
+    features: &Tensor,
+    sampling: &SweepSampling,
+    kind: CostKind,
+    extra: &Tensor,
+) -> Result<Tensor> {
+    if kind != CostKind::Variance {
+        return append_channels(&cost_volume(features, sampling, kind)?, extra);
+    }
+    let (b, d, h, w, _) = extra.dims5()?;
+    let tables = (0..sampling.camera_count())
+        .map(|cam| {
+            sampling.sweep_table(cam).cloned().ok_or(OpsError::Shape {
+                op: "cost_volume",
+                what: format!("no sweep table for camera {cam}"),
+            })
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    // (B, D H W, 1) -> (B, D H W, C + 1) -> (B, D, H, W, C + 1)
+    let flat = extra.reshape((b, d * h * w, 1))?;
+    let volume = sweep_variance_appended(features, &tables, sampling.view_scale(), &flat)?;
+    let channels = volume.dim(2)?;
+    volume.reshape((b, d, h, w, channels))
 }

@@ -17,14 +17,14 @@ use candle_core::{Result, Tensor};
 use candle_nn::VarBuilder;
 
 use super::config::{SsmodeConfig, MIN_CAMERAS};
-use super::cost_volume::cost_volume;
+use super::cost_volume::{cost_volume, cost_volume_appended};
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
 use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
 use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
-use crate::model::ops::{append_channels, flop_count, OpsError};
+use crate::model::ops::{flop_count, OpsError};
 use mode360_core::geometry::DepthHypotheses;
 
 /// Image channels (RGB).
@@ -273,19 +273,16 @@ impl Ssmode {
         // (N B, h, w, Cf)
         let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
         mark("feature");
-        // (B, D, h, w, C')
-        let volume = cost_volume(&features, sampling, self.cfg.cost)?;
-        drop(features);
-        // (B, D, h, w, C' + 1) with the photometric cost channel; the volume without it is
-        // dropped here, not at the end of the pass (a shadowed binding would live on)
+        // (B, D, h, w, C'), or (B, D, h, w, C' + 1) with the photometric cost channel written
+        // beside the views' variance in one pass
         let volume = if self.cfg.photometric_cost {
+            // (B, D, h, w, 1)
             let photometric = photometric_cost(images, sampling)?;
-            let with = append_channels(&volume, &photometric)?;
-            drop(volume);
-            with
+            cost_volume_appended(&features, sampling, self.cfg.cost, &photometric)?
         } else {
-            volume
+            cost_volume(&features, sampling, self.cfg.cost)?
         };
+        drop(features);
         mark("cost_volume");
         // K x (B, D/s, h/s, (w + 2 p)/s, Ch), p columns from across the longitude seam each side
         let aggregated = self.aggregation.forward(&volume, self.cfg.seam_pad_cells)?;

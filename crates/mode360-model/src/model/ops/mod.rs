@@ -49,7 +49,9 @@ pub use composite::{
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d};
 pub use fused::{conv3d_fused, conv_transpose3d_x2_fused, is_inference, Epilogue};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear};
-pub use sweep::{sweep_variance, sweep_variance_visible, view_scale, MIN_VIEWS};
+pub use sweep::{
+    sweep_variance, sweep_variance_appended, sweep_variance_visible, view_scale, MIN_VIEWS,
+};
 pub use table::table_sample;
 pub use types::{
     count_flops, flop_count, has_custom_kernels, with_composites, Conv3dGeometry, LinearAxisMap,

@@ -296,6 +296,55 @@ fn sweep_variance_impl(
     tables: &[SampleTable],
     view_scale: Option<&Arc<[f32]>>,
 ) -> Result<Tensor> {
+    match sweep_shape(features, tables, view_scale)? {
+        Some(shape) => features.contiguous()?.apply_op1(SweepVarianceOp(shape)),
+        None => sweep_variance_fallback(features, tables, view_scale),
+    }
+}
+
+/// The device-generic paths: a GPU's (the composite around the table gather's CUDA kernel) or
+/// the composite of plain tensor ops.
+fn sweep_variance_fallback(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&Arc<[f32]>>,
+) -> Result<Tensor> {
+    let view_scale = view_scale.map(|s| &s[..]);
+    if features.device().is_cuda() {
+        return composite::sweep_variance_with(features, tables, view_scale, table_sample);
+    }
+    composite::sweep_variance_composite(features, tables, view_scale)
+}
+
+/// [`sweep_variance`] (with `view_scale`: [`sweep_variance_visible`]) and one more channel
+/// appended to every sample, `extra (B, N, 1)` -> `(B, N, C + 1)`: what
+/// `append_channels(&sweep_variance(..), extra)` computes, without the `(B, N, C)` volume
+/// beside the result (96 MiB of the cost volume at 256). Gradients flow to both.
+pub fn sweep_variance_appended(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&Arc<[f32]>>,
+    extra: &Tensor,
+) -> Result<Tensor> {
+    let shape = sweep_shape(features, tables, view_scale)?;
+    let n = tables.first().map_or(0, SampleTable::len);
+    let fused =
+        shape.filter(|sh| matches!(sh.channels, 4 | 8 | 16) && extra.dims() == [sh.batch, n, 1]);
+    match fused {
+        Some(shape) => features
+            .contiguous()?
+            .apply_op2(&extra.contiguous()?, SweepVarianceAppendOp(shape)),
+        None => super::append_channels(&sweep_variance_impl(features, tables, view_scale)?, extra),
+    }
+}
+
+/// The kernels' shapes after checking the arguments; `None` where the device-generic path
+/// runs instead (a GPU, or composites forced on the CPU).
+fn sweep_shape(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&Arc<[f32]>>,
+) -> Result<Option<SweepShape>> {
     const OP: &str = "sweep_variance";
     let dims = dims_of(features, OP, "features", FEATURE_RANK)?;
     let cameras = tables.len();
@@ -326,24 +375,17 @@ fn sweep_variance_impl(
         t.check_pixels(pixels, OP)?;
     }
     let batch = dims[0] / cameras;
-    if features.device().is_cuda() {
-        // the composite around the table gather's CUDA kernel
-        let view_scale = view_scale.map(|s| &s[..]);
-        return composite::sweep_variance_with(features, tables, view_scale, table_sample);
+    if features.device().is_cuda() || !has_custom_kernels(features.device()) {
+        return Ok(None);
     }
-    if !has_custom_kernels(features.device()) {
-        return composite::sweep_variance_composite(features, tables, view_scale.map(|s| &s[..]));
-    }
-    features
-        .contiguous()?
-        .apply_op1(SweepVarianceOp(SweepShape {
-            tables: tables.to_vec(),
-            batch,
-            pixels,
-            image: [dims[1], dims[2]],
-            channels: dims[3],
-            view_scale: view_scale.cloned(),
-        }))
+    Ok(Some(SweepShape {
+        tables: tables.to_vec(),
+        batch,
+        pixels,
+        image: [dims[1], dims[2]],
+        channels: dims[3],
+        view_scale: view_scale.cloned(),
+    }))
 }
 
 struct SweepVarianceOp(SweepShape);
@@ -369,6 +411,91 @@ impl CustomOp1 for SweepVarianceOp {
             .contiguous()?
             .apply_op2(&grad_out.contiguous()?, SweepVarianceGradOp(self.0.clone()))?;
         Ok(Some(grad))
+    }
+}
+
+/// `(features (M B, H, W, C), extra (B, N, 1))` -> `(B, N, C + 1)`: the variance and `extra`,
+/// written side by side a task at a time.
+struct SweepVarianceAppendOp(SweepShape);
+
+impl SweepShape {
+    /// The variance of samples `t·SAMPLES_PER_TASK ..` of batch item `b` into `var_t`
+    /// (`C` = 4, 8 or 16 channels, checked by the caller).
+    fn variance_task(&self, f: &[f32], b: usize, t: usize, var_t: &mut [f32]) {
+        match self.channels {
+            4 => self.variance_task_n::<4>(f, b, t, var_t),
+            8 => self.variance_task_n::<8>(f, b, t, var_t),
+            _ => self.variance_task_n::<16>(f, b, t, var_t),
+        }
+    }
+
+    fn variance_task_n<const C: usize>(&self, f: &[f32], b: usize, t: usize, var_t: &mut [f32]) {
+        let planes: Vec<&[f32]> = (0..self.cameras())
+            .map(|cam| {
+                let base = (cam * self.batch + b) * self.pixels * C;
+                &f[base..base + self.pixels * C]
+            })
+            .collect();
+        let tables: Vec<&SampleTable> = self.tables.iter().collect();
+        #[cfg(target_arch = "x86_64")]
+        if crate::cpu::avx2_fma() {
+            // SAFETY: the CPU runs AVX2 and FMA (`crate::cpu::avx2_fma`).
+            return unsafe { self.moments_task_avx2::<C>(&planes, &tables, t, None, Some(var_t)) };
+        }
+        self.moments_task::<C>(&planes, &tables, t, None, Some(var_t))
+    }
+}
+
+impl CustomOp2 for SweepVarianceAppendOp {
+    fn name(&self) -> &'static str {
+        "sweep_variance_appended"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let f = cpu_slice(s1, l1, self.name())?;
+        let e = cpu_slice(s2, l2, self.name())?;
+        let sh = &self.0;
+        let (n, c) = (sh.samples(), sh.channels);
+        let mut out = vec![0f32; sh.batch * n * (c + 1)];
+        for (b, out_b) in out.chunks_mut(n * (c + 1)).enumerate() {
+            let e_b = &e[b * n..(b + 1) * n];
+            out_b
+                .par_chunks_mut(SAMPLES_PER_TASK * (c + 1))
+                .enumerate()
+                .for_each(|(t, out_t)| {
+                    let len = out_t.len() / (c + 1);
+                    let mut var = vec![0f32; len * c];
+                    sh.variance_task(f, b, t, &mut var);
+                    let first = t * SAMPLES_PER_TASK;
+                    for (j, o) in out_t.chunks_exact_mut(c + 1).enumerate() {
+                        o[..c].copy_from_slice(&var[j * c..(j + 1) * c]);
+                        o[c] = e_b[first + j];
+                    }
+                });
+        }
+        Ok((CpuStorage::F32(out), Shape::from((sh.batch, n, c + 1))))
+    }
+
+    fn bwd(
+        &self,
+        features: &Tensor,
+        _extra: &Tensor,
+        _out: &Tensor,
+        grad_out: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let c = self.0.channels;
+        let g_var = grad_out.narrow(2, 0, c)?.contiguous()?;
+        let g_features = features
+            .contiguous()?
+            .apply_op2(&g_var, SweepVarianceGradOp(self.0.clone()))?;
+        let g_extra = grad_out.narrow(2, c, 1)?.contiguous()?;
+        Ok((Some(g_features), Some(g_extra)))
     }
 }
 
