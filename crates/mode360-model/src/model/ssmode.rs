@@ -3,8 +3,9 @@
 //! ```text
 //! images: N x (B, H, W, 3) -> stacked (N B, H, W, 3)
 //! feature                   -> (N B, h, w, Cf) -> N x (B, h, w, Cf)   h = H / cost_downsample
-//! cost_volume               -> (B, D, h, w, C')           variance (and mean) over views
-//! photometric_cost          -> (B, D, h, w, C' + 1)       optional ZNCC matching channel
+//! photometric_cost          -> (B, D, h, w, 1)            optional ZNCC matching channel
+//! cost_volume(_appended)    -> (B, D, h, w, C' (+ 1))     variance (and mean) over views, the
+//!                              matching channel written beside it in the same pass
 //! aggregation               -> K x (B, D/s, h/s, (w + 2 p)/s, Ch) stacked hourglasses, entry
 //!                              stride s, then p/s columns copied across the longitude seam
 //! classif{k}, crop          -> K x (B, D/s, h/s, w/s)
