@@ -124,30 +124,15 @@ pub(super) enum Restore {
     Fork,
 }
 
-/// Restores weights, optimizer moments and bookkeeping from `dir`, checking that the run's
-/// options match (all of them for [`Restore::Resume`], the network's for [`Restore::Fork`]).
-/// A fork keeps `expected`'s options and takes the step, sample position and training time.
-pub(super) fn load_checkpoint(
-    dir: &Path,
-    varmap: &mut VarMap,
-    opt: &mut AdamW,
+/// The first setting of `state` (saved) that differs from this run's (`expected`) as `(field, saved,
+/// this run's)`: the network's always, the data's only on resume (a fork may change them).
+/// Compared as text: Rust prints a float so that it reads back exactly, so equal text is
+/// equal value.
+fn first_mismatch(
+    state: &CheckpointState,
     expected: &CheckpointState,
     restore: Restore,
-    device: &Device,
-) -> Result<CheckpointState, TrainError> {
-    let state_path = dir.join(STATE_FILE);
-    let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
-    let state: CheckpointState =
-        serde_json::from_str(&text).map_err(|e| TrainError::Checkpoint {
-            path: state_path.display().to_string(),
-            problem: format!("malformed: {e}"),
-        })?;
-    let advice = match restore {
-        Restore::Resume => "; use a new out_dir",
-        Restore::Fork => "",
-    };
-    // (field, saved, this run's), compared as text: Rust prints a float so that it reads back
-    // exactly, so equal text is equal value.
+) -> Option<(&'static str, String, String)> {
     let network = [
         (
             "version",
@@ -209,11 +194,35 @@ pub(super) fn load_checkpoint(
         Restore::Resume => &data,
         Restore::Fork => &[],
     };
-    if let Some((field, saved, now)) = network
-        .iter()
-        .chain(data_checked)
+    network
+        .into_iter()
+        .chain(data_checked.iter().cloned())
         .find(|(_, saved, now)| saved != now)
-    {
+}
+
+/// Restores weights, optimizer moments and bookkeeping from `dir`, checking that the run's
+/// options match (all of them for [`Restore::Resume`], the network's for [`Restore::Fork`]).
+/// A fork keeps `expected`'s options and takes the step, sample position and training time.
+pub(super) fn load_checkpoint(
+    dir: &Path,
+    varmap: &mut VarMap,
+    opt: &mut AdamW,
+    expected: &CheckpointState,
+    restore: Restore,
+    device: &Device,
+) -> Result<CheckpointState, TrainError> {
+    let state_path = dir.join(STATE_FILE);
+    let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
+    let state: CheckpointState =
+        serde_json::from_str(&text).map_err(|e| TrainError::Checkpoint {
+            path: state_path.display().to_string(),
+            problem: format!("malformed: {e}"),
+        })?;
+    let advice = match restore {
+        Restore::Resume => "; use a new out_dir",
+        Restore::Fork => "",
+    };
+    if let Some((field, saved, now)) = first_mismatch(&state, expected, restore) {
         return Err(TrainError::Checkpoint {
             path: state_path.display().to_string(),
             problem: format!("'{field}' was {saved} but this run uses {now}{advice}"),
