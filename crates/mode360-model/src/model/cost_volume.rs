@@ -22,7 +22,7 @@ use super::config::CostKind;
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{
     append_channels, sweep_variance, sweep_variance_appended, sweep_variance_visible, table_sample,
-    OpsError,
+    OpsError, SampleTable,
 };
 
 /// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
@@ -54,14 +54,7 @@ pub fn cost_volume(features: &Tensor, sampling: &SweepSampling, kind: CostKind) 
         .into());
     }
     if kind == CostKind::Variance {
-        let tables = (0..cameras)
-            .map(|cam| {
-                sampling.sweep_table(cam).cloned().ok_or(OpsError::Shape {
-                    op: OP,
-                    what: format!("no sweep table for camera {cam}"),
-                })
-            })
-            .collect::<std::result::Result<Vec<_>, _>>()?;
+        let tables = sweep_tables(sampling)?;
         // (M B, H, W, C) -> (B, D H W, C) -> (B, D, H, W, C)
         let var = match sampling.view_scale() {
             None => sweep_variance(features, &tables)?,
@@ -133,17 +126,25 @@ pub fn cost_volume_appended(
         return append_channels(&cost_volume(features, sampling, kind)?, extra);
     }
     let (b, d, h, w, _) = extra.dims5()?;
-    let tables = (0..sampling.camera_count())
-        .map(|cam| {
-            sampling.sweep_table(cam).cloned().ok_or(OpsError::Shape {
-                op: "cost_volume",
-                what: format!("no sweep table for camera {cam}"),
-            })
-        })
-        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let tables = sweep_tables(sampling)?;
     // (B, D H W, 1) -> (B, D H W, C + 1) -> (B, D, H, W, C + 1)
     let flat = extra.reshape((b, d * h * w, 1))?;
     let volume = sweep_variance_appended(features, &tables, sampling.view_scale(), &flat)?;
     let channels = volume.dim(2)?;
     volume.reshape((b, d, h, w, channels))
+}
+
+/// Every camera's sweep table of `sampling`, in rig order.
+fn sweep_tables(sampling: &SweepSampling) -> Result<Vec<SampleTable>> {
+    (0..sampling.camera_count())
+        .map(|cam| {
+            sampling.sweep_table(cam).cloned().ok_or_else(|| {
+                OpsError::Shape {
+                    op: "cost_volume",
+                    what: format!("no sweep table for camera {cam}"),
+                }
+                .into()
+            })
+        })
+        .collect()
 }

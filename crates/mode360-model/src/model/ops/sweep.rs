@@ -92,6 +92,34 @@ impl SweepShape {
         }
     }
 
+    /// Every camera's `(H W, C)` feature plane of batch item `b`.
+    fn planes<'f, const C: usize>(&self, f: &'f [f32], b: usize) -> Vec<&'f [f32]> {
+        (0..self.cameras())
+            .map(|cam| {
+                let base = (cam * self.batch + b) * self.pixels * C;
+                &f[base..base + self.pixels * C]
+            })
+            .collect()
+    }
+
+    /// [`Self::moments_task`], in AVX2 and FMA where the CPU has them.
+    #[inline(always)]
+    fn run_task<const C: usize>(
+        &self,
+        planes: &[&[f32]],
+        tables: &[&SampleTable],
+        t: usize,
+        mean_t: Option<&mut [f32]>,
+        var_t: Option<&mut [f32]>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::cpu::avx2_fma() {
+            // SAFETY: the CPU runs AVX2 and FMA (`crate::cpu::avx2_fma`).
+            return unsafe { self.moments_task_avx2::<C>(planes, tables, t, mean_t, var_t) };
+        }
+        self.moments_task::<C>(planes, tables, t, mean_t, var_t)
+    }
+
     /// [`Self::moments`] for `C` channels known at compile time.
     fn moments_n<const C: usize>(
         &self,
@@ -100,22 +128,10 @@ impl SweepShape {
         mean_b: Option<&mut [f32]>,
         var_b: Option<&mut [f32]>,
     ) {
-        let planes: Vec<&[f32]> = (0..self.cameras())
-            .map(|cam| {
-                let base = (cam * self.batch + b) * self.pixels * C;
-                &f[base..base + self.pixels * C]
-            })
-            .collect();
+        let planes = self.planes::<C>(f, b);
         let tables: Vec<&SampleTable> = self.tables.iter().collect();
-        let avx2_fma = crate::cpu::avx2_fma();
         let run = |t: usize, mean_t: Option<&mut [f32]>, var_t: Option<&mut [f32]>| {
-            #[cfg(target_arch = "x86_64")]
-            if avx2_fma {
-                // SAFETY: the CPU runs AVX2 and FMA (`crate::cpu::avx2_fma`).
-                return unsafe { self.moments_task_avx2::<C>(&planes, &tables, t, mean_t, var_t) };
-            }
-            let _ = avx2_fma;
-            self.moments_task::<C>(&planes, &tables, t, mean_t, var_t)
+            self.run_task::<C>(&planes, &tables, t, mean_t, var_t)
         };
         let task = SAMPLES_PER_TASK * C;
         match (mean_b, var_b) {
@@ -419,30 +435,41 @@ impl CustomOp1 for SweepVarianceOp {
 struct SweepVarianceAppendOp(SweepShape);
 
 impl SweepShape {
-    /// The variance of samples `t·SAMPLES_PER_TASK ..` of batch item `b` into `var_t`
-    /// (`C` = 4, 8 or 16 channels, checked by the caller).
-    fn variance_task(&self, f: &[f32], b: usize, t: usize, var_t: &mut [f32]) {
+    /// Batch item `b`'s variance `(N, C)` and `extra_b` `(N)` side by side into `out_b`
+    /// `(N, C + 1)` (`C` = 4, 8 or 16 channels, checked by the caller).
+    fn variance_appended(&self, f: &[f32], b: usize, extra_b: &[f32], out_b: &mut [f32]) {
         match self.channels {
-            4 => self.variance_task_n::<4>(f, b, t, var_t),
-            8 => self.variance_task_n::<8>(f, b, t, var_t),
-            _ => self.variance_task_n::<16>(f, b, t, var_t),
+            4 => self.variance_appended_n::<4>(f, b, extra_b, out_b),
+            8 => self.variance_appended_n::<8>(f, b, extra_b, out_b),
+            _ => self.variance_appended_n::<16>(f, b, extra_b, out_b),
         }
     }
 
-    fn variance_task_n<const C: usize>(&self, f: &[f32], b: usize, t: usize, var_t: &mut [f32]) {
-        let planes: Vec<&[f32]> = (0..self.cameras())
-            .map(|cam| {
-                let base = (cam * self.batch + b) * self.pixels * C;
-                &f[base..base + self.pixels * C]
-            })
-            .collect();
+    fn variance_appended_n<const C: usize>(
+        &self,
+        f: &[f32],
+        b: usize,
+        extra_b: &[f32],
+        out_b: &mut [f32],
+    ) {
+        let planes = self.planes::<C>(f, b);
         let tables: Vec<&SampleTable> = self.tables.iter().collect();
-        #[cfg(target_arch = "x86_64")]
-        if crate::cpu::avx2_fma() {
-            // SAFETY: the CPU runs AVX2 and FMA (`crate::cpu::avx2_fma`).
-            return unsafe { self.moments_task_avx2::<C>(&planes, &tables, t, None, Some(var_t)) };
-        }
-        self.moments_task::<C>(&planes, &tables, t, None, Some(var_t))
+        out_b
+            .par_chunks_mut(SAMPLES_PER_TASK * (C + 1))
+            .enumerate()
+            .for_each_init(
+                || vec![0f32; SAMPLES_PER_TASK * C],
+                |var, (t, out_t)| {
+                    let var_t = &mut var[..out_t.len() / (C + 1) * C];
+                    self.run_task::<C>(&planes, &tables, t, None, Some(&mut *var_t));
+                    let first = t * SAMPLES_PER_TASK;
+                    let rows = out_t.chunks_exact_mut(C + 1).zip(var_t.chunks_exact(C));
+                    for (j, (o, v)) in rows.enumerate() {
+                        o[..C].copy_from_slice(v);
+                        o[C] = extra_b[first + j];
+                    }
+                },
+            );
     }
 }
 
@@ -464,20 +491,7 @@ impl CustomOp2 for SweepVarianceAppendOp {
         let (n, c) = (sh.samples(), sh.channels);
         let mut out = vec![0f32; sh.batch * n * (c + 1)];
         for (b, out_b) in out.chunks_mut(n * (c + 1)).enumerate() {
-            let e_b = &e[b * n..(b + 1) * n];
-            out_b
-                .par_chunks_mut(SAMPLES_PER_TASK * (c + 1))
-                .enumerate()
-                .for_each(|(t, out_t)| {
-                    let len = out_t.len() / (c + 1);
-                    let mut var = vec![0f32; len * c];
-                    sh.variance_task(f, b, t, &mut var);
-                    let first = t * SAMPLES_PER_TASK;
-                    for (j, o) in out_t.chunks_exact_mut(c + 1).enumerate() {
-                        o[..c].copy_from_slice(&var[j * c..(j + 1) * c]);
-                        o[c] = e_b[first + j];
-                    }
-                });
+            sh.variance_appended(f, b, &e[b * n..(b + 1) * n], out_b);
         }
         Ok((CpuStorage::F32(out), Shape::from((sh.batch, n, c + 1))))
     }
