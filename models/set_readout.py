@@ -11,9 +11,11 @@ edge refinement ("Edge refinement"; 0 turns it off) and the aggregation's longit
 """
 import argparse
 import json
+import os
 import sys
 
-from safetensors_file import read, write
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tools"))
+from safetensors_file import read, write  # noqa: E402  (tools/safetensors_file.py)
 
 CONFIG_KEY = "mode360.config"
 

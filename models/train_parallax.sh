@@ -10,7 +10,7 @@
 #   4. runs/parallax_fisheye: the same mix at 256 with half of the rendered samples on random
 #      fisheye and dual-fisheye racks (issue 12), initialised from stage 3's final weights
 # Then copy runs/parallax_fisheye/ssmode_parallax.safetensors to models/ and evaluate it
-# (models/evaluate.sh, models/eval_fisheye.sh).
+# (tools/make_eval_bags.sh and tools/evaluate.sh, tools/eval_fisheye.sh).
 #   models/train_parallax.sh [STAGE1_STEPS] [STAGE2_STEPS] [STAGE3_STEPS] [STAGE4_STEPS]
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"

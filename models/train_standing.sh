@@ -56,7 +56,7 @@
 # a fifth on fisheye racks, every rig layout, a fifth with one lens 5 to 40 % blocked, a real
 # camera's effects on every image (exposure, white balance, vignetting, blur, noise, JPEG:
 # --camera-effects), rigs from a pool of 6 renewed every 400 samples. The arms are compared on held-out cluttered
-# streets with `models/eval_issue19.sh` (obstacle recall beside δ1).
+# streets with `tools/eval_heldout.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
 # shipped file), ARMS ("pairs"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its

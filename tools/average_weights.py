@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Averages SSMODE weights files tensor by tensor (a "model soup"): runs forked from one
-checkpoint and trained side by side on this 2-core machine, one thread each, give one set of
-weights. The files must hold the same tensors (names, shapes, F32) and the same `mode360.config`
-header metadata, which the output keeps; anything else is an error naming the file and tensor.
+checkpoint and trained side by side give one set of weights. The files must hold the same
+tensors (names, shapes, F32) and the same `mode360.config` header metadata, which the output
+keeps; anything else is an error naming the file and tensor. Needs no third-party package.
 
-    models/average_weights.py A.safetensors B.safetensors [...] --out SOUP.safetensors
+    tools/average_weights.py A.safetensors B.safetensors [...] --out SOUP.safetensors
 """
 import argparse
 import sys
