@@ -436,7 +436,9 @@ fn compact_sweep_tables_equal_the_flat_ones_bit_for_bit() -> Result<(), Box<dyn 
 #[test]
 fn sweep_variance_with_a_channel_appended_equals_the_two_ops(
 ) -> Result<(), Box<dyn std::error::Error>> {
-    use mode360::model::ops::{append_channels, sweep_variance_appended};
+    use mode360::model::ops::{
+        append_channels, sweep_variance_appended, sweep_variance_appended_window,
+    };
     let grid = ErpGrid::new(16)?;
     let (cameras, c, n) = (3, 8, 300);
     let tables: Vec<SampleTable> = (0..cameras)
@@ -481,6 +483,33 @@ fn sweep_variance_with_a_channel_appended_equals_the_two_ops(
         )?;
         assert_eq!(one.dims(), [1, n, c + 1]);
         assert_eq!(bits(&one)?, bits(&two)?);
+        // a window of the samples (the cost volume in slabs) is the same samples bit for bit
+        let window = 37..251;
+        let part = sweep_variance_appended_window(
+            &features.as_tensor().detach(),
+            &tables,
+            scale.as_ref(),
+            &extra.as_tensor().narrow(1, window.start, window.len())?,
+            window.clone(),
+        )?;
+        assert_eq!(part.dims(), [1, window.len(), c + 1]);
+        assert_eq!(
+            bits(&part)?,
+            bits(&one.narrow(1, window.start, window.len())?)?
+        );
+        let past_end = sweep_variance_appended_window(
+            features.as_tensor(),
+            &tables,
+            scale.as_ref(),
+            &extra.as_tensor().narrow(1, 0, 10)?,
+            n - 5..n + 5,
+        )
+        .expect_err("a window past the samples")
+        .to_string();
+        assert!(
+            past_end.contains("window") && past_end.contains(&format!("{n} samples")),
+            "{past_end}"
+        );
         let (g1, g2) = (
             (one * &r)?.sum_all()?.backward()?,
             (two * &r)?.sum_all()?.backward()?,

@@ -1,7 +1,7 @@
 //! SSMODE's layers against independent computations: the cost volume samples features where
 //! the sweep geometry says (mean and variance across cameras) and its variance vanishes where
 //! every camera sees the same feature; the fused inference regression equals the training
-//! path.
+//! path; the aggregation fed the volume in slabs equals the aggregation of the whole volume.
 
 use crate::common::deep360_rig as rig;
 use candle_core::{Device, Tensor};
@@ -237,4 +237,82 @@ fn variance_volume_is_zero_where_every_camera_sees_the_same_feature() {
         far < 0.1 * near,
         "far sphere variance {far}, nearest {near}"
     );
+}
+
+/// Inference feeds the aggregation the cost volume a few spheres at a time
+/// (`CostAggregation::forward_slabs`): with slabs that split the spheres unevenly, at entry
+/// strides 2 and 1 (whose last slab needs the zero padding appended), every hourglass output
+/// equals the whole volume's bit for bit, and the slabs asked for cover every sphere.
+#[test]
+fn aggregation_in_slabs_equals_the_whole_volume() {
+    use candle_core::DType;
+    use candle_nn::{VarBuilder, VarMap};
+    use mode360::model::hourglass::{CostAggregation, SLAB_OUTPUT_SPHERES};
+    for (stride, spheres) in [(2, 40), (1, 24)] {
+        let cfg = SsmodeConfig {
+            spheres,
+            aggregation_stride: stride,
+            ..SsmodeConfig::tiny_zncc()
+        };
+        assert!(
+            spheres / stride > 2 * SLAB_OUTPUT_SPHERES,
+            "three slabs at least"
+        );
+        let varmap = VarMap::new();
+        CostAggregation::new(
+            &cfg,
+            VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu),
+        )
+        .expect("aggregation");
+        // the same weights as plain tensors: both paths run the inference kernels
+        let weights = varmap
+            .data()
+            .lock()
+            .expect("varmap")
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+            .collect();
+        let vb = VarBuilder::from_tensors(weights, DType::F32, &Device::Cpu);
+        let aggregation = CostAggregation::new(&cfg, vb).expect("aggregation");
+        let dims = (
+            1,
+            spheres,
+            cfg.cost_height(),
+            cfg.cost_width(),
+            cfg.cost_volume_channels(),
+        );
+        let volume = Tensor::rand(0f32, 1f32, dims, &Device::Cpu).expect("volume");
+        let whole = aggregation
+            .forward(&volume, cfg.seam_pad_cells)
+            .expect("whole");
+        let mut asked = vec![0usize; spheres];
+        let slabs = aggregation
+            .forward_slabs(
+                spheres,
+                |range| {
+                    range.clone().for_each(|d| asked[d] += 1);
+                    volume.narrow(1, range.start, range.len())?.contiguous()
+                },
+                cfg.seam_pad_cells,
+            )
+            .expect("slabs");
+        assert!(asked.iter().all(|&k| k >= 1), "stride {stride}: {asked:?}");
+        assert_eq!(whole.len(), slabs.len());
+        let bits = |t: &Tensor| -> Vec<u32> {
+            t.flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap()
+                .into_iter()
+                .map(f32::to_bits)
+                .collect()
+        };
+        for (a, b) in whole.iter().zip(&slabs) {
+            assert_eq!(a.dims(), b.dims(), "stride {stride}");
+            assert!(
+                bits(a) == bits(b),
+                "stride {stride}: slabs differ from the whole volume"
+            );
+        }
+    }
 }

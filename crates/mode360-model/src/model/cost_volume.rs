@@ -21,8 +21,8 @@ use candle_core::{Result, Tensor};
 use super::config::CostKind;
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{
-    append_channels, sweep_variance, sweep_variance_appended, sweep_variance_visible, table_sample,
-    OpsError, SampleTable,
+    append_channels, has_custom_kernels, sweep_variance, sweep_variance_appended,
+    sweep_variance_appended_window, sweep_variance_visible, table_sample, OpsError, SampleTable,
 };
 
 /// Builds the `(B, D, H, W, C')` cost volume from the cameras' features stacked camera-major,
@@ -132,6 +132,40 @@ pub fn cost_volume_appended(
     let volume = sweep_variance_appended(features, &tables, sampling.view_scale(), &flat)?;
     let channels = volume.dim(2)?;
     volume.reshape((b, d, h, w, channels))
+}
+
+/// Whether [`cost_volume_appended_spheres`] serves `features (M B, H, W, C)` and `kind`: a
+/// variance-only volume on the CPU's fused kernel (4, 8 or 16 channels).
+pub fn appended_in_slabs(features: &Tensor, kind: CostKind) -> bool {
+    kind == CostKind::Variance
+        && has_custom_kernels(features.device())
+        && features
+            .dims()
+            .last()
+            .is_some_and(|c| matches!(c, 4 | 8 | 16))
+}
+
+/// The spheres `spheres` of [`cost_volume_appended`]'s volume, `(B, len, H, W, C' + 1)`, bit for
+/// bit, from `extra (B, D, H, W, 1)` of every sphere; inference only, where
+/// [`appended_in_slabs`] says so.
+pub fn cost_volume_appended_spheres(
+    features: &Tensor,
+    sampling: &SweepSampling,
+    extra: &Tensor,
+    spheres: std::ops::Range<usize>,
+) -> Result<Tensor> {
+    let (b, _, h, w, _) = extra.dims5()?;
+    let tables = sweep_tables(sampling)?;
+    let count = spheres.len();
+    // (B, len, H, W, 1) -> (B, len H W, 1) -> (B, len H W, C + 1) -> (B, len, H, W, C + 1)
+    let flat = extra
+        .narrow(1, spheres.start, count)?
+        .reshape((b, count * h * w, 1))?;
+    let window = spheres.start * h * w..spheres.end * h * w;
+    let volume =
+        sweep_variance_appended_window(features, &tables, sampling.view_scale(), &flat, window)?;
+    let channels = volume.dim(2)?;
+    volume.reshape((b, count, h, w, channels))
 }
 
 /// Every camera's sweep table of `sampling`, in rig order.

@@ -21,6 +21,10 @@ pub const KERNEL_3D: usize = 3;
 const PAD: [usize; 3] = [1, 1, 1];
 const UNIT: [usize; 3] = [1, 1, 1];
 const STRIDE2: [usize; 3] = [2, 2, 2];
+/// Output spheres of the entry convolution per slab in [`CostAggregation::forward_slabs`]: at
+/// stride 2, 17 spheres of the cost volume at a time (20 MiB of the 9-channel volume at 256
+/// against 108 MiB for all 96).
+pub const SLAB_OUTPUT_SPHERES: usize = 8;
 /// `op = 2 D - (2 D - 1)` for an exact x2 upsampling of even targets.
 const OUTPUT_PADDING: [usize; 3] = [1, 1, 1];
 
@@ -72,6 +76,18 @@ impl Conv3d {
             return conv3d_fused(x, &self.weight, stride, PAD, epilogue);
         }
         Self::finish(self.forward(x, stride)?, residual, relu)
+    }
+
+    /// Inference's `relu(forward(x, stride))` with `padding` instead of 1 on every side (the
+    /// fused kernel; for [`CostAggregation::forward_slabs`], whose slabs carry their own
+    /// neighbouring spheres).
+    fn forward_relu_padded(
+        &self,
+        x: &Tensor,
+        stride: [usize; 3],
+        padding: [usize; 3],
+    ) -> Result<Tensor> {
+        conv3d_fused(x, &self.weight, stride, padding, self.epilogue(None, true))
     }
 
     /// `relu?(forward_up(x) + residual)`, by the fused kernel when nothing is tracked.
@@ -203,6 +219,57 @@ impl CostAggregation {
     pub fn forward(&self, volume: &Tensor, seam_pad_cells: usize) -> Result<Vec<Tensor>> {
         // (B, D/s, H/s, W/s, Ch)
         let x = self.dres0[0].forward_then(volume, self.entry_stride, None, true)?;
+        self.after_entry(x, seam_pad_cells)
+    }
+
+    /// [`Self::forward`] for inference without the whole volume: `slab(range)` returns the
+    /// volume's spheres `range` `(B, len, H, W, C')`, and the entry convolution runs on a few
+    /// output spheres at a time, each slab with the neighbouring spheres its kernel reaches
+    /// (the first with the zero padding of the whole), so the result is the whole volume's bit
+    /// for bit and at most [`SLAB_OUTPUT_SPHERES`] output spheres' worth of volume is held.
+    pub fn forward_slabs(
+        &self,
+        spheres: usize,
+        mut slab: impl FnMut(std::ops::Range<usize>) -> Result<Tensor>,
+        seam_pad_cells: usize,
+    ) -> Result<Vec<Tensor>> {
+        let s = self.entry_stride[0];
+        // output spheres of the entry convolution: (D + 2 - 3) / s + 1
+        let out_spheres = (spheres + 2 * PAD[0] - KERNEL_3D) / s + 1;
+        let mut parts = Vec::new();
+        let mut first = 0;
+        while first < out_spheres {
+            let end = (first + SLAB_OUTPUT_SPHERES).min(out_spheres);
+            // input spheres the kernel reaches: (first s - 1) ..= ((end - 1) s + 1)
+            let front_pad = first * s < PAD[0];
+            let lo = (first * s).saturating_sub(PAD[0]);
+            let hi = ((end - 1) * s + PAD[0] + 1).min(spheres);
+            let back_pad = (end - 1) * s + PAD[0] + 1 > spheres;
+            let mut x = slab(lo..hi)?;
+            if back_pad && !front_pad {
+                // the last slab's missing neighbour: the zero padding of the whole
+                let (b, _, h, w, c) = x.dims5()?;
+                let zero = Tensor::zeros((b, 1, h, w, c), x.dtype(), x.device())?;
+                x = Tensor::cat(&[&x, &zero], 1)?;
+            }
+            // a symmetric padding of 1 where the slab starts at the volume's front (any
+            // output it adds past the slab's end is dropped)
+            let pad_d = usize::from(front_pad);
+            let padding = [pad_d, PAD[1], PAD[2]];
+            // (B, end - first (+ extra), H/s, W/s, Ch)
+            let y = self.dres0[0].forward_relu_padded(&x, self.entry_stride, padding)?;
+            drop(x);
+            parts.push(y.narrow(1, 0, end - first)?);
+            first = end;
+        }
+        // (B, D/s, H/s, W/s, Ch)
+        let x = Tensor::cat(&parts, 1)?;
+        drop(parts);
+        self.after_entry(x, seam_pad_cells)
+    }
+
+    /// Everything after the entry convolution `x (B, D/s, H/s, W/s, Ch)`.
+    fn after_entry(&self, x: Tensor, seam_pad_cells: usize) -> Result<Vec<Tensor>> {
         // (B, D/s, H/s, (W + 2 p)/s, Ch)
         let x = wrap_longitude(&x, seam_pad_cells / self.entry_stride[2])?;
         let x = self.dres0[1].forward_then(&x, UNIT, None, true)?;

@@ -18,7 +18,9 @@ use candle_core::{Result, Tensor};
 use candle_nn::VarBuilder;
 
 use super::config::{SsmodeConfig, MIN_CAMERAS};
-use super::cost_volume::{cost_volume, cost_volume_appended};
+use super::cost_volume::{
+    appended_in_slabs, cost_volume, cost_volume_appended, cost_volume_appended_spheres,
+};
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
@@ -100,6 +102,33 @@ impl StageProfiler {
         self.stages.push(StageTiming {
             stage,
             elapsed: now - self.last,
+            flops: flops.saturating_sub(self.flops_at_last),
+        });
+        self.last = now;
+        self.flops_at_last = flops;
+    }
+
+    /// [`Self::mark`] on `profiler` when there is one.
+    fn mark_on(profiler: &mut Option<&mut StageProfiler>, stage: &'static str) {
+        if let Some(p) = profiler.as_deref_mut() {
+            p.mark(stage);
+        }
+    }
+
+    /// Ends two stages that ran interleaved since the previous mark: `first` took
+    /// `first_elapsed` of the time and no counted FLOPs, `second` the rest.
+    fn mark_split(&mut self, first: &'static str, first_elapsed: Duration, second: &'static str) {
+        let now = Instant::now();
+        let first_elapsed = first_elapsed.min(now - self.last);
+        let flops = flop_count();
+        self.stages.push(StageTiming {
+            stage: first,
+            elapsed: first_elapsed,
+            flops: 0,
+        });
+        self.stages.push(StageTiming {
+            stage: second,
+            elapsed: now - self.last - first_elapsed,
             flops: flops.saturating_sub(self.flops_at_last),
         });
         self.last = now;
@@ -263,17 +292,39 @@ impl Ssmode {
         train: bool,
         mut profiler: Option<&mut StageProfiler>,
     ) -> Result<SsmodeOutput> {
-        let mut mark = |stage: &'static str| {
-            if let Some(p) = profiler.as_deref_mut() {
-                p.mark(stage);
-            }
-        };
         self.check_images(images, sampling)?;
         // (N B, H, W, 3)
         let stacked = Tensor::cat(images, 0)?;
         // (N B, h, w, Cf)
         let features = self.feature.forward(&stacked, sampling.sphere_conv())?;
-        mark("feature");
+        StageProfiler::mark_on(&mut profiler, "feature");
+        if !train && self.cfg.photometric_cost && appended_in_slabs(&features, self.cfg.cost) {
+            // inference never holds the whole volume: the entry convolution takes it a few
+            // spheres at a time (the same numbers; 108 MiB less at 256)
+            let sweep_start = Instant::now();
+            // (B, D, h, w, 1)
+            let photometric = photometric_cost(images, sampling)?;
+            let mut sweep_time = sweep_start.elapsed();
+            let slab = |spheres| {
+                let start = Instant::now();
+                // (B, len, h, w, C' + 1)
+                let volume =
+                    cost_volume_appended_spheres(&features, sampling, &photometric, spheres);
+                sweep_time += start.elapsed();
+                volume
+            };
+            // K x (B, D/s, h/s, (w + 2 p)/s, Ch)
+            let aggregated =
+                self.aggregation
+                    .forward_slabs(self.cfg.spheres, slab, self.cfg.seam_pad_cells)?;
+            drop(features);
+            if let Some(p) = profiler.as_deref_mut() {
+                p.mark_split("cost_volume", sweep_time, "aggregation");
+            }
+            let out = self.regress_last(aggregated, sampling)?;
+            StageProfiler::mark_on(&mut profiler, "regression");
+            return Ok(out);
+        }
         // (B, D, h, w, C'), or (B, D, h, w, C' + 1) with the photometric cost channel written
         // beside the views' variance in one pass
         let volume = if self.cfg.photometric_cost {
@@ -284,14 +335,14 @@ impl Ssmode {
             cost_volume(&features, sampling, self.cfg.cost)?
         };
         drop(features);
-        mark("cost_volume");
+        StageProfiler::mark_on(&mut profiler, "cost_volume");
         // K x (B, D/s, h/s, (w + 2 p)/s, Ch), p columns from across the longitude seam each side
         let aggregated = self.aggregation.forward(&volume, self.cfg.seam_pad_cells)?;
         drop(volume);
-        mark("aggregation");
+        StageProfiler::mark_on(&mut profiler, "aggregation");
         if !train {
             let out = self.regress_last(aggregated, sampling)?;
-            mark("regression");
+            StageProfiler::mark_on(&mut profiler, "regression");
             return Ok(out);
         }
         let mut stages = Vec::with_capacity(aggregated.len());
@@ -317,7 +368,7 @@ impl Ssmode {
             what: "no hourglass stages".to_string(),
         })?;
         let confidence = confidence(&probabilities)?;
-        mark("regression");
+        StageProfiler::mark_on(&mut profiler, "regression");
         Ok(SsmodeOutput {
             stages,
             inverse_depth_stages,

@@ -50,7 +50,8 @@ pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d
 pub use fused::{conv3d_fused, conv_transpose3d_x2_fused, is_inference, Epilogue};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear};
 pub use sweep::{
-    sweep_variance, sweep_variance_appended, sweep_variance_visible, view_scale, MIN_VIEWS,
+    sweep_variance, sweep_variance_appended, sweep_variance_appended_window,
+    sweep_variance_visible, view_scale, MIN_VIEWS,
 };
 pub use table::table_sample;
 pub use types::{

@@ -39,6 +39,11 @@ struct SweepShape {
     channels: usize,
     /// Per sample `1 / views` (0 below two views); `None`: every camera sees every sample.
     view_scale: Option<Arc<[f32]>>,
+    /// The first of the tables' samples computed: the output's sample `j` is the tables'
+    /// sample `first + j` (0 but for [`sweep_variance_appended_window`]).
+    first: usize,
+    /// Samples computed: the tables' length, or the window's.
+    samples: usize,
 }
 
 impl SweepShape {
@@ -56,7 +61,12 @@ impl SweepShape {
     }
 
     fn samples(&self) -> usize {
-        self.tables.first().map_or(0, SampleTable::len)
+        self.samples
+    }
+
+    /// Whether the output holds every sample of the tables (the gradients need it).
+    fn is_whole(&self) -> bool {
+        self.first == 0 && self.samples == self.tables.first().map_or(0, SampleTable::len)
     }
 
     /// `v_c[b, n, :]` into `out`.
@@ -65,7 +75,7 @@ impl SweepShape {
         let c = self.channels;
         let table = &self.tables[cam];
         let base = (cam * self.batch + b) * self.pixels * c;
-        let BilinearTaps { index, weight } = table.taps(n);
+        let BilinearTaps { index, weight } = table.taps(self.first + n);
         let p = |k: usize| &f[base + index[k] as usize * c..base + (index[k] as usize + 1) * c];
         let (p0, p1, p2, p3) = (p(0), p(1), p(2), p(3));
         for (j, o) in out.iter_mut().enumerate() {
@@ -186,7 +196,7 @@ impl SweepShape {
             .or(var_t.as_deref())
             .map_or(0, <[f32]>::len);
         for j in 0..len / C {
-            let n = t * SAMPLES_PER_TASK + j;
+            let n = self.first + t * SAMPLES_PER_TASK + j;
             let (mut m, mut sq) = ([0f32; C], [0f32; C]);
             for (plane, table) in planes.iter().zip(tables) {
                 let BilinearTaps {
@@ -230,6 +240,7 @@ impl SweepShape {
             let mut var_t = var_t;
             for (j, m) in mean_t.chunks_mut(c).enumerate() {
                 let n = t * SAMPLES_PER_TASK + j;
+                let scale_n = self.first + n;
                 m.fill(0.0);
                 sq.fill(0.0);
                 for cam in 0..self.cameras() {
@@ -239,7 +250,7 @@ impl SweepShape {
                         *s += x * x;
                     }
                 }
-                let inv_m = self.scale(n);
+                let inv_m = self.scale(scale_n);
                 for x in m.iter_mut() {
                     *x *= inv_m;
                 }
@@ -354,6 +365,47 @@ pub fn sweep_variance_appended(
     }
 }
 
+/// [`sweep_variance_appended`] over the tables' samples `window` only, `extra (B, len, 1)` ->
+/// `(B, len, C + 1)`: sample `j` of the result is sample `window.start + j` of the whole op's,
+/// bit for bit. For inference in slabs (the cost volume a few spheres at a time, so that the
+/// whole volume is never held): it has no gradient, and it needs the fused CPU kernel
+/// (4, 8 or 16 channels): elsewhere it is an error, and [`sweep_variance_appended`] serves.
+pub fn sweep_variance_appended_window(
+    features: &Tensor,
+    tables: &[SampleTable],
+    view_scale: Option<&Arc<[f32]>>,
+    extra: &Tensor,
+    window: std::ops::Range<usize>,
+) -> Result<Tensor> {
+    const OP: &str = "sweep_variance_appended_window";
+    let n = tables.first().map_or(0, SampleTable::len);
+    let shape = sweep_shape(features, tables, view_scale)?
+        .filter(|sh| matches!(sh.channels, 4 | 8 | 16))
+        .ok_or_else(|| OpsError::Shape {
+            op: OP,
+            what: "needs the fused CPU kernel (4, 8 or 16 channels on the CPU)".to_string(),
+        })?;
+    if window.start > window.end || window.end > n || extra.dims() != [shape.batch, window.len(), 1]
+    {
+        return Err(OpsError::Shape {
+            op: OP,
+            what: format!(
+                "window {window:?} of {n} samples with extra {:?}",
+                extra.dims()
+            ),
+        }
+        .into());
+    }
+    let shape = SweepShape {
+        first: window.start,
+        samples: window.len(),
+        ..shape
+    };
+    features
+        .contiguous()?
+        .apply_op2(&extra.contiguous()?, SweepVarianceAppendOp(shape))
+}
+
 /// The kernels' shapes after checking the arguments; `None` where the device-generic path
 /// runs instead (a GPU, or composites forced on the CPU).
 fn sweep_shape(
@@ -401,6 +453,8 @@ fn sweep_shape(
         image: [dims[1], dims[2]],
         channels: dims[3],
         view_scale: view_scale.cloned(),
+        first: 0,
+        samples,
     }))
 }
 
@@ -503,6 +557,13 @@ impl CustomOp2 for SweepVarianceAppendOp {
         _out: &Tensor,
         grad_out: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        if !self.0.is_whole() {
+            return Err(OpsError::Shape {
+                op: "sweep_variance_appended_window",
+                what: "a window of the sweep has no gradient (inference only)".to_string(),
+            }
+            .into());
+        }
         let c = self.0.channels;
         let g_var = grad_out.narrow(2, 0, c)?.contiguous()?;
         let g_features = features

@@ -304,7 +304,7 @@ enum TapStore {
     /// Any taps: `4 N` pixel indices into `H·W` and `4 N` weights, sample-major (32 bytes a
     /// sample).
     Flat { index: Vec<u32>, weight: Vec<f32> },
-    /// Bilinear samples of one ERP grid, expanded on read (12 bytes a sample): the sweep's
+    /// Bilinear samples of one ERP grid, expanded on read (8 bytes a sample): the sweep's
     /// tables, millions of samples per camera.
     Erp {
         grid: ErpGrid,
@@ -359,7 +359,7 @@ impl SampleTable {
     }
 
     /// A table of bilinear samples of `grid`, one output sample per element of `samples`, in
-    /// order: the same taps as [`Self::new`] of their [`ErpGrid::taps_of`], in 12 bytes a
+    /// order: the same taps as [`Self::new`] of their [`ErpGrid::taps_of`], in 8 bytes a
     /// sample instead of 32.
     pub fn from_erp(grid: ErpGrid, samples: Vec<ErpSample>) -> Self {
         let min_pixels = samples
