@@ -356,7 +356,7 @@ fn sweep_variance_matches_reference(c: usize, masked: bool) {
     assert!(sweep_variance(features.as_tensor(), &bad).is_err());
 }
 
-/// The sweep's tables in compact form (12 bytes a sample: corner and fractions, expanded on
+/// The sweep's tables in compact form (8 bytes a sample: corner and fractions, expanded on
 /// read) hold exactly the taps of the flat form (32 bytes), unseen fisheye samples included,
 /// and the ops give bit-identical results on either.
 #[test]
@@ -385,7 +385,7 @@ fn compact_sweep_tables_equal_the_flat_ones_bit_for_bit() -> Result<(), Box<dyn 
             assert_eq!(f.taps(n), c.taps(n), "camera {cam}, sample {n}");
             unseen += usize::from(c.taps(n).weight == [0.0; 4]);
         }
-        assert_eq!((f.tap_bytes(), c.tap_bytes()), (32 * f.len(), 12 * f.len()));
+        assert_eq!((f.tap_bytes(), c.tap_bytes()), (32 * f.len(), 8 * f.len()));
         flat.push(f);
         compact.push(c);
     }

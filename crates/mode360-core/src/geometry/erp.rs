@@ -140,14 +140,16 @@ impl ErpGrid {
     }
 
     /// Bilinear taps at a continuous pixel position: columns wrap around the longitude seam,
-    /// rows clamp at the poles. The same as [`Self::taps_of`] of [`Self::bilinear_sample`].
+    /// rows clamp at the poles. [`Self::taps_of`] of [`Self::bilinear_sample`] are the same
+    /// taps with the offsets rounded to [`ErpSample::FRACTION_STEPS`].
     pub fn bilinear_taps(&self, p: PixelCoord) -> BilinearTaps {
-        self.taps_of(self.bilinear_sample(p))
+        let (u0, v0, fu, fv) = self.corner_and_offsets(p);
+        self.corner_taps(u0, v0, fu, fv)
     }
 
-    /// The bilinear sample at a continuous pixel position in compact form: the top-left
-    /// corner `(floor(u) mod W, floor(clamp(v, 0, H - 1)))` and the fractional offsets.
-    pub fn bilinear_sample(&self, p: PixelCoord) -> ErpSample {
+    /// The top-left corner `(floor(u) mod W, floor(clamp(v, 0, H - 1)))` of a continuous
+    /// pixel position and its fractional offsets in `[0, 1)`.
+    fn corner_and_offsets(&self, p: PixelCoord) -> (u32, u32, f32, f32) {
         let (w, h) = (self.width as i64, self.height as i64);
         let u0 = p.u.floor();
         let fu = (p.u - u0) as f32;
@@ -155,12 +157,19 @@ impl ErpGrid {
         let v_clamped = p.v.clamp(0.0, (h - 1) as f64);
         let v0 = v_clamped.floor();
         let fv = (v_clamped - v0) as f32;
-        // u0 < W and v0 < H, both at most MAX_ERP_WIDTH < 2^16
+        // 0 <= u0 < W and 0 <= v0 < H, both at most MAX_ERP_WIDTH < 2^16
+        (u0 as u32, v0 as u32, fu, fv)
+    }
+
+    /// The bilinear sample at a continuous pixel position in compact form: the top-left
+    /// corner and the fractional offsets rounded to `1 / FRACTION_STEPS` of a pixel.
+    pub fn bilinear_sample(&self, p: PixelCoord) -> ErpSample {
+        let (u0, v0, fu, fv) = self.corner_and_offsets(p);
         ErpSample {
             u0: u0 as u16,
             v0: v0 as u16,
-            fu,
-            fv,
+            fu: ErpSample::quantize(fu),
+            fv: ErpSample::quantize(fv),
         }
     }
 
@@ -172,40 +181,61 @@ impl ErpGrid {
         if !s.is_seen() {
             return BilinearTaps::UNSEEN;
         }
+        self.corner_taps(
+            u32::from(s.u0),
+            u32::from(s.v0),
+            f32::from(s.fu) * ErpSample::FRACTION_STEP,
+            f32::from(s.fv) * ErpSample::FRACTION_STEP,
+        )
+    }
+
+    #[inline(always)]
+    fn corner_taps(&self, u0: u32, v0: u32, fu: f32, fv: f32) -> BilinearTaps {
         let (w, h) = (self.width as u32, self.height as u32);
-        let (u0, v0) = (u32::from(s.u0), u32::from(s.v0));
         let u1 = if u0 + 1 == w { 0 } else { u0 + 1 };
         let v1 = (v0 + 1).min(h - 1);
         let idx = |u: u32, v: u32| v * w + u;
-        BilinearTaps::from_corners(
-            [idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)],
-            s.fu,
-            s.fv,
-        )
+        BilinearTaps::from_corners([idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)], fu, fv)
     }
 }
 
-/// A bilinear sample of an [`ErpGrid`] in 12 bytes instead of [`BilinearTaps`]' 32: the
-/// top-left corner and the fractional offsets, expanded by [`ErpGrid::taps_of`] (the sweep's
-/// tables hold millions of samples per camera).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// A bilinear sample of an [`ErpGrid`] in 8 bytes instead of [`BilinearTaps`]' 32: the
+/// top-left corner and the fractional offsets in steps of `1 / FRACTION_STEPS` of a pixel,
+/// expanded by [`ErpGrid::taps_of`] (the sweep's tables hold millions of samples per camera;
+/// 99 MiB for the Deep360 rig at 256 against 148 MiB with f32 offsets).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ErpSample {
     /// Column of the top-left corner; `u16::MAX` for [`Self::UNSEEN`].
     u0: u16,
     /// Row of the top-left corner.
     v0: u16,
-    fu: f32,
-    fv: f32,
+    /// Offset right of the corner, in `1 / FRACTION_STEPS` of a pixel.
+    fu: u16,
+    /// Offset below the corner, likewise.
+    fv: u16,
 }
 
 impl ErpSample {
+    /// Steps per pixel of the offsets: a sample lands within `1 / (2 FRACTION_STEPS)` of a
+    /// pixel (7.6e-6) of its exact position (`1 / FRACTION_STEPS` for an offset that rounds
+    /// to 1, kept at the last step), each weight within 3.1e-5 of the exact one.
+    pub const FRACTION_STEPS: u32 = 1 << 16;
+    /// One step of the offsets, in pixels.
+    const FRACTION_STEP: f32 = 1.0 / Self::FRACTION_STEPS as f32;
+
     /// A sample the camera does not see: it expands to [`BilinearTaps::UNSEEN`].
     pub const UNSEEN: Self = Self {
         u0: u16::MAX,
         v0: 0,
-        fu: 0.0,
-        fv: 0.0,
+        fu: 0,
+        fv: 0,
     };
+
+    /// An offset in `[0, 1)` to the nearest step (the last step where it rounds to 1).
+    fn quantize(f: f32) -> u16 {
+        let steps = (f * Self::FRACTION_STEPS as f32).round();
+        steps.clamp(0.0, f32::from(u16::MAX)) as u16
+    }
 
     /// Whether the sample has taps (is not [`Self::UNSEEN`]); widths stay below `u16::MAX`
     /// ([`MAX_ERP_WIDTH`]).
@@ -272,6 +302,40 @@ impl BilinearTaps {
 mod tests {
     use super::*;
     use approx::assert_relative_eq;
+
+    /// The compact sample rounds the offsets to 1/65536 of a pixel: the same corners as the
+    /// exact taps and weights within 3.1e-5 of them (offsets next to 1 included), summing to 1.
+    #[test]
+    fn compact_samples_round_the_offsets_only() {
+        let grid = ErpGrid::new(64).unwrap();
+        let mut worst = 0f32;
+        for k in 0..4000 {
+            let t = k as f64;
+            let p = PixelCoord {
+                u: (t * 0.618_033_988_7).fract() * 70.0 - 3.0,
+                v: (t * 0.414_213_562_3).fract() * 34.0 - 1.0,
+            };
+            let (exact, compact) = (grid.bilinear_taps(p), grid.taps_of(grid.bilinear_sample(p)));
+            assert_eq!(exact.index, compact.index, "{p:?}");
+            for (a, b) in exact.weight.iter().zip(&compact.weight) {
+                worst = worst.max((a - b).abs());
+            }
+            assert!((compact.weight.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        let near_one = PixelCoord {
+            u: 5.0 - 1e-7,
+            v: 3.0 - 1e-7,
+        };
+        let (exact, compact) = (
+            grid.bilinear_taps(near_one),
+            grid.taps_of(grid.bilinear_sample(near_one)),
+        );
+        assert_eq!(exact.index, compact.index);
+        for (a, b) in exact.weight.iter().zip(&compact.weight) {
+            worst = worst.max((a - b).abs());
+        }
+        assert!(worst > 0.0 && worst < 3.1e-5, "worst weight error {worst}");
+    }
 
     #[test]
     fn rejects_odd_or_tiny_width() {

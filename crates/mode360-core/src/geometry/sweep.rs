@@ -436,7 +436,8 @@ mod tests {
             }
         }
         assert!(unseen > 0, "the fisheye rig should leave samples unseen");
-        assert!(worst < 1e-5, "largest tap weight difference {worst}");
+        // the tables round the offsets to 1/65536 of a pixel (ErpSample::FRACTION_STEPS)
+        assert!(worst < 4e-5, "largest tap weight difference {worst}");
         Ok(())
     }
 
