@@ -10,7 +10,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use mode360::estimator::edge_refine::{rgb_on_grid, weighted_median_refine, EdgeRefineParams};
 use mode360::estimator::guided_upsample::{grey_on_grid, guided_upsample};
 use mode360::geometry::{ErpGrid, Rig};
-use mode360::model::config::DEFAULT_REFINE_RADIUS_CELLS;
+use mode360::model::readout::DEFAULT_REFINE_RADIUS_CELLS;
 use mode360::synth::{SynthConfig, SynthRenderer};
 
 const RIG_PATH: &str = concat!(

@@ -1,5 +1,5 @@
 """Reading and writing safetensors files without third-party packages, for
-tools/average_weights.py and models/set_readout.py: the 8-byte little-endian header length, the
+tools/average_weights.py: the 8-byte little-endian header length, the
 JSON header (padded with spaces to a multiple of 8 bytes), then the tensor bytes."""
 import json
 import os

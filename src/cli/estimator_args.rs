@@ -4,7 +4,7 @@
 use clap::Args;
 use mode360_estimator::estimator::psmode::PairChoice;
 use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
-use mode360_model::model::ComputeDevice;
+use mode360_model::model::{ComputeDevice, ReadoutOverrides};
 use std::path::PathBuf;
 
 /// Which depth estimator a command runs, flattened into its arguments.
@@ -35,6 +35,19 @@ pub struct EstimatorArgs {
     /// within 30 m and confident (at least 0.8). A second forward pass at that width. Off by default.
     #[arg(long)]
     pub near_pass_width: Option<usize>,
+    /// SSMODE's far-plane test: a pixel whose probability on the far field is at least this
+    /// reads as out of range (above 1: off). Default: the weights file's, else 0.5.
+    #[arg(long)]
+    pub far_plane_probability: Option<f64>,
+    /// SSMODE's far field: hypotheses within this many cost-volume cells of parallax from the
+    /// far plane count as the far plane (0: the far plane alone). Default: the weights
+    /// file's, else 0.25.
+    #[arg(long)]
+    pub far_parallax_cells: Option<f64>,
+    /// SSMODE's edge refinement: radius in network cells of the confidence-weighted median
+    /// before upsampling (0: off; at most 8). Default: the weights file's, else 2.
+    #[arg(long)]
+    pub refine_radius_cells: Option<usize>,
 }
 
 fn parse_pairs(text: &str) -> Result<PairChoice, String> {
@@ -48,6 +61,11 @@ impl EstimatorArgs {
             pairs: self.pairs.clone(),
             fusion_weights: self.fusion_weights.clone(),
             near_pass_width: self.near_pass_width,
+            readout: ReadoutOverrides {
+                far_plane_probability: self.far_plane_probability,
+                far_parallax_cells: self.far_parallax_cells,
+                refine_radius_cells: self.refine_radius_cells,
+            },
             ..EstimatorSpec::with_weights(self.estimator, self.weights.clone())
                 .on_device(self.device)
         }

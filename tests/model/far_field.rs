@@ -7,7 +7,7 @@ use mode360::estimator::ssmode::{default_weights_path, SsmodeEstimator};
 use mode360::estimator::DepthEstimator;
 use mode360::geometry::{ErpGrid, Rig};
 use mode360::metrics::depth_metrics;
-use mode360::model::{load_weights, Ssmode, SsmodeConfig};
+use mode360::model::{load_weights_and_readout, Readout, Ssmode};
 use mode360::synth::{SynthConfig, SynthRenderer};
 
 /// A held-out world (top bit set; not the issue-19 rows' seed) and one frame along its street.
@@ -25,15 +25,21 @@ fn a_short_baselines_sky_reads_the_far_plane() {
         "/models/eval_rigs/rig_vertical_pair.yaml"
     ))
     .expect("vertical pair rig");
-    let (shipped, vb) = load_weights(default_weights_path(), &Device::Cpu).expect("weights");
-    assert!(
-        shipped.far_parallax_cells > 0.0,
-        "the shipped readout has no far field"
+    let (shipped, readout, vb) =
+        load_weights_and_readout(default_weights_path(), &Device::Cpu).expect("weights");
+    assert_eq!(
+        readout,
+        Readout::default(),
+        "the shipped file's readout is the default"
     );
-    let far_plane_alone = SsmodeConfig {
+    assert!(
+        readout.far_parallax_cells > 0.0,
+        "the default readout has no far field"
+    );
+    let far_plane_alone = Readout {
         far_parallax_cells: 0.0,
         far_plane_probability: 0.8,
-        ..shipped.clone()
+        ..readout
     };
     let renderer = SynthRenderer::new(SynthConfig {
         seed: WORLD_SEED,
@@ -54,8 +60,10 @@ fn a_short_baselines_sky_reads_the_far_plane() {
     );
     let grid = ErpGrid::new(shipped.width).expect("grid");
     let mut scores = Vec::new();
-    for cfg in [&shipped, &far_plane_alone] {
-        let model = Ssmode::new(cfg, vb.clone()).expect("network");
+    for readout in [readout, far_plane_alone] {
+        let model = Ssmode::new(&shipped, vb.clone())
+            .and_then(|m| m.with_readout(readout).map_err(candle_core::Error::wrap))
+            .expect("network");
         let mut estimator = SsmodeEstimator::from_model(model, "shipped weights");
         let out = estimator
             .estimate(&rig, &frame.images, grid)
@@ -69,7 +77,7 @@ fn a_short_baselines_sky_reads_the_far_plane() {
         let all = depth_metrics(range, &gt.data, shipped.max_depth_m).expect("metrics");
         eprintln!(
             "far_parallax_cells {}: sky δ1 {sky_pct:.1} %, δ1 {:.1} %",
-            cfg.far_parallax_cells, all.delta1_pct
+            readout.far_parallax_cells, all.delta1_pct
         );
         scores.push((sky_pct, all.delta1_pct));
     }

@@ -129,7 +129,8 @@ fn compact_weights_beat_the_photometric_sweep_on_held_out_frames() {
     let mut ssmode = SsmodeEstimator::load(path).expect("shipped compact weights");
     let cfg = ssmode.config().clone();
     assert_eq!((cfg.name.as_str(), cfg.width), ("compact", 256));
-    assert_eq!(cfg.far_plane_probability, 0.8);
+    // the readout it was tuned with, recorded in the file before the readout was a setting
+    assert_eq!(ssmode.model().readout().far_plane_probability, 0.8);
     let mut photometric = PhotometricSweep::new(PhotometricConfig::default()).unwrap();
     let rig = rig();
     let grid = ErpGrid::new(cfg.width).unwrap();
@@ -185,13 +186,15 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
     let mut coarse = SsmodeEstimator::load(&path).unwrap();
     let cfg = coarse.config().clone();
     let fine_width = 3 * cfg.width / 2;
-    let mut near = NearPassEstimator::load_on(&path, ComputeDevice::Cpu, fine_width).unwrap();
+    let mut near =
+        NearPassEstimator::load_on(&path, ComputeDevice::Cpu, fine_width, &Default::default())
+            .unwrap();
     assert_eq!(near.fine_width(), fine_width);
     let mut fine = SsmodeEstimator::load_at_width(&path, ComputeDevice::Cpu, fine_width).unwrap();
     // the far field stays the same angle: 1.5 times the cells at 1.5 times the width
     assert_eq!(
-        fine.config().far_parallax_cells,
-        1.5 * cfg.far_parallax_cells
+        fine.model().readout().far_parallax_cells,
+        1.5 * coarse.model().readout().far_parallax_cells
     );
     let rig = rig();
     let frame = SynthRenderer::new(SynthConfig {
@@ -245,4 +248,82 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
     };
     let err = spec.build().err().expect("photometric").to_string();
     assert!(err.contains("near_pass_width"), "{err}");
+}
+
+/// The readout is an estimator setting: `--refine-radius-cells 0` turns the edge refinement off
+/// and `--far-plane-probability` above 1 the far-plane test (sky read as finite ranges), each
+/// changing the shipped weights' output on a street; a setting out of range is an error naming
+/// it, and the other estimators refuse readout settings by name.
+#[test]
+fn readout_settings_change_what_the_shipped_weights_read() {
+    use mode360::estimator::{EstimatorKind, EstimatorSpec};
+    use mode360::model::ReadoutOverrides;
+    let rig = rig();
+    let frame = SynthRenderer::new(SynthConfig {
+        width: 256,
+        seed: 5,
+        ..SynthConfig::default()
+    })
+    .unwrap()
+    .render_frame(&rig, 10);
+    let grid = ErpGrid::new(256).unwrap();
+    let run = |readout: ReadoutOverrides| -> Vec<f32> {
+        let spec = EstimatorSpec {
+            readout,
+            ..EstimatorSpec::new(EstimatorKind::Ssmode)
+        };
+        let mut estimator = spec.build().expect("ssmode");
+        estimator
+            .estimate(&rig, &frame.images, grid)
+            .expect("estimate")
+            .range_m
+            .data
+    };
+    let default = run(ReadoutOverrides::default());
+    // the far-plane test gives the far plane itself, the soft-argmin only comes near it
+    let out_of_range = |r: &[f32]| r.iter().filter(|v| !v.is_finite() || **v >= 1000.0).count();
+    let unrefined = run(ReadoutOverrides {
+        refine_radius_cells: Some(0),
+        ..Default::default()
+    });
+    let changed = default
+        .iter()
+        .zip(&unrefined)
+        .filter(|(a, b)| (*a - *b).abs() > 1e-3 * a.abs().max(1.0))
+        .count();
+    assert!(
+        changed > 100,
+        "the edge refinement changed {changed} pixels"
+    );
+    let no_far_plane = run(ReadoutOverrides {
+        far_plane_probability: Some(1.5),
+        ..Default::default()
+    });
+    let (sky, sky_without) = (out_of_range(&default), out_of_range(&no_far_plane));
+    assert!(
+        sky > 1000 && sky_without * 10 < sky,
+        "out-of-range pixels {sky} with the far-plane test, {sky_without} without"
+    );
+    let bad = EstimatorSpec {
+        readout: ReadoutOverrides {
+            far_parallax_cells: Some(-1.0),
+            ..Default::default()
+        },
+        ..EstimatorSpec::new(EstimatorKind::Ssmode)
+    };
+    let e = bad.build().err().expect("negative far field").to_string();
+    assert!(e.contains("far_parallax_cells"), "{e}");
+    let sweep = EstimatorSpec {
+        readout: ReadoutOverrides {
+            refine_radius_cells: Some(0),
+            ..Default::default()
+        },
+        ..EstimatorSpec::new(EstimatorKind::Photometric)
+    };
+    let e = sweep
+        .build()
+        .err()
+        .expect("photometric readout")
+        .to_string();
+    assert!(e.contains("readout") && e.contains("photometric"), "{e}");
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::{ErpGrid, Rig};
-use mode360_model::model::ComputeDevice;
+use mode360_model::model::{ComputeDevice, ReadoutOverrides};
 
 pub mod calibration;
 pub mod calibration_drift;
@@ -151,7 +151,7 @@ impl std::str::FromStr for EstimatorKind {
 
 /// An estimator and, for SSMODE and PSMODE, its weights file (`None`: the shipped weights), the
 /// device its network runs on and, for PSMODE, the camera pairs it matches.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct EstimatorSpec {
     pub kind: EstimatorKind,
     pub weights: Option<PathBuf>,
@@ -167,6 +167,9 @@ pub struct EstimatorSpec {
     /// SSMODE's second pass for near obstacles at this input width (`None`: off;
     /// [`near_pass`]); an error at [`Self::build`] for the other estimators.
     pub near_pass_width: Option<usize>,
+    /// SSMODE's readout settings where they replace the weights file's (else the defaults);
+    /// an error at [`Self::build`] for the other estimators.
+    pub readout: ReadoutOverrides,
 }
 
 impl EstimatorSpec {
@@ -233,6 +236,16 @@ impl EstimatorSpec {
                 ),
             });
         }
+        if !self.readout.is_empty() && self.kind != EstimatorKind::Ssmode {
+            return Err(EstimatorError::BadConfig {
+                field: "readout".to_string(),
+                problem: format!(
+                    "the readout settings (far-plane probability, far field, edge refinement) \
+                     are SSMODE's (asked of {})",
+                    self.kind
+                ),
+            });
+        }
         match (self.kind, &self.weights) {
             (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
                 photometric::PhotometricConfig::default(),
@@ -247,11 +260,17 @@ impl EstimatorSpec {
             (EstimatorKind::Ssmode, weights) => {
                 let path = weights.clone().unwrap_or_else(ssmode::default_weights_path);
                 Ok(match self.near_pass_width {
-                    None => Box::new(ssmode::SsmodeEstimator::load_on(path, self.device)?),
+                    None => Box::new(ssmode::SsmodeEstimator::load_configured(
+                        path,
+                        self.device,
+                        None,
+                        &self.readout,
+                    )?),
                     Some(width) => Box::new(near_pass::NearPassEstimator::load_on(
                         path,
                         self.device,
                         width,
+                        &self.readout,
                     )?),
                 })
             }

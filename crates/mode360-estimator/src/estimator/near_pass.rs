@@ -24,7 +24,7 @@ use mode360_core::geometry::{ErpGrid, Rig};
 use super::lens_mask::LensMask;
 use super::ssmode::SsmodeEstimator;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use mode360_model::model::ComputeDevice;
+use mode360_model::model::{ComputeDevice, ReadoutOverrides};
 
 /// Farthest fine-pass range that may replace the coarse pass's, metres (chosen on the
 /// validation seed among 5, 10, 20 and 30 m: models/README.md, "Obstacles").
@@ -69,14 +69,17 @@ pub struct NearPassEstimator {
 }
 
 impl NearPassEstimator {
-    /// The weights at `path` on `device`, run at their trained width and at `fine_width`.
+    /// The weights at `path` on `device`, run at their trained width and at `fine_width`,
+    /// both passes read with `readout` ([`SsmodeEstimator::load_configured`]).
     pub fn load_on(
         path: impl AsRef<Path>,
         device: ComputeDevice,
         fine_width: usize,
+        readout: &ReadoutOverrides,
     ) -> Result<Self, EstimatorError> {
-        let coarse = SsmodeEstimator::load_on(path.as_ref(), device)?;
-        let fine = SsmodeEstimator::load_at_width(path.as_ref(), device, fine_width)?;
+        let path = path.as_ref();
+        let coarse = SsmodeEstimator::load_configured(path, device, None, readout)?;
+        let fine = SsmodeEstimator::load_configured(path, device, Some(fine_width), readout)?;
         Ok(Self { coarse, fine })
     }
 

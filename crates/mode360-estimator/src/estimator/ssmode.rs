@@ -21,7 +21,8 @@ pub use mode360_core::geometry::resample_erp;
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::shipped::{self, BuiltinFile};
 use mode360_model::model::{
-    input_tensor, load_weights, ComputeDevice, ModelError, Ssmode, SsmodeConfig, SweepSampling,
+    input_tensor, load_weights_and_readout, ComputeDevice, ModelError, ReadoutOverrides, Ssmode,
+    SsmodeConfig, SweepSampling,
 };
 
 /// The estimator's name on the command line and in reports.
@@ -106,7 +107,7 @@ impl SsmodeEstimator {
     /// Loads weights (with their config) from `path` onto `device`; an error naming CUDA and
     /// what was found when a CUDA device cannot be opened.
     pub fn load_on(path: impl AsRef<Path>, device: ComputeDevice) -> Result<Self, EstimatorError> {
-        Self::load_with(path.as_ref(), device, None)
+        Self::load_configured(path, device, None, &ReadoutOverrides::default())
     }
 
     /// [`Self::load_on`], the network run at input width `width` instead of the width it was
@@ -118,15 +119,20 @@ impl SsmodeEstimator {
         device: ComputeDevice,
         width: usize,
     ) -> Result<Self, EstimatorError> {
-        Self::load_with(path.as_ref(), device, Some(width))
+        Self::load_configured(path, device, Some(width), &ReadoutOverrides::default())
     }
 
-    fn load_with(
-        path: &Path,
+    /// [`Self::load_on`] at input width `width` when given ([`Self::load_at_width`]), with
+    /// the readout the file records (else the default, [`Readout::recorded`]) overridden by
+    /// `readout` where it says; its far field counted in cells of the width the network was
+    /// trained at. An error naming the setting when one is out of range.
+    pub fn load_configured(
+        path: impl AsRef<Path>,
         device: ComputeDevice,
         width: Option<usize>,
+        readout: &ReadoutOverrides,
     ) -> Result<Self, EstimatorError> {
-        let located = locate_weights(path);
+        let located = locate_weights(path.as_ref());
         let path = located.as_path();
         if !path.exists() {
             return Err(EstimatorError::BadConfig {
@@ -138,8 +144,10 @@ impl SsmodeEstimator {
             });
         }
         let device = device.open().map_err(model_err)?;
-        let (mut cfg, vb) = load_weights(path, &device).map_err(model_err)?;
+        let (mut cfg, recorded, vb) = load_weights_and_readout(path, &device).map_err(model_err)?;
+        let mut readout = readout.apply(recorded).map_err(model_err)?;
         if let Some(width) = width {
+            readout = readout.at_width(cfg.width, width);
             cfg = cfg.at_width(width).map_err(model_err)?;
         }
         let model = Ssmode::new(&cfg, vb).map_err(|e| {
@@ -148,6 +156,7 @@ impl SsmodeEstimator {
                 problem: format!("building the network: {e}"),
             })
         })?;
+        let model = model.with_readout(readout).map_err(model_err)?;
         Ok(Self {
             weights_path: path.to_path_buf(),
             model,
@@ -201,20 +210,22 @@ impl SsmodeEstimator {
     fn refresh_sampling(&mut self, rig: &Rig) -> Result<(), EstimatorError> {
         let stale = self.cached.as_ref().is_none_or(|(r, _)| r != rig);
         if stale {
-            let sampling = SweepSampling::new(rig, self.model.config()).map_err(|e| {
-                model_err(ModelError::Weights {
-                    path: self.weights_path.display().to_string(),
-                    problem: format!(
-                        "the '{}' network cannot serve the rig of cameras [{}]: {e}",
-                        self.model.config().name,
-                        rig.cameras
-                            .iter()
-                            .map(|c| c.name.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                })
-            })?;
+            let sampling =
+                SweepSampling::with_readout(rig, self.model.config(), self.model.readout())
+                    .map_err(|e| {
+                        model_err(ModelError::Weights {
+                            path: self.weights_path.display().to_string(),
+                            problem: format!(
+                                "the '{}' network cannot serve the rig of cameras [{}]: {e}",
+                                self.model.config().name,
+                                rig.cameras
+                                    .iter()
+                                    .map(|c| c.name.as_str())
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            ),
+                        })
+                    })?;
             self.cached = Some((rig.clone(), sampling));
             self.masked = None;
         }
@@ -374,11 +385,12 @@ impl DepthEstimator for SsmodeEstimator {
                 .map_err(model_err)
         };
         let mut range = to_vec(final_range)?;
-        if cfg.refine_radius_cells > 0 {
+        let refine_radius_cells = self.model.readout().refine_radius_cells;
+        if refine_radius_cells > 0 {
             if let Some(rgb) = reference_in_output_frame(rig, images)
                 .and_then(|image| edge_refine::rgb_on_grid(image, net_grid))
             {
-                let params = EdgeRefineParams::with_radius(cfg.refine_radius_cells);
+                let params = EdgeRefineParams::with_radius(refine_radius_cells);
                 let conf_net = to_vec(&out.confidence)?;
                 range = weighted_median_refine(&range, &conf_net, &rgb, net_grid, &params);
             }

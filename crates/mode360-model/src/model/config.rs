@@ -52,10 +52,12 @@ fn default_aggregation_stride() -> usize {
     1
 }
 
-/// Hyper-parameters of the SSMODE network. Unknown fields are refused: a weights file written
-/// by a newer mode360 with a feature this binary lacks is an error, not a silently wrong network.
+/// Hyper-parameters of the SSMODE network. A weights file's config with a field this build
+/// does not know is refused when it is read ([`super::weights`]): a file written by a newer
+/// mode360 with a feature this binary lacks is an error, not a silently wrong network. How the
+/// output is read (far-plane test, edge refinement) is not part of the network but an estimator
+/// setting: [`super::readout::Readout`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct SsmodeConfig {
     /// Preset name (`paper`, `compact`, or a custom one).
     pub name: String,
@@ -92,23 +94,6 @@ pub struct SsmodeConfig {
     /// fine cost volume is matched at full detail and aggregated at half its size.
     #[serde(default = "default_aggregation_stride")]
     pub aggregation_stride: usize,
-    /// Far-plane readout: a pixel whose probability on the farthest hypothesis is at least
-    /// this is given `max_depth_m` instead of the soft-argmin (see [`crate::model::regression`]);
-    /// above 1 disables it. Chosen on the validation split; files without it get the default.
-    #[serde(default = "default_far_plane_probability")]
-    pub far_plane_probability: f64,
-    /// Far field of the readout: hypotheses whose samples move, for every camera pair, by
-    /// less than this many cost-volume cells from the far plane's count as the far plane in
-    /// the far-plane test ([`mode360_core::geometry::FarField`]); 0 counts the far plane alone.
-    /// Chosen on the validation split; files without it get the default.
-    #[serde(default = "default_far_parallax_cells")]
-    pub far_parallax_cells: f64,
-    /// Edge refinement of the readout: the radius in network cells of the confidence-weighted
-    /// median that cleans the range before it is upsampled to the output
-    /// (`mode360_estimator::estimator::edge_refine`); 0 turns it off. Chosen on the validation split;
-    /// files without it get the default.
-    #[serde(default = "default_refine_radius_cells")]
-    pub refine_radius_cells: usize,
     /// Cost-volume cells copied across the longitude seam to each side in the 3-D aggregation
     /// (after its entry convolution, at `1 / aggregation_stride` of them), whose convolutions pad
     /// with zeros, so that cells near longitude ±180° are aggregated with their true neighbours
@@ -135,32 +120,6 @@ pub struct SsmodeConfig {
     pub logit_prior: bool,
 }
 
-/// [`SsmodeConfig::far_plane_probability`] of the presets and of files without it: with the
-/// far field of [`DEFAULT_FAR_PARALLAX_CELLS`], the best of 0.4, 0.5, 0.65 and 0.8 on the
-/// validation seed 2^63 + 3131 at 512 (models/README.md, "Readout"). Files written before the
-/// far field carry 0.8.
-pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.5;
-
-fn default_far_plane_probability() -> f64 {
-    DEFAULT_FAR_PLANE_PROBABILITY
-}
-
-/// [`SsmodeConfig::far_parallax_cells`] of the presets and of files without it: the best of
-/// 0.125 to 1 cells on the validation seed (models/README.md, "Readout").
-pub const DEFAULT_FAR_PARALLAX_CELLS: f64 = 0.25;
-
-fn default_far_parallax_cells() -> f64 {
-    DEFAULT_FAR_PARALLAX_CELLS
-}
-
-/// [`SsmodeConfig::refine_radius_cells`] of the presets and of files without it: a 5x5
-/// window, the best of 1 to 6 cells on the validation seed 2^63 + 3131 at 512 (models/README.md,
-/// "Edge refinement").
-pub const DEFAULT_REFINE_RADIUS_CELLS: usize = 2;
-
-/// The largest [`SsmodeConfig::refine_radius_cells`] accepted: beyond it the median erases
-/// whole objects.
-pub const MAX_REFINE_RADIUS_CELLS: usize = 8;
 /// Limits a weights file's configuration must keep, so that a file can never make a command
 /// or the node allocate more than the machine has (the paper's largest network is 1024 wide
 /// with 48 spheres and 192 hypotheses): input width, pixels.
@@ -176,10 +135,6 @@ pub const MAX_BLOCKS: usize = 64;
 /// Most cells of one channel of the cost volume, `spheres * cost_height * cost_width`
 /// (the paper's network at 1024 wide: 1.6 M; `parallax` at 2048 wide: 201 M).
 pub const MAX_COST_VOLUME_CELLS: usize = 1 << 28;
-
-fn default_refine_radius_cells() -> usize {
-    DEFAULT_REFINE_RADIUS_CELLS
-}
 
 /// [`SsmodeConfig::seam_pad_cells`] of the presets: 8 cells (11° at the network's 256), the
 /// cheaper of 8 and 16, which gain the same on the validation seed at 512 with weights trained
@@ -250,14 +205,12 @@ impl SsmodeConfig {
         Ok(by_cells.min(sphere1_m))
     }
 
-    /// This network run at input width `width` instead of the width it was trained at: the
-    /// far field's threshold, counted in cost cells, scales with the width so that it stays
-    /// the same angle (`far_parallax_cells width / self.width`); every other setting is kept.
-    /// An error naming the width where the network cannot run at it.
+    /// This network run at input width `width` instead of the width it was trained at (the
+    /// readout's far field scales with it: [`super::readout::Readout::at_width`]); every other
+    /// setting is kept. An error naming the width where the network cannot run at it.
     pub fn at_width(&self, width: usize) -> Result<Self, ModelError> {
         let cfg = Self {
             width,
-            far_parallax_cells: self.far_parallax_cells * width as f64 / self.width.max(1) as f64,
             ..self.clone()
         };
         cfg.validate().map_err(|e| ModelError::BadConfig {
@@ -275,7 +228,7 @@ impl SsmodeConfig {
         self.check_removed()?;
         self.check_limits()?;
         self.check_layout()?;
-        self.check_readout()?;
+        self.check_seam()?;
         self.depth_range().map(|_| ())
     }
 
@@ -434,30 +387,9 @@ impl SsmodeConfig {
         Ok(())
     }
 
-    /// The readout's far-plane test, edge refinement and seam wrap.
-    fn check_readout(&self) -> Result<(), ModelError> {
+    /// The aggregation's longitude wrap across the seam.
+    fn check_seam(&self) -> Result<(), ModelError> {
         let divisor = HOURGLASS_DIVISOR * self.aggregation_stride;
-        if self.far_plane_probability.is_nan() || self.far_plane_probability <= 0.0 {
-            return bad_config(
-                "far_plane_probability",
-                format!("{} must be positive", self.far_plane_probability),
-            );
-        }
-        if !(self.far_parallax_cells >= 0.0 && self.far_parallax_cells.is_finite()) {
-            return bad_config(
-                "far_parallax_cells",
-                format!("{} must be finite and at least 0", self.far_parallax_cells),
-            );
-        }
-        if self.refine_radius_cells > MAX_REFINE_RADIUS_CELLS {
-            return bad_config(
-                "refine_radius_cells",
-                format!(
-                    "{} is above the largest accepted, {MAX_REFINE_RADIUS_CELLS}",
-                    self.refine_radius_cells
-                ),
-            );
-        }
         // The padded volume must stay a multiple of the divisor, the crop a whole cell count.
         let pad = self.seam_pad_cells;
         if !(2 * pad).is_multiple_of(divisor) || !pad.is_multiple_of(self.aggregation_stride) {

@@ -8,6 +8,7 @@
 //! [`seam`] (the aggregation's longitude wrap), [`fusion`] (PSMODE's second stage: the pairs'
 //! ranges fused with the reference panorama),
 //! [`weights`] (safetensors with the config in the header), [`config`] (presets),
+//! [`readout`] (how the output is read: far-plane test, edge refinement; a setting),
 //! [`sweep_sampling`] (per-rig sampling tables), [`device`] (the CPU or a CUDA GPU).
 
 pub mod config;
@@ -20,6 +21,7 @@ pub mod input;
 pub mod ops;
 pub mod photometric_cost;
 pub mod presets;
+pub mod readout;
 pub mod regression;
 pub mod seam;
 pub mod sphere_conv;
@@ -32,10 +34,12 @@ pub use device::{ComputeDevice, DeviceError};
 pub use fusion::{Fusion, FusionConfig, FusionOutput};
 pub use input::input_tensor;
 pub use presets::Preset;
+pub use readout::{Readout, ReadoutOverrides};
 pub use ssmode::{Ssmode, SsmodeOutput, StageProfiler, StageTiming};
 pub use sweep_sampling::SweepSampling;
 pub use weights::{
-    load_fusion_weights, load_weights, read_config, save_fusion_weights, save_weights,
+    load_fusion_weights, load_weights, load_weights_and_readout, read_config, save_fusion_weights,
+    save_weights,
 };
 
 /// Errors of the model code (configs, sampling tables, weight files).

@@ -3,10 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::config::{
-    CostKind, SsmodeConfig, DEFAULT_FAR_PARALLAX_CELLS, DEFAULT_FAR_PLANE_PROBABILITY,
-    DEFAULT_REFINE_RADIUS_CELLS, DEFAULT_SEAM_PAD_CELLS, FEATURE_DOWNSAMPLE,
-};
+use super::config::{CostKind, SsmodeConfig, DEFAULT_SEAM_PAD_CELLS, FEATURE_DOWNSAMPLE};
 use super::ModelError;
 
 use mode360_core::geometry::HypothesisSpacing;
@@ -128,9 +125,6 @@ impl SsmodeConfig {
             cost_downsample: FEATURE_DOWNSAMPLE,
             fine_channels: 0,
             aggregation_stride: 1,
-            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
-            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
-            refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
             seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
@@ -159,9 +153,6 @@ impl SsmodeConfig {
             cost_downsample: FEATURE_DOWNSAMPLE,
             fine_channels: 0,
             aggregation_stride: 1,
-            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
-            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
-            refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
             seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
@@ -191,9 +182,6 @@ impl SsmodeConfig {
             cost_downsample: 1,
             fine_channels: 16,
             aggregation_stride: 2,
-            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
-            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
-            refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
             seam_pad_cells: DEFAULT_SEAM_PAD_CELLS,
             photometric_cost: false,
             hypothesis_spacing: HypothesisSpacing::InverseDepth,
@@ -220,9 +208,6 @@ impl SsmodeConfig {
             cost_downsample: FEATURE_DOWNSAMPLE,
             fine_channels: 0,
             aggregation_stride: 1,
-            far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
-            far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
-            refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
             // Zero padding, as before the seam wrap: the tests that train a tiny network for a
             // few steps at a high learning rate were measured on it (the wrap has its own).
             seam_pad_cells: 0,

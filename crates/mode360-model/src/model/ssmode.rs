@@ -24,6 +24,7 @@ use super::cost_volume::{
 use super::feature::FeatureExtractor;
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
+use super::readout::Readout;
 use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
 use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
@@ -144,6 +145,8 @@ impl StageProfiler {
 #[derive(Clone, Debug)]
 pub struct Ssmode {
     cfg: SsmodeConfig,
+    /// How the output is read (a setting, not part of the network).
+    readout: Readout,
     hypotheses: DepthHypotheses,
     feature: FeatureExtractor,
     aggregation: CostAggregation,
@@ -156,6 +159,7 @@ impl Ssmode {
         let hypotheses = cfg.output_hypotheses().map_err(candle_core::Error::wrap)?;
         Ok(Self {
             cfg: cfg.clone(),
+            readout: Readout::default(),
             hypotheses,
             feature: FeatureExtractor::new(cfg, vb.pp("feature"))?,
             aggregation: CostAggregation::new(cfg, vb.pp("aggregation"))?,
@@ -173,6 +177,21 @@ impl Ssmode {
 
     pub fn config(&self) -> &SsmodeConfig {
         &self.cfg
+    }
+
+    /// How the output is read ([`Readout::default`] unless [`Self::with_readout`] said).
+    pub fn readout(&self) -> &Readout {
+        &self.readout
+    }
+
+    /// The network with `readout` (checked): the far-plane test here, the far field in the
+    /// [`SweepSampling`] built with it ([`SweepSampling::with_readout`]).
+    pub fn with_readout(
+        self,
+        readout: Readout,
+    ) -> std::result::Result<Self, crate::model::ModelError> {
+        readout.validate()?;
+        Ok(Self { readout, ..self })
     }
 
     /// The full-resolution hypotheses the range is regressed over.
@@ -231,7 +250,7 @@ impl Ssmode {
     /// The far-plane test of the readout on `sampling`'s rig.
     fn far_readout<'a>(&self, sampling: &'a SweepSampling) -> FarReadout<'a> {
         FarReadout {
-            probability: self.cfg.far_plane_probability,
+            probability: self.readout.far_plane_probability,
             far_counts: sampling.far_counts(),
         }
     }

@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use super::config::{SsmodeConfig, MIN_CAMERAS};
+use super::readout::Readout;
 use super::sphere_conv::SphereConvTable;
 use super::ModelError;
 use crate::model::ops::{view_scale, SampleTable};
@@ -35,14 +36,25 @@ pub struct SweepSampling {
     /// channel; `None` when the config has none.
     pair_weights: Option<Vec<Vec<f32>>>,
     /// Per output pixel, the output hypotheses the rig cannot tell from the far plane at
-    /// [`SsmodeConfig::far_parallax_cells`]; `None` when that is 0.
+    /// [`Readout::far_parallax_cells`]; `None` when that is 0.
     far_field: Option<Arc<FarField>>,
 }
 
 impl SweepSampling {
-    /// Builds the tables for `rig` at `cfg`'s quarter resolution.
+    /// Builds the tables for `rig` at `cfg`'s quarter resolution, with the default readout's
+    /// far field ([`Readout::default`]).
     pub fn new(rig: &Rig, cfg: &SsmodeConfig) -> Result<Self, ModelError> {
+        Self::with_readout(rig, cfg, &Readout::default())
+    }
+
+    /// [`Self::new`] with `readout`'s far field ([`Readout::far_parallax_cells`]).
+    pub fn with_readout(
+        rig: &Rig,
+        cfg: &SsmodeConfig,
+        readout: &Readout,
+    ) -> Result<Self, ModelError> {
         cfg.validate()?;
+        readout.validate()?;
         let cameras = rig.cameras.len();
         if cameras < MIN_CAMERAS {
             return Err(ModelError::TooFewCameras {
@@ -68,11 +80,11 @@ impl SweepSampling {
                 .collect();
             crate::matching::pair_parallax_weights(grid, &centres, PARALLAX_EXPONENT)
         });
-        let far_field = if cfg.far_parallax_cells > 0.0 {
+        let far_field = if readout.far_parallax_cells > 0.0 {
             let out = ErpGrid::new(cfg.width)?;
             let out_geometry =
                 SweepGeometry::new(rig, out, vec![out; cameras], cfg.output_hypotheses()?)?;
-            let max_shift_rad = cfg.far_parallax_cells * cfg.cost_cell_rad();
+            let max_shift_rad = readout.far_parallax_cells * cfg.cost_cell_rad();
             Some(Arc::new(FarField::new(&out_geometry, max_shift_rad)))
         } else {
             None

@@ -8,6 +8,7 @@ use std::path::Path;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 
+use super::readout::{Readout, RECORDED_KEYS};
 use super::{FusionConfig, ModelError, SsmodeConfig};
 
 /// Header metadata key holding the config JSON.
@@ -86,10 +87,31 @@ fn config_from_bytes<T: serde::de::DeserializeOwned>(
     kind: &FileKind,
     validate: impl FnOnce(&T) -> Result<(), String>,
 ) -> Result<T, ModelError> {
-    let weights_err = |problem: String| ModelError::Weights {
+    let json = metadata_json(bytes, path, kind)?;
+    let cfg: T = serde_json::from_str(&json).map_err(|e| {
+        weights_err(
+            path,
+            format!(
+                "metadata '{}': {e} (a configuration this mode360 does not know)",
+                kind.key
+            ),
+        )
+    })?;
+    validate(&cfg).map_err(|e| weights_err(path, format!("metadata '{}': {e}", kind.key)))?;
+    Ok(cfg)
+}
+
+fn weights_err(path: &Path, problem: String) -> ModelError {
+    ModelError::Weights {
         path: path.display().to_string(),
         problem,
-    };
+    }
+}
+
+/// The config text of `kind` in a safetensors buffer's metadata; an error naming the other
+/// kind where the file holds that one.
+fn metadata_json(bytes: &[u8], path: &Path, kind: &FileKind) -> Result<String, ModelError> {
+    let weights_err = |problem: String| weights_err(path, problem);
     let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
         .map_err(|e| weights_err(format!("not a safetensors file: {e}")))?;
     let header = metadata.metadata().as_ref();
@@ -106,20 +128,53 @@ fn config_from_bytes<T: serde::de::DeserializeOwned>(
         };
         return Err(weights_err(what));
     };
-    let cfg: T = serde_json::from_str(json).map_err(|e| {
-        weights_err(format!(
-            "metadata '{key}': {e} (a configuration this mode360 does not know)"
-        ))
-    })?;
-    validate(&cfg).map_err(|e| weights_err(format!("metadata '{key}': {e}")))?;
-    Ok(cfg)
+    Ok(json.clone())
 }
 
-fn ssmode_config(bytes: &[u8], path: &Path) -> Result<SsmodeConfig, ModelError> {
-    config_from_bytes(bytes, path, &SSMODE_FILE, |c: &SsmodeConfig| {
-        c.validate().map_err(|e| e.to_string())
-    })
+/// An SSMODE file's network config and the readout it records (files written before the
+/// readout was a setting; else the default), parsed and validated; a field this build does
+/// not know is refused by name.
+fn ssmode_config(bytes: &[u8], path: &Path) -> Result<(SsmodeConfig, Readout), ModelError> {
+    let key = CONFIG_METADATA_KEY;
+    let json = metadata_json(bytes, path, &SSMODE_FILE)?;
+    let err = |problem: String| weights_err(path, format!("metadata '{key}': {problem}"));
+    let mut value: serde_json::Value =
+        serde_json::from_str(&json).map_err(|e| err(e.to_string()))?;
+    let Some(fields) = value.as_object_mut() else {
+        return Err(err("not a JSON object".to_string()));
+    };
+    let known = known_config_fields();
+    if let Some(unknown) = fields.keys().find(|k| !known.contains(*k)) {
+        return Err(err(format!(
+            "unknown field `{unknown}` (a configuration this mode360 does not know)"
+        )));
+    }
+    let readout = Readout::recorded(fields).map_err(|e| err(e.to_string()))?;
+    for recorded in RECORDED_KEYS {
+        fields.remove(recorded);
+    }
+    let cfg: SsmodeConfig = serde_json::from_value(value)
+        .map_err(|e| err(format!("{e} (a configuration this mode360 does not know)")))?;
+    cfg.validate().map_err(|e| err(e.to_string()))?;
+    Ok((cfg, readout))
 }
+
+/// The fields an SSMODE config may have: the network's, the removed ablations' (refused by
+/// name in [`SsmodeConfig::validate`]) and the readout recorded by older files.
+fn known_config_fields() -> Vec<String> {
+    let network = serde_json::to_value(SsmodeConfig::parallax_zncc_log())
+        .ok()
+        .and_then(|v| v.as_object().map(|m| m.keys().cloned().collect::<Vec<_>>()))
+        .unwrap_or_default();
+    network
+        .into_iter()
+        .chain(REMOVED_FIELDS.iter().map(|k| k.to_string()))
+        .chain(RECORDED_KEYS.iter().map(|k| k.to_string()))
+        .collect()
+}
+
+/// Config fields of ablations that lost and were removed (written only when set).
+const REMOVED_FIELDS: [&str; 2] = ["position_channels", "logit_prior"];
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, ModelError> {
     std::fs::read(path).map_err(|source| ModelError::Io {
@@ -158,7 +213,7 @@ pub fn load_fusion_weights(
 /// Only the config of a weights file.
 pub fn read_config(path: impl AsRef<Path>) -> Result<SsmodeConfig, ModelError> {
     let path = path.as_ref();
-    ssmode_config(&read_bytes(path)?, path)
+    Ok(ssmode_config(&read_bytes(path)?, path)?.0)
 }
 
 /// The config and a `VarBuilder` over the tensors of a weights file (f32 on `device`).
@@ -167,10 +222,20 @@ pub fn load_weights(
     path: impl AsRef<Path>,
     device: &Device,
 ) -> Result<(SsmodeConfig, VarBuilder<'static>), ModelError> {
+    let (cfg, _, vb) = load_weights_and_readout(path, device)?;
+    Ok((cfg, vb))
+}
+
+/// [`load_weights`] with the readout the file records ([`Readout::recorded`]: the values it
+/// was tuned with, in files written before the readout was a setting; else the default).
+pub fn load_weights_and_readout(
+    path: impl AsRef<Path>,
+    device: &Device,
+) -> Result<(SsmodeConfig, Readout, VarBuilder<'static>), ModelError> {
     let path = path.as_ref();
     let bytes = read_bytes(path)?;
-    let cfg = ssmode_config(&bytes, path)?;
-    Ok((cfg, tensors_of(&bytes, path, device)?))
+    let (cfg, readout) = ssmode_config(&bytes, path)?;
+    Ok((cfg, readout, tensors_of(&bytes, path, device)?))
 }
 
 #[cfg(test)]
@@ -265,18 +330,20 @@ mod tests {
             err.contains("weights.safetensors") && err.contains("photometric_cost"),
             "{err}"
         );
-        let bad = SsmodeConfig {
-            far_parallax_cells: -1.0,
-            ..SsmodeConfig::parallax_zncc()
-        };
-        let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
+        // a readout recorded by an older file is checked too
+        let mut json: serde_json::Value =
+            serde_json::to_value(SsmodeConfig::parallax_zncc()).unwrap();
+        json["far_parallax_cells"] = serde_json::json!(-1.0);
+        let path = file_with_config(dir.path(), &json.to_string());
         let err = read_config(&path).unwrap_err().to_string();
-        assert!(err.contains("far_parallax_cells"), "{err}");
-        let bad = SsmodeConfig {
-            refine_radius_cells: super::super::config::MAX_REFINE_RADIUS_CELLS + 1,
-            ..SsmodeConfig::parallax_zncc()
-        };
-        let path = file_with_config(dir.path(), &serde_json::to_string(&bad).unwrap());
+        assert!(
+            err.contains("weights.safetensors") && err.contains("far_parallax_cells"),
+            "{err}"
+        );
+        json["far_parallax_cells"] = serde_json::json!(0.25);
+        json["refine_radius_cells"] =
+            serde_json::json!(super::super::readout::MAX_REFINE_RADIUS_CELLS + 1);
+        let path = file_with_config(dir.path(), &json.to_string());
         let err = read_config(&path).unwrap_err().to_string();
         assert!(
             err.contains("weights.safetensors") && err.contains("refine_radius_cells"),
@@ -300,27 +367,25 @@ mod tests {
     }
 
     /// A file written before the far field, the edge refinement and the seam wrap (no
-    /// `far_parallax_cells`, `refine_radius_cells` or `seam_pad_cells`) reads the default ones
-    /// (no seam wrap), and keeps its own far-plane probability.
+    /// `far_parallax_cells`, `refine_radius_cells` or `seam_pad_cells`) reads the default
+    /// readout but its own far-plane probability, and no seam wrap; a file written now
+    /// records no readout at all.
     #[test]
     fn files_without_the_far_field_get_the_default() {
+        use super::super::readout::{DEFAULT_FAR_PARALLAX_CELLS, DEFAULT_REFINE_RADIUS_CELLS};
         let dir = tempfile::tempdir().unwrap();
         let mut json: serde_json::Value =
             serde_json::to_value(SsmodeConfig::parallax_zncc()).unwrap();
-        json.as_object_mut().unwrap().remove("far_parallax_cells");
-        json.as_object_mut().unwrap().remove("refine_radius_cells");
+        for recorded in RECORDED_KEYS {
+            assert!(json.get(recorded).is_none(), "{recorded} written");
+        }
         json.as_object_mut().unwrap().remove("seam_pad_cells");
         json["far_plane_probability"] = serde_json::json!(0.8);
-        let cfg = read_config(file_with_config(dir.path(), &json.to_string())).unwrap();
-        assert_eq!(
-            cfg.far_parallax_cells,
-            super::super::config::DEFAULT_FAR_PARALLAX_CELLS
-        );
-        assert_eq!(cfg.far_plane_probability, 0.8);
-        assert_eq!(
-            cfg.refine_radius_cells,
-            super::super::config::DEFAULT_REFINE_RADIUS_CELLS
-        );
+        let path = file_with_config(dir.path(), &json.to_string());
+        let (cfg, readout, _) = load_weights_and_readout(&path, &Device::Cpu).unwrap();
+        assert_eq!(readout.far_parallax_cells, DEFAULT_FAR_PARALLAX_CELLS);
+        assert_eq!(readout.far_plane_probability, 0.8);
+        assert_eq!(readout.refine_radius_cells, DEFAULT_REFINE_RADIUS_CELLS);
         // trained with the 3-D convolutions' zero padding at the seam: kept so
         assert_eq!(cfg.seam_pad_cells, 0);
     }
