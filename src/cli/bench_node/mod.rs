@@ -16,26 +16,23 @@
 //!   (allocator arenas and DDS buffers fill up during the first half; growth after that
 //!   means a leak).
 
-use super::bundled_bag::BUNDLED_BAG;
 use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use mode360_core::memory::resident_mib;
-use mode360_core::shipped::{self, Origin};
 use mode360_estimator::estimator::EstimatorSpec;
-use mode360_io::bag::RigBagReader;
 use mode360_io::msgs::{CompressedImage, Image, RosMessage};
 use mode360_node::node::params::DEFAULT_RIG_FILE;
 use mode360_node::node::player::{play_bag_until, PlayOptions, PlaySummary, Published};
 use mode360_node::node::{
-    create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHealth, NodeParams,
-    ShutdownSignals, SpunNode,
+    create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHandle, NodeHealth,
+    NodeParams, ShutdownSignals, SpunNode,
 };
-use mode360_synth::synth::record::{record_synthetic_bag, RecordOptions};
-use mode360_synth::synth::SynthConfig;
 
+mod input;
 mod report;
 use clap::Args;
 use futures::StreamExt;
+use input::{check_estimator, prepare_input, BenchInput};
 use report::load_average_1m;
 pub use report::{percentile, slope_mib_per_min, BenchReport, LatencyStats, RssStats};
 use ros2_client::qos::History;
@@ -101,28 +98,6 @@ impl Default for BenchOptions {
     }
 }
 
-/// A temporary file removed on drop.
-struct TempFile(PathBuf);
-
-impl Drop for TempFile {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.0);
-    }
-}
-
-fn temp_path(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("mode360_bench_{}_{name}", std::process::id()))
-}
-
-/// Width of the first camera image of a rig bag.
-fn bag_width(reader: &RigBagReader) -> Result<usize> {
-    let frame = reader
-        .frames()
-        .next()
-        .ok_or_else(|| anyhow!("the bag has no complete frame"))??;
-    Ok(frame.images[0].width() as usize)
-}
-
 /// Per-stamp publication state of the player.
 #[derive(Default)]
 struct PlayerState {
@@ -133,21 +108,121 @@ struct PlayerState {
     first_publish: Option<Instant>,
 }
 
+/// What a bench run measured outside the node.
+struct Measured {
+    /// Seconds from the first publish to the end of listening.
+    window_s: f64,
+    /// Complete groups the player published.
+    groups_published: u64,
+    heard: Heard,
+    /// Resident memory samples `(s since start, MiB)`.
+    rss_samples: Vec<(f64, f64)>,
+    /// Seconds from the bench's start to the node's shutdown.
+    end_s: f64,
+    load_start: Option<f64>,
+    load_end: Option<f64>,
+}
+
+/// The report of a run on `input` from what was measured and the node's final `health`.
+fn assemble_report(
+    opts: &BenchOptions,
+    input: BenchInput,
+    m: Measured,
+    health: &NodeHealth,
+) -> BenchReport {
+    let window_s = m.window_s;
+    let per_s = |n: u64| {
+        if window_s > 0.0 {
+            n as f64 / window_s
+        } else {
+            0.0
+        }
+    };
+    BenchReport {
+        estimator: opts.estimator.kind.to_string(),
+        device: opts.estimator.device.to_string(),
+        bag: input.bag_path.display().to_string(),
+        input_width: input.input_width,
+        output_width: input.output_width,
+        cameras: input.camera_topics.len(),
+        play_rate: opts.rate,
+        window_s,
+        groups_published: m.groups_published,
+        input_rate_hz: per_s(m.groups_published),
+        depth_received: m.heard.depth_received,
+        output_rate_hz: per_s(m.heard.depth_received),
+        groups_synced: health.sync.groups,
+        groups_processed: health.groups_processed,
+        groups_dropped: health.groups_dropped,
+        groups_lost: m.groups_published.saturating_sub(health.sync.groups),
+        pipeline_errors: health.pipeline_errors,
+        mean_inference_ms: health.mean_latency_ms,
+        latency: LatencyStats::from_samples(&m.heard.latencies_ms),
+        rss: rss_stats(&m.rss_samples, m.heard.first_depth_s, m.end_s),
+        cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        load_average_1m_start: m.load_start,
+        load_average_1m_end: m.load_end,
+    }
+}
+
+/// Waits up to [`SETTLE_TIMEOUT`] for the node to synchronize the groups still in flight
+/// when the player stopped (they are not lost).
+fn settle(node: &NodeHandle, groups_published: u64) {
+    let t0 = Instant::now();
+    while node.health().sync.groups < groups_published && t0.elapsed() < SETTLE_TIMEOUT {
+        std::thread::sleep(SETTLE_POLL);
+    }
+}
+
+/// The bench's own DDS node, listening to the node's `depth` (fields in drop order).
+struct DepthListener {
+    depth_sub: ros2_client::Subscription<Image>,
+    node: SpunNode,
+    context: ros2_client::Context,
+}
+
+impl DepthListener {
+    /// Joins the bench's DDS domain, subscribes to `/depth` and waits up to
+    /// [`DISCOVERY_TIMEOUT`] for its publisher.
+    fn open(rt: &tokio::runtime::Runtime, dds: &DdsOptions) -> Result<Self> {
+        let context = dds_context(dds)?;
+        let mut node = SpunNode::new(&context, "/", "mode360_bench_listener")?;
+        let depth_sub = create_subscription::<Image>(
+            &mut node.node,
+            "/depth",
+            QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
+        )?;
+        rt.block_on(async {
+            let _ =
+                tokio::time::timeout(DISCOVERY_TIMEOUT, depth_sub.wait_for_publisher(&node.node))
+                    .await;
+        });
+        Ok(Self {
+            depth_sub,
+            node,
+            context,
+        })
+    }
+
+    /// Drops the subscription, stops the listener node, then leaves the domain.
+    fn close(self) -> Result<()> {
+        let Self {
+            depth_sub,
+            node,
+            context,
+        } = self;
+        drop(depth_sub);
+        node.stop()?;
+        drop(context);
+        Ok(())
+    }
+}
+
 /// Runs the bench (see the module docs).
 pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
     check_estimator(opts)?;
     let mut temps = Vec::new();
-    let bag_path = bench_input(opts, &mut temps)?;
-    let reader = RigBagReader::open(&bag_path)?;
-    let rig = reader.rig().clone();
-    let input_width = bag_width(&reader)?;
-    let output_width = opts.width.unwrap_or(input_width);
-    drop(reader);
-    let rig_path = temp_path("rig.yaml");
-    std::fs::write(&rig_path, rig.to_yaml())
-        .with_context(|| format!("writing {}", rig_path.display()))?;
-    temps.push(TempFile(rig_path.clone()));
-    let camera_topics: Vec<String> = rig.cameras.iter().map(|c| c.topic.clone()).collect();
+    let input = prepare_input(opts, &mut temps)?;
 
     let rt = runtime()?;
     let mut signals = {
@@ -158,29 +233,16 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
     let bench_start = Instant::now();
     let node = spawn_node(
         NodeParams {
-            rig_file: rig_path.clone(),
+            rig_file: input.rig_path.clone(),
             estimator: opts.estimator.clone(),
-            output_width,
+            output_width: input.output_width,
             camera_timeout_s: 60.0,
             rig_health_checks: opts.rig_health_checks,
             ..Default::default()
         },
         opts.dds.clone(),
     )?;
-    let context = dds_context(&opts.dds)?;
-    let mut listener = SpunNode::new(&context, "/", "mode360_bench_listener")?;
-    let depth_sub = create_subscription::<Image>(
-        &mut listener.node,
-        "/depth",
-        QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
-    )?;
-    rt.block_on(async {
-        let _ = tokio::time::timeout(
-            DISCOVERY_TIMEOUT,
-            depth_sub.wait_for_publisher(&listener.node),
-        )
-        .await;
-    });
+    let listener = DepthListener::open(&rt, &opts.dds)?;
     let mut rss_samples: Vec<(f64, f64)> = Vec::new();
     if let Some(mib) = resident_mib() {
         rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
@@ -188,10 +250,16 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
 
     let published = Arc::new(Mutex::new(PlayerState::default()));
     let stop = Arc::new(AtomicBool::new(false));
-    let player = spawn_player(opts, &bag_path, &camera_topics, &published, &stop)?;
+    let player = spawn_player(
+        opts,
+        &input.bag_path,
+        &input.camera_topics,
+        &published,
+        &stop,
+    )?;
     let heard = rt.block_on(listen(
         opts,
-        &depth_sub,
+        &listener.depth_sub,
         &mut signals,
         Watched {
             published: &published,
@@ -207,109 +275,28 @@ pub fn run_bench(opts: &BenchOptions) -> Result<BenchReport> {
     let play_result = player
         .join()
         .map_err(|_| anyhow!("the player thread panicked"))?;
-    // Groups still in flight when the player stopped are not lost: let the node take them.
     let groups_published = lock_published(&published).complete;
-    let t0 = Instant::now();
-    while node.health().sync.groups < groups_published && t0.elapsed() < SETTLE_TIMEOUT {
-        std::thread::sleep(SETTLE_POLL);
-    }
+    settle(&node, groups_published);
     if let Some(mib) = resident_mib() {
         rss_samples.push((bench_start.elapsed().as_secs_f64(), mib));
     }
     let load_end = load_average_1m();
-    drop(depth_sub);
-    listener.stop()?;
-    drop(context);
+    listener.close()?;
     let health: NodeHealth = node.shutdown()?;
     play_result?;
     if heard.interrupted {
         tracing::warn!("interrupted: the figures cover {window_s:.1} s");
     }
-    let end_s = bench_start.elapsed().as_secs_f64();
-    let per_s = |n: u64| {
-        if window_s > 0.0 {
-            n as f64 / window_s
-        } else {
-            0.0
-        }
-    };
-    Ok(BenchReport {
-        estimator: opts.estimator.kind.to_string(),
-        device: opts.estimator.device.to_string(),
-        bag: bag_path.display().to_string(),
-        input_width,
-        output_width,
-        cameras: camera_topics.len(),
-        play_rate: opts.rate,
+    let measured = Measured {
         window_s,
         groups_published,
-        input_rate_hz: per_s(groups_published),
-        depth_received: heard.depth_received,
-        output_rate_hz: per_s(heard.depth_received),
-        groups_synced: health.sync.groups,
-        groups_processed: health.groups_processed,
-        groups_dropped: health.groups_dropped,
-        groups_lost: groups_published.saturating_sub(health.sync.groups),
-        pipeline_errors: health.pipeline_errors,
-        mean_inference_ms: health.mean_latency_ms,
-        latency: LatencyStats::from_samples(&heard.latencies_ms),
-        rss: rss_stats(&rss_samples, heard.first_depth_s, end_s),
-        cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        load_average_1m_start: load_start,
-        load_average_1m_end: load_end,
-    })
-}
-
-/// Fails before rendering or starting anything when the estimator cannot run: its GPU cannot
-/// be had, or its weights file is missing.
-fn check_estimator(opts: &BenchOptions) -> Result<()> {
-    if opts.estimator.device.is_cuda() {
-        opts.estimator
-            .device
-            .open()
-            .context("the device of the node's estimator (--device)")?;
-    }
-    if let Some(path) = opts.estimator.weights_path() {
-        if !path.exists() {
-            bail!(
-                "estimator 'ssmode' needs trained weights at {}, which does not exist",
-                path.display()
-            );
-        }
-    }
-    Ok(())
-}
-
-/// The bag to play: the one given, the bundled one when its width fits, or frames rendered
-/// into a temporary file (added to `temps`).
-fn bench_input(opts: &BenchOptions, temps: &mut Vec<TempFile>) -> Result<PathBuf> {
-    if let Some(b) = &opts.bag {
-        return Ok(b.clone());
-    }
-    let width = opts.width.unwrap_or(DEFAULT_WIDTH);
-    let bundled = shipped::locate(Path::new(BUNDLED_BAG), &[]);
-    if bundled.origin != Origin::NotFound
-        && bag_width(&RigBagReader::open(&bundled.path)?)? == width
-    {
-        return Ok(bundled.path);
-    }
-    let out = temp_path("input.mcap");
-    temps.push(TempFile(out.clone()));
-    tracing::info!("rendering {RENDERED_FRAMES} frames at {width} px");
-    record_synthetic_bag(&RecordOptions {
-        rig: mode360_core::geometry::Rig::from_file_or_shipped(&opts.rig_file)?,
-        config: SynthConfig {
-            width,
-            seed: 1,
-            ..Default::default()
-        },
-        frames: RENDERED_FRAMES,
-        first_frame: 0,
-        out: out.clone(),
-        show_progress: false,
-    })
-    .context("rendering the bench input")?;
-    Ok(out)
+        heard,
+        rss_samples,
+        end_s: bench_start.elapsed().as_secs_f64(),
+        load_start,
+        load_end,
+    };
+    Ok(assemble_report(opts, input, measured, &health))
 }
 
 /// The player thread and what it returns.

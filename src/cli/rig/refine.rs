@@ -8,9 +8,10 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use mode360_core::frame::RigFrame;
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_estimator::estimator::calibration::{
-    keep_earned_corrections, refine_rotations, turns, CameraCorrection, RotationCheck,
+    keep_earned_corrections, refine_rotations, turns, CameraCorrection, CheckFrame, RotationCheck,
     RotationCheckConfig, MIN_TEXTURED_CELLS,
 };
 use mode360_estimator::estimator::photometric::{PhotometricConfig, PhotometricSweep};
@@ -73,9 +74,27 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
     }
     let reader = RigBagReader::open(&a.bag)?;
     let start = crate::cli::replay::calibration_for(&reader, a.rig.as_deref(), &file)?;
+    let recorded = read_frames(&reader, a.frames, &file)?;
+    let cfg = RotationCheckConfig::refine();
+    let passes = refine_passes(&start, &recorded, a.passes, &cfg, &file)?;
+    // A turn that undoing costs next to nothing was fitted to the depth errors a knocked camera
+    // leaves near itself: the camera keeps its starting rotation.
+    let (rig, _gains) = keep_earned_corrections(&start, &passes.rig, &passes.last_frames, &cfg)?;
+    let corrections = whole_corrections(&start, &rig, &passes, &cfg)?;
+    let frames = recorded.len();
+    Ok(RefineSummary {
+        rig,
+        corrections,
+        frames,
+    })
+}
+
+/// The first `count` frames of `reader` that have images (unreadable ones are skipped with a
+/// warning); an error when the bag `file` has fewer.
+fn read_frames(reader: &RigBagReader, count: usize, file: &str) -> Result<Vec<RigFrame>> {
     let mut recorded = Vec::new();
     for frame in reader.frames() {
-        if recorded.len() >= a.frames {
+        if recorded.len() >= count {
             break;
         }
         match frame {
@@ -84,51 +103,51 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
             Err(e) => tracing::warn!("bag '{file}': skipping a frame: {e}"),
         }
     }
-    if recorded.len() < a.frames {
+    if recorded.len() < count {
         bail!(
             "bag '{file}' has {} readable frame(s); rig refine was asked for {} (at least {MIN_REFINE_FRAMES})",
             recorded.len(),
-            a.frames
+            count
         );
     }
-    let cfg = RotationCheckConfig::refine();
+    Ok(recorded)
+}
+
+/// Where the depth-and-rotation passes left the rig.
+struct Passes {
+    /// The rig after the last pass.
+    rig: Rig,
+    /// The first pass's corrections (their agreement before refining).
+    first_pass: Vec<CameraCorrection>,
+    /// The last pass's corrections.
+    last_pass: Vec<CameraCorrection>,
+    /// The last pass's frames (its depth).
+    last_frames: Vec<CheckFrame>,
+}
+
+/// `passes` depth-and-rotation passes over `recorded` from `start`; an error names a camera
+/// that shares too little texture with the others.
+fn refine_passes(
+    start: &Rig,
+    recorded: &[RigFrame],
+    passes: usize,
+    cfg: &RotationCheckConfig,
+    file: &str,
+) -> Result<Passes> {
     let mut sweep = PhotometricSweep::new(PhotometricConfig::default())?;
     let mut rig = start.clone();
     let mut first_pass: Option<Vec<CameraCorrection>> = None;
     let mut last_pass = Vec::new();
     let mut last_frames = Vec::new();
-    for _pass in 0..a.passes {
+    for _pass in 0..passes {
         // Depth with the calibration as refined so far: a turned camera bends the sweep's
         // depth towards agreeing with it, so each pass starts from better depth.
         let check = RotationCheck::new(&rig, cfg.clone())?;
         let mut frames = Vec::with_capacity(recorded.len());
-        for frame in &recorded {
-            let output = ErpGrid::new(frame.images[0].width() as usize)
-                .with_context(|| format!("bag '{file}': frame at {} ns", frame.stamp_ns))?;
-            let context = || format!("bag '{file}': frame at {} ns", frame.stamp_ns);
-            let estimate = sweep
-                .estimate_with(&rig, &frame.images, output, true)
-                .with_context(context)?;
-            if rig.cameras.len() < MIN_CAMERAS_FOR_EXCLUSION {
-                frames.push(check.frame(&frame.images, &estimate.range_m)?);
-                continue;
-            }
-            // Per camera, depth from the others only (a turned camera bends a joint estimate
-            // towards itself).
-            let mut without = Vec::with_capacity(rig.cameras.len());
-            for c in 0..rig.cameras.len() {
-                let others: Vec<usize> = (0..rig.cameras.len()).filter(|&k| k != c).collect();
-                let images: Vec<_> = others.iter().map(|&k| frame.images[k].clone()).collect();
-                let sub = rig.subset(&others)?;
-                let range = sweep
-                    .estimate_with(&sub, &images, output, true)
-                    .with_context(context)?
-                    .range_m;
-                without.push(range);
-            }
-            frames.push(check.frame_with_exclusions(&frame.images, &estimate.range_m, &without)?);
+        for frame in recorded {
+            frames.push(check_frame(&mut sweep, &rig, &check, frame, file)?);
         }
-        let (refined, corrections) = refine_rotations(&rig, &frames, &cfg)?;
+        let (refined, corrections) = refine_rotations(&rig, &frames, cfg)?;
         if let Some(poor) = corrections.iter().find(|c| c.cells < MIN_TEXTURED_CELLS) {
             bail!(
                 "bag '{file}': camera '{}' shares too little texture with the others to refine \
@@ -143,31 +162,73 @@ pub fn refine(a: &RigRefineArgs) -> Result<RefineSummary> {
         last_pass = corrections;
         last_frames = frames;
     }
-    // A turn that undoing costs next to nothing was fitted to the depth errors a knocked camera
-    // leaves near itself: the camera keeps its starting rotation.
-    let (rig, _gains) = keep_earned_corrections(&start, &rig, &last_frames, &cfg)?;
-    // Each camera's whole change from the starting calibration, with the agreement before
-    // the first pass and after (on the last pass's depth).
-    let first_pass = first_pass.unwrap_or_default();
-    let final_check = RotationCheck::new(&rig, cfg.clone())?;
+    Ok(Passes {
+        rig,
+        first_pass: first_pass.unwrap_or_default(),
+        last_pass,
+        last_frames,
+    })
+}
+
+/// One recorded frame checked against `rig`: the sweep's joint depth, and with enough cameras
+/// ([`MIN_CAMERAS_FOR_EXCLUSION`]) each camera's depth from the others only.
+fn check_frame(
+    sweep: &mut PhotometricSweep,
+    rig: &Rig,
+    check: &RotationCheck,
+    frame: &RigFrame,
+    file: &str,
+) -> Result<CheckFrame> {
+    let output = ErpGrid::new(frame.images[0].width() as usize)
+        .with_context(|| format!("bag '{file}': frame at {} ns", frame.stamp_ns))?;
+    let context = || format!("bag '{file}': frame at {} ns", frame.stamp_ns);
+    let estimate = sweep
+        .estimate_with(rig, &frame.images, output, true)
+        .with_context(context)?;
+    if rig.cameras.len() < MIN_CAMERAS_FOR_EXCLUSION {
+        return Ok(check.frame(&frame.images, &estimate.range_m)?);
+    }
+    // Per camera, depth from the others only (a turned camera bends a joint estimate
+    // towards itself).
+    let mut without = Vec::with_capacity(rig.cameras.len());
+    for c in 0..rig.cameras.len() {
+        let others: Vec<usize> = (0..rig.cameras.len()).filter(|&k| k != c).collect();
+        let images: Vec<_> = others.iter().map(|&k| frame.images[k].clone()).collect();
+        let sub = rig.subset(&others)?;
+        let range = sweep
+            .estimate_with(&sub, &images, output, true)
+            .with_context(context)?
+            .range_m;
+        without.push(range);
+    }
+    Ok(check.frame_with_exclusions(&frame.images, &estimate.range_m, &without)?)
+}
+
+/// Each camera's whole change from the `start` calibration to `rig`, with the agreement
+/// before the first pass and after (on the last pass's depth).
+fn whole_corrections(
+    start: &Rig,
+    rig: &Rig,
+    passes: &Passes,
+    cfg: &RotationCheckConfig,
+) -> Result<Vec<CameraCorrection>> {
+    let final_check = RotationCheck::new(rig, cfg.clone())?;
     let mut corrections = Vec::with_capacity(rig.cameras.len());
-    for (c, w) in turns(&start, &rig).into_iter().enumerate() {
+    for (c, w) in turns(start, rig).into_iter().enumerate() {
         corrections.push(CameraCorrection {
             camera: c,
             name: rig.cameras[c].name.clone(),
             rotation_vector_rig: w,
             angle_deg: w.norm().to_degrees(),
-            agreement_before: first_pass.get(c).map_or(f64::NAN, |x| x.agreement_before),
-            agreement_after: final_check.agreement_of(&last_frames, c, &Vector3::zeros())?,
-            cells: last_pass.get(c).map_or(0, |x| x.cells),
+            agreement_before: passes
+                .first_pass
+                .get(c)
+                .map_or(f64::NAN, |x| x.agreement_before),
+            agreement_after: final_check.agreement_of(&passes.last_frames, c, &Vector3::zeros())?,
+            cells: passes.last_pass.get(c).map_or(0, |x| x.cells),
         });
     }
-    let frames = recorded.len();
-    Ok(RefineSummary {
-        rig,
-        corrections,
-        frames,
-    })
+    Ok(corrections)
 }
 
 /// `mode360 rig refine`: refines, writes the rig YAML and prints the change per camera.

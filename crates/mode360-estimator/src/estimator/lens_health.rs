@@ -32,6 +32,7 @@ use mode360_core::frame::{FloatImage, RgbImage};
 use mode360_core::geometry::panorama::{panorama_rig, RigRemap};
 use mode360_core::geometry::{ErpGrid, PixelCoord, Rig};
 use mode360_model::matching::{luma, INTENSITY_SCALE};
+use nalgebra::Isometry3;
 
 /// Width of the analysis grid (height half of it): coarse enough that a few pixels of depth
 /// error or calibration do not matter, fine enough for regions of a few degrees.
@@ -73,6 +74,19 @@ pub struct LensVotes {
     pub inv_range: Vec<Vec<Option<f32>>>,
 }
 
+/// One camera's share of a frame's [`LensVotes`], before voting.
+struct CameraView {
+    /// `[k]`: the camera's grey at direction `k`'s estimated point (`None` where its lens
+    /// does not see it).
+    warped: Vec<Option<f32>>,
+    /// `[k]`: [`LensVotes::cells`] of the camera.
+    cells: Vec<Option<u32>>,
+    /// `[j]`: [`LensVotes::grey`] of the camera.
+    grey: Vec<Option<f32>>,
+    /// `[j]`: [`LensVotes::inv_range`] of the camera.
+    inv_range: Vec<Option<f32>>,
+}
+
 /// Odd-one-out votes of one frame: `images` in rig order, `range_m` the estimated range of the
 /// output frame (any ERP width).
 pub fn lens_votes(
@@ -104,61 +118,18 @@ pub fn lens_votes(
     let mut own_grey = Vec::with_capacity(n);
     let mut inv_ranges = Vec::with_capacity(n);
     for (c, pano) in panoramas.iter().enumerate() {
-        let (w, h) = (pano.width() as usize, pano.height() as usize);
-        let camera_grid = ErpGrid::new(w).map_err(|_| EstimatorError::BadImageSize {
-            camera: rig.cameras[c].name.clone(),
-            width: w as u32,
-            height: h as u32,
-        })?;
-        let grey: Vec<f32> = pano
-            .pixels()
-            .map(|p| luma([f32::from(p[0]), f32::from(p[1]), f32::from(p[2])]) * INTENSITY_SCALE)
-            .collect();
-        let sampler = CameraSampler::new(grid, &pano_rig.cam_from_output(c), camera_grid);
-        let sees = validity[c].as_ref();
-        own_grey.push(grey_on_grid(grid, &grey, w, h, sees));
-        let (samples, lens_cells): (Vec<Option<f32>>, Vec<Option<u32>>) = (0..grid.len())
-            .map(|k| {
-                let [u, v] = sampler.pixel(k, ranges[k]);
-                let (ui, vi) = (u.round() as i64, v.round() as i64);
-                let ui = ui.rem_euclid(w as i64) as usize;
-                let vi = vi.clamp(0, h as i64 - 1) as usize;
-                let seen =
-                    sees.is_none_or(|valid| valid.get(vi * w + ui).is_some_and(|&x| x > 0.5));
-                if !seen {
-                    return (None, None);
-                }
-                // The camera pixel's cell on the analysis grid of the camera's panorama.
-                let cu = (ui * grid.width() / w).min(grid.width() - 1);
-                let cv = (vi * grid.height() / h).min(grid.height() - 1);
-                (
-                    Some(bilinear_wrapped(&grey, w, h, u, v)),
-                    Some((cv * grid.width() + cu) as u32),
-                )
-            })
-            .unzip();
-        let cam_from_output = pano_rig.cam_from_output(c);
-        let mut inv_sum = vec![(0.0f32, 0u32); grid.len()];
-        for (k, cell) in lens_cells.iter().enumerate() {
-            if let Some(j) = cell {
-                let dir = grid.dir_from_pixel(PixelCoord {
-                    u: (k % grid.width()) as f64,
-                    v: (k / grid.width()) as f64,
-                });
-                let p = cam_from_output * nalgebra::Point3::from(dir * f64::from(ranges[k]));
-                let e = &mut inv_sum[*j as usize];
-                e.0 += 1.0 / p.coords.norm().max(1e-3) as f32;
-                e.1 += 1;
-            }
-        }
-        inv_ranges.push(
-            inv_sum
-                .iter()
-                .map(|&(sum, count)| (count > 0).then(|| sum / count as f32))
-                .collect(),
-        );
-        warped.push(samples);
-        cells.push(lens_cells);
+        let view = camera_view(
+            grid,
+            &rig.cameras[c].name,
+            pano,
+            &pano_rig.cam_from_output(c),
+            validity[c].as_ref(),
+            &ranges,
+        )?;
+        own_grey.push(view.grey);
+        inv_ranges.push(view.inv_range);
+        warped.push(view.warped);
+        cells.push(view.cells);
     }
     let mut votes: Vec<Vec<Option<bool>>> = (0..n)
         .map(|c| {
@@ -167,9 +138,21 @@ pub fn lens_votes(
                 .collect()
         })
         .collect();
-    // Two odd ones out at one direction: the depth there is likely wrong (a view sampled at
-    // the wrong point disagrees too), so neither vote counts.
-    for k in 0..grid.len() {
+    drop_double_odd_ones(&mut votes, grid.len());
+    Ok(LensVotes {
+        votes,
+        cells,
+        grey: own_grey,
+        inv_range: inv_ranges,
+    })
+}
+
+/// Two odd ones out at one direction: the depth there is likely wrong (a view sampled at
+/// the wrong point disagrees too), so neither vote counts (`votes[camera][k]`, `k` below
+/// `directions`).
+fn drop_double_odd_ones(votes: &mut [Vec<Option<bool>>], directions: usize) {
+    let n = votes.len();
+    for k in 0..directions {
         if (0..n).filter(|&c| votes[c][k] == Some(true)).count() > 1 {
             for camera in votes.iter_mut() {
                 if camera[k] == Some(true) {
@@ -178,12 +161,102 @@ pub fn lens_votes(
             }
         }
     }
-    Ok(LensVotes {
-        votes,
+}
+
+/// Camera `name`'s panorama `pano` against the estimated `ranges` of the analysis `grid`:
+/// its grey at each direction's estimated point, where that lands on its own panorama, its
+/// own grey and inverse range per cell. `sees` is the lens's validity on the panorama's
+/// pixels (`None`: sees everywhere).
+fn camera_view(
+    grid: ErpGrid,
+    name: &str,
+    pano: &RgbImage,
+    cam_from_output: &Isometry3<f64>,
+    sees: Option<&Vec<f32>>,
+    ranges: &[f32],
+) -> Result<CameraView, EstimatorError> {
+    let (w, h) = (pano.width() as usize, pano.height() as usize);
+    let camera_grid = ErpGrid::new(w).map_err(|_| EstimatorError::BadImageSize {
+        camera: name.to_string(),
+        width: w as u32,
+        height: h as u32,
+    })?;
+    let grey: Vec<f32> = pano
+        .pixels()
+        .map(|p| luma([f32::from(p[0]), f32::from(p[1]), f32::from(p[2])]) * INTENSITY_SCALE)
+        .collect();
+    let sampler = CameraSampler::new(grid, cam_from_output, camera_grid);
+    let own_grey = grey_on_grid(grid, &grey, w, h, sees);
+    let (warped, cells) = lens_samples(grid, &sampler, &grey, [w, h], sees, ranges);
+    let inv_range = inverse_ranges_on_lens(grid, cam_from_output, &cells, ranges);
+    Ok(CameraView {
+        warped,
         cells,
         grey: own_grey,
-        inv_range: inv_ranges,
+        inv_range,
     })
+}
+
+/// For each direction `k` of `grid`: the camera's `grey` (a `size_px` = `[w, h]` panorama)
+/// bilinearly sampled where `sampler` puts the estimated point `ranges[k]` away, and the cell
+/// of the analysis grid holding that pixel; both `None` where `sees` says the lens does not
+/// see the nearest pixel.
+fn lens_samples(
+    grid: ErpGrid,
+    sampler: &CameraSampler,
+    grey: &[f32],
+    size_px: [usize; 2],
+    sees: Option<&Vec<f32>>,
+    ranges: &[f32],
+) -> (Vec<Option<f32>>, Vec<Option<u32>>) {
+    let [w, h] = size_px;
+    (0..grid.len())
+        .map(|k| {
+            let [u, v] = sampler.pixel(k, ranges[k]);
+            let (ui, vi) = (u.round() as i64, v.round() as i64);
+            let ui = ui.rem_euclid(w as i64) as usize;
+            let vi = vi.clamp(0, h as i64 - 1) as usize;
+            let seen = sees.is_none_or(|valid| valid.get(vi * w + ui).is_some_and(|&x| x > 0.5));
+            if !seen {
+                return (None, None);
+            }
+            // The camera pixel's cell on the analysis grid of the camera's panorama.
+            let cu = (ui * grid.width() / w).min(grid.width() - 1);
+            let cv = (vi * grid.height() / h).min(grid.height() - 1);
+            (
+                Some(bilinear_wrapped(grey, w, h, u, v)),
+                Some((cv * grid.width() + cu) as u32),
+            )
+        })
+        .unzip()
+}
+
+/// Per cell of the camera's own panorama on `grid`: the mean inverse distance (1/m) from the
+/// camera to the estimated points of the directions whose `lens_cells` land there, `None`
+/// where none lands.
+fn inverse_ranges_on_lens(
+    grid: ErpGrid,
+    cam_from_output: &Isometry3<f64>,
+    lens_cells: &[Option<u32>],
+    ranges: &[f32],
+) -> Vec<Option<f32>> {
+    let mut inv_sum = vec![(0.0f32, 0u32); grid.len()];
+    for (k, cell) in lens_cells.iter().enumerate() {
+        if let Some(j) = cell {
+            let dir = grid.dir_from_pixel(PixelCoord {
+                u: (k % grid.width()) as f64,
+                v: (k / grid.width()) as f64,
+            });
+            let p = cam_from_output * nalgebra::Point3::from(dir * f64::from(ranges[k]));
+            let e = &mut inv_sum[*j as usize];
+            e.0 += 1.0 / p.coords.norm().max(1e-3) as f32;
+            e.1 += 1;
+        }
+    }
+    inv_sum
+        .iter()
+        .map(|&(sum, count)| (count > 0).then(|| sum / count as f32))
+        .collect()
 }
 
 /// A `w x h` grey panorama on `grid`: the mean of the pixels in each cell (the nearest pixel

@@ -23,157 +23,27 @@ use super::lens_health::analysis_grid;
 use super::lens_mask::LensMask;
 use super::ssmode::{camera_panoramas, locate_weights, SsmodeEstimator};
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
-use candle_core::{Device, Tensor};
+use candle_core::Tensor;
 use mode360_core::frame::RgbImage;
 use mode360_core::geometry::panorama::{CameraPanorama, RigRemap};
 use mode360_core::geometry::{
-    resample_erp, AlignedRange, CameraPair, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord,
-    Rig,
+    resample_erp, AlignedRange, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord, Rig,
 };
-use mode360_core::shipped::{self, BuiltinFile};
-use mode360_model::model::fusion::{index_and_confidence, pair_input, PAIR_INPUT_CHANNELS};
-use mode360_model::model::{load_fusion_weights, ComputeDevice, Fusion, FusionConfig, ModelError};
+use mode360_model::model::{load_fusion_weights, ComputeDevice, Fusion, ModelError};
+
+mod fusion;
+mod pairs;
+
+use fusion::most_confident;
+pub use fusion::{
+    fusion_tensors, fusion_weights_path, PairFusion, BUILTIN_FUSION_WEIGHTS,
+    DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION,
+};
+use pairs::{camera_names, pair_name};
+pub use pairs::{PairChoice, PAIR_SEPARATOR};
 
 /// The estimator's name on the command line and in reports.
 pub const PSMODE_NAME: &str = "psmode";
-
-/// The shipped fusion network (stage 2), found like every shipped file
-/// ([`mode360_core::shipped`]). Not PSMODE's default: on held-out cluttered streets it costs
-/// more than it gains on clean ones (models/README.md); `--fusion-weights` names it.
-pub const DEFAULT_FUSION_WEIGHTS_PATH: &str = "models/psmode_fusion.safetensors";
-
-/// `--fusion-weights none` (the node's `fusion_weights: none`, and the default): no fusion
-/// network, the most confident pair per pixel (the paper's "without fusion").
-pub const NO_FUSION: &str = "none";
-
-/// The shipped fusion network, built into the binary.
-pub const BUILTIN_FUSION_WEIGHTS: &[BuiltinFile] = &[BuiltinFile {
-    relative: DEFAULT_FUSION_WEIGHTS_PATH,
-    bytes: include_bytes!("../../../../models/psmode_fusion.safetensors"),
-}];
-
-/// The fusion weights a setting names: `None` (unset) and [`NO_FUSION`] none, anything else
-/// that file, located as [`mode360_core::shipped`] says (so the shipped
-/// [`DEFAULT_FUSION_WEIGHTS_PATH`] is found wherever the binary runs).
-pub fn fusion_weights_path(setting: Option<&Path>) -> Option<PathBuf> {
-    match setting {
-        None => None,
-        Some(p) if p == Path::new(NO_FUSION) => None,
-        Some(p) => Some(shipped::locate_path(p, BUILTIN_FUSION_WEIGHTS)),
-    }
-}
-
-/// Separator of the two camera names of a pair in [`PairChoice::parse`].
-pub const PAIR_SEPARATOR: char = '-';
-
-/// Which camera pairs stage 1 matches.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub enum PairChoice {
-    /// Every pair of cameras whose views overlap.
-    #[default]
-    All,
-    /// These pairs, by camera name, the left camera first.
-    Named(Vec<(String, String)>),
-}
-
-impl PairChoice {
-    /// `all`, or comma-separated pairs of camera names, `left-right` (`front-back,left-right`).
-    pub fn parse(text: &str) -> Result<Self, EstimatorError> {
-        let text = text.trim();
-        if text.is_empty() || text == "all" {
-            return Ok(Self::All);
-        }
-        let bad = |problem: String| EstimatorError::BadConfig {
-            field: "pairs".to_string(),
-            problem,
-        };
-        let pairs = text
-            .split(',')
-            .map(|item| {
-                let item = item.trim();
-                let (l, r) = item.split_once(PAIR_SEPARATOR).ok_or_else(|| {
-                    bad(format!(
-                        "'{item}' is not a pair: write two camera names as left{PAIR_SEPARATOR}right"
-                    ))
-                })?;
-                if l.is_empty() || r.is_empty() || l == r {
-                    return Err(bad(format!("'{item}' does not name two different cameras")));
-                }
-                Ok((l.to_string(), r.to_string()))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self::Named(pairs))
-    }
-
-    /// The pairs of `rig` by index; an error naming an unknown camera.
-    fn resolve(&self, rig: &Rig) -> Result<Vec<CameraPair>, EstimatorError> {
-        match self {
-            Self::All => Ok(CameraPair::all(rig.cameras.len())),
-            Self::Named(names) => names
-                .iter()
-                .map(|(l, r)| {
-                    let index = |name: &str| {
-                        rig.cameras
-                            .iter()
-                            .position(|c| c.name == name)
-                            .ok_or_else(|| EstimatorError::BadConfig {
-                                field: "pairs".to_string(),
-                                problem: format!(
-                                    "no camera '{name}' in the rig (cameras: {})",
-                                    camera_names(rig)
-                                ),
-                            })
-                    };
-                    Ok(CameraPair {
-                        left: index(l)?,
-                        right: index(r)?,
-                    })
-                })
-                .collect(),
-        }
-    }
-}
-
-impl std::fmt::Display for PairChoice {
-    /// The text [`PairChoice::parse`] reads back: `all`, or `left-right` pairs joined by commas.
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::All => f.write_str("all"),
-            Self::Named(pairs) => {
-                let text: Vec<String> = pairs
-                    .iter()
-                    .map(|(l, r)| format!("{l}{PAIR_SEPARATOR}{r}"))
-                    .collect();
-                f.write_str(&text.join(","))
-            }
-        }
-    }
-}
-
-fn camera_names(rig: &Rig) -> String {
-    rig.cameras
-        .iter()
-        .map(|c| c.name.as_str())
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-fn pair_name(rig: &Rig, pair: CameraPair) -> String {
-    format!(
-        "{}{PAIR_SEPARATOR}{}",
-        rig.cameras[pair.left].name, rig.cameras[pair.right].name
-    )
-}
-
-/// How the pairs' aligned ranges become one.
-#[derive(Clone, Debug, Default)]
-pub enum PairFusion {
-    /// Per pixel, the pair with the highest confidence (the paper's "without fusion").
-    #[default]
-    MostConfident,
-    /// The trained fusion network (stage 2) on its own grid, resampled to the output.
-    Network(Box<Fusion>),
-}
 
 /// Stage 1's result on one grid: every pair's range in the output frame, and the reference
 /// camera's panorama turned into the output frame (the fusion network's RGB input).
@@ -186,50 +56,6 @@ pub struct PairwiseEstimate {
     pub parallax_m: Vec<Arc<[f32]>>,
     /// Row-major RGB in [0, 1], interleaved, on `grid`.
     pub reference_rgb: Vec<f32>,
-}
-
-/// The fusion network's input tensors from stage 1's result on the network's grid:
-/// `pairs (1, P, H, W, 2)`, `base (1, H, W, 2)` (the most confident pair) and `rgb (1, H, W, 3)`.
-pub fn fusion_tensors(
-    cfg: &FusionConfig,
-    pairwise: &PairwiseEstimate,
-    device: &Device,
-) -> Result<(Tensor, Tensor, Tensor), EstimatorError> {
-    let grid = pairwise.grid;
-    let (h, w) = (grid.height(), grid.width());
-    if (h, w) != (cfg.height(), cfg.width) {
-        return Err(EstimatorError::BadConfig {
-            field: "fusion".to_string(),
-            problem: format!(
-                "stage 1 ran on {w}x{h}, the fusion network needs {}x{}",
-                cfg.width,
-                cfg.height()
-            ),
-        });
-    }
-    let p = pairwise.aligned.len();
-    if pairwise.parallax_m.len() != p || pairwise.reference_rgb.len() != grid.len() * 3 {
-        return Err(EstimatorError::BadConfig {
-            field: "fusion".to_string(),
-            problem: "stage 1 ran without the fusion's inputs (parallax, reference panorama)"
-                .to_string(),
-        });
-    }
-    let pairs: Vec<f32> = pairwise
-        .aligned
-        .iter()
-        .zip(&pairwise.parallax_m)
-        .flat_map(|(a, p)| pair_input(cfg, &a.range_m, &a.confidence, p))
-        .collect();
-    let (base_range, base_conf) = most_confident(&pairwise.aligned, grid.len());
-    let base = index_and_confidence(cfg, &base_range, &base_conf);
-    let tensor_err = |e: candle_core::Error| EstimatorError::Model(ModelError::Candle(e));
-    Ok((
-        Tensor::from_vec(pairs, (1, p, h, w, PAIR_INPUT_CHANNELS), device).map_err(tensor_err)?,
-        Tensor::from_vec(base, (1, h, w, 2), device).map_err(tensor_err)?,
-        Tensor::from_vec(pairwise.reference_rgb.clone(), (1, h, w, 3), device)
-            .map_err(tensor_err)?,
-    ))
 }
 
 /// A pair's two cameras' masks in the pair frame, left then right.
@@ -530,21 +356,6 @@ impl PsmodeEstimator {
             LensMask::from_cells(blocked)
         })
     }
-}
-
-/// Per output pixel, the aligned pair with the highest confidence (NaN and 0 where none).
-fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f32>, Vec<f32>) {
-    let mut range = vec![f32::NAN; pixels];
-    let mut conf = vec![0.0f32; pixels];
-    for a in aligned {
-        for k in 0..pixels {
-            if !a.range_m[k].is_nan() && (range[k].is_nan() || a.confidence[k] > conf[k]) {
-                range[k] = a.range_m[k];
-                conf[k] = a.confidence[k];
-            }
-        }
-    }
-    (range, conf)
 }
 
 impl PsmodeEstimator {

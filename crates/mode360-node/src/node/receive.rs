@@ -29,8 +29,8 @@ use mode360_core::sync::{ApproxTimeSync, ClockReset, SyncConfig};
 /// (about ten 2048x1024 panoramas): a burst of large images cannot make the node grow.
 pub const MAX_QUEUED_BYTES_PER_CAMERA: usize = 64 << 20;
 use mode360_io::bag::rig_tf_static;
-use mode360_io::msgs::{DiagnosticArray, TFMessage};
-use ros2_client::Publisher;
+use mode360_io::msgs::{Clock, CompressedImage, DiagnosticArray, Image, PointCloud2, TFMessage};
+use ros2_client::{Publisher, Subscription};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -296,6 +296,119 @@ fn log_reset(camera: &RigCamera, reset: &ClockReset, unlogged: u64) {
     );
 }
 
+/// What the receive loop listens to and publishes on, borrowed from [`DdsSetup`].
+struct LoopIo<'a> {
+    node: &'a ros2_client::Node,
+    raw_subs: &'a [(usize, Subscription<Image>)],
+    compressed_subs: &'a [(usize, Subscription<CompressedImage>)],
+    clock_sub: Option<&'a Subscription<Clock>>,
+    diagnostics: &'a Publisher<DiagnosticArray>,
+    /// The outputs built only on demand, whose matched subscribers the loop counts.
+    points_pub: &'a Publisher<PointCloud2>,
+    compressed_pub: &'a Publisher<CompressedImage>,
+}
+
+impl LoopIo<'_> {
+    /// Matched subscribers of the on-demand outputs; 0 for an output that never had one
+    /// (`points_matched`, `compressed_matched`), whose count ros2-client would log an ERROR
+    /// for.
+    fn subscribers(&self, points_matched: bool, compressed_matched: bool) -> Subscribers {
+        Subscribers {
+            points: if points_matched {
+                self.points_pub.get_subscription_count(self.node)
+            } else {
+                0
+            },
+            compressed_depth: if compressed_matched {
+                self.compressed_pub.get_subscription_count(self.node)
+            } else {
+                0
+            },
+        }
+    }
+}
+
+/// The receive loop (see the module docs): camera images, `/clock` and the ticker into `rx`
+/// until `stop` changes or its sender is dropped.
+async fn receive_loop(rx: &mut Receiver, io: LoopIo<'_>, stop: &mut watch::Receiver<bool>) {
+    let raw = futures::stream::select_all(io.raw_subs.iter().map(|(i, s)| {
+        let i = *i;
+        s.async_stream()
+            .map(move |r| (i, r.map(|(m, _)| CameraMsg::Raw(m))))
+            .boxed()
+    }));
+    let compressed = futures::stream::select_all(io.compressed_subs.iter().map(|(i, s)| {
+        let i = *i;
+        s.async_stream()
+            .map(move |r| (i, r.map(|(m, _)| CameraMsg::Compressed(m))))
+            .boxed()
+    }));
+    let mut incoming = futures::stream::select(raw, compressed);
+    let mut clock_msgs = match io.clock_sub {
+        Some(s) => s.async_stream().boxed(),
+        None => futures::stream::pending().boxed(),
+    };
+    let mut ticker = tokio::time::interval(TICK);
+    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // ros2-client logs an ERROR for every match count of a publisher that never had a
+    // subscriber (it keeps no entry for it), 20 times a second here: count only after
+    // the first match.
+    let mut first_points_subscriber = Box::pin(io.points_pub.wait_for_subscription(io.node));
+    let mut first_compressed_subscriber =
+        Box::pin(io.compressed_pub.wait_for_subscription(io.node));
+    let (mut points_matched, mut compressed_matched) = (false, false);
+    loop {
+        tokio::select! {
+            _ = &mut first_points_subscriber, if !points_matched => points_matched = true,
+            _ = &mut first_compressed_subscriber, if !compressed_matched => {
+                compressed_matched = true
+            }
+            // A stop request, or the handle dropped.
+            _ = stop.changed() => break,
+            Some((i, result)) = incoming.next() => {
+                rx.on_camera(
+                    i,
+                    result.map_err(|e| {
+                        (BadImageReason::Transport, format!("cannot deserialize: {e:?}"))
+                    }),
+                );
+            }
+            Some(result) = clock_msgs.next() => match result {
+                Ok((clock, _)) => rx.clock.on_clock(clock.clock.to_nanos()),
+                Err(e) => tracing::warn!("/clock: cannot deserialize: {e:?}"),
+            },
+            _ = ticker.tick() => {
+                rx.on_tick(io.diagnostics, io.subscribers(points_matched, compressed_matched))
+            }
+        }
+    }
+}
+
+/// The DDS thread's runtime and endpoints; a failure is also sent on `ready`.
+fn setup_or_report(
+    params: &NodeParams,
+    dds: &DdsOptions,
+    rig: &Rig,
+    shared: &Shared,
+    ready: &std::sync::mpsc::Sender<Result<(), NodeError>>,
+) -> Result<(tokio::runtime::Runtime, DdsSetup), NodeError> {
+    let setup =
+        runtime().and_then(|rt| Ok((rt, dds_setup(params, dds, rig, shared.runtime.clone())?)));
+    match setup {
+        Ok(s) => Ok(s),
+        Err(e) => {
+            let text = e.to_string();
+            let _ = ready.send(Err(e));
+            Err(NodeError::Dds {
+                what: "setup".into(),
+                problem: text,
+            })
+        }
+    }
+}
+
+/// The DDS thread: sets up the endpoints, starts the inference worker, reports on `ready`,
+/// runs [`receive_loop`] until `stop`, then stops the worker and tears the endpoints down.
 pub(super) fn dds_main(
     params: NodeParams,
     dds: DdsOptions,
@@ -305,19 +418,7 @@ pub(super) fn dds_main(
     mut stop: watch::Receiver<bool>,
     ready: std::sync::mpsc::Sender<Result<(), NodeError>>,
 ) -> Result<(), NodeError> {
-    let setup =
-        runtime().and_then(|rt| Ok((rt, dds_setup(&params, &dds, &rig, shared.runtime.clone())?)));
-    let (rt, setup) = match setup {
-        Ok(s) => s,
-        Err(e) => {
-            let text = e.to_string();
-            let _ = ready.send(Err(e));
-            return Err(NodeError::Dds {
-                what: "setup".into(),
-                problem: text,
-            });
-        }
-    };
+    let (rt, setup) = setup_or_report(&params, &dds, &rig, &shared, &ready)?;
     let DdsSetup {
         context,
         spun,
@@ -336,72 +437,16 @@ pub(super) fn dds_main(
     let _ = ready.send(Ok(()));
 
     let mut rx = Receiver::new(&params, &rig, shared.clone());
-
-    rt.block_on(async {
-        let raw = futures::stream::select_all(raw_subs.iter().map(|(i, s)| {
-            let i = *i;
-            s.async_stream()
-                .map(move |r| (i, r.map(|(m, _)| CameraMsg::Raw(m))))
-                .boxed()
-        }));
-        let compressed = futures::stream::select_all(compressed_subs.iter().map(|(i, s)| {
-            let i = *i;
-            s.async_stream()
-                .map(move |r| (i, r.map(|(m, _)| CameraMsg::Compressed(m))))
-                .boxed()
-        }));
-        let mut incoming = futures::stream::select(raw, compressed);
-        let mut clock_msgs = match &clock_sub {
-            Some(s) => s.async_stream().boxed(),
-            None => futures::stream::pending().boxed(),
-        };
-        let mut ticker = tokio::time::interval(TICK);
-        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        // ros2-client logs an ERROR for every match count of a publisher that never had a
-        // subscriber (it keeps no entry for it), 20 times a second here: count only after
-        // the first match.
-        let mut first_points_subscriber = Box::pin(points_pub.wait_for_subscription(&spun.node));
-        let mut first_compressed_subscriber =
-            Box::pin(compressed_pub.wait_for_subscription(&spun.node));
-        let (mut points_matched, mut compressed_matched) = (false, false);
-        loop {
-            tokio::select! {
-                _ = &mut first_points_subscriber, if !points_matched => points_matched = true,
-                _ = &mut first_compressed_subscriber, if !compressed_matched => {
-                    compressed_matched = true
-                }
-                // A stop request, or the handle dropped.
-                _ = stop.changed() => break,
-                Some((i, result)) = incoming.next() => {
-                    rx.on_camera(
-                        i,
-                        result.map_err(|e| {
-                            (BadImageReason::Transport, format!("cannot deserialize: {e:?}"))
-                        }),
-                    );
-                }
-                Some(result) = clock_msgs.next() => match result {
-                    Ok((clock, _)) => rx.clock.on_clock(clock.clock.to_nanos()),
-                    Err(e) => tracing::warn!("/clock: cannot deserialize: {e:?}"),
-                },
-                _ = ticker.tick() => {
-                    let subscribers = Subscribers {
-                        points: if points_matched {
-                            points_pub.get_subscription_count(&spun.node)
-                        } else {
-                            0
-                        },
-                        compressed_depth: if compressed_matched {
-                            compressed_pub.get_subscription_count(&spun.node)
-                        } else {
-                            0
-                        },
-                    };
-                    rx.on_tick(&diagnostics, subscribers)
-                }
-            }
-        }
-    });
+    let io = LoopIo {
+        node: &spun.node,
+        raw_subs: &raw_subs,
+        compressed_subs: &compressed_subs,
+        clock_sub: clock_sub.as_ref(),
+        diagnostics: &diagnostics,
+        points_pub: &points_pub,
+        compressed_pub: &compressed_pub,
+    };
+    rt.block_on(receive_loop(&mut rx, io, &mut stop));
 
     let worker_result = stop_worker(&shared, worker);
     drop(clock_sub);

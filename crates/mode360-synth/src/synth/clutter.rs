@@ -140,169 +140,221 @@ fn sign_material(rng: &mut Rng) -> Material {
     }
 }
 
-/// One item of kind `item` whose near side is `lateral_m` from the centre line `ego_y_m`, on
-/// side `side` (+1 left, -1 right), at `x`.
-fn item(
-    out: &mut Vec<SurfacePrim>,
-    item: Item,
+/// Where one item stands: at `x` along the path, on side `side` (+1 left, -1 right) of the
+/// centre line `ego_y_m`, its near side `lateral_m` from that line.
+#[derive(Clone, Copy, Debug)]
+struct Placement {
     x: f64,
     ego_y_m: f64,
     side: f64,
     lateral_m: f64,
-    rng: &mut Rng,
-) {
-    // `y_at(d)`: the y of a point `d` beyond the near side.
-    let y_at = |d: f64| ego_y_m + side * (lateral_m + d);
-    let origin = Vector3::new(x, y_at(0.0), 0.0);
+}
+
+impl Placement {
+    /// The y of a point `d_m` beyond the near side.
+    fn y_at(&self, d_m: f64) -> f64 {
+        self.ego_y_m + self.side * (self.lateral_m + d_m)
+    }
+
+    /// The item's origin: on the road at `x`, on its near side.
+    fn origin(&self) -> Vector3<f64> {
+        Vector3::new(self.x, self.y_at(0.0), 0.0)
+    }
+}
+
+/// A pole of metal or painted metal, 3 cm to 24 cm across and 2.2 m to 5 m tall.
+fn pole(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.12);
+    let h = rng.range(2.2, 5.0);
+    let m = if rng.chance(0.5) {
+        Material::Metal
+    } else {
+        Material::CarPaint(random_colour(rng))
+    };
+    push(out, post(at.x, at.y_at(r), r, h), m, at.origin());
+}
+
+/// A thin metal post carrying a sign plate at its top, the plate facing along x or across it.
+fn sign_post(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let x = at.x;
+    let r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.05);
+    let h = rng.range(2.0, 3.0);
+    push(out, post(x, at.y_at(r), r, h), Material::Metal, at.origin());
+    let half_w = rng.range(0.2, 0.45);
+    let plate_h = rng.range(0.3, 0.8);
+    // The plate faces along x or across it.
+    let (hx, hy) = if rng.chance(0.5) {
+        (0.01, half_w)
+    } else {
+        (half_w, 0.01)
+    };
+    // Centred so that its near edge is no nearer than the post's.
+    let c = Vector3::new(x, at.y_at(hy.max(r)), h - 0.5 * plate_h);
+    push(
+        out,
+        aabox(
+            [c.x - hx, c.y - hy, c.z - 0.5 * plate_h],
+            [c.x + hx, c.y + hy, c.z + 0.5 * plate_h],
+        ),
+        sign_material(rng),
+        c,
+    );
+}
+
+/// A short concrete or dark glossy bollard.
+fn bollard(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let r = rng.range(0.05, 0.15);
+    let m = if rng.chance(0.5) {
+        Material::Concrete
+    } else {
+        Material::CarPaint(DARK_PAINT)
+    };
+    let h = rng.range(0.6, 1.2);
+    push(out, post(at.x, at.y_at(r), r, h), m, at.origin());
+}
+
+/// An orange traffic cone: a wide lower cylinder under a narrower top.
+fn cone(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let (x, origin) = (at.x, at.origin());
+    let r = rng.range(0.1, 0.18);
+    let h = rng.range(0.45, 0.75);
+    let (y, m) = (at.y_at(r), Material::CarPaint(CONE_ORANGE));
+    push(out, post(x, y, r, 0.5 * h), m, origin);
+    let top = Shape::Cylinder {
+        centre: Vector3::new(x, y, 0.75 * h),
+        axis: 2,
+        radius_m: 0.5 * r,
+        half_length_m: 0.25 * h,
+    };
+    push(out, top, m, origin);
+}
+
+/// A row of thin metal posts along x carrying a painted board (`board`, a barrier) or two
+/// metal rails (a fence).
+fn barrier_or_fence(out: &mut Vec<SurfacePrim>, at: &Placement, board: bool, rng: &mut Rng) {
+    let (x, origin) = (at.x, at.origin());
+    let len = rng.range(1.5, 5.0);
+    let h = rng.range(0.8, 1.2);
+    let post_r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.05);
+    // The barrier's board is 6 cm thick, centred on the posts.
+    let y = at.y_at(post_r.max(0.03));
+    let posts = 2 + (len / 1.5) as usize;
+    for i in 0..posts {
+        let px = x - 0.5 * len + len * i as f64 / (posts - 1) as f64;
+        push(out, post(px, y, post_r, h), Material::Metal, origin);
+    }
+    if board {
+        let m = Material::CarPaint(if rng.chance(0.5) {
+            BARRIER_RED
+        } else {
+            [0.8, 0.8, 0.78]
+        });
+        let board = aabox(
+            [x - 0.5 * len, y - 0.03, h - 0.35],
+            [x + 0.5 * len, y + 0.03, h - 0.05],
+        );
+        push(out, board, m, origin);
+    } else {
+        for rail_z in [0.45 * h, 0.95 * h] {
+            let rail = Shape::Cylinder {
+                centre: Vector3::new(x, y, rail_z),
+                axis: 0,
+                radius_m: post_r,
+                half_length_m: 0.5 * len,
+            };
+            push(out, rail, Material::Metal, origin);
+        }
+    }
+}
+
+/// A bare tree trunk, 20 cm to 60 cm across and 2 m to 4 m tall.
+fn tree_trunk(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let r = rng.range(0.1, 0.3);
+    let h = rng.range(2.0, 4.0);
+    push(
+        out,
+        post(at.x, at.y_at(r), r, h),
+        Material::Bark,
+        at.origin(),
+    );
+}
+
+/// A person with two bicycle wheels, tagged as one instance from prim `start` on.
+fn cyclist(out: &mut Vec<SurfacePrim>, at: &Placement, start: usize, rng: &mut Rng) {
+    let (x, origin) = (at.x, at.origin());
+    let y = at.y_at(PERSON_HALF_WIDTH_M);
+    pedestrian(out, x, y, rng.range(0.0, 6.3), rng);
+    for dx in [-0.55, 0.55] {
+        let wheel = Shape::Cylinder {
+            centre: Vector3::new(x + dx, y, 0.34),
+            axis: 1,
+            radius_m: 0.34,
+            half_length_m: 0.02,
+        };
+        push(out, wheel, Material::Tyre, origin);
+    }
+    // The pedestrian tagged itself; the wheels join it.
+    tag_object(out, start);
+}
+
+/// A low wall along x of concrete, paving or pale textureless concrete.
+fn low_wall(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let x = at.x;
+    let len = rng.range(2.0, 6.0);
+    let thick = rng.range(0.15, 0.35);
+    let h = rng.range(0.4, 1.1);
+    let y = at.y_at(0.5 * thick);
+    let m = match rng.index(3) {
+        0 => Material::Concrete,
+        1 => Material::Paving,
+        // Fresh pale concrete: almost no texture to match.
+        _ => Material::Plain(PALE_CONCRETE),
+    };
+    let wall = aabox(
+        [x - 0.5 * len, y - 0.5 * thick, 0.0],
+        [x + 0.5 * len, y + 0.5 * thick, h],
+    );
+    push(out, wall, m, at.origin());
+}
+
+/// An overhanging branch: a flattened ellipsoid of foliage at least
+/// [`MIN_BRANCH_HEIGHT_M`] above the road.
+fn branch(out: &mut Vec<SurfacePrim>, at: &Placement, rng: &mut Rng) {
+    let z = rng.range(MIN_BRANCH_HEIGHT_M, 4.5);
+    let r = rng.range(0.5, 1.2);
+    let green: Rgb = [
+        rng.range(0.08, 0.16) as f32,
+        rng.range(0.2, 0.32) as f32,
+        rng.range(0.04, 0.1) as f32,
+    ];
+    let blob = Shape::Ellipsoid {
+        centre: Vector3::new(at.x, at.y_at(0.0), z + r),
+        radii_m: Vector3::new(r, 0.8 * r, 0.5 * r),
+    };
+    push(out, blob, Material::Foliage(green), at.origin());
+}
+
+/// One item of kind `item` placed `at`, tagged as one object instance.
+fn item(out: &mut Vec<SurfacePrim>, item: Item, at: &Placement, rng: &mut Rng) {
     let start = out.len();
     match item {
-        Item::Pole => {
-            let r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.12);
-            let h = rng.range(2.2, 5.0);
-            let m = if rng.chance(0.5) {
-                Material::Metal
-            } else {
-                Material::CarPaint(random_colour(rng))
-            };
-            push(out, post(x, y_at(r), r, h), m, origin);
-        }
-        Item::SignPost => {
-            let r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.05);
-            let h = rng.range(2.0, 3.0);
-            push(out, post(x, y_at(r), r, h), Material::Metal, origin);
-            let half_w = rng.range(0.2, 0.45);
-            let plate_h = rng.range(0.3, 0.8);
-            // The plate faces along x or across it.
-            let (hx, hy) = if rng.chance(0.5) {
-                (0.01, half_w)
-            } else {
-                (half_w, 0.01)
-            };
-            // Centred so that its near edge is no nearer than the post's.
-            let c = Vector3::new(x, y_at(hy.max(r)), h - 0.5 * plate_h);
-            push(
-                out,
-                aabox(
-                    [c.x - hx, c.y - hy, c.z - 0.5 * plate_h],
-                    [c.x + hx, c.y + hy, c.z + 0.5 * plate_h],
-                ),
-                sign_material(rng),
-                c,
-            );
-        }
-        Item::Bollard => {
-            let r = rng.range(0.05, 0.15);
-            let m = if rng.chance(0.5) {
-                Material::Concrete
-            } else {
-                Material::CarPaint(DARK_PAINT)
-            };
-            push(out, post(x, y_at(r), r, rng.range(0.6, 1.2)), m, origin);
-        }
-        Item::Cone => {
-            let r = rng.range(0.1, 0.18);
-            let h = rng.range(0.45, 0.75);
-            let (y, m) = (y_at(r), Material::CarPaint(CONE_ORANGE));
-            push(out, post(x, y, r, 0.5 * h), m, origin);
-            let top = Shape::Cylinder {
-                centre: Vector3::new(x, y, 0.75 * h),
-                axis: 2,
-                radius_m: 0.5 * r,
-                half_length_m: 0.25 * h,
-            };
-            push(out, top, m, origin);
-        }
-        Item::Barrier | Item::Fence => {
-            let len = rng.range(1.5, 5.0);
-            let h = rng.range(0.8, 1.2);
-            let post_r = log_uniform(rng, MIN_THIN_RADIUS_M, 0.05);
-            // The barrier's board is 6 cm thick, centred on the posts.
-            let y = y_at(post_r.max(0.03));
-            let posts = 2 + (len / 1.5) as usize;
-            for i in 0..posts {
-                let px = x - 0.5 * len + len * i as f64 / (posts - 1) as f64;
-                push(out, post(px, y, post_r, h), Material::Metal, origin);
-            }
-            if item == Item::Barrier {
-                let m = Material::CarPaint(if rng.chance(0.5) {
-                    BARRIER_RED
-                } else {
-                    [0.8, 0.8, 0.78]
-                });
-                let board = aabox(
-                    [x - 0.5 * len, y - 0.03, h - 0.35],
-                    [x + 0.5 * len, y + 0.03, h - 0.05],
-                );
-                push(out, board, m, origin);
-            } else {
-                for rail_z in [0.45 * h, 0.95 * h] {
-                    let rail = Shape::Cylinder {
-                        centre: Vector3::new(x, y, rail_z),
-                        axis: 0,
-                        radius_m: post_r,
-                        half_length_m: 0.5 * len,
-                    };
-                    push(out, rail, Material::Metal, origin);
-                }
-            }
-        }
-        Item::TreeTrunk => {
-            let r = rng.range(0.1, 0.3);
-            push(
-                out,
-                post(x, y_at(r), r, rng.range(2.0, 4.0)),
-                Material::Bark,
-                origin,
-            );
-        }
-        Item::Person => pedestrian(out, x, y_at(PERSON_HALF_WIDTH_M), rng.range(0.0, 6.3), rng),
-        Item::Cyclist => {
-            let y = y_at(PERSON_HALF_WIDTH_M);
-            pedestrian(out, x, y, rng.range(0.0, 6.3), rng);
-            for dx in [-0.55, 0.55] {
-                let wheel = Shape::Cylinder {
-                    centre: Vector3::new(x + dx, y, 0.34),
-                    axis: 1,
-                    radius_m: 0.34,
-                    half_length_m: 0.02,
-                };
-                push(out, wheel, Material::Tyre, origin);
-            }
-            // The pedestrian tagged itself; the wheels join it.
-            tag_object(out, start);
-        }
-        Item::ParkedCar => car(out, x, y_at(CAR_HALF_WIDTH_MAX_M), rng),
-        Item::LowWall => {
-            let len = rng.range(2.0, 6.0);
-            let thick = rng.range(0.15, 0.35);
-            let h = rng.range(0.4, 1.1);
-            let y = y_at(0.5 * thick);
-            let m = match rng.index(3) {
-                0 => Material::Concrete,
-                1 => Material::Paving,
-                // Fresh pale concrete: almost no texture to match.
-                _ => Material::Plain(PALE_CONCRETE),
-            };
-            let wall = aabox(
-                [x - 0.5 * len, y - 0.5 * thick, 0.0],
-                [x + 0.5 * len, y + 0.5 * thick, h],
-            );
-            push(out, wall, m, origin);
-        }
-        Item::Branch => {
-            let z = rng.range(MIN_BRANCH_HEIGHT_M, 4.5);
-            let r = rng.range(0.5, 1.2);
-            let green: Rgb = [
-                rng.range(0.08, 0.16) as f32,
-                rng.range(0.2, 0.32) as f32,
-                rng.range(0.04, 0.1) as f32,
-            ];
-            let blob = Shape::Ellipsoid {
-                centre: Vector3::new(x, y_at(0.0), z + r),
-                radii_m: Vector3::new(r, 0.8 * r, 0.5 * r),
-            };
-            push(out, blob, Material::Foliage(green), origin);
-        }
+        Item::Pole => pole(out, at, rng),
+        Item::SignPost => sign_post(out, at, rng),
+        Item::Bollard => bollard(out, at, rng),
+        Item::Cone => cone(out, at, rng),
+        Item::Barrier | Item::Fence => barrier_or_fence(out, at, item == Item::Barrier, rng),
+        Item::TreeTrunk => tree_trunk(out, at, rng),
+        Item::Person => pedestrian(
+            out,
+            at.x,
+            at.y_at(PERSON_HALF_WIDTH_M),
+            rng.range(0.0, 6.3),
+            rng,
+        ),
+        Item::Cyclist => cyclist(out, at, start, rng),
+        Item::ParkedCar => car(out, at.x, at.y_at(CAR_HALF_WIDTH_MAX_M), rng),
+        Item::LowWall => low_wall(out, at, rng),
+        Item::Branch => branch(out, at, rng),
     }
     // Items built from push calls are one instance (people and cars tag themselves).
     if !matches!(item, Item::Person | Item::Cyclist | Item::ParkedCar) {
@@ -340,8 +392,13 @@ pub fn clutter_prims(out: &mut Vec<SurfacePrim>, seed: u64, x_centre_m: f64, ego
         } else {
             log_uniform(&mut rng, MIN_LATERAL_M, MAX_LATERAL_M)
         };
-        let x = (k as f64 + rng.range(0.2, 0.8)) * SLOT_LENGTH_M;
-        item(out, kind, x, ego_y_m, side, lateral, &mut rng);
+        let at = Placement {
+            x: (k as f64 + rng.range(0.2, 0.8)) * SLOT_LENGTH_M,
+            ego_y_m,
+            side,
+            lateral_m: lateral,
+        };
+        item(out, kind, &at, &mut rng);
     }
     let path = occupied_slots(
         seed,
@@ -357,8 +414,13 @@ pub fn clutter_prims(out: &mut Vec<SurfacePrim>, seed: u64, x_centre_m: f64, ego
             continue;
         }
         // Near side 0.5 m left of the line to on it.
-        let lateral = rng.range(-0.5, 0.0);
-        item(out, kind, x, ego_y_m, 1.0, lateral, &mut rng);
+        let at = Placement {
+            x,
+            ego_y_m,
+            side: 1.0,
+            lateral_m: rng.range(-0.5, 0.0),
+        };
+        item(out, kind, &at, &mut rng);
     }
 }
 

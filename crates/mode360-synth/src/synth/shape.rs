@@ -210,108 +210,15 @@ impl Shape {
     /// Closest intersection within `(RAY_EPSILON_M, t_max)`.
     pub fn intersect(&self, ray: &Ray, t_max: f64) -> Option<SurfaceHit> {
         let hit = match *self {
-            Shape::Box(b) => {
-                let mut t0 = f64::NEG_INFINITY;
-                let mut t1 = f64::INFINITY;
-                let mut axis0 = 0;
-                let mut axis1 = 0;
-                for a in 0..3 {
-                    let ta = (b.min[a] - ray.origin[a]) * ray.inv_dir[a];
-                    let tb = (b.max[a] - ray.origin[a]) * ray.inv_dir[a];
-                    let (lo, hi) = if ta < tb { (ta, tb) } else { (tb, ta) };
-                    if lo > t0 {
-                        t0 = lo;
-                        axis0 = a;
-                    }
-                    if hi < t1 {
-                        t1 = hi;
-                        axis1 = a;
-                    }
-                }
-                if t0 > t1 {
-                    return None;
-                }
-                let (t, axis, sign) = if t0 > RAY_EPSILON_M {
-                    (t0, axis0, -ray.dir[axis0].signum())
-                } else if t1 > RAY_EPSILON_M {
-                    (t1, axis1, ray.dir[axis1].signum())
-                } else {
-                    return None;
-                };
-                let mut n = Vector3::zeros();
-                n[axis] = sign;
-                SurfaceHit { t, normal: n }
-            }
-            Shape::Sphere { centre, radius_m } => {
-                let oc = ray.origin - centre;
-                let t = smallest_root(
-                    ray.dir.norm_squared(),
-                    oc.dot(&ray.dir),
-                    oc.norm_squared() - radius_m * radius_m,
-                )?;
-                SurfaceHit {
-                    t,
-                    normal: (ray.at(t) - centre) / radius_m,
-                }
-            }
-            Shape::Ellipsoid { centre, radii_m } => {
-                let oc = (ray.origin - centre).component_div(&radii_m);
-                let d = ray.dir.component_div(&radii_m);
-                let t = smallest_root(d.norm_squared(), oc.dot(&d), oc.norm_squared() - 1.0)?;
-                let p = ray.at(t) - centre;
-                let n = p.component_div(&radii_m.component_mul(&radii_m));
-                SurfaceHit {
-                    t,
-                    normal: n.normalize(),
-                }
-            }
+            Shape::Box(b) => box_hit(&b, ray)?,
+            Shape::Sphere { centre, radius_m } => sphere_hit(&centre, radius_m, ray)?,
+            Shape::Ellipsoid { centre, radii_m } => ellipsoid_hit(&centre, &radii_m, ray)?,
             Shape::Cylinder {
                 centre,
                 axis,
                 radius_m,
                 half_length_m,
-            } => {
-                let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
-                let o = ray.origin - centre;
-                let d = &ray.dir;
-                let mut best: Option<SurfaceHit> = None;
-                // Side: (o_i + t d_i)^2 + (o_j + t d_j)^2 = r^2, |o_a + t d_a| <= h.
-                let a = d[i] * d[i] + d[j] * d[j];
-                if a > 1e-18 {
-                    let b = o[i] * d[i] + o[j] * d[j];
-                    let c = o[i] * o[i] + o[j] * o[j] - radius_m * radius_m;
-                    let disc = b * b - a * c;
-                    if disc >= 0.0 {
-                        let s = disc.sqrt();
-                        for t in [(-b - s) / a, (-b + s) / a] {
-                            if t > RAY_EPSILON_M && (o[axis] + t * d[axis]).abs() <= half_length_m {
-                                let mut n = o + d * t;
-                                n[axis] = 0.0;
-                                best = Some(SurfaceHit {
-                                    t,
-                                    normal: n / radius_m,
-                                });
-                                break;
-                            }
-                        }
-                    }
-                }
-                // Caps: o_a + t d_a = +-h with radius check.
-                if d[axis].abs() > 1e-18 {
-                    for sign in [-1.0, 1.0] {
-                        let t = (sign * half_length_m - o[axis]) / d[axis];
-                        if t > RAY_EPSILON_M && best.is_none_or(|h| t < h.t) {
-                            let p = o + d * t;
-                            if p[i] * p[i] + p[j] * p[j] <= radius_m * radius_m {
-                                let mut n = Vector3::zeros();
-                                n[axis] = sign;
-                                best = Some(SurfaceHit { t, normal: n });
-                            }
-                        }
-                    }
-                }
-                best?
-            }
+            } => cylinder_hit(&centre, axis, radius_m, half_length_m, ray)?,
             Shape::Oriented {
                 kind,
                 centre,
@@ -332,6 +239,125 @@ impl Shape {
         };
         (hit.t < t_max).then_some(hit)
     }
+}
+
+/// The nearest hit beyond [`RAY_EPSILON_M`] of `ray` on the axis-aligned box `b` (entering,
+/// or leaving when the ray starts inside), its normal along the slab's axis.
+#[inline]
+fn box_hit(b: &Aabb, ray: &Ray) -> Option<SurfaceHit> {
+    let mut t0 = f64::NEG_INFINITY;
+    let mut t1 = f64::INFINITY;
+    let mut axis0 = 0;
+    let mut axis1 = 0;
+    for a in 0..3 {
+        let ta = (b.min[a] - ray.origin[a]) * ray.inv_dir[a];
+        let tb = (b.max[a] - ray.origin[a]) * ray.inv_dir[a];
+        let (lo, hi) = if ta < tb { (ta, tb) } else { (tb, ta) };
+        if lo > t0 {
+            t0 = lo;
+            axis0 = a;
+        }
+        if hi < t1 {
+            t1 = hi;
+            axis1 = a;
+        }
+    }
+    if t0 > t1 {
+        return None;
+    }
+    let (t, axis, sign) = if t0 > RAY_EPSILON_M {
+        (t0, axis0, -ray.dir[axis0].signum())
+    } else if t1 > RAY_EPSILON_M {
+        (t1, axis1, ray.dir[axis1].signum())
+    } else {
+        return None;
+    };
+    let mut n = Vector3::zeros();
+    n[axis] = sign;
+    Some(SurfaceHit { t, normal: n })
+}
+
+/// The nearest hit beyond [`RAY_EPSILON_M`] of `ray` on the sphere of `radius_m` about
+/// `centre`.
+#[inline]
+fn sphere_hit(centre: &Vector3<f64>, radius_m: f64, ray: &Ray) -> Option<SurfaceHit> {
+    let oc = ray.origin - centre;
+    let t = smallest_root(
+        ray.dir.norm_squared(),
+        oc.dot(&ray.dir),
+        oc.norm_squared() - radius_m * radius_m,
+    )?;
+    Some(SurfaceHit {
+        t,
+        normal: (ray.at(t) - centre) / radius_m,
+    })
+}
+
+/// The nearest hit beyond [`RAY_EPSILON_M`] of `ray` on the axis-aligned ellipsoid with
+/// radii `radii_m` about `centre`.
+#[inline]
+fn ellipsoid_hit(centre: &Vector3<f64>, radii_m: &Vector3<f64>, ray: &Ray) -> Option<SurfaceHit> {
+    let oc = (ray.origin - centre).component_div(radii_m);
+    let d = ray.dir.component_div(radii_m);
+    let t = smallest_root(d.norm_squared(), oc.dot(&d), oc.norm_squared() - 1.0)?;
+    let p = ray.at(t) - centre;
+    let n = p.component_div(&radii_m.component_mul(radii_m));
+    Some(SurfaceHit {
+        t,
+        normal: n.normalize(),
+    })
+}
+
+/// The nearest hit beyond [`RAY_EPSILON_M`] of `ray` on the capped cylinder along
+/// coordinate axis `axis` through `centre`: the side first, then a nearer cap if any.
+#[inline]
+fn cylinder_hit(
+    centre: &Vector3<f64>,
+    axis: usize,
+    radius_m: f64,
+    half_length_m: f64,
+    ray: &Ray,
+) -> Option<SurfaceHit> {
+    let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
+    let o = ray.origin - centre;
+    let d = &ray.dir;
+    let mut best: Option<SurfaceHit> = None;
+    // Side: (o_i + t d_i)^2 + (o_j + t d_j)^2 = r^2, |o_a + t d_a| <= h.
+    let a = d[i] * d[i] + d[j] * d[j];
+    if a > 1e-18 {
+        let b = o[i] * d[i] + o[j] * d[j];
+        let c = o[i] * o[i] + o[j] * o[j] - radius_m * radius_m;
+        let disc = b * b - a * c;
+        if disc >= 0.0 {
+            let s = disc.sqrt();
+            for t in [(-b - s) / a, (-b + s) / a] {
+                if t > RAY_EPSILON_M && (o[axis] + t * d[axis]).abs() <= half_length_m {
+                    let mut n = o + d * t;
+                    n[axis] = 0.0;
+                    best = Some(SurfaceHit {
+                        t,
+                        normal: n / radius_m,
+                    });
+                    break;
+                }
+            }
+        }
+    }
+    // Caps: o_a + t d_a = +-h with radius check.
+    if d[axis].abs() > 1e-18 {
+        for sign in [-1.0, 1.0] {
+            let t = (sign * half_length_m - o[axis]) / d[axis];
+            if t > RAY_EPSILON_M && best.is_none_or(|h| t < h.t) {
+                let p = o + d * t;
+                if p[i] * p[i] + p[j] * p[j] <= radius_m * radius_m {
+                    let mut n = Vector3::zeros();
+                    n[axis] = sign;
+                    best = Some(SurfaceHit { t, normal: n });
+                }
+            }
+        }
+    }
+    best
 }
 
 #[cfg(test)]

@@ -184,8 +184,9 @@ fn parse_lens(
     })
 }
 
-/// The camera's projection from its YAML fields.
-pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Projection, RigError> {
+/// The projection name of a camera: as given, or `equirectangular` when the camera has none
+/// of the fisheye fields (with one of them present, the projection is what is missing).
+fn projection_name<'a>(ctx: &Ctx, raw: &RawProjection<'a>) -> Result<&'a str, RigError> {
     // No projection means equirectangular, which takes none of the fisheye fields: with one of
     // them present, the projection is what is missing.
     let fisheye_field = [
@@ -195,26 +196,32 @@ pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Project
     ]
     .into_iter()
     .find_map(|(f, present)| present.then_some(f));
-    let name = match (raw.projection, fisheye_field) {
-        (Some(name), _) => name,
-        (None, None) => "equirectangular",
-        (None, Some(f)) => {
-            return Err(ctx.err(
-                "projection",
-                format!(
-                    "missing, but the camera has {f}, which only fisheye projections take: give projection: {} (without projection and fisheye fields a camera is equirectangular)",
-                    PROJECTION_NAMES[1..].join(", ")
-                ),
-            ))
-        }
-    };
-    let refuse_extra = |field: &str, present: bool| -> Result<(), RigError> {
-        if present {
-            Err(ctx.err(field, format!("not used by projection {name}")))
-        } else {
-            Ok(())
-        }
-    };
+    match (raw.projection, fisheye_field) {
+        (Some(name), _) => Ok(name),
+        (None, None) => Ok("equirectangular"),
+        (None, Some(f)) => Err(ctx.err(
+            "projection",
+            format!(
+                "missing, but the camera has {f}, which only fisheye projections take: give projection: {} (without projection and fisheye fields a camera is equirectangular)",
+                PROJECTION_NAMES[1..].join(", ")
+            ),
+        )),
+    }
+}
+
+/// An error when `field` is `present` but projection `name` does not use it.
+fn refuse_unused_field(ctx: &Ctx, name: &str, field: &str, present: bool) -> Result<(), RigError> {
+    if present {
+        Err(ctx.err(field, format!("not used by projection {name}")))
+    } else {
+        Ok(())
+    }
+}
+
+/// The camera's projection from its YAML fields.
+pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Projection, RigError> {
+    let name = projection_name(ctx, raw)?;
+    let refuse_extra = |field: &str, present: bool| refuse_unused_field(ctx, name, field, present);
     match name {
         "equirectangular" => {
             refuse_extra("image_size", raw.image_size.is_some())?;
@@ -224,57 +231,7 @@ pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Project
         }
         DualFisheye::NAME => {
             refuse_extra("intrinsics", raw.intrinsics.is_some())?;
-            let size = parse_image_size(ctx, raw.image_size)?;
-            let lenses = raw
-                .lenses
-                .ok_or_else(|| ctx.err("lenses", "missing (dual_fisheye needs two lenses)"))?;
-            if lenses.len() != DUAL_FISHEYE_LENSES {
-                return Err(ctx.err(
-                    "lenses",
-                    format!(
-                        "dual_fisheye needs exactly {DUAL_FISHEYE_LENSES} lenses (left half, right half), found {}",
-                        lenses.len()
-                    ),
-                ));
-            }
-            let mut parsed = Vec::with_capacity(DUAL_FISHEYE_LENSES);
-            for (i, l) in lenses.iter().enumerate() {
-                let at = format!("lenses[{i}]");
-                let model = l
-                    .projection
-                    .as_deref()
-                    .ok_or_else(|| ctx.err(&format!("{at}.projection"), "missing"))?;
-                if !LENS_NAMES.contains(&model) {
-                    return Err(ctx.err(
-                        &format!("{at}.projection"),
-                        format!(
-                            "'{model}' is not a lens model (use one of {})",
-                            LENS_NAMES.join(", ")
-                        ),
-                    ));
-                }
-                let model = parse_lens(
-                    ctx,
-                    &format!("{at}.intrinsics."),
-                    model,
-                    l.intrinsics.as_ref(),
-                )?;
-                let pose = l
-                    .cam_from_lens
-                    .as_ref()
-                    .ok_or_else(|| ctx.err(&format!("{at}.cam_from_lens"), "missing"))?;
-                let cam_from_lens = parse_pose(ctx, &format!("{at}.cam_from_lens"), pose)?;
-                parsed.push(DualLens {
-                    model,
-                    cam_from_lens,
-                });
-            }
-            let [a, b]: [DualLens; DUAL_FISHEYE_LENSES] = parsed
-                .try_into()
-                .map_err(|_| ctx.err("lenses", "expected two lenses"))?;
-            DualFisheye::new([a, b], size)
-                .map(Projection::DualFisheye)
-                .map_err(|e| intrinsics_err(ctx, "", e))
+            parse_dual_fisheye(ctx, raw)
         }
         model if LENS_NAMES.contains(&model) => {
             refuse_extra("lenses", raw.lenses.is_some())?;
@@ -292,6 +249,66 @@ pub(super) fn parse_projection(ctx: &Ctx, raw: &RawProjection) -> Result<Project
             ),
         )),
     }
+}
+
+/// A `dual_fisheye` camera: its image size and exactly [`DUAL_FISHEYE_LENSES`] lenses.
+fn parse_dual_fisheye(ctx: &Ctx, raw: &RawProjection) -> Result<Projection, RigError> {
+    let size = parse_image_size(ctx, raw.image_size)?;
+    let lenses = raw
+        .lenses
+        .ok_or_else(|| ctx.err("lenses", "missing (dual_fisheye needs two lenses)"))?;
+    if lenses.len() != DUAL_FISHEYE_LENSES {
+        return Err(ctx.err(
+            "lenses",
+            format!(
+                "dual_fisheye needs exactly {DUAL_FISHEYE_LENSES} lenses (left half, right half), found {}",
+                lenses.len()
+            ),
+        ));
+    }
+    let mut parsed = Vec::with_capacity(DUAL_FISHEYE_LENSES);
+    for (i, l) in lenses.iter().enumerate() {
+        parsed.push(parse_dual_lens(ctx, i, l)?);
+    }
+    let [a, b]: [DualLens; DUAL_FISHEYE_LENSES] = parsed
+        .try_into()
+        .map_err(|_| ctx.err("lenses", "expected two lenses"))?;
+    DualFisheye::new([a, b], size)
+        .map(Projection::DualFisheye)
+        .map_err(|e| intrinsics_err(ctx, "", e))
+}
+
+/// Lens `i` of a dual-fisheye camera: its single-lens model, intrinsics and `cam_from_lens`.
+fn parse_dual_lens(ctx: &Ctx, i: usize, l: &RawLens) -> Result<DualLens, RigError> {
+    let at = format!("lenses[{i}]");
+    let model = l
+        .projection
+        .as_deref()
+        .ok_or_else(|| ctx.err(&format!("{at}.projection"), "missing"))?;
+    if !LENS_NAMES.contains(&model) {
+        return Err(ctx.err(
+            &format!("{at}.projection"),
+            format!(
+                "'{model}' is not a lens model (use one of {})",
+                LENS_NAMES.join(", ")
+            ),
+        ));
+    }
+    let model = parse_lens(
+        ctx,
+        &format!("{at}.intrinsics."),
+        model,
+        l.intrinsics.as_ref(),
+    )?;
+    let pose = l
+        .cam_from_lens
+        .as_ref()
+        .ok_or_else(|| ctx.err(&format!("{at}.cam_from_lens"), "missing"))?;
+    let cam_from_lens = parse_pose(ctx, &format!("{at}.cam_from_lens"), pose)?;
+    Ok(DualLens {
+        model,
+        cam_from_lens,
+    })
 }
 
 fn lens_to_raw(lens: &FisheyeLens) -> RawIntrinsics {

@@ -7,9 +7,8 @@
 
 use candle_core::{IndexOp, Result, Tensor};
 
-use super::types::{
-    dims_of, Conv3dGeometry, Epilogue, LinearAxisMap, OpsError, SampleTable, SPATIAL_AXES_3D,
-};
+use super::sample_table::SampleTable;
+use super::types::{dims_of, Conv3dGeometry, Epilogue, LinearAxisMap, OpsError, SPATIAL_AXES_3D};
 
 /// First spatial axis of a channels-last volume `(B, D, H, W, C)`.
 const FIRST_SPATIAL_AXIS: usize = 1;

@@ -33,6 +33,7 @@ mod conv3d_direct;
 mod conv3d_gemm;
 mod fused;
 mod linear_axis;
+mod sample_table;
 mod sweep;
 mod table;
 #[cfg(feature = "cuda")]
@@ -49,6 +50,7 @@ pub use composite::{
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d};
 pub use fused::{conv3d_fused, conv_transpose3d_x2_fused, is_inference, Epilogue};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear};
+pub use sample_table::SampleTable;
 pub use sweep::{
     sweep_variance, sweep_variance_appended, sweep_variance_appended_window,
     sweep_variance_visible, view_scale, MIN_VIEWS,
@@ -56,5 +58,5 @@ pub use sweep::{
 pub use table::table_sample;
 pub use types::{
     count_flops, flop_count, has_custom_kernels, with_composites, Conv3dGeometry, LinearAxisMap,
-    OpsError, SampleTable, SPATIAL_AXES_3D,
+    OpsError, SPATIAL_AXES_3D,
 };

@@ -13,11 +13,10 @@ use mode360_core::geometry::BilinearTaps;
 use rayon::prelude::*;
 
 use super::composite;
+use super::sample_table::{SampleTable, TransposedTable};
 #[cfg(feature = "cuda")]
 use super::table_cuda;
-use super::types::{
-    cpu_slice, dims_of, has_custom_kernels, OpsError, SampleTable, TransposedTable,
-};
+use super::types::{cpu_slice, dims_of, has_custom_kernels, OpsError};
 
 /// Rank of the features `(B, H, W, C)`.
 const FEATURE_RANK: usize = 4;

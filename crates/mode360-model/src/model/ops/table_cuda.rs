@@ -18,7 +18,8 @@ use candle_core::cuda_backend::cudarc::nvrtc;
 use candle_core::cuda_backend::{CudaStorage, WrapErr};
 use candle_core::{Layout, Result, Storage};
 
-use super::types::{DeviceTable, OpsError, SampleTable};
+use super::sample_table::{DeviceTable, SampleTable};
+use super::types::OpsError;
 
 /// Module name under which the device keeps the kernels.
 const MODULE: &str = "mode360_table";
