@@ -14,7 +14,8 @@ pub struct EstimatorArgs {
     /// learning-free option).
     #[arg(long, value_enum, default_value_t = EstimatorKind::default())]
     pub estimator: EstimatorKind,
-    /// SSMODE weights file (default: the shipped weights; an error with other estimators).
+    /// SSMODE weights file, or PSMODE's stage 1 (default: the shipped weights,
+    /// models/psmode_stage1.safetensors for PSMODE; an error with the photometric sweep).
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Where SSMODE runs: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the `cuda`

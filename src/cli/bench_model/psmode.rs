@@ -15,7 +15,7 @@ use mode360_core::memory::{reset_peak_resident, resident_mib};
 use mode360_estimator::estimator::psmode::{
     fusion_weights_path, PairChoice, PsmodeEstimator, DEFAULT_FUSION_WEIGHTS_PATH,
 };
-use mode360_estimator::estimator::ssmode::{locate_weights, DEFAULT_WEIGHTS_PATH};
+use mode360_estimator::estimator::ssmode::{locate_weights, PSMODE_STAGE1_WEIGHTS_PATH};
 use mode360_estimator::estimator::DepthEstimator;
 use mode360_model::model::{read_config, ComputeDevice};
 use mode360_synth::synth::{SynthConfig, SynthRenderer};
@@ -72,7 +72,7 @@ pub fn bench_psmode_case(opts: &PsmodeBenchOptions) -> Result<ModelBenchCase> {
     let stage1 = locate_weights(
         opts.stage1_weights
             .as_deref()
-            .unwrap_or(Path::new(DEFAULT_WEIGHTS_PATH)),
+            .unwrap_or(Path::new(PSMODE_STAGE1_WEIGHTS_PATH)),
     );
     let cfg = read_config(&stage1)
         .with_context(|| format!("reading the config of {}", stage1.display()))?;

@@ -127,6 +127,19 @@ impl EstimatorKind {
     pub fn has_weights(self) -> bool {
         matches!(self, Self::Ssmode | Self::Psmode)
     }
+
+    /// The shipped weights this estimator loads when none are given, located
+    /// ([`ssmode::locate_weights`]): SSMODE's default, PSMODE's stage 1
+    /// ([`ssmode::PSMODE_STAGE1_WEIGHTS_PATH`]); SSMODE's default for the others, which
+    /// have none ([`Self::has_weights`]).
+    pub fn default_weights_path(self) -> PathBuf {
+        match self {
+            Self::Psmode => {
+                ssmode::locate_weights(std::path::Path::new(ssmode::PSMODE_STAGE1_WEIGHTS_PATH))
+            }
+            Self::Ssmode | Self::Photometric => ssmode::default_weights_path(),
+        }
+    }
 }
 
 impl std::fmt::Display for EstimatorKind {
@@ -201,7 +214,7 @@ impl EstimatorSpec {
     pub fn weights_path(&self) -> Option<PathBuf> {
         self.kind.has_weights().then(|| match &self.weights {
             Some(path) => ssmode::locate_weights(path),
-            None => ssmode::default_weights_path(),
+            None => self.kind.default_weights_path(),
         })
     }
 
@@ -275,7 +288,9 @@ impl EstimatorSpec {
                 })
             }
             (EstimatorKind::Psmode, weights) => Ok(Box::new(psmode::PsmodeEstimator::load_on(
-                weights.clone().unwrap_or_else(ssmode::default_weights_path),
+                weights
+                    .clone()
+                    .unwrap_or_else(|| EstimatorKind::Psmode.default_weights_path()),
                 psmode::fusion_weights_path(self.fusion_weights.as_deref()).as_deref(),
                 self.device,
                 self.pairs.clone(),
@@ -319,6 +334,14 @@ mod tests {
         assert!(e.contains("weights") && e.contains("w.st"), "{e}");
         let ssmode = EstimatorSpec::new(EstimatorKind::Ssmode);
         assert_eq!(ssmode.weights_path(), Some(ssmode::default_weights_path()));
+        // PSMODE's stage 1: SSMODE's network fine-tuned on pairs, shipped apart
+        let psmode = EstimatorSpec::new(EstimatorKind::Psmode);
+        let stage1 = psmode.weights_path().expect("psmode has weights");
+        assert!(
+            stage1.ends_with(ssmode::PSMODE_STAGE1_WEIGHTS_PATH),
+            "{stage1:?}"
+        );
+        assert_ne!(Some(stage1), ssmode.weights_path());
         let missing = EstimatorSpec::with_weights(EstimatorKind::Ssmode, Some("/no/w.st".into()));
         let e = missing.build().err().expect("missing weights").to_string();
         assert!(e.contains("/no/w.st"), "{e}");

@@ -42,6 +42,10 @@ pub const PARALLAX_WEIGHTS_PATH: &str = "models/ssmode_parallax.safetensors";
 /// streets, but read from one panorama's look (geometry share about 3 points, models/README.md).
 pub const COMPACT_WEIGHTS_PATH: &str = "models/ssmode_compact.safetensors";
 
+/// PSMODE's stage 1 by default: the default weights fine-tuned on camera pairs in their GEER
+/// frame (`train --camera-pairs`, 3,100 steps; models/README.md, the PSMODE card).
+pub const PSMODE_STAGE1_WEIGHTS_PATH: &str = "models/psmode_stage1.safetensors";
+
 /// The shipped weights files, built into the binary so that an installed or copied binary
 /// runs without its source tree.
 pub const BUILTIN_WEIGHTS: &[BuiltinFile] = &[
@@ -56,6 +60,10 @@ pub const BUILTIN_WEIGHTS: &[BuiltinFile] = &[
     BuiltinFile {
         relative: COMPACT_WEIGHTS_PATH,
         bytes: include_bytes!("../../../../models/ssmode_compact.safetensors"),
+    },
+    BuiltinFile {
+        relative: PSMODE_STAGE1_WEIGHTS_PATH,
+        bytes: include_bytes!("../../../../models/psmode_stage1.safetensors"),
     },
 ];
 

@@ -95,7 +95,8 @@ pub struct NodeParams {
     /// Namespace, `/` or `/a/b`.
     pub namespace: String,
     pub rig_file: PathBuf,
-    /// Parameters `estimator` and `weights` (SSMODE weights file; empty: the shipped weights).
+    /// Parameters `estimator` and `weights` (SSMODE weights file, PSMODE's stage 1; empty: the
+    /// shipped weights of the estimator).
     pub estimator: EstimatorSpec,
     pub output_width: usize,
     pub sync_tolerance_s: f64,
