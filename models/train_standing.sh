@@ -36,6 +36,8 @@
 #                          too near), obst2's loss. Tried 2026-11-29 and stopped after 3 steps:
 #                          56 to 113 s a step (a CI build beside it), 8.7 GB: a GPU's job (about
 #                          a minute a step here against 3 s at 256).
+# `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
+# step 3,100 ships as models/psmode_stage1.safetensors, and `fusion1` trains stage 2 on it.
 # `fusion` stopped at 5,700 (2026-11-29): its validation δ1 wandered between 71.5 and 75.5 from
 # step 1,500 on, and its best step (4,250, 75.5) was no better than the shipped file (1,250)
 # on the held-out rows (streets 93.09 / 93.55, soiled 91.76 / 91.97, cluttered 77.56 / 77.21):
@@ -59,12 +61,12 @@
 # streets with `tools/eval_heldout.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("pairs"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("fusion1"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-pairs}"
+arms="${ARMS:-fusion1}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS="${THREADS:-1}" CANDLE_NUM_THREADS="${THREADS:-1}"
@@ -126,8 +128,21 @@ for arm in $arms; do
     pids+=($!)
     continue
     ;;
+  fusion1)
+    # PSMODE stage 2 on the fine-tuned stage 1 (models/psmode_stage1.safetensors, `pairs` at
+    # 3,100): `fusion` was trained on the zero-shot stage 1 and its 200 samples held no more,
+    # so 300 here; validated on the same 8 held-out Deep360-rig frames
+    "$bin" train --stage fusion --stage1-weights models/psmode_stage1.safetensors \
+      --fusion-samples 300 --fusion-val-samples 8 --width 256 --steps "${STEPS:-20000}" \
+      --lr 3e-4 --warmup-steps 50 --objects-fraction 0.25 --street cluttered \
+      --soiled-fraction 0.3 --rig-layouts any --blocked-fraction 0.2 --camera-effects \
+      --rig-pool 6 --val-every 250 --checkpoint-every 50 --fusion-loss log-l1 --seed 6 \
+      --resume --out runs/psmode_fusion1 &
+    pids+=($!)
+    continue
+    ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, w512, pairs, pairs_lr or fusion)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, w512, pairs, pairs_lr, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
