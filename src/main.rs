@@ -4,7 +4,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use mode360::cli;
-use mode360_node::node::ros_args;
+use mode360_node::ros_args;
 use std::process::ExitCode;
 
 /// jemalloc keeps freed pages for reuse: the network's tensors are tens of megabytes, and the
@@ -68,7 +68,7 @@ const PURGE_ALL_ARENAS: &std::ffi::CStr = c"arena.4096.purge";
 
 /// Hands the pages jemalloc holds free (dirty and lazily purged ones, of every arena) back to
 /// the kernel at once; true when jemalloc did. Registered with the node
-/// (`mode360_node::node::page_release`), which calls it when memory was freed for good.
+/// (`mode360_node::page_release`), which calls it when memory was freed for good.
 fn purge_jemalloc() -> bool {
     // SAFETY: `arena.<i>.purge` reads and writes nothing (all pointers null, length 0) and
     // the name is a NUL-terminated string; jemalloc locks each arena while purging it.
@@ -185,10 +185,7 @@ fn init_logging(filter: tracing_subscriber::EnvFilter) {
                 .with_filter(repeats)
                 .with_filter(filter),
         )
-        .with(
-            mode360_node::node::rosout::RosoutLayer
-                .with_filter(mode360_node::node::rosout::rosout_filter()),
-        )
+        .with(mode360_node::rosout::RosoutLayer.with_filter(mode360_node::rosout::rosout_filter()))
         .init();
 }
 
@@ -210,7 +207,7 @@ fn describe(error: &anyhow::Error) -> String {
 }
 
 fn main() -> ExitCode {
-    mode360_node::node::page_release::set_page_release(purge_jemalloc);
+    mode360_node::page_release::set_page_release(purge_jemalloc);
     let cli = Cli::parse();
     init_logging(log_filter(&cli.command));
     match run(cli.command) {

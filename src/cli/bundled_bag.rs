@@ -6,9 +6,9 @@
 use anyhow::{Context, Result};
 use mode360_core::geometry::Rig;
 use mode360_core::shipped::{self, Origin};
-use mode360_node::node::params::DEFAULT_RIG_FILE;
-use mode360_synth::synth::record::{record_synthetic_bag, RecordOptions};
-use mode360_synth::synth::SynthConfig;
+use mode360_node::params::DEFAULT_RIG_FILE;
+use mode360_synth::record::{record_synthetic_bag, RecordOptions};
+use mode360_synth::SynthConfig;
 use std::path::{Path, PathBuf};
 
 /// The bag `demo` plays and `bench-node` measures by default.

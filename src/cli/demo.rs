@@ -14,14 +14,14 @@ use image::Rgb;
 use mode360_core::frame::{FloatImage, RgbImage, RigFrame};
 use mode360_core::geometry::Rig;
 use mode360_core::metrics::{depth_metrics, DepthMetrics, FrameAverage};
-use mode360_estimator::estimator::EstimatorSpec;
+use mode360_estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader};
 use mode360_io::msgs::image::{float_from_image_msg, image_msg_from_rgb};
 use mode360_io::msgs::{Header, Image, PointCloud2};
-use mode360_node::node::live_view::{DEFAULT_FOXGLOVE_PORT, FOXGLOVE_OFF};
-use mode360_node::node::pipeline::decode_points;
-use mode360_node::node::player::{play_bag, play_bag_until, PlayOptions};
-use mode360_node::node::{
+use mode360_node::live_view::{DEFAULT_FOXGLOVE_PORT, FOXGLOVE_OFF};
+use mode360_node::pipeline::decode_points;
+use mode360_node::player::{play_bag, play_bag_until, PlayOptions};
+use mode360_node::{
     create_subscription, dds_context, runtime, spawn_node, stop_flag_on_signals, DdsOptions,
     NodeHandle, NodeParams, SpunNode,
 };
@@ -296,7 +296,7 @@ fn serve_live_view(opts: &DemoOptions, port: u16) -> Result<()> {
 
 /// Top-down view of a cloud (x forward = up in the image, y left = left), coloured by the
 /// points' own colours, the highest point winning each pixel.
-fn top_view(points: &[mode360_node::node::pipeline::DecodedPoint]) -> RgbImage {
+fn top_view(points: &[mode360_node::pipeline::DecodedPoint]) -> RgbImage {
     let mut img = RgbImage::from_pixel(TOP_VIEW_PX, TOP_VIEW_PX, Rgb([20, 20, 20]));
     let mut height = FloatImage::filled(
         TOP_VIEW_PX as usize,

@@ -2,8 +2,8 @@
 //! `bench-node`.
 
 use clap::Args;
-use mode360_estimator::estimator::psmode::PairChoice;
-use mode360_estimator::estimator::{EstimatorKind, EstimatorSpec};
+use mode360_estimator::psmode::PairChoice;
+use mode360_estimator::{EstimatorKind, EstimatorSpec};
 use mode360_model::model::{ComputeDevice, ReadoutOverrides};
 use std::path::PathBuf;
 

@@ -8,10 +8,10 @@
 //!
 //! | module | command | what it does |
 //! |---|---|---|
-//! | [`synth`] | `synth` | renders synthetic frames into a rig bag (`mode360_synth::synth::record`) |
+//! | [`synth`] | `synth` | renders synthetic frames into a rig bag (`mode360_synth::record`) |
 //! | [`eval`] | `eval` | scores an estimator on rig bags, with the geometry share |
-//! | [`train`] | `train` | trains SSMODE ([`mode360_train::train`]) |
-//! | [`node`] | `node` | runs the ROS 2 node ([`mode360_node::node`]) |
+//! | [`train`] | `train` | trains SSMODE ([`mode360_train`]) |
+//! | [`node`] | `node` | runs the ROS 2 node ([`mode360_node`]) |
 //! | [`replay`] | `replay` | the node's pipeline over a bag, without DDS, into a bag |
 //! | [`play`] | `play` | publishes a bag on DDS with its recorded timing |
 //! | [`bench_node`] | `bench-node` | the live node under a looped bag: latency, rates, memory |

@@ -1,7 +1,7 @@
 //! `mode360 node`: the ROS 2 node, with arguments as `ros2 run` / `ros2 launch` pass them.
 
 use anyhow::Result;
-use mode360_node::node::run_node;
+use mode360_node::run_node;
 
 /// Runs the node until a shutdown signal and prints its summary line.
 pub fn run(ros_args: Vec<String>) -> Result<()> {

@@ -1,10 +1,10 @@
 //! `mode360 play`: publish a bag's messages on DDS with their recorded timing
-//! ([`mode360_node::node::player`]).
+//! ([`mode360_node::player`]).
 
 use anyhow::Result;
 use clap::Args;
-use mode360_node::node::player::{play_bag_until, PlayOptions};
-use mode360_node::node::DdsOptions;
+use mode360_node::player::{play_bag_until, PlayOptions};
+use mode360_node::DdsOptions;
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -27,7 +27,7 @@ pub struct PlayArgs {
 
 /// `mode360 play`: publishes a bag (looping as asked) and prints what went out.
 pub fn run(a: PlayArgs) -> Result<()> {
-    let stop = mode360_node::node::stop_flag_on_signals()?;
+    let stop = mode360_node::stop_flag_on_signals()?;
     let summary = play_bag_until(
         &PlayOptions {
             input: a.input,

@@ -18,13 +18,13 @@ use mode360_core::geometry::Rig;
 use mode360_core::metrics::DepthMetrics;
 use mode360_core::obstacles::{ObstacleMeasure, ObstacleReport};
 use mode360_core::sync::SyncStats;
-use mode360_estimator::estimator::EstimatorSpec;
+use mode360_estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader, RigBagWriter};
 use mode360_io::msgs::image::float_from_image_msg;
 use mode360_io::msgs::{Image, PointCloud2};
-use mode360_node::node::diagnostics::{diagnostic_array, NodeHealth};
-use mode360_node::node::pipeline::{Pipeline, PipelineOutput, PipelineParams};
-use mode360_node::node::{
+use mode360_node::diagnostics::{diagnostic_array, NodeHealth};
+use mode360_node::pipeline::{Pipeline, PipelineOutput, PipelineParams};
+use mode360_node::{
     resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
     POINTS_TOPIC,
 };

@@ -4,9 +4,9 @@ use anyhow::{Context, Result};
 use clap::Args;
 use mode360_core::geometry::Rig;
 use mode360_core::memory::BYTES_PER_MIB;
-use mode360_synth::synth::blockers::{parse_blocked_lens, validate_blockers};
-use mode360_synth::synth::record::{record_synthetic_bag, RecordOptions};
-use mode360_synth::synth::{SceneKind, StreetStyle, SynthConfig};
+use mode360_synth::blockers::{parse_blocked_lens, validate_blockers};
+use mode360_synth::record::{record_synthetic_bag, RecordOptions};
+use mode360_synth::{SceneKind, StreetStyle, SynthConfig};
 use std::path::PathBuf;
 
 #[derive(Args)]

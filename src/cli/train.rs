@@ -1,12 +1,12 @@
-//! `mode360 train`: the training command over [`mode360_train::train`].
+//! `mode360 train`: the training command over [`mode360_train`].
 
 use anyhow::Result;
 use clap::Args;
 use mode360_model::model::{ComputeDevice, Preset};
-use mode360_synth::synth::StreetStyle;
-use mode360_train::train::data::SceneMix;
-use mode360_train::train::rig_layouts::RigLayouts;
-use mode360_train::train::{run_training, TrainOptions};
+use mode360_synth::StreetStyle;
+use mode360_train::data::SceneMix;
+use mode360_train::rig_layouts::RigLayouts;
+use mode360_train::{run_training, TrainOptions};
 use std::path::PathBuf;
 
 /// Which network `mode360 train` trains.
@@ -35,8 +35,8 @@ pub struct TrainArgs {
     pub fusion_samples: usize,
     /// Fusion: the range loss, log-l1 (absolute error of log range) or silog (the paper's,
     /// lambda 0.5).
-    #[arg(long, value_enum, default_value_t = mode360_train::train::fusion::FusionLoss::LogL1)]
-    pub fusion_loss: mode360_train::train::fusion::FusionLoss,
+    #[arg(long, value_enum, default_value_t = mode360_train::fusion::FusionLoss::LogL1)]
+    pub fusion_loss: mode360_train::fusion::FusionLoss,
     /// Fusion: held-out validation frames.
     #[arg(long, default_value_t = 8)]
     pub fusion_val_samples: usize,
@@ -133,7 +133,7 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 1.0)]
     pub near_weight: f64,
     /// Range below which --near-weight applies, metres.
-    #[arg(long, default_value_t = mode360_train::train::loss::DEFAULT_NEAR_RANGE_M)]
+    #[arg(long, default_value_t = mode360_train::loss::DEFAULT_NEAR_RANGE_M)]
     pub near_range_m: f64,
     /// Give every rendered camera image a real camera's effects: exposure, white balance,
     /// vignetting, blur, sensor noise and JPEG compression, drawn per camera.
@@ -186,7 +186,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,
-        loss_weighting: mode360_train::train::loss::LossWeighting {
+        loss_weighting: mode360_train::loss::LossWeighting {
             near_range_m: a.near_range_m,
             near_weight: a.near_weight,
             too_far_weight: a.too_far_weight,
@@ -230,8 +230,8 @@ fn scene_mix(a: &TrainArgs) -> SceneMix {
 fn run_fusion(a: TrainArgs) -> Result<()> {
     use anyhow::Context;
     use mode360_model::model::FusionConfig;
-    use mode360_train::train::data::DataConfig;
-    use mode360_train::train::fusion::{run_fusion_training, FusionTrainOptions};
+    use mode360_train::data::DataConfig;
+    use mode360_train::fusion::{run_fusion_training, FusionTrainOptions};
     let config = FusionConfig {
         width: a.width.unwrap_or(FusionConfig::small().width),
         ..FusionConfig::small()
@@ -243,7 +243,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
     };
     let stage1_weights = a
         .stage1_weights
-        .unwrap_or_else(mode360_estimator::estimator::ssmode::default_weights_path);
+        .unwrap_or_else(mode360_estimator::ssmode::default_weights_path);
     let opts = FusionTrainOptions {
         out_dir: a.out,
         stage1_weights,

@@ -4,11 +4,11 @@
 //! clean lens.
 
 use crate::common::{deep360_rig, repo_path};
-use mode360::estimator::lens_health::{lens_votes, LensHealth};
-use mode360::estimator::lens_window::LensHealthWindow;
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::DepthEstimator;
 use mode360::geometry::{ErpGrid, Rig};
+use mode360::health::lens_health::{lens_votes, LensHealth};
+use mode360::health::lens_window::LensHealthWindow;
 use mode360::synth::blockers::{BlockedLens, BlockerKind};
 use mode360::synth::{SynthConfig, SynthRenderer};
 

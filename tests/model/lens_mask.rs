@@ -7,13 +7,13 @@
 
 use crate::common::deep360_rig;
 use crate::photometric_scene::scores;
-use mode360::estimator::lens_guard::LensGuard;
-use mode360::estimator::lens_window::LENS_WINDOW_FRAMES;
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::ssmode::{default_weights_path, SsmodeEstimator};
 use mode360::estimator::DepthEstimator;
 use mode360::frame::RigFrame;
 use mode360::geometry::{ErpGrid, Rig};
+use mode360::health::lens_guard::LensGuard;
+use mode360::health::lens_window::LENS_WINDOW_FRAMES;
 use mode360::synth::blockers::{BlockedLens, BlockerKind};
 use mode360::synth::{SynthConfig, SynthRenderer};
 

@@ -20,14 +20,14 @@ use clap::Args;
 
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
-use mode360_estimator::estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
-use mode360_estimator::estimator::DepthEstimator;
+use mode360_estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
+use mode360_estimator::DepthEstimator;
 use mode360_model::model::ops::with_composites;
 use mode360_model::model::{
     input_tensor, load_weights, read_config, ComputeDevice, Preset, Ssmode, SsmodeConfig,
     StageProfiler, SweepSampling,
 };
-use mode360_synth::synth::{SynthConfig, SynthRenderer};
+use mode360_synth::{SynthConfig, SynthRenderer};
 
 pub mod psmode;
 

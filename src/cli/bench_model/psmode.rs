@@ -12,13 +12,13 @@ use anyhow::{Context, Result};
 
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::memory::{reset_peak_resident, resident_mib};
-use mode360_estimator::estimator::psmode::{
+use mode360_estimator::psmode::{
     fusion_weights_path, PairChoice, PsmodeEstimator, DEFAULT_FUSION_WEIGHTS_PATH,
 };
-use mode360_estimator::estimator::ssmode::{locate_weights, PSMODE_STAGE1_WEIGHTS_PATH};
-use mode360_estimator::estimator::DepthEstimator;
+use mode360_estimator::ssmode::{locate_weights, PSMODE_STAGE1_WEIGHTS_PATH};
+use mode360_estimator::DepthEstimator;
 use mode360_model::model::{read_config, ComputeDevice};
-use mode360_synth::synth::{SynthConfig, SynthRenderer};
+use mode360_synth::{SynthConfig, SynthRenderer};
 
 use super::{median, observed_peak_mib, ModelBenchCase, StageSummary};
 

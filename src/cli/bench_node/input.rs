@@ -7,8 +7,8 @@ use crate::cli::bundled_bag::BUNDLED_BAG;
 use anyhow::{anyhow, bail, Context, Result};
 use mode360_core::shipped::{self, Origin};
 use mode360_io::bag::RigBagReader;
-use mode360_synth::synth::record::{record_synthetic_bag, RecordOptions};
-use mode360_synth::synth::SynthConfig;
+use mode360_synth::record::{record_synthetic_bag, RecordOptions};
+use mode360_synth::SynthConfig;
 use std::path::{Path, PathBuf};
 
 /// A temporary file removed on drop.

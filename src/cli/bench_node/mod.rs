@@ -19,11 +19,11 @@
 use super::estimator_args::EstimatorArgs;
 use anyhow::{anyhow, bail, Context, Result};
 use mode360_core::memory::resident_mib;
-use mode360_estimator::estimator::EstimatorSpec;
+use mode360_estimator::EstimatorSpec;
 use mode360_io::msgs::{CompressedImage, Image, RosMessage};
-use mode360_node::node::params::DEFAULT_RIG_FILE;
-use mode360_node::node::player::{play_bag_until, PlayOptions, PlaySummary, Published};
-use mode360_node::node::{
+use mode360_node::params::DEFAULT_RIG_FILE;
+use mode360_node::player::{play_bag_until, PlayOptions, PlaySummary, Published};
+use mode360_node::{
     create_subscription, dds_context, runtime, spawn_node, DdsOptions, NodeHandle, NodeHealth,
     NodeParams, ShutdownSignals, SpunNode,
 };

@@ -6,7 +6,7 @@
 
 use super::{evaluate, EvalOptions, EvalReport, ViewMode};
 use anyhow::Result;
-use mode360_estimator::estimator::DepthEstimator;
+use mode360_estimator::DepthEstimator;
 use serde::{Deserialize, Serialize};
 
 /// One condition (clean, soiled) of the geometry check.

@@ -1,5 +1,5 @@
 //! `mode360 rig refine BAG --out RIG.yaml [--rig START.yaml]`: the cameras' rotations refined
-//! from a bag's images ([`mode360_estimator::estimator::calibration`] does the work: the
+//! from a bag's images ([`mode360_health::calibration`] does the work: the
 //! rotation of each camera that makes it agree best with the others at the estimated depth).
 //! Depth comes from the learning-free photometric sweep: per camera, from the other cameras
 //! (so that a turned camera cannot bend it towards itself), estimated again after each pass.
@@ -10,11 +10,11 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use mode360_core::frame::RigFrame;
 use mode360_core::geometry::{ErpGrid, Rig};
-use mode360_estimator::estimator::calibration::{
+use mode360_estimator::photometric::{PhotometricConfig, PhotometricSweep};
+use mode360_health::calibration::{
     keep_earned_corrections, refine_rotations, turns, CameraCorrection, CheckFrame, RotationCheck,
     RotationCheckConfig, MIN_TEXTURED_CELLS,
 };
-use mode360_estimator::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360_io::bag::RigBagReader;
 use nalgebra::Vector3;
 use std::path::PathBuf;

@@ -1,5 +1,5 @@
 //! Learning-free photometric matching shared by the photometric sweep
-//! (`mode360_estimator::estimator::photometric`) and SSMODE's photometric cost channel
+//! (`mode360_estimator::photometric`) and SSMODE's photometric cost channel
 //! ([`crate::model::photometric_cost`]): windowed ZNCC between camera pairs combined over the
 //! best pairs ([`zncc`]) and the per-pair parallax weights ([`pair_parallax_weights`]).
 //!
