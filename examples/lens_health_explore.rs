@@ -8,12 +8,12 @@
 //! Nothing is asserted here: the tests in tests/model/lens_health.rs are.
 
 use mode360::bag::RigBagReader;
-use mode360::estimator::lens_health::{analysis_grid, lens_votes, LensVotes};
-use mode360::estimator::lens_motion::{cell_changes, motion_votes, LensGeometry};
-use mode360::estimator::lens_window::LensHealthWindow;
 use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
 use mode360::estimator::DepthEstimator;
 use mode360::geometry::ErpGrid;
+use mode360::health::lens_health::{analysis_grid, lens_votes, LensVotes};
+use mode360::health::lens_motion::{cell_changes, motion_votes, LensGeometry};
+use mode360::health::lens_window::LensHealthWindow;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let use_sweep = std::env::var("LENS_DEPTH").is_ok_and(|v| v == "sweep");
