@@ -61,6 +61,8 @@ use mode360_synth::{
 use std::path::{Path, PathBuf};
 
 mod stream;
+#[cfg(test)]
+mod tests;
 
 pub use stream::{IndexedSample, SampleStream};
 
