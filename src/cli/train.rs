@@ -3,9 +3,7 @@
 use anyhow::Result;
 use clap::Args;
 use mode360_model::model::{ComputeDevice, Preset};
-use mode360_synth::StreetStyle;
 use mode360_train::data::SceneMix;
-use mode360_train::rig_layouts::RigLayouts;
 use mode360_train::{run_training, TrainOptions};
 use std::path::PathBuf;
 
@@ -92,33 +90,6 @@ pub struct TrainArgs {
     /// an ablation stop at the same step).
     #[arg(long)]
     pub until_step: Option<usize>,
-    /// Fraction of rendered samples that are random-objects scenes (1: pretraining for
-    /// matching; the rest are streets).
-    #[arg(long, default_value_t = 0.0)]
-    pub objects_fraction: f64,
-    /// Layout variation of the training streets.
-    #[arg(long, value_enum, default_value_t = StreetStyle::Regular)]
-    pub street: StreetStyle,
-    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs.
-    #[arg(long, default_value_t = 0.0)]
-    pub fisheye_fraction: f64,
-    /// Layouts of the random rigs: roof (horizontal roof racks, the stream of older runs) or
-    /// any (also vertical masts, turned cameras at mixed heights, cameras on the car body's
-    /// corners; 2 to 5 cameras).
-    #[arg(long, value_enum, default_value_t = RigLayouts::Roof)]
-    pub rig_layouts: RigLayouts,
-    /// Fraction of rendered samples where one random camera's lens is 5 to 40 % blocked (mud,
-    /// a mount or a vehicle part).
-    #[arg(long, default_value_t = 0.0)]
-    pub blocked_fraction: f64,
-    /// Draw random rigs from a pool of this many, renewed every 25 samples per rig, so that
-    /// their sweep tables are reused (0: a new rig every sample, the stream of older runs).
-    #[arg(long, default_value_t = 0)]
-    pub rig_pool: usize,
-    /// PSMODE's stage 1: train on one camera pair of each sample's rig, seen in the pair's GEER
-    /// frame (two cameras turned into the pair frame, range from the left camera).
-    #[arg(long)]
-    pub camera_pairs: bool,
     /// Fraction of samples with lens soiling.
     #[arg(long, default_value_t = 0.3)]
     pub soiled_fraction: f64,
@@ -129,30 +100,16 @@ pub struct TrainArgs {
     /// Clip the global gradient norm to this (off when absent).
     #[arg(long)]
     pub max_grad_norm: Option<f64>,
-    /// Loss weight of pixels whose true range is at most --near-range-m (1: the plain loss).
-    #[arg(long, default_value_t = 1.0)]
-    pub near_weight: f64,
-    /// Range below which --near-weight applies, metres.
-    #[arg(long, default_value_t = mode360_train::loss::DEFAULT_NEAR_RANGE_M)]
-    pub near_range_m: f64,
     /// Give every rendered camera image a real camera's effects: exposure, white balance,
     /// vignetting, blur, sensor noise and JPEG compression, drawn per camera.
     #[arg(long)]
     pub camera_effects: bool,
-    /// Loss weight of a pixel predicted farther than its truth (1: the plain loss).
-    #[arg(long, default_value_t = 1.0)]
-    pub too_far_weight: f64,
-    /// Where the too-far loss weight applies: pixels whose true range is at most this, metres
-    /// (default: everywhere).
-    #[arg(long, default_value_t = f64::INFINITY)]
-    pub too_far_range_m: f64,
-    /// Loss weight of the pixels of an obstacle as `eval` counts them (an object instance
-    /// within 10 m; rendered samples only; 1: the plain loss).
-    #[arg(long, default_value_t = 1.0)]
-    pub obstacle_weight: f64,
-    /// Further loss weight of a thin obstacle's pixels (narrower than 3 degrees).
-    #[arg(long, default_value_t = 1.0)]
-    pub thin_weight: f64,
+    /// What the rendered samples hold.
+    #[command(flatten)]
+    pub mix: SceneMix,
+    /// The loss's extra weights (near pixels, too far, obstacles).
+    #[command(flatten)]
+    pub loss_weighting: mode360_train::loss::LossWeighting,
     /// Where the network trains: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with the
     /// `cuda` feature).
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
@@ -164,7 +121,6 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if a.stage == TrainStage::Fusion {
         return run_fusion(a);
     }
-    let mix = scene_mix(&a);
     let opts = TrainOptions {
         preset: a.preset,
         width: a.width,
@@ -182,18 +138,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
         init_weights: a.init_weights,
         fork_from: a.fork_from,
         until_step: a.until_step,
-        mix,
+        mix: a.mix,
         soiled_fraction: a.soiled_fraction,
         deep360_fraction: a.deep360_rig_fraction,
         max_grad_norm: a.max_grad_norm,
-        loss_weighting: mode360_train::loss::LossWeighting {
-            near_range_m: a.near_range_m,
-            near_weight: a.near_weight,
-            too_far_weight: a.too_far_weight,
-            too_far_range_m: a.too_far_range_m,
-            obstacle_weight: a.obstacle_weight,
-            thin_weight: a.thin_weight,
-        },
+        loss_weighting: a.loss_weighting,
         camera_effects: a.camera_effects,
         device: a.device,
         ..TrainOptions::default()
@@ -213,19 +162,6 @@ pub fn run(a: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-/// The data mix the arguments name.
-fn scene_mix(a: &TrainArgs) -> SceneMix {
-    SceneMix {
-        objects_fraction: a.objects_fraction,
-        street: a.street,
-        fisheye_fraction: a.fisheye_fraction,
-        rig_layouts: a.rig_layouts,
-        blocked_fraction: a.blocked_fraction,
-        rig_pool: a.rig_pool,
-        camera_pairs: a.camera_pairs,
-    }
-}
-
 /// `mode360 train --stage fusion`.
 fn run_fusion(a: TrainArgs) -> Result<()> {
     use anyhow::Context;
@@ -239,7 +175,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
     // the fusion trains on whole rigs: stage 1 makes the pairs
     let mix = SceneMix {
         camera_pairs: false,
-        ..scene_mix(&a)
+        ..a.mix
     };
     let stage1_weights = a
         .stage1_weights

@@ -179,39 +179,50 @@ impl Deep360Mix {
 }
 
 /// What the rendered samples of a stream hold beyond their seed and size. Set once by
-/// [`super::options::TrainOptions`], carried by [`DataConfig`], saved in every checkpoint
+/// [`super::options::TrainOptions`] (and `mode360 train`'s options, which are these fields),
+/// carried by [`DataConfig`], saved in every checkpoint
 /// ([`super::checkpoint::CheckpointState`]) and compared on resume; a field missing from an
 /// older checkpoint reads as its default (none, regular streets, roof racks, a new rig every
 /// sample).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct SceneMix {
-    /// Fraction of rendered samples that are random-objects scenes (1 to pretrain matching).
+    /// Fraction of rendered samples that are random-objects scenes (1: pretraining for
+    /// matching; the rest are streets).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
     pub objects_fraction: f64,
     /// Layout variation of the training streets.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = StreetStyle::Regular))]
     pub street: StreetStyle,
-    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs (drawn from its
-    /// own stream, so a stream without them is unchanged).
+    /// Fraction of rendered samples on random fisheye and dual-fisheye rigs (drawn from its own
+    /// stream, so a stream without them is unchanged).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
     pub fisheye_fraction: f64,
-    /// Layouts of the random ERP rigs: roof racks only, or every family of
-    /// [`super::rig_layouts`] (drawn from its own stream).
+    /// Layouts of the random rigs: roof (horizontal roof racks, the stream of older runs) or
+    /// any (also vertical masts, turned cameras at mixed heights, cameras on the car body's
+    /// corners; 2 to 5 cameras), drawn from its own stream.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = RigLayouts::Roof))]
     pub rig_layouts: RigLayouts,
-    /// Fraction of rendered samples where one random camera's lens is partly blocked (drawn
-    /// from its own stream, so a stream without them is unchanged).
+    /// Fraction of rendered samples where one random camera's lens is 5 to 40 % blocked (mud,
+    /// a mount or a vehicle part; drawn from its own stream, so a stream without them is
+    /// unchanged).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
     pub blocked_fraction: f64,
-    /// Random rigs come from a renewed pool of this many (0: a new rig every sample), so that
-    /// sweep tables are reused ([`super::rig_pool`]).
+    /// Draw random rigs from a pool of this many, renewed every 25 samples per rig, so that
+    /// their sweep tables are reused (0: a new rig every sample, the stream of older runs).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub rig_pool: usize,
-    /// PSMODE's stage 1: every rendered sample is one camera pair of its rig seen in the pair's
-    /// GEER frame ([`PairView::pair_rig`]: two ERP cameras turned into the pair frame, ground
-    /// truth from the left camera), drawn at the pooled rig's index so that a pooled rig is
-    /// always the same pair.
+    /// PSMODE's stage 1: train on one camera pair of each sample's rig, seen in the pair's GEER
+    /// frame (two cameras turned into the pair frame, range from the left camera), drawn at
+    /// the pooled rig's index so that a pooled rig is always the same pair.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub camera_pairs: bool,
 }
 

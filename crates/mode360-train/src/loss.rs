@@ -68,23 +68,33 @@ pub struct LossConfig {
     pub weighting: LossWeighting,
 }
 
-/// Extra weight of near pixels and of predictions farther than the truth (module docs).
+/// Extra weight of near pixels and of predictions farther than the truth (module docs); also
+/// `mode360 train`'s loss options.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct LossWeighting {
-    /// Pixels whose true range is at most this weigh `near_weight`, metres.
+    /// Range below which --near-weight applies, metres.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_NEAR_RANGE_M))]
     pub near_range_m: f64,
+    /// Loss weight of pixels whose true range is at most --near-range-m (1: the plain loss).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub near_weight: f64,
-    /// Weight of a pixel predicted farther than its truth.
+    /// Loss weight of a pixel predicted farther than its truth (1: the plain loss).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub too_far_weight: f64,
-    /// `too_far_weight` applies only where the true range is at most this, metres (infinite:
-    /// everywhere), so that the far field and the sky keep the plain loss.
+    /// Where the too-far loss weight applies: pixels whose true range is at most this, metres
+    /// (default: everywhere), so that the far field and the sky keep the plain loss.
     #[serde(default = "unlimited_range")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = f64::INFINITY))]
     pub too_far_range_m: f64,
-    /// Weight of the pixels of a counted obstacle (needs labels; module docs).
+    /// Loss weight of the pixels of an obstacle as `eval` counts them (an object instance
+    /// within 10 m; rendered samples only, they need labels; 1: the plain loss).
     #[serde(default = "unit_weight")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub obstacle_weight: f64,
-    /// Further weight of the pixels of a thin counted obstacle.
+    /// Further loss weight of a thin obstacle's pixels (narrower than 3 degrees).
     #[serde(default = "unit_weight")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub thin_weight: f64,
 }
 
