@@ -21,13 +21,11 @@ use mode360_core::sync::SyncStats;
 use mode360_estimator::EstimatorSpec;
 use mode360_io::bag::{BagWriter, RigBagReader, RigBagWriter};
 use mode360_io::msgs::image::float_from_image_msg;
-use mode360_io::msgs::{Image, PointCloud2};
+use mode360_io::msgs::Image;
 use mode360_node::diagnostics::{diagnostic_array, NodeHealth};
+use mode360_node::outputs::{OutputMessage, PerOutput};
 use mode360_node::pipeline::{Pipeline, PipelineOutput, PipelineParams};
-use mode360_node::{
-    resolve_topic, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, DIAGNOSTICS_TOPIC,
-    POINTS_TOPIC,
-};
+use mode360_node::{resolve_topic, DIAGNOSTICS_TOPIC};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -144,22 +142,22 @@ pub fn replay_bag(opts: &ReplayOptions) -> Result<ReplaySummary> {
             Some(p) => p,
             None => pipeline.insert(replay_pipeline(opts, &rig, &frame, max_depth_m, &file)?),
         };
-        let mut out = pipe
+        let out = pipe
             .process(frame.images.iter().cloned().map(Some).collect(), stamp_ns)
             .with_context(|| format!("frame at {stamp_ns} ns"))?;
-        // replay always builds the cloud (process asks for it)
-        let points = out.points.take().unwrap_or_default();
         let bag = writer.bag_mut();
-        topics.write(bag, stamp_ns, &out, &points)?;
+        topics.write(bag, stamp_ns, &out)?;
         summary.frames += 1;
         summary.latencies.push(out.latency);
-        summary.point_counts.push(points.width as usize);
+        // replay always builds the cloud (process asks for it)
+        summary
+            .point_counts
+            .push(out.points.as_ref().map_or(0, |p| p.width as usize));
         for cam in &mut health.cameras {
             cam.record_good();
         }
-        health.record_processed(out.latency.as_secs_f64() * 1e3);
-        health.record_lens(&out.lens);
-        health.record_calibration(&out.calibration);
+        health.record_group(out.latency, out.points.is_some());
+        health.record_checks(&out.lens, &out.calibration);
         health.sync = SyncStats {
             groups: summary.frames as u64,
             ..SyncStats::default()
@@ -209,36 +207,24 @@ fn replay_pipeline(
 }
 
 /// The replay's output topics, in the node's namespace for replays.
-struct ReplayTopics {
-    depth: String,
-    points: String,
-    confidence: String,
-    compressed_depth: String,
-}
+struct ReplayTopics(PerOutput<String>);
 
 impl ReplayTopics {
     fn new() -> Self {
-        Self {
-            depth: resolve_topic(REPLAY_NAMESPACE, DEPTH_TOPIC),
-            points: resolve_topic(REPLAY_NAMESPACE, POINTS_TOPIC),
-            confidence: resolve_topic(REPLAY_NAMESPACE, CONFIDENCE_TOPIC),
-            compressed_depth: resolve_topic(REPLAY_NAMESPACE, COMPRESSED_DEPTH_TOPIC),
-        }
+        Self(PerOutput::new(|o| {
+            resolve_topic(REPLAY_NAMESPACE, o.topic())
+        }))
     }
 
-    /// Writes one frame's outputs into the bag.
-    fn write(
-        &self,
-        bag: &mut BagWriter,
-        stamp_ns: u64,
-        out: &PipelineOutput,
-        points: &PointCloud2,
-    ) -> Result<()> {
-        bag.write(&self.depth, stamp_ns, &out.depth)?;
-        bag.write(&self.points, stamp_ns, points)?;
-        bag.write(&self.confidence, stamp_ns, &out.confidence)?;
-        if let Some(compressed) = &out.compressed_depth {
-            bag.write(&self.compressed_depth, stamp_ns, compressed)?;
+    /// Writes one frame's outputs into the bag (every output the pipeline built).
+    fn write(&self, bag: &mut BagWriter, stamp_ns: u64, out: &PipelineOutput) -> Result<()> {
+        for (o, topic) in self.0.iter() {
+            match out.message(o) {
+                Some(OutputMessage::Image(m)) => bag.write(topic, stamp_ns, m)?,
+                Some(OutputMessage::CompressedImage(m)) => bag.write(topic, stamp_ns, m)?,
+                Some(OutputMessage::PointCloud(m)) => bag.write(topic, stamp_ns, m)?,
+                None => {}
+            }
         }
         Ok(())
     }

@@ -8,19 +8,17 @@ use super::dds::{
     sensor_qos, DdsOptions, SpunNode,
 };
 use super::error::dds_err;
+use super::outputs::{Output, OutputType, PerOutput};
 use super::params::{ImageTransport, NodeParams};
 use super::qos_overrides::QosEntity;
 use super::ros_params::{node_options, RuntimeParams};
 use super::rosout::{attach, logger_name, RosoutGuard};
-use super::topics::{
-    camera_topic, output_topic, CLOCK_TOPIC, COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC,
-    DIAGNOSTICS_TOPIC, POINTS_TOPIC, TF_STATIC_TOPIC,
-};
-use super::worker::OutputPublishers;
+use super::topics::{camera_topic, output_topic, CLOCK_TOPIC, DIAGNOSTICS_TOPIC, TF_STATIC_TOPIC};
+use super::worker::{OutputPublisher, OutputPublishers};
 use super::NodeError;
 use mode360_core::geometry::Rig;
 use mode360_io::bag::rig_tf_static_at;
-use mode360_io::msgs::{Clock, CompressedImage, DiagnosticArray, Image, TFMessage};
+use mode360_io::msgs::{Clock, CompressedImage, DiagnosticArray, Image, PointCloud2, TFMessage};
 use ros2_client::{Context, Publisher};
 use std::sync::Arc;
 
@@ -29,6 +27,10 @@ pub(super) struct DdsSetup {
     pub(super) context: Context,
     pub(super) spun: SpunNode,
     pub(super) publishers: OutputPublishers,
+    /// The publishers built only while subscribed, whose subscribers the DDS thread counts
+    /// (shared with `publishers`).
+    pub(super) points_pub: Arc<Publisher<PointCloud2>>,
+    pub(super) compressed_pub: Arc<Publisher<CompressedImage>>,
     /// `None` with `publish_tf: false`.
     pub(super) tf_static: Option<Publisher<TFMessage>>,
     pub(super) diagnostics: Publisher<DiagnosticArray>,
@@ -58,20 +60,28 @@ pub(super) fn dds_setup(
         (t, q)
     };
     let node = &mut spun.node;
-    let (t, q) = output(DEPTH_TOPIC);
-    let depth = create_publisher(node, &t, q)?;
-    let (t, q) = output(POINTS_TOPIC);
-    let points = Arc::new(create_publisher(node, &t, q)?);
-    let (t, q) = output(COMPRESSED_DEPTH_TOPIC);
-    let compressed_depth = Arc::new(create_publisher(node, &t, q)?);
-    let (t, q) = output(CONFIDENCE_TOPIC);
-    let confidence = create_publisher(node, &t, q)?;
-    let publishers = OutputPublishers {
-        depth,
-        points,
-        compressed_depth,
-        confidence,
+    let publishers = PerOutput::try_new(|o: Output| {
+        let (t, q) = output(o.topic());
+        Ok::<_, NodeError>(match o.message_type() {
+            OutputType::Image => OutputPublisher::Image(Arc::new(create_publisher(node, &t, q)?)),
+            OutputType::CompressedImage => {
+                OutputPublisher::CompressedImage(Arc::new(create_publisher(node, &t, q)?))
+            }
+            OutputType::PointCloud => {
+                OutputPublisher::PointCloud(Arc::new(create_publisher(node, &t, q)?))
+            }
+        })
+    })?;
+    let (OutputPublisher::PointCloud(points_pub), OutputPublisher::CompressedImage(compressed_pub)) = (
+        &publishers[Output::Points],
+        &publishers[Output::CompressedDepth],
+    ) else {
+        return Err(NodeError::Dds {
+            what: "the output table".into(),
+            problem: "points and compressed depth are not PointCloud2 and CompressedImage".into(),
+        });
     };
+    let (points_pub, compressed_pub) = (points_pub.clone(), compressed_pub.clone());
     let tf_static: Option<Publisher<TFMessage>> = if params.publish_tf {
         Some(create_publisher(
             node,
@@ -127,6 +137,8 @@ pub(super) fn dds_setup(
         context,
         spun,
         publishers,
+        points_pub,
+        compressed_pub,
         tf_static,
         diagnostics,
         raw_subs,

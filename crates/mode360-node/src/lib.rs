@@ -36,6 +36,7 @@ pub mod clock;
 pub mod diagnostics;
 pub mod discovery_range;
 pub mod live_view;
+pub mod outputs;
 pub mod page_release;
 pub mod param_table;
 pub mod params;

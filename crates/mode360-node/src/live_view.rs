@@ -22,6 +22,7 @@
 //! (`muzzy_decay_ms:-1`, `src/main.rs`), and a node that once served stalled clients would keep
 //! their backlog's size for good.
 
+use super::outputs::{Output, OutputMessage, OutputType, PerOutput};
 use super::page_release::release_freed_pages;
 use foxglove::websocket::ServerListener;
 use foxglove::{Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
@@ -158,15 +159,59 @@ pub enum CameraTopic {
     Compressed(LiveTopic<CompressedImage>),
 }
 
+/// An output's channel, of the output's message type ([`Output::message_type`]).
+pub enum OutputChannel {
+    Image(LiveTopic<Image>),
+    CompressedImage(LiveTopic<CompressedImage>),
+    PointCloud(LiveTopic<PointCloud2>),
+}
+
+impl OutputChannel {
+    fn new(context: &Arc<Context>, topic: &str, ty: OutputType) -> Result<Self, LiveViewError> {
+        Ok(match ty {
+            OutputType::Image => Self::Image(LiveTopic::new(context, topic)?),
+            OutputType::CompressedImage => Self::CompressedImage(LiveTopic::new(context, topic)?),
+            OutputType::PointCloud => Self::PointCloud(LiveTopic::new(context, topic)?),
+        })
+    }
+
+    /// Whether a client subscribes.
+    pub fn wanted(&self) -> bool {
+        match self {
+            Self::Image(t) => t.wanted(),
+            Self::CompressedImage(t) => t.wanted(),
+            Self::PointCloud(t) => t.wanted(),
+        }
+    }
+
+    /// The channel's topic.
+    pub fn topic(&self) -> &str {
+        match self {
+            Self::Image(t) => t.topic(),
+            Self::CompressedImage(t) => t.topic(),
+            Self::PointCloud(t) => t.topic(),
+        }
+    }
+
+    /// Sends `msg` to the subscribed clients; a message of another type than the channel's is
+    /// not sent (the output table gives both, so it cannot happen).
+    pub fn log(&self, msg: OutputMessage<'_>) {
+        match (self, msg) {
+            (Self::Image(t), OutputMessage::Image(m)) => t.log(m),
+            (Self::CompressedImage(t), OutputMessage::CompressedImage(m)) => t.log(m),
+            (Self::PointCloud(t), OutputMessage::PointCloud(m)) => t.log(m),
+            _ => tracing::debug!("live view: a message not of {}'s type", self.topic()),
+        }
+    }
+}
+
 /// The topics of one node, with their resolved names.
 #[derive(Clone, Debug)]
 pub struct LiveViewTopics {
     /// Per rig camera: its topic and whether it is compressed.
     pub cameras: Vec<(String, bool)>,
-    pub depth: String,
-    pub compressed_depth: String,
-    pub points: String,
-    pub confidence: String,
+    /// Each output's topic.
+    pub outputs: PerOutput<String>,
     pub tf_static: String,
     pub diagnostics: String,
 }
@@ -174,10 +219,8 @@ pub struct LiveViewTopics {
 /// The running server and the node's channels.
 pub struct LiveView {
     pub cameras: Vec<CameraTopic>,
-    pub depth: LiveTopic<Image>,
-    pub compressed_depth: LiveTopic<CompressedImage>,
-    pub points: LiveTopic<PointCloud2>,
-    pub confidence: LiveTopic<Image>,
+    /// Each output's channel.
+    pub outputs: PerOutput<OutputChannel>,
     pub tf_static: LiveTopic<TFMessage>,
     pub diagnostics: LiveTopic<DiagnosticArray>,
     port: u16,
@@ -209,10 +252,9 @@ impl LiveView {
                 })
             })
             .collect::<Result<Vec<_>, LiveViewError>>()?;
-        let depth = LiveTopic::new(&context, &topics.depth)?;
-        let compressed_depth = LiveTopic::new(&context, &topics.compressed_depth)?;
-        let points = LiveTopic::new(&context, &topics.points)?;
-        let confidence = LiveTopic::new(&context, &topics.confidence)?;
+        let outputs = PerOutput::try_new(|o: Output| {
+            OutputChannel::new(&context, &topics.outputs[o], o.message_type())
+        })?;
         let tf_static = LiveTopic::new(&context, &topics.tf_static)?;
         let diagnostics = LiveTopic::new(&context, &topics.diagnostics)?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -244,14 +286,11 @@ impl LiveView {
         tracing::info!(
             "Foxglove live view on ws://{}:{port} ({} channels)",
             at.address,
-            cameras.len() + 6
+            cameras.len() + Output::ALL.len() + 2
         );
         Ok(Self {
             cameras,
-            depth,
-            compressed_depth,
-            points,
-            confidence,
+            outputs,
             tf_static,
             diagnostics,
             port,
@@ -345,10 +384,7 @@ mod tests {
                 ("/cam1/image_raw".into(), false),
                 ("/cam2/image_raw".into(), true),
             ],
-            depth: "/depth".into(),
-            compressed_depth: "/depth/compressedDepth".into(),
-            points: "/points".into(),
-            confidence: "/confidence".into(),
+            outputs: PerOutput::new(|o| format!("/{}", o.topic())),
             tf_static: "/tf_static".into(),
             diagnostics: "/diagnostics".into(),
         }
@@ -436,8 +472,12 @@ mod tests {
         let view = LiveView::start(&at, &topics()).unwrap();
         assert_eq!(view.port(), port);
         assert_eq!(view.client_count(), 0);
-        assert!(!view.depth.wanted() && !view.points.wanted());
-        assert_eq!(view.points.topic(), "/points");
+        assert!(Output::ALL.iter().all(|&o| !view.outputs[o].wanted()));
+        assert_eq!(view.outputs[Output::Points].topic(), "/points");
+        assert_eq!(
+            view.outputs[Output::CompressedDepth].topic(),
+            "/depth/compressedDepth"
+        );
         assert!(matches!(view.cameras[1], CameraTopic::Compressed(_)));
     }
 }

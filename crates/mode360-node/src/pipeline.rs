@@ -33,6 +33,8 @@ use mode360_io::msgs::image::image_msg_from_float;
 use mode360_io::msgs::{CompressedImage, Header, Image, PointCloud2};
 use std::time::{Duration, Instant};
 
+use super::outputs::{Output, OutputMessage};
+
 mod points;
 pub use points::*;
 
@@ -173,6 +175,22 @@ pub struct PipelineOutput {
     pub calibration: Vec<CalibrationDrift>,
     /// Wall time of the estimator plus message building.
     pub latency: Duration,
+}
+
+impl PipelineOutput {
+    /// Output `o`'s message of this group (`None`: not built, as points and compressed depth
+    /// when nobody asked for them).
+    pub fn message(&self, o: Output) -> Option<OutputMessage<'_>> {
+        match o {
+            Output::Depth => Some(OutputMessage::Image(&self.depth)),
+            Output::CompressedDepth => self
+                .compressed_depth
+                .as_ref()
+                .map(OutputMessage::CompressedImage),
+            Output::Points => self.points.as_ref().map(OutputMessage::PointCloud),
+            Output::Confidence => Some(OutputMessage::Image(&self.confidence)),
+        }
+    }
 }
 
 /// Estimator plus message building for a fixed rig.

@@ -423,6 +423,8 @@ pub(super) fn dds_main(
         context,
         spun,
         publishers,
+        points_pub,
+        compressed_pub,
         tf_static,
         diagnostics,
         raw_subs,
@@ -431,8 +433,6 @@ pub(super) fn dds_main(
         // Bound last, so dropped first: no record goes out once the node is going.
         rosout: _rosout,
     } = setup;
-    let points_pub = publishers.points.clone();
-    let compressed_pub = publishers.compressed_depth.clone();
     let worker = spawn_worker(pipeline, publishers, shared.clone())?;
     let _ = ready.send(Ok(()));
 

@@ -2,17 +2,11 @@
 //! how remapping, the namespace and the image transport resolve them.
 
 use super::live_view::LiveViewTopics;
+use super::outputs::PerOutput;
 use super::params::{ImageTransport, NodeParams};
 use mode360_core::geometry::Rig;
 
-/// Relative topic of the range image.
-pub const DEPTH_TOPIC: &str = "depth";
-/// Relative topic of the range image in image_transport's compressedDepth format.
-pub const COMPRESSED_DEPTH_TOPIC: &str = "depth/compressedDepth";
-/// Relative topic of the point cloud.
-pub const POINTS_TOPIC: &str = "points";
-/// Relative topic of the confidence image.
-pub const CONFIDENCE_TOPIC: &str = "confidence";
+pub use super::outputs::{COMPRESSED_DEPTH_TOPIC, CONFIDENCE_TOPIC, DEPTH_TOPIC, POINTS_TOPIC};
 /// Absolute topic of the static transforms (the bags' topic too).
 pub use mode360_io::bag::TF_STATIC_TOPIC;
 /// Absolute topic of the diagnostics.
@@ -62,10 +56,7 @@ pub fn live_view_topics(params: &NodeParams, rig: &Rig) -> LiveViewTopics {
                 (camera_topic(params, &c.name, &c.topic), compressed)
             })
             .collect(),
-        depth: output_topic(params, DEPTH_TOPIC),
-        compressed_depth: output_topic(params, COMPRESSED_DEPTH_TOPIC),
-        points: output_topic(params, POINTS_TOPIC),
-        confidence: output_topic(params, CONFIDENCE_TOPIC),
+        outputs: PerOutput::new(|o| output_topic(params, o.topic())),
         tf_static: TF_STATIC_TOPIC.to_string(),
         diagnostics: DIAGNOSTICS_TOPIC.to_string(),
     }

@@ -7,6 +7,7 @@
 
 use super::diagnostics::NodeHealth;
 use super::live_view::LiveView;
+use super::outputs::{Output, OutputMessage, PerOutput};
 use super::pipeline::{OutputRequest, Pipeline, PipelineOutput};
 use super::ros_params::RuntimeParams;
 use mode360_core::frame::RgbImage;
@@ -68,40 +69,60 @@ pub(super) fn post_groups(shared: &Shared, groups: Vec<SyncGroup<RgbImage>>) {
     }
 }
 
-/// The publishers of the worker's outputs.
-pub(super) struct OutputPublishers {
-    pub(super) depth: Publisher<Image>,
-    /// Shared with the DDS thread, which counts its matched subscribers.
-    pub(super) points: Arc<Publisher<PointCloud2>>,
-    /// Shared with the DDS thread, which counts its matched subscribers.
-    pub(super) compressed_depth: Arc<Publisher<CompressedImage>>,
-    pub(super) confidence: Publisher<Image>,
+/// An output's publisher, of the output's message type ([`Output::message_type`]); points and
+/// compressed depth are shared with the DDS thread, which counts their matched subscribers.
+pub(super) enum OutputPublisher {
+    Image(Arc<Publisher<Image>>),
+    CompressedImage(Arc<Publisher<CompressedImage>>),
+    PointCloud(Arc<Publisher<PointCloud2>>),
 }
 
-impl OutputPublishers {
-    /// Publishes a group's outputs (confidence when `confidence`); returns what failed.
-    fn publish(&self, out: PipelineOutput, confidence: bool) -> Vec<String> {
-        let mut errors = Vec::new();
-        if let Err(e) = self.depth.publish(out.depth) {
-            errors.push(format!("publishing depth: {e:?}"));
-        }
-        if let Some(compressed) = out.compressed_depth {
-            if let Err(e) = self.compressed_depth.publish(compressed) {
-                errors.push(format!("publishing depth/compressedDepth: {e:?}"));
+impl OutputPublisher {
+    /// Publishes a copy of `msg` (the live view and the health checks still read the group).
+    fn publish(&self, msg: OutputMessage<'_>) -> Result<(), String> {
+        match (self, msg) {
+            (Self::Image(p), OutputMessage::Image(m)) => {
+                p.publish(m.clone()).map_err(|e| format!("{e:?}"))
             }
-        }
-        if let Some(points) = out.points {
-            if let Err(e) = self.points.publish(points) {
-                errors.push(format!("publishing points: {e:?}"));
+            (Self::CompressedImage(p), OutputMessage::CompressedImage(m)) => {
+                p.publish(m.clone()).map_err(|e| format!("{e:?}"))
             }
-        }
-        if confidence {
-            if let Err(e) = self.confidence.publish(out.confidence) {
-                errors.push(format!("publishing confidence: {e:?}"));
+            (Self::PointCloud(p), OutputMessage::PointCloud(m)) => {
+                p.publish(m.clone()).map_err(|e| format!("{e:?}"))
             }
+            _ => Err("a message of another type than the topic's".into()),
         }
-        errors
     }
+}
+
+/// The publishers of the worker's outputs.
+pub(super) type OutputPublishers = PerOutput<OutputPublisher>;
+
+/// A group's messages that go out: every output the pipeline built, confidence when asked for.
+fn outgoing(
+    out: &PipelineOutput,
+    confidence: bool,
+) -> impl Iterator<Item = (Output, OutputMessage<'_>)> {
+    Output::ALL
+        .into_iter()
+        .filter(move |&o| confidence || o != Output::Confidence)
+        .filter_map(|o| out.message(o).map(|m| (o, m)))
+}
+
+/// Publishes a group's outgoing messages; returns what failed.
+fn publish_outputs(
+    publishers: &OutputPublishers,
+    out: &PipelineOutput,
+    confidence: bool,
+) -> Vec<String> {
+    outgoing(out, confidence)
+        .filter_map(|(o, msg)| {
+            publishers[o]
+                .publish(msg)
+                .err()
+                .map(|e| format!("publishing {}: {e}", o.topic()))
+        })
+        .collect()
 }
 
 /// The inference thread: takes the newest group until shutdown, runs the pipeline, publishes,
@@ -142,10 +163,10 @@ pub(super) fn worker_main(
         let want = OutputRequest {
             points: outputs.points
                 && (shared.points_wanted.load(Ordering::Relaxed)
-                    || live.is_some_and(|l| l.points.wanted())),
+                    || live.is_some_and(|l| l.outputs[Output::Points].wanted())),
             compressed_depth: outputs.compressed_depth
                 && (shared.compressed_depth_wanted.load(Ordering::Relaxed)
-                    || live.is_some_and(|l| l.compressed_depth.wanted())),
+                    || live.is_some_and(|l| l.outputs[Output::CompressedDepth].wanted())),
         };
         match pipeline.process_deferred(images, group.stamp_ns, want) {
             Ok(out) => {
@@ -153,31 +174,22 @@ pub(super) fn worker_main(
                 // counted.
                 {
                     let mut h = lock(&shared.health);
-                    h.record_processed(out.latency.as_secs_f64() * 1e3);
-                    h.clouds_skipped += u64::from(out.points.is_none());
-                    h.last_depth_at = Some(std::time::Instant::now());
+                    h.record_group(out.latency, out.points.is_some());
                 }
                 if let Some(live) = live {
-                    live.depth.log(&out.depth);
-                    if let Some(m) = &out.compressed_depth {
-                        live.compressed_depth.log(m);
-                    }
-                    if let Some(m) = &out.points {
-                        live.points.log(m);
-                    }
-                    if outputs.confidence {
-                        live.confidence.log(&out.confidence);
+                    for (o, msg) in outgoing(&out, outputs.confidence) {
+                        live.outputs[o].log(msg);
                     }
                 }
-                let mut errors = publishers.publish(out, outputs.confidence);
+                let mut errors = publish_outputs(&publishers, &out, outputs.confidence);
+                drop(out);
                 // The lens and drift checks of this group, after its messages are out.
                 if let Err(e) = pipeline.run_deferred_checks() {
                     errors.push(format!("rig health checks: {e}"));
                 }
                 let (lens, calibration) = (pipeline.lens_health(), pipeline.calibration_drift());
                 let mut h = lock(&shared.health);
-                h.record_lens(&lens);
-                h.record_calibration(&calibration);
+                h.record_checks(&lens, &calibration);
                 if let Some(e) = errors.pop() {
                     h.pipeline_errors += 1;
                     h.last_pipeline_error = Some(e);

@@ -248,6 +248,21 @@ impl NodeHealth {
         }
     }
 
+    /// Counts a group whose depth went out now, run through the pipeline in `latency` (the
+    /// node and `replay` both keep their books with this and [`Self::record_checks`]);
+    /// `cloud_built`: false when the cloud was skipped for want of a subscriber.
+    pub fn record_group(&mut self, latency: std::time::Duration, cloud_built: bool) {
+        self.record_processed(latency.as_secs_f64() * 1e3);
+        self.clouds_skipped += u64::from(!cloud_built);
+        self.last_depth_at = Some(std::time::Instant::now());
+    }
+
+    /// Takes a group's rig health checks (rig order) into the cameras' health.
+    pub fn record_checks(&mut self, lens: &[LensHealth], drift: &[CalibrationDrift]) {
+        self.record_lens(lens);
+        self.record_calibration(drift);
+    }
+
     /// Counts a group run through the pipeline in `latency_ms` (the newest latency and the
     /// running mean over every processed group).
     pub fn record_processed(&mut self, latency_ms: f64) {
