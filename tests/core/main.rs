@@ -1,18 +1,13 @@
-//! The library's pure parts beyond geometry (whose tests live in `crates/mode360-core/tests`):
-//! custom tensor ops against f64 references, ROS message encoding, synthetic scenes, rig
-//! validation of generated rigs, the fuzz suite of foreign inputs and the import-circle check.
+//! The library's pure parts across crates (each crate's own tests live in its `tests/`:
+//! geometry in mode360-core, ops and layers in mode360-model, messages in mode360-io, the
+//! renderer in mode360-synth, training in mode360-train): rig validation of generated rigs,
+//! random-object scenes against the trainer's labels, the fuzz suite of foreign inputs and
+//! the import-circle check.
 
 #[path = "../common/mod.rs"]
 mod common;
 
 mod fuzz_inputs;
 mod import_circles;
-mod msgs_cdr;
-mod ops_composite;
-mod ops_conv3d;
-mod ops_sample;
 mod rig_strict;
-mod synth_blockers;
-mod synth_fisheye;
 mod synth_objects;
-mod synth_render;

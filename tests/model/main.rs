@@ -1,6 +1,6 @@
-//! Depth estimators end to end: SSMODE (network, weights, estimator, benchmark case), the
-//! photometric sweep, the geometry check (same-image views), and training (data, loss,
-//! resumable runs).
+//! Depth estimators end to end: SSMODE (network, weights, estimator, benchmark case), PSMODE,
+//! the photometric sweep, the lens checks, the geometry check (same-image views). The
+//! network's ops and layers are tested in mode360-model, training in mode360-train.
 
 #[path = "../common/mod.rs"]
 mod common;
@@ -10,15 +10,9 @@ mod fisheye_sweep;
 mod geometry_check;
 mod lens_health;
 mod lens_mask;
-mod model_composites;
 mod model_estimator;
 mod model_ssmode;
-mod model_ssmode_layers;
 mod photometric_channel;
 mod photometric_scene;
 mod photometric_sweep;
 mod psmode;
-mod train_data;
-mod train_loss;
-mod train_rig_layouts;
-mod train_run;

@@ -9,9 +9,9 @@ use crate::common::{
 };
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use mode360::geometry::{HypothesisSpacing, Rig};
-use mode360::model::ops::with_composites;
-use mode360::model::{Ssmode, SsmodeConfig, SweepSampling};
+use mode360_core::geometry::{HypothesisSpacing, Rig};
+use mode360_model::model::ops::with_composites;
+use mode360_model::model::{Ssmode, SsmodeConfig, SweepSampling};
 
 /// Kernels and composites agree to this share of the largest magnitude compared (float32, a
 /// few layers deep, sums in other orders).

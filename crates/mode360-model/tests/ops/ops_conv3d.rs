@@ -3,7 +3,7 @@
 
 use crate::common::{dot, max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Tensor, Var};
-use mode360::model::ops::{
+use mode360_model::model::ops::{
     conv3d, conv3d_composite, conv3d_fused, conv3d_weight_grad, conv3d_weight_grad_composite,
     conv_transpose3d, conv_transpose3d_composite, conv_transpose3d_x2_fused, is_inference,
     Conv3dGeometry, Epilogue,

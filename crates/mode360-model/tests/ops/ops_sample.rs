@@ -3,8 +3,8 @@
 
 use crate::common::{dot, max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Tensor, Var};
-use mode360::geometry::{ErpGrid, PixelCoord};
-use mode360::model::ops::{
+use mode360_core::geometry::{ErpGrid, PixelCoord};
+use mode360_model::model::ops::{
     resample_linear_axis, sweep_variance, sweep_variance_visible, table_sample,
     table_sample_composite, upsample_trilinear, upsample_trilinear_composite, view_scale,
     SampleTable,
@@ -362,10 +362,10 @@ fn sweep_variance_matches_reference(c: usize, masked: bool) {
 #[test]
 fn compact_sweep_tables_equal_the_flat_ones_bit_for_bit() -> Result<(), Box<dyn std::error::Error>>
 {
-    use mode360::geometry::{DepthHypotheses, DepthRange, Rig, SweepGeometry};
+    use mode360_core::geometry::{DepthHypotheses, DepthRange, Rig, SweepGeometry};
     let rig = Rig::from_file(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_omnimvs.yaml"
+        "/../../launch_configs/rig_omnimvs.yaml"
     ))?;
     let grid = ErpGrid::new(32)?;
     let cameras = rig.cameras.len();
@@ -436,7 +436,7 @@ fn compact_sweep_tables_equal_the_flat_ones_bit_for_bit() -> Result<(), Box<dyn 
 #[test]
 fn sweep_variance_with_a_channel_appended_equals_the_two_ops(
 ) -> Result<(), Box<dyn std::error::Error>> {
-    use mode360::model::ops::{
+    use mode360_model::model::ops::{
         append_channels, sweep_variance_appended, sweep_variance_appended_window,
     };
     let grid = ErpGrid::new(16)?;

@@ -1,8 +1,8 @@
 //! CDR golden bytes (written out by hand from the CDR rules), round trips, damaged input, and
 //! the `ros2msg` schema text.
 
-use mode360::msgs::schema::{self, DEFINITIONS};
-use mode360::msgs::*;
+use mode360_io::msgs::schema::{self, DEFINITIONS};
+use mode360_io::msgs::*;
 
 /// Encapsulation header: CDR little endian, no options.
 const HDR: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
@@ -280,13 +280,13 @@ const SEP: &str =
 #[test]
 fn image_schema_text_golden() {
     let expected = String::new()
-        + include_str!("../../msg/sensor_msgs/Image.msg")
+        + include_str!("../../../../msg/sensor_msgs/Image.msg")
         + SEP
         + "\nMSG: std_msgs/Header\n"
-        + include_str!("../../msg/std_msgs/Header.msg")
+        + include_str!("../../../../msg/std_msgs/Header.msg")
         + SEP
         + "\nMSG: builtin_interfaces/Time\n"
-        + include_str!("../../msg/builtin_interfaces/Time.msg");
+        + include_str!("../../../../msg/builtin_interfaces/Time.msg");
     let text = schema_text("sensor_msgs/msg/Image").map_err(|e| e.to_string());
     assert_eq!(text.as_deref(), Ok(expected.as_str()));
     // The start, spelled out.

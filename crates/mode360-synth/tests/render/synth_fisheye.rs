@@ -2,8 +2,8 @@
 //! renderer's fisheye images checked against the ERP ground truth of the output frame.
 
 use crate::common::repo_path;
-use mode360::geometry::{ErpGrid, PixelCoord, Projection, Rig};
-use mode360::synth::{SceneKind, SynthConfig, SynthRenderer};
+use mode360_core::geometry::{ErpGrid, PixelCoord, Projection, Rig};
+use mode360_synth::{SceneKind, SynthConfig, SynthRenderer};
 use nalgebra::{Point3, Vector3};
 
 const OMNIMVS_RIG: &str = "launch_configs/rig_omnimvs.yaml";

@@ -1,8 +1,8 @@
 //! The multi-stage inverse-depth SmoothL1 loss, checked by hand.
 
 use candle_core::{Device, Tensor};
-use mode360::frame::{FloatImage, SceneLabels, SurfaceClass};
-use mode360::train::loss::{smooth_l1, LossConfig};
+use mode360_core::frame::{FloatImage, SceneLabels, SurfaceClass};
+use mode360_train::loss::{smooth_l1, LossConfig};
 
 #[test]
 fn smooth_l1_by_hand() {
@@ -21,7 +21,7 @@ fn multi_stage_loss_by_hand() {
         min_depth_m: 1.0,
         max_depth_m: 100.0,
         hypotheses: 11,
-        spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
+        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
         stage_weights: vec![0.5, 0.7, 1.0],
         weighting: Default::default(),
     };
@@ -75,9 +75,9 @@ fn obstacle_weighting_by_hand() {
         min_depth_m: 1.0,
         max_depth_m: 100.0,
         hypotheses: 11,
-        spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
+        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
         stage_weights: vec![1.0],
-        weighting: mode360::train::loss::LossWeighting {
+        weighting: mode360_train::loss::LossWeighting {
             near_range_m: 5.0,
             near_weight: 3.0,
             too_far_weight: 2.0,
@@ -112,7 +112,7 @@ fn obstacle_weighting_by_hand() {
     assert!((loss - 1.0).abs() < 1e-5, "{loss}");
     // Too-far weight only within 10 m: a 50 m pixel read too far keeps weight 1.
     let near_only = LossConfig {
-        weighting: mode360::train::loss::LossWeighting {
+        weighting: mode360_train::loss::LossWeighting {
             too_far_range_m: 10.0,
             ..cfg.weighting
         },
@@ -200,9 +200,9 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
         min_depth_m: 0.5,
         max_depth_m: 100.0,
         hypotheses: 11,
-        spacing: mode360::geometry::HypothesisSpacing::InverseDepth,
+        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
         stage_weights: vec![1.0],
-        weighting: mode360::train::loss::LossWeighting {
+        weighting: mode360_train::loss::LossWeighting {
             near_weight: 3.0,
             obstacle_weight: 4.0,
             thin_weight: 2.0,

@@ -5,8 +5,8 @@
 
 use crate::common::{max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Result, Tensor, Var};
-use mode360::geometry::{ErpGrid, PixelCoord};
-use mode360::model::ops::{
+use mode360_core::geometry::{ErpGrid, PixelCoord};
+use mode360_model::model::ops::{
     conv3d, conv3d_composite, conv3d_fused, conv3d_fused_composite, conv3d_input_grad,
     conv3d_input_grad_composite, conv3d_weight_grad, conv3d_weight_grad_composite,
     conv_transpose3d, conv_transpose3d_composite, conv_transpose3d_x2_fused,

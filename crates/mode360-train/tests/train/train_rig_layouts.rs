@@ -3,15 +3,15 @@
 //! roof stream of older runs bit for bit, and the layout and blocker draws come from streams
 //! of their own.
 
-use mode360::geometry::Rig;
-use mode360::synth::noise::Rng;
-use mode360::synth::BlockerKind;
-use mode360::train::data::{
+use mode360_core::geometry::Rig;
+use mode360_synth::noise::Rng;
+use mode360_synth::BlockerKind;
+use mode360_train::data::{
     render_sample, training_spec, DataConfig, RigChoice, SampleSpec, SceneMix,
     MAX_TRAIN_BLOCKED_FRACTION, MIN_TRAIN_BLOCKED_FRACTION,
 };
-use mode360::train::rack::random_rig;
-use mode360::train::rig_layouts::{
+use mode360_train::rack::random_rig;
+use mode360_train::rig_layouts::{
     layout_rig, LayoutFamily, RigLayouts, BUMPER_MIN_HEIGHT_M, MAST_MAX_CAMERAS, MAST_MIN_GAP_M,
     MIRROR_MAX_HEIGHT_M, TURNED_MAX_ROLL_PITCH_RAD,
 };
@@ -29,7 +29,7 @@ fn cfg(seed: u64, rig_layouts: RigLayouts, blocked_fraction: f64) -> DataConfig 
         deep360_disk: None,
         mix: SceneMix {
             objects_fraction: 0.2,
-            street: mode360::synth::StreetStyle::Regular,
+            street: mode360_synth::StreetStyle::Regular,
             fisheye_fraction: 0.1,
             rig_layouts,
             blocked_fraction,
@@ -127,7 +127,7 @@ fn fields(s: &SampleSpec) -> (u64, usize, bool, RigChoice, bool) {
         s.frame_index,
         s.soiled,
         s.rig.clone(),
-        s.scene == mode360::synth::SceneKind::Objects,
+        s.scene == mode360_synth::SceneKind::Objects,
     )
 }
 
@@ -385,7 +385,7 @@ fn any_layouts_and_blockers_come_from_their_own_streams() {
 
 #[test]
 fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
-    use mode360::train::{run_training, CheckpointState, TrainOptions, CHECKPOINT_DIR, STATE_FILE};
+    use mode360_train::{run_training, CheckpointState, TrainOptions, CHECKPOINT_DIR, STATE_FILE};
     // A state written before these options existed reads as roof racks without blockers.
     let old = r#"{"version": 1, "step": 3, "next_sample_index": 3, "preset": "tiny",
         "width": 64, "seed": 1, "batch_size": 1, "train_s": 1.0}"#;
@@ -397,7 +397,7 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
 
     let out = tempfile::tempdir().unwrap();
     let opts = TrainOptions {
-        preset: mode360::model::Preset::Tiny,
+        preset: mode360_model::model::Preset::Tiny,
         steps: 1,
         out_dir: out.path().to_path_buf(),
         warmup_steps: 1,

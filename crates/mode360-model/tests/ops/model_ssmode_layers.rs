@@ -5,10 +5,10 @@
 
 use crate::common::deep360_rig as rig;
 use candle_core::{Device, Tensor};
-use mode360::geometry::{ErpGrid, PixelCoord};
-use mode360::model::config::CostKind;
-use mode360::model::cost_volume::cost_volume;
-use mode360::model::{SsmodeConfig, SweepSampling};
+use mode360_core::geometry::{ErpGrid, PixelCoord};
+use mode360_model::model::config::CostKind;
+use mode360_model::model::cost_volume::cost_volume;
+use mode360_model::model::{SsmodeConfig, SweepSampling};
 
 #[test]
 fn cost_volume_samples_features_where_the_sweep_geometry_says() {
@@ -88,7 +88,7 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
 
 #[test]
 fn fused_inference_regression_equals_the_training_path() {
-    use mode360::model::regression::{confidence, regress, regress_inference, FarReadout};
+    use mode360_model::model::regression::{confidence, regress, regress_inference, FarReadout};
     let cfg = SsmodeConfig::tiny();
     let hyps = cfg.output_hypotheses().expect("hypotheses");
     let (height, width) = (18, 36);
@@ -247,7 +247,7 @@ fn variance_volume_is_zero_where_every_camera_sees_the_same_feature() {
 fn aggregation_in_slabs_equals_the_whole_volume() {
     use candle_core::DType;
     use candle_nn::{VarBuilder, VarMap};
-    use mode360::model::hourglass::{CostAggregation, SLAB_OUTPUT_SPHERES};
+    use mode360_model::model::hourglass::{CostAggregation, SLAB_OUTPUT_SPHERES};
     for (stride, spheres) in [(2, 40), (1, 24)] {
         let cfg = SsmodeConfig {
             spheres,

@@ -2,8 +2,8 @@
 //! soiling coverage, and a quick speed measurement.
 
 use crate::common::deep360_rig;
-use mode360::geometry::{ErpGrid, PixelCoord, Rig};
-use mode360::synth::{SynthConfig, SynthRenderer};
+use mode360_core::geometry::{ErpGrid, PixelCoord, Rig};
+use mode360_synth::{SynthConfig, SynthRenderer};
 
 fn renderer(seed: u64, width: usize, soiled: bool) -> SynthRenderer {
     SynthRenderer::new(SynthConfig {
@@ -19,7 +19,7 @@ fn renderer(seed: u64, width: usize, soiled: bool) -> SynthRenderer {
 fn rig_with_reference(cam: &str) -> Rig {
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_deep360.yaml"
+        "/../../launch_configs/rig_deep360.yaml"
     );
     let text = std::fs::read_to_string(path).expect("rig yaml");
     let text = text.replace(
@@ -264,11 +264,11 @@ fn renders_finite_ground_truth_everywhere_and_saves_previews() {
             .unwrap_or(512);
         let soiled = renderer(1, width, true);
         // Also a frame 6 m before the first intersection ahead.
-        let params = mode360::synth::world::WorldParams::new(1);
+        let params = mode360_synth::world::WorldParams::new(1);
         let tile = (1..1000i64)
-            .find(|&t| mode360::synth::world::is_intersection(&params, t))
+            .find(|&t| mode360_synth::world::is_intersection(&params, t))
             .unwrap_or(1);
-        let x = mode360::synth::world::cross_street_centre_m(tile) - 6.0;
+        let x = mode360_synth::world::cross_street_centre_m(tile) - 6.0;
         let crossing = (x / (8.0 * 0.1)).round() as usize;
         for i in [0usize, 30, crossing] {
             let f = soiled.render_frame(&rig, i);
@@ -293,7 +293,7 @@ fn renders_finite_ground_truth_everywhere_and_saves_previews() {
 fn ground_truth_of_an_output_frame_between_the_cameras() {
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/launch_configs/rig_deep360.yaml"
+        "/../../launch_configs/rig_deep360.yaml"
     );
     let text = std::fs::read_to_string(path).expect("rig yaml");
     let output_height_m = 1.5;
@@ -332,7 +332,7 @@ fn ground_truth_of_an_output_frame_between_the_cameras() {
 
 #[test]
 fn objects_keep_clear_of_the_cameras_and_traffic_moves() {
-    use mode360::synth::world::{scene_prims, WorldParams};
+    use mode360_synth::world::{scene_prims, WorldParams};
     let rig = deep360_rig();
     let r = renderer(9, 64, false);
     let params = WorldParams::new(9);

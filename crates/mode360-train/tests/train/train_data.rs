@@ -1,11 +1,11 @@
 //! Training data: determinism, randomized rigs, validation split.
 
-use mode360::geometry::Rig;
-use mode360::train::data::{
+use mode360_core::geometry::Rig;
+use mode360_train::data::{
     render_sample, sample_fingerprint, training_sample, training_spec, validation_specs,
     DataConfig, RigChoice, SampleStream,
 };
-use mode360::train::rack::{
+use mode360_train::rack::{
     random_rig, MAX_HEIGHT_M, MAX_RIG_CAMERAS, MAX_TILT_RAD, MIN_HEIGHT_M, MIN_RIG_CAMERAS,
     RACK_HALF_SIZE_M,
 };
@@ -133,7 +133,7 @@ fn fisheye_samples_enter_the_network_as_panoramas() {
     // panoramas of the ERP width (black where the lens sees nothing), depth is in rack_center.
     let base = cfg(11);
     let cfg = DataConfig {
-        mix: mode360::train::data::SceneMix {
+        mix: mode360_train::data::SceneMix {
             fisheye_fraction: 1.0,
             ..base.mix
         },
@@ -170,8 +170,8 @@ fn fisheye_samples_enter_the_network_as_panoramas() {
 /// feeds its stage 1 at inference (`PairView::rotation_into_pair` of the real panoramas).
 #[test]
 fn a_camera_pair_sample_is_its_rigs_pair_turned_into_the_geer_frame() {
-    use mode360::geometry::{CameraPair, ErpGrid, PairSide, PairView};
-    use mode360::train::data::{SampleSpec, SceneMix};
+    use mode360_core::geometry::{CameraPair, ErpGrid, PairSide, PairView};
+    use mode360_train::data::{SampleSpec, SceneMix};
     let cfg = DataConfig {
         soiled_fraction: 0.0,
         deep360_fraction: 0.0,

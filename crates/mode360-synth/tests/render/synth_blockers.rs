@@ -3,14 +3,14 @@
 //! pixel's bytes alone, is opaque, and stays the same across frames.
 
 use crate::common::{deep360_rig, repo_path};
-use mode360::frame::RgbImage;
-use mode360::geometry::{Projection, Rig};
-use mode360::synth::blockers::{
+use mode360_core::frame::RgbImage;
+use mode360_core::geometry::{Projection, Rig};
+use mode360_synth::blockers::{
     block_image, lens_mask, parse_blocked_lens, BlockerError, MAX_BLOCKED_FRACTION,
 };
-use mode360::synth::camera_view::PixelRays;
-use mode360::synth::noise::hash_words;
-use mode360::synth::{BlockedLens, BlockerKind, SynthConfig, SynthRenderer};
+use mode360_synth::camera_view::PixelRays;
+use mode360_synth::noise::hash_words;
+use mode360_synth::{BlockedLens, BlockerKind, SynthConfig, SynthRenderer};
 use std::f64::consts::{FRAC_PI_2, PI};
 
 const THIRD: f64 = 1.0 / 3.0;
@@ -235,7 +235,7 @@ fn blocked_lens_specs_parse_and_name_what_is_wrong() {
         "{msg}"
     );
     assert!(matches!(
-        mode360::synth::blockers::validate_blockers(&[BlockedLens {
+        mode360_synth::blockers::validate_blockers(&[BlockedLens {
             fraction: 1.5,
             ..ok
         }]),

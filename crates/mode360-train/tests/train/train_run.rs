@@ -1,12 +1,12 @@
 //! End-to-end training on the tiny preset (64x32): resume exactness, CSV logs and the plot.
 
-use mode360::train::{run_training, TrainOptions, CHECKPOINT_DIR, CURVES_PNG, TRAIN_CSV, VAL_CSV};
+use mode360_train::{run_training, TrainOptions, CHECKPOINT_DIR, CURVES_PNG, TRAIN_CSV, VAL_CSV};
 use std::collections::HashMap;
 use std::path::Path;
 
 fn opts(out: &Path, steps: usize) -> TrainOptions {
     TrainOptions {
-        preset: mode360::model::Preset::Tiny,
+        preset: mode360_model::model::Preset::Tiny,
         width: None,
         steps,
         out_dir: out.to_path_buf(),
@@ -27,16 +27,16 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         init_weights: None,
         fork_from: None,
         until_step: None,
-        mix: mode360::train::data::SceneMix {
+        mix: mode360_train::data::SceneMix {
             objects_fraction: 0.5,
-            street: mode360::synth::StreetStyle::Varied,
+            street: mode360_synth::StreetStyle::Varied,
             fisheye_fraction: 0.25,
             ..Default::default()
         },
         max_grad_norm: Some(5.0),
         loss_weighting: Default::default(),
         camera_effects: false,
-        device: mode360::model::ComputeDevice::Cpu,
+        device: mode360_model::model::ComputeDevice::Cpu,
         show_progress: false,
     }
 }
@@ -48,7 +48,7 @@ fn training_on_a_missing_gpu_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let on_gpu = TrainOptions {
-        device: mode360::model::ComputeDevice::Cuda { ordinal: 0 },
+        device: mode360_model::model::ComputeDevice::Cuda { ordinal: 0 },
         ..opts(&out, 1)
     };
     if let Err(e) = run_training(&on_gpu) {
@@ -182,7 +182,7 @@ fn init_weights_start_a_run_from_a_weights_file() {
 
     let c = tempfile::tempdir().unwrap();
     let mut wrong = opts(c.path(), 0);
-    wrong.preset = mode360::model::Preset::Compact;
+    wrong.preset = mode360_model::model::Preset::Compact;
     wrong.init_weights = Some(trained.weights_path);
     let err = run_training(&wrong).unwrap_err().to_string();
     assert!(
@@ -252,9 +252,9 @@ fn forks_and_until_step_body() {
 
     // another data mix: a resume refuses it, a fork takes it and trains on other samples
     let other_mix = |o: TrainOptions| TrainOptions {
-        mix: mode360::train::data::SceneMix {
+        mix: mode360_train::data::SceneMix {
             objects_fraction: 0.0,
-            street: mode360::synth::StreetStyle::Regular,
+            street: mode360_synth::StreetStyle::Regular,
             ..o.mix
         },
         ..o
@@ -278,7 +278,7 @@ fn forks_and_until_step_body() {
     // another network: refused naming the preset; no checkpoint at all: refused naming the folder
     let wrong_dir = tempfile::tempdir().unwrap();
     let err = run_training(&TrainOptions {
-        preset: mode360::model::Preset::Compact,
+        preset: mode360_model::model::Preset::Compact,
         fork_from: Some(again.path().to_path_buf()),
         ..opts(wrong_dir.path(), 4)
     })
