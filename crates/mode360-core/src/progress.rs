@@ -26,3 +26,14 @@ pub fn frames_bar(label: &str, frames: usize, show: bool) -> ProgressBar {
     pb.set_message(label.to_string());
     pb
 }
+
+/// Prints `line` above `bar` while the bar is drawn, or on stdout when it is hidden (output to
+/// a log file, a background job such as the standing training job), so that a long job's
+/// result lines reach its log either way (indicatif drops them on a hidden bar).
+pub fn println(bar: &ProgressBar, line: impl AsRef<str>) {
+    if bar.is_hidden() {
+        println!("{}", line.as_ref());
+    } else {
+        bar.println(line);
+    }
+}

@@ -426,10 +426,13 @@ impl FusionTrainer {
             {
                 let (rec, base_delta1) = self.validate()?;
                 log::append_val(&val_csv, &rec).map_err(io_err(&val_csv))?;
-                bar.println(format!(
+                mode360_core::progress::println(
+                    &bar,
+                    format!(
                     "step {step}: val loss {:.4}, δ1 fused {:.2} % (most confident pair {:.2} %)",
                     rec.loss, rec.metrics.delta1_pct, base_delta1
-                ));
+                    ),
+                );
                 last_val = Some((rec.metrics.delta1_pct, base_delta1));
                 log::plot_curves(&train_csv, &val_csv, &dir.join(super::CURVES_PNG))
                     .map_err(TrainError::Other)?;

@@ -296,10 +296,13 @@ impl Trainer {
         super::log::append_val(&self.val_csv, &rec).map_err(io_err(&self.val_csv))?;
         super::log::plot_curves(&self.train_csv, &self.val_csv, &self.curves)
             .map_err(TrainError::Other)?;
-        self.bar.println(format!(
-            "step {}: val loss {:.4} delta1 {:.1}% abs_rel {:.3}",
-            rec.step, rec.loss, rec.metrics.delta1_pct, rec.metrics.abs_rel
-        ));
+        mode360_core::progress::println(
+            &self.bar,
+            format!(
+                "step {}: val loss {:.4} delta1 {:.1}% abs_rel {:.3}",
+                rec.step, rec.loss, rec.metrics.delta1_pct, rec.metrics.abs_rel
+            ),
+        );
         self.last_validation = Some(rec.clone());
         Ok(rec)
     }
