@@ -50,38 +50,11 @@ pub(super) fn dds_setup(
     let context = dds_context(dds)?;
     let options = node_options(params, runtime);
     let mut spun = SpunNode::with_options(&context, &params.namespace, &params.node_name, options)?;
-    let topic = |name: &str| output_topic(params, name);
     // QoS of each endpoint: the node's default for its kind, then the parameters' overrides.
     let pub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Publisher, base);
     let sub_qos = |t: &str, base| params.qos_overrides.qos(t, QosEntity::Subscription, base);
-    let output = |name: &str| {
-        let t = topic(name);
-        let q = pub_qos(&t, output_qos());
-        (t, q)
-    };
     let node = &mut spun.node;
-    let publishers = PerOutput::try_new(|o: Output| {
-        let (t, q) = output(o.topic());
-        Ok::<_, NodeError>(match o.message_type() {
-            OutputType::Image => OutputPublisher::Image(Arc::new(create_publisher(node, &t, q)?)),
-            OutputType::CompressedImage => {
-                OutputPublisher::CompressedImage(Arc::new(create_publisher(node, &t, q)?))
-            }
-            OutputType::PointCloud => {
-                OutputPublisher::PointCloud(Arc::new(create_publisher(node, &t, q)?))
-            }
-        })
-    })?;
-    let (OutputPublisher::PointCloud(points_pub), OutputPublisher::CompressedImage(compressed_pub)) = (
-        &publishers[Output::Points],
-        &publishers[Output::CompressedDepth],
-    ) else {
-        return Err(NodeError::Dds {
-            what: "the output table".into(),
-            problem: "points and compressed depth are not PointCloud2 and CompressedImage".into(),
-        });
-    };
-    let (points_pub, compressed_pub) = (points_pub.clone(), compressed_pub.clone());
+    let (publishers, points_pub, compressed_pub) = output_publishers(node, params)?;
     let tf_static: Option<Publisher<TFMessage>> = if params.publish_tf {
         Some(create_publisher(
             node,
@@ -146,6 +119,48 @@ pub(super) fn dds_setup(
         clock_sub,
         rosout,
     })
+}
+
+/// The publishers of the output table (topic after namespace and remapping, QoS of outputs
+/// with the parameters' overrides), and the two that the DDS thread watches for subscribers.
+#[allow(clippy::type_complexity)]
+fn output_publishers(
+    node: &mut ros2_client::Node,
+    params: &NodeParams,
+) -> Result<
+    (
+        OutputPublishers,
+        Arc<Publisher<PointCloud2>>,
+        Arc<Publisher<CompressedImage>>,
+    ),
+    NodeError,
+> {
+    let publishers = PerOutput::try_new(|o: Output| {
+        let t = output_topic(params, o.topic());
+        let q = params
+            .qos_overrides
+            .qos(&t, QosEntity::Publisher, output_qos());
+        Ok::<_, NodeError>(match o.message_type() {
+            OutputType::Image => OutputPublisher::Image(Arc::new(create_publisher(node, &t, q)?)),
+            OutputType::CompressedImage => {
+                OutputPublisher::CompressedImage(Arc::new(create_publisher(node, &t, q)?))
+            }
+            OutputType::PointCloud => {
+                OutputPublisher::PointCloud(Arc::new(create_publisher(node, &t, q)?))
+            }
+        })
+    })?;
+    let (OutputPublisher::PointCloud(points), OutputPublisher::CompressedImage(compressed)) = (
+        &publishers[Output::Points],
+        &publishers[Output::CompressedDepth],
+    ) else {
+        return Err(NodeError::Dds {
+            what: "the output table".into(),
+            problem: "points and compressed depth are not PointCloud2 and CompressedImage".into(),
+        });
+    };
+    let (points, compressed) = (points.clone(), compressed.clone());
+    Ok((publishers, points, compressed))
 }
 
 /// The stamp of the node's `/tf_static`: the wall clock at start, or 0 with simulated time
