@@ -37,7 +37,12 @@
 #                          56 to 113 s a step (a CI build beside it), 8.7 GB: a GPU's job (about
 #                          a minute a step here against 3 s at 256).
 # `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
-# step 3,100 ships as models/psmode_stage1.safetensors, and `fusion1` trains stage 2 on it.
+# step 3,100 ships as models/psmode_stage1.safetensors. `pairs_decay` finishes it with a
+# decaying rate. `fusion1` (stage 2 on the shipped stage 1, 300 cached samples) stopped at 2,050
+# (2026-11-29): validation 82.9 to 85.8 from step 250 on; at 1,500 on the held-out rows it
+# fused to streets 92.76 / soiled 91.06 / cluttered 77.53 against the most confident pair's
+# 92.71 / 91.75 / 85.69 (its correction, computed at 256, smears near obstacles); its cache
+# (725 MB) cannot be kept between sessions, so every resume would spend 50 CPU minutes on it.
 # `fusion` stopped at 5,700 (2026-11-29): its validation δ1 wandered between 71.5 and 75.5 from
 # step 1,500 on, and its best step (4,250, 75.5) was no better than the shipped file (1,250)
 # on the held-out rows (streets 93.09 / 93.55, soiled 91.76 / 91.97, cluttered 77.56 / 77.21):
@@ -61,12 +66,12 @@
 # streets with `tools/eval_heldout.sh` (obstacle recall beside δ1).
 #
 # env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
-# shipped file), ARMS ("fusion1"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
+# shipped file), ARMS ("pairs_decay"), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
 bin="${MODE360_BIN:-target/release/mode360}"
 init="${INIT:-models/ssmode_parallax_zncc_log.safetensors}"
-arms="${ARMS:-fusion1}"
+arms="${ARMS:-pairs_decay}"
 mix=(--objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS="${THREADS:-1}" CANDLE_NUM_THREADS="${THREADS:-1}"
@@ -76,6 +81,7 @@ run_dir() {
   case "$1" in
   pairs) echo psmode_pairs ;;
   pairs_lr) echo psmode_pairs_lr ;;
+  pairs_decay) echo psmode_pairs_decay ;;
   w512) echo ssmode_w512 ;;
   *) echo "clutter_$1" ;;
   esac
@@ -83,6 +89,7 @@ run_dir() {
 for arm in $arms; do
   lr=2e-5
   width=256
+  steps_override=
   case "$arm" in
   plain) loss=(--init-weights "$init") ;;
   weighted) loss=(--near-weight 4 --too-far-weight 2 --init-weights "$init") ;;
@@ -128,6 +135,14 @@ for arm in $arms; do
     pids+=($!)
     continue
     ;;
+  pairs_decay)
+    # `pairs` finished with a decaying rate: forked once from `pairs` at its step 3,200 (rate
+    # about 5.7e-6 there), the cosine schedule ending at 5,000 instead of 20,000; stage 1 had
+    # plateaued at the peak rate (validation 68.33 at 2,750, 68.25 at 3,000)
+    loss=(--camera-pairs --near-weight 8 --obstacle-weight 2 --thin-weight 1
+      --fork-from runs/psmode_pairs)
+    steps_override=5000
+    ;;
   fusion1)
     # PSMODE stage 2 on the fine-tuned stage 1 (models/psmode_stage1.safetensors, `pairs` at
     # 3,100): `fusion` was trained on the zero-shot stage 1 and its 200 samples held no more,
@@ -142,11 +157,12 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, w512, pairs, pairs_lr, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
-  "$bin" train --preset parallax_zncc_log --width "$width" --steps "${STEPS:-20000}" --lr "$lr" \
+  "$bin" train --preset parallax_zncc_log --width "$width" \
+    --steps "${steps_override:-${STEPS:-20000}}" --lr "$lr" \
     --warmup-steps 50 "${mix[@]}" "${loss[@]}" --rig-pool 6 --val-every 250 \
     --checkpoint-every 50 --seed 6 --resume --out "runs/$(run_dir "$arm")" &
   pids+=($!)
