@@ -23,8 +23,8 @@ pub struct TrainArgs {
     /// (PSMODE's stage 2: --stage1-weights, --fusion-samples, --width; the data options apply).
     #[arg(long, value_enum, default_value_t = TrainStage::Ssmode)]
     pub stage: TrainStage,
-    /// Fusion: the stage-1 weights whose pairwise output it learns to fuse (default: the shipped
-    /// SSMODE weights).
+    /// Fusion: the stage-1 weights whose pairwise output it learns to fuse (default: PSMODE's
+    /// shipped stage 1, models/psmode_stage1.safetensors).
     #[arg(long)]
     pub stage1_weights: Option<PathBuf>,
     /// Fusion: training set size (the stream's first samples; stage 1's output for each is
@@ -179,7 +179,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
     };
     let stage1_weights = a
         .stage1_weights
-        .unwrap_or_else(mode360_estimator::ssmode::default_weights_path);
+        .unwrap_or_else(|| mode360_estimator::EstimatorKind::Psmode.default_weights_path());
     let opts = FusionTrainOptions {
         out_dir: a.out,
         stage1_weights,

@@ -105,7 +105,7 @@ pub enum EstimatorKind {
     Ssmode,
     /// PSMODE, the paper's two-stage method: SSMODE's network on each camera pair in its GEER
     /// frame, then the pairs fused (`estimator::psmode`). Its weights are the stage-1
-    /// network's (default: SSMODE's shipped weights).
+    /// network's (default: models/psmode_stage1.safetensors, SSMODE fine-tuned on pairs).
     Psmode,
 }
 

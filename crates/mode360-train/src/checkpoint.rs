@@ -6,6 +6,7 @@
 //! the `checkpoint.old/` a crash between the two renames can leave.
 
 use super::data::{Deep360Mix, SceneMix};
+use super::loss::LossWeighting;
 use super::optim::AdamW;
 use super::options::{io_err, TrainError};
 use candle_core::Device;
@@ -47,6 +48,11 @@ pub struct CheckpointState {
     /// What the stream's samples hold (its fields at the top level of `state.json`).
     #[serde(flatten)]
     pub mix: SceneMix,
+    /// The loss's extra weights the run trains with now (a record, not compared on resume:
+    /// the arms of an ablation fork one checkpoint with other weights; absent in older
+    /// checkpoints).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loss_weighting: Option<LossWeighting>,
 }
 
 /// What a resume must find again to read the same Deep360 frames for the same samples.
@@ -247,7 +253,10 @@ pub(super) fn load_checkpoint(
             problem,
         })?;
     Ok(match restore {
-        Restore::Resume => state,
+        Restore::Resume => CheckpointState {
+            loss_weighting: expected.loss_weighting,
+            ..state
+        },
         Restore::Fork => CheckpointState {
             step: state.step,
             next_sample_index: state.next_sample_index,

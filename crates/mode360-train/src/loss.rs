@@ -84,7 +84,7 @@ pub struct LossWeighting {
     pub too_far_weight: f64,
     /// Where the too-far loss weight applies: pixels whose true range is at most this, metres
     /// (default: everywhere), so that the far field and the sky keep the plain loss.
-    #[serde(default = "unlimited_range")]
+    #[serde(default = "unlimited_range", deserialize_with = "range_or_unlimited")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = f64::INFINITY))]
     pub too_far_range_m: f64,
     /// Loss weight of the pixels of an obstacle as `eval` counts them (an object instance
@@ -104,6 +104,11 @@ fn unit_weight() -> f64 {
 
 fn unlimited_range() -> f64 {
     f64::INFINITY
+}
+
+/// A range, where JSON's `null` (how serde_json writes an infinite one) is unlimited.
+fn range_or_unlimited<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::INFINITY))
 }
 
 /// Range below which [`LossWeighting::near_weight`] applies by default, metres.

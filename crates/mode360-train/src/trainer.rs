@@ -100,6 +100,7 @@ impl Trainer {
             train_s: 0.0,
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
             mix: opts.mix,
+            loss_weighting: Some(opts.loss_weighting),
         };
         let state = restore(&opts, &cfg, &mut varmap, &mut opt, state, &device)?;
         let (train_csv, val_csv, curves) = prepare_logs(&opts, state.step)?;

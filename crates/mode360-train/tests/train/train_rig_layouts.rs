@@ -394,8 +394,14 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
         (state.mix.rig_layouts, state.mix.blocked_fraction),
         (RigLayouts::Roof, 0.0)
     );
+    assert_eq!(state.loss_weighting, None);
 
     let out = tempfile::tempdir().unwrap();
+    let loss_weighting = mode360_train::loss::LossWeighting {
+        near_weight: 8.0,
+        obstacle_weight: 2.0,
+        ..Default::default()
+    };
     let opts = TrainOptions {
         preset: mode360_model::model::Preset::Tiny,
         steps: 1,
@@ -409,6 +415,7 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
             blocked_fraction: 0.5,
             ..Default::default()
         },
+        loss_weighting,
         show_progress: false,
         ..TrainOptions::default()
     };
@@ -420,6 +427,8 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
         (RigLayouts::Any, 0.5)
     );
     assert!(text.contains("\"rig_layouts\": \"any\""), "{text}");
+    // The loss the run trains with is on record.
+    assert_eq!(state.loss_weighting, Some(loss_weighting));
     // Resuming with another layout or blocker share would change the stream: refused.
     for (other, field) in [
         (
