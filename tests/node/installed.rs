@@ -17,8 +17,11 @@ const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
 const DOMAIN_ID: u16 = 54;
 /// Frames of the bundled bag's recipe (bags/README.md).
 const DEMO_FRAMES: usize = 4;
-/// Playback speed of the demo (its default is 0.03).
-const DEMO_RATE: &str = "0.015";
+/// Playback speed of the demo (its default is 0.03): a frame every 13 s, so that the test
+/// build's network (workspace crates at opt-level 1) finishes each frame before the next
+/// arrives also on a loaded 2-core machine (at 0.015 a group was now and then dropped as
+/// stale under load: 3 depth images of 4).
+const DEMO_RATE: &str = "0.0075";
 /// The shipped weights on the demo street score about 96 % δ1 (README); far below means the
 /// wrong weights or rig were found.
 const MIN_DELTA1_PCT: f64 = 90.0;
