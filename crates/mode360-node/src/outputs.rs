@@ -85,6 +85,13 @@ pub enum OutputMessage<'a> {
     PointCloud(&'a PointCloud2),
 }
 
+/// One output's message of a group, owned: what a publisher sends.
+pub enum OutputData {
+    Image(Image),
+    CompressedImage(CompressedImage),
+    PointCloud(PointCloud2),
+}
+
 /// One value per output (its publisher, channel or topic name), indexed by [`Output`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct PerOutput<T>([T; OUTPUT_COUNT]);

@@ -33,7 +33,7 @@ use mode360_io::msgs::image::image_msg_from_float;
 use mode360_io::msgs::{CompressedImage, Header, Image, PointCloud2};
 use std::time::{Duration, Instant};
 
-use super::outputs::{Output, OutputMessage};
+use super::outputs::{Output, OutputData, OutputMessage};
 
 mod points;
 pub use points::*;
@@ -189,6 +189,20 @@ impl PipelineOutput {
                 .map(OutputMessage::CompressedImage),
             Output::Points => self.points.as_ref().map(OutputMessage::PointCloud),
             Output::Confidence => Some(OutputMessage::Image(&self.confidence)),
+        }
+    }
+
+    /// Output `o`'s message moved out of this group for publishing (`None`: not built);
+    /// depth and confidence leave an empty image behind.
+    pub fn take_message(&mut self, o: Output) -> Option<OutputData> {
+        match o {
+            Output::Depth => Some(OutputData::Image(std::mem::take(&mut self.depth))),
+            Output::CompressedDepth => self
+                .compressed_depth
+                .take()
+                .map(OutputData::CompressedImage),
+            Output::Points => self.points.take().map(OutputData::PointCloud),
+            Output::Confidence => Some(OutputData::Image(std::mem::take(&mut self.confidence))),
         }
     }
 }

@@ -7,7 +7,7 @@
 
 use super::diagnostics::NodeHealth;
 use super::live_view::LiveView;
-use super::outputs::{Output, OutputMessage, PerOutput};
+use super::outputs::{Output, OutputData, PerOutput};
 use super::pipeline::{OutputRequest, Pipeline, PipelineOutput};
 use super::ros_params::RuntimeParams;
 use mode360_core::frame::RgbImage;
@@ -78,17 +78,15 @@ pub(super) enum OutputPublisher {
 }
 
 impl OutputPublisher {
-    /// Publishes a copy of `msg` (the live view and the health checks still read the group).
-    fn publish(&self, msg: OutputMessage<'_>) -> Result<(), String> {
+    /// Publishes `msg`, moved: no copy of the group's largest messages on the hot path.
+    fn publish(&self, msg: OutputData) -> Result<(), String> {
         match (self, msg) {
-            (Self::Image(p), OutputMessage::Image(m)) => {
-                p.publish(m.clone()).map_err(|e| format!("{e:?}"))
+            (Self::Image(p), OutputData::Image(m)) => p.publish(m).map_err(|e| format!("{e:?}")),
+            (Self::CompressedImage(p), OutputData::CompressedImage(m)) => {
+                p.publish(m).map_err(|e| format!("{e:?}"))
             }
-            (Self::CompressedImage(p), OutputMessage::CompressedImage(m)) => {
-                p.publish(m.clone()).map_err(|e| format!("{e:?}"))
-            }
-            (Self::PointCloud(p), OutputMessage::PointCloud(m)) => {
-                p.publish(m.clone()).map_err(|e| format!("{e:?}"))
+            (Self::PointCloud(p), OutputData::PointCloud(m)) => {
+                p.publish(m).map_err(|e| format!("{e:?}"))
             }
             _ => Err("a message of another type than the topic's".into()),
         }
@@ -98,25 +96,22 @@ impl OutputPublisher {
 /// The publishers of the worker's outputs.
 pub(super) type OutputPublishers = PerOutput<OutputPublisher>;
 
-/// A group's messages that go out: every output the pipeline built, confidence when asked for.
-fn outgoing(
-    out: &PipelineOutput,
-    confidence: bool,
-) -> impl Iterator<Item = (Output, OutputMessage<'_>)> {
-    Output::ALL
-        .into_iter()
-        .filter(move |&o| confidence || o != Output::Confidence)
-        .filter_map(|o| out.message(o).map(|m| (o, m)))
+/// Whether output `o` goes out: every output the pipeline built, confidence when asked for.
+fn goes_out(o: Output, confidence: bool) -> bool {
+    confidence || o != Output::Confidence
 }
 
-/// Publishes a group's outgoing messages; returns what failed.
+/// Publishes a group's outgoing messages, moving them out of `out`; returns what failed.
 fn publish_outputs(
     publishers: &OutputPublishers,
-    out: &PipelineOutput,
+    mut out: PipelineOutput,
     confidence: bool,
 ) -> Vec<String> {
-    outgoing(out, confidence)
-        .filter_map(|(o, msg)| {
+    Output::ALL
+        .into_iter()
+        .filter(|&o| goes_out(o, confidence))
+        .filter_map(|o| {
+            let msg = out.take_message(o)?;
             publishers[o]
                 .publish(msg)
                 .err()
@@ -177,12 +172,16 @@ pub(super) fn worker_main(
                     h.record_group(out.latency, out.points.is_some());
                 }
                 if let Some(live) = live {
-                    for (o, msg) in outgoing(&out, outputs.confidence) {
-                        live.outputs[o].log(msg);
+                    for o in Output::ALL
+                        .into_iter()
+                        .filter(|&o| goes_out(o, outputs.confidence))
+                    {
+                        if let Some(msg) = out.message(o) {
+                            live.outputs[o].log(msg);
+                        }
                     }
                 }
-                let mut errors = publish_outputs(&publishers, &out, outputs.confidence);
-                drop(out);
+                let mut errors = publish_outputs(&publishers, out, outputs.confidence);
                 // The lens and drift checks of this group, after its messages are out.
                 if let Err(e) = pipeline.run_deferred_checks() {
                     errors.push(format!("rig health checks: {e}"));
