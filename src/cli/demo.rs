@@ -367,6 +367,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "played {} frames; received {} depth images and {} point clouds ({:.0} points each)",
         s.frames_played, s.depth_received, s.points_received, s.mean_points
     );
+    println!("node: {}", node.health().summary());
     if let Some(m) = s.metrics {
         println!(
             "depth vs ground truth: MAE {:.3} m, RMSE {:.3} m, AbsRel {:.4}, SqRel {:.3}, SILog {:.3}, delta1 {:.2} %, delta2 {:.2} %, delta3 {:.2} %",

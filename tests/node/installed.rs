@@ -18,9 +18,10 @@ const DOMAIN_ID: u16 = 54;
 /// Frames of the bundled bag's recipe (bags/README.md).
 const DEMO_FRAMES: usize = 4;
 /// Playback speed of the demo (its default is 0.03): a frame every 13 s, so that the test
-/// build's network (workspace crates at opt-level 1) finishes each frame before the next
-/// arrives also on a loaded 2-core machine (at 0.015 a group was now and then dropped as
-/// stale under load: 3 depth images of 4).
+/// build's network (about 2.7 s a frame here, more on a loaded 2-core machine) finishes each
+/// frame before the next arrives. (A first frame lost now and then was not this: the player
+/// sent it before the node had learnt of the player's writers; the player now waits
+/// `SUBSCRIBER_SETTLE` after the match. The demo's `node:` line tells the two apart.)
 const DEMO_RATE: &str = "0.0075";
 /// The shipped weights on the demo street score about 96 % δ1 (README); far below means the
 /// wrong weights or rig were found.

@@ -49,6 +49,12 @@ pub enum PlayError {
 const STOP_POLL: Duration = Duration::from_millis(50);
 /// Largest wait before one message, seconds (guards against bags with absurd time gaps).
 const MAX_OFFSET_S: f64 = 24.0 * 3600.0;
+/// After every waited-for topic has a subscriber, wait this long more before the first
+/// message. Discovery is two one-way handshakes: the player's writer learns of the subscriber
+/// before the subscriber has learnt of the writer, and a sample sent in between is dropped by
+/// the subscriber as coming from an unknown writer (the node then lost a bag's whole first
+/// frame now and then on a loaded machine).
+pub const SUBSCRIBER_SETTLE: Duration = Duration::from_secs(1);
 /// Loop gap when the bag has no measurable frame period (one message per topic).
 pub const DEFAULT_LOOP_GAP_NS: u64 = 100_000_000;
 
@@ -63,7 +69,7 @@ pub struct PlayOptions {
     pub publish_clock: bool,
     pub dds: DdsOptions,
     /// Before playing, wait up to this long until every topic in `wait_topics` has a
-    /// matched subscriber.
+    /// matched subscriber, then [`SUBSCRIBER_SETTLE`] more.
     pub wait_for_subscribers: Option<Duration>,
     pub wait_topics: Vec<String>,
 }
@@ -341,7 +347,8 @@ fn loop_timing(bag: &BagReader) -> Result<Option<LoopTiming>, PlayError> {
     ))
 }
 
-/// Waits up to `limit` until every topic of `topics` the bag has is subscribed to, or `stop`.
+/// Waits up to `limit` until every topic of `topics` the bag has is subscribed to, or `stop`,
+/// then [`SUBSCRIBER_SETTLE`] for the subscribers to learn of the player's writers.
 fn wait_for_subscribers(
     topics: &[String],
     publishers: &BTreeMap<String, (AnyPublisher, String)>,
@@ -366,6 +373,7 @@ fn wait_for_subscribers(
             _ = stopped => {}
         }
     });
+    pace(Instant::now(), SUBSCRIBER_SETTLE, stop);
     Ok(())
 }
 

@@ -271,6 +271,35 @@ impl NodeHealth {
         self.mean_latency_ms = Some(mean + (latency_ms - mean) / self.groups_processed as f64);
         self.last_latency_ms = Some(latency_ms);
     }
+
+    /// One line for a person: groups processed and lost, images per camera, and what the
+    /// synchronizer dropped and why ("groups: 3 processed, 1 replaced, 0 failed; images
+    /// received: cam1 4, ...; dropped by sync: 1 unmatched, 0 far ahead, ...").
+    pub fn summary(&self) -> String {
+        let cams: Vec<String> = self
+            .cameras
+            .iter()
+            .map(|c| format!("{} {}", c.name, c.received))
+            .collect();
+        let bad: u64 = self.cameras.iter().map(|c| c.bad_messages).sum();
+        let s = &self.sync;
+        format!(
+            "groups: {} processed (mean latency {} ms), {} replaced by a newer one, {} failed; \
+             images received: {}; \
+             malformed: {bad}; dropped by sync: {} unmatched, {} far ahead, {} out of order, \
+             {} queue overflow; clock resets: {}",
+            self.groups_processed,
+            opt_ms(self.mean_latency_ms),
+            self.groups_dropped,
+            self.pipeline_errors,
+            cams.join(", "),
+            s.unmatched,
+            s.ahead,
+            s.out_of_order,
+            s.overflow,
+            s.resets
+        )
+    }
 }
 
 fn kv(key: &str, value: impl ToString) -> KeyValue {

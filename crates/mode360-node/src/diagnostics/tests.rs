@@ -261,3 +261,23 @@ fn processed_groups_keep_the_newest_and_the_mean_latency() {
     let mean = h.mean_latency_ms.unwrap_or(f64::NAN);
     assert!((mean - 550.0).abs() < 1e-9, "{mean}");
 }
+
+#[test]
+fn the_summary_line_names_every_count() {
+    let mut health = NodeHealth::of_cameras([("cam1", "/cam1".into()), ("cam2", "/cam2".into())]);
+    health.cameras[0].received = 4;
+    health.cameras[1].received = 3;
+    health.cameras[1].record_bad(BadImageReason::Truncated, "truncated".into());
+    health.record_processed(2000.0);
+    health.record_processed(3000.0);
+    health.groups_dropped = 1;
+    health.sync.unmatched = 2;
+    health.sync.ahead = 5;
+    health.sync.resets = 1;
+    assert_eq!(
+        health.summary(),
+        "groups: 2 processed (mean latency 2500.0 ms), 1 replaced by a newer one, 0 failed; \
+         images received: cam1 4, cam2 3; malformed: 1; dropped by sync: 2 unmatched, \
+         5 far ahead, 0 out of order, 0 queue overflow; clock resets: 1"
+    );
+}
