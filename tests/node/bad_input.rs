@@ -34,15 +34,15 @@ const WIDTH: usize = 128;
 /// Long enough that the pauses between cases never time a camera out: a case's diagnostics
 /// come up to one diagnostics period after the previous good group's depth, and in a debug
 /// build on 2 shared cores that depth (SSMODE plus the rig health checks) can take 2 s, so
-/// 3 s was too tight (CI saw a camera time out and read ERROR). Short enough for case 4 to
-/// stay quick.
-const CAMERA_TIMEOUT_S: f64 = 6.0;
+/// 3 s was too tight (CI saw a camera time out and read ERROR), and 6 s once too (with a
+/// training job beside the tests). Short enough for case 4 to stay quick.
+const CAMERA_TIMEOUT_S: f64 = 10.0;
 const DISCOVERY_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a good group may take to come back as depth.
 const DEPTH_TIMEOUT: Duration = Duration::from_secs(15);
 /// How long a diagnostics condition may take (diagnostics come once a second).
 const DIAGNOSTICS_TIMEOUT: Duration = Duration::from_secs(5);
-const SILENT_CASE_TIMEOUT: Duration = Duration::from_secs(20);
+const SILENT_CASE_TIMEOUT: Duration = Duration::from_secs(30);
 /// Period of the groups sent while waiting for the silent camera to be timed out.
 const SEND_PERIOD: Duration = Duration::from_millis(200);
 const POLL: Duration = Duration::from_millis(20);
@@ -293,10 +293,14 @@ fn bad_input_is_dropped_counted_and_reported_on_diagnostics() -> TestResult {
     for (i, expected) in expected_reasons.iter().enumerate() {
         assert_eq!(&reason(&diag, i), expected, "camera {}", names[i]);
         let status = camera_status(&names[i]);
-        assert_eq!(level(&diag, &status), Some(DiagnosticStatus::WARN));
         assert_eq!(
-            message(&diag, &status),
-            Some("receiving, some messages dropped")
+            (level(&diag, &status), message(&diag, &status)),
+            (
+                Some(DiagnosticStatus::WARN),
+                Some("receiving, some messages dropped")
+            ),
+            "camera {}",
+            names[i]
         );
         assert_eq!(
             diagnostic_value(&diag, &status, "topic"),
