@@ -9,19 +9,20 @@ use mode360::deep360::{
 };
 use mode360::train::data::{
     image_tensor, sample_fingerprint, training_sample, training_spec, DataConfig, Deep360Mix,
-    RigChoice, SampleStream,
+    RigChoice, SampleStream, StreamOptions,
 };
 
 fn data_cfg(mix: Option<Deep360Mix>) -> DataConfig {
     DataConfig {
-        seed: 3,
+        stream: StreamOptions {
+            seed: 3,
+            soiled_fraction: 0.5,
+            deep360_fraction: 0.25,
+            ..Default::default()
+        },
         width: 64,
         max_depth_m: DEEP360_MAX_DEPTH_M,
-        soiled_fraction: 0.5,
-        deep360_fraction: 0.25,
         deep360_disk: mix,
-        mix: Default::default(),
-        camera_effects: false,
     }
 }
 
@@ -138,7 +139,10 @@ fn fine_tune_runs_on_the_fixture_and_resume_checks_the_dataset() {
         warmup_steps: 1,
         val_every: 0,
         checkpoint_every_steps: 1,
-        seed: 3,
+        stream: StreamOptions {
+            seed: 3,
+            ..Default::default()
+        },
         deep360_disk: Some(dir.path().to_path_buf()),
         deep360_disk_fraction: 1.0,
         show_progress: false,

@@ -8,7 +8,7 @@ use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use mode360::geometry::ErpGrid;
 use mode360::model::{ComputeDevice, FusionConfig};
 use mode360::synth::{SynthConfig, SynthRenderer};
-use mode360::train::data::{DataConfig, SceneMix};
+use mode360::train::data::{DataConfig, SceneMix, StreamOptions};
 use mode360::train::fusion::{run_fusion_training, FusionTrainOptions, FUSION_WEIGHTS_FILE};
 use std::path::Path;
 
@@ -32,14 +32,16 @@ fn options(out: &Path, steps: usize, until: Option<usize>) -> FusionTrainOptions
         checkpoint_every: 10,
         resume: true,
         data: DataConfig {
-            seed: 3,
+            stream: StreamOptions {
+                seed: 3,
+                soiled_fraction: 0.0,
+                deep360_fraction: 0.0,
+                camera_effects: false,
+                mix: SceneMix::default(),
+            },
             width: config.width,
             max_depth_m: config.max_depth_m,
-            soiled_fraction: 0.0,
-            deep360_fraction: 0.0,
             deep360_disk: None,
-            mix: SceneMix::default(),
-            camera_effects: false,
         },
         config,
         loss: Default::default(),

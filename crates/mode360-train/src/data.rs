@@ -5,20 +5,20 @@
 //! `Rng::new(&[s, k, SAMPLE_TAG])`. The data "RNG position" of a training run is therefore
 //! just the index of the next sample, which makes resuming exact.
 //!
-//! Rigs (flexibility goal): with probability `deep360_fraction` the paper's Deep360 rig,
+//! Rigs (flexibility goal): with probability [`StreamOptions::deep360_fraction`] the paper's Deep360 rig,
 //! otherwise a random roof rack: `2..=5` cameras placed uniformly in a
 //! `RACK_HALF_SIZE_M`-square around the rig origin (at least `MIN_CAMERA_SEPARATION_M`
 //! apart), heights in `[MIN_HEIGHT_M, MAX_HEIGHT_M]`, small random roll/pitch/yaw per camera.
 //! Camera 1 is the reference and output frame, so the ground truth is camera 1's range.
-//! With probability [`DataConfig::fisheye_fraction`] (its own stream) the rig is a random
+//! With probability [`SceneMix::fisheye_fraction`] (its own stream) the rig is a random
 //! fisheye or dual-fisheye rack instead ([`super::fisheye_rigs`]), whose images enter the
 //! network as panoramas of their own frames ([`RigRemap`]) and whose depth is in `rack_center`.
-//! With [`DataConfig::rig_layouts`] `any`, a random rig that is neither Deep360 nor fisheye
+//! With [`SceneMix::rig_layouts`] `any`, a random rig that is neither Deep360 nor fisheye
 //! takes a layout family drawn from its own stream `Rng::new(&[s, k, LAYOUT_TAG])` (roof rack,
 //! vertical mast, turned cameras at mixed heights, car body corners: [`super::rig_layouts`]);
 //! `roof` (the default) keeps every such rig a roof rack, exactly the stream of older runs.
 //!
-//! Blocked lenses: with probability [`DataConfig::blocked_fraction`] (its own stream
+//! Blocked lenses: with probability [`SceneMix::blocked_fraction`] (its own stream
 //! `Rng::new(&[s, k, BLOCKER_TAG])`) one random camera of a rendered sample gets a blocker
 //! ([`mode360_synth::blockers`]: mud, a mount or a vehicle part, kind uniform) over a fraction
 //! of its view drawn in `[MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION]`. The ground
@@ -102,27 +102,65 @@ pub enum DataError {
     Deep360(#[from] Deep360Error),
 }
 
-/// How samples are drawn.
+/// How samples are drawn: the stream's options ([`StreamOptions`], which `mode360 train`
+/// takes as they are) and the size and range the network trains at.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DataConfig {
-    /// Stream seed.
-    pub seed: u64,
+    /// Seed, soiling, rigs and scene mix of the stream.
+    pub stream: StreamOptions,
     /// ERP width of the images and ground truth; height is `width / 2`.
     pub width: usize,
     /// Sky / clamp range of the ground truth, metres.
     pub max_depth_m: f64,
-    /// Fraction of training samples with lens soiling.
-    pub soiled_fraction: f64,
-    /// Fraction of rendered training samples on the Deep360 rig (the rest use random rigs).
-    pub deep360_fraction: f64,
     /// Deep360 training frames from disk mixed into the stream (fine-tuning).
     pub deep360_disk: Option<Deep360Mix>,
-    /// What the rendered samples hold: scenes, streets, rigs, blocked lenses.
-    pub mix: SceneMix,
-    /// Every rendered camera image gets a camera's effects (exposure, white balance,
-    /// vignetting, blur, noise, JPEG: [`super::camera_effects`]), drawn per camera from the
-    /// sample's world seed and frame.
+}
+
+/// Default of [`StreamOptions::seed`].
+pub const DEFAULT_STREAM_SEED: u64 = 1;
+/// Default of [`StreamOptions::soiled_fraction`].
+pub const DEFAULT_SOILED_FRACTION: f64 = 0.3;
+/// Default of [`StreamOptions::deep360_fraction`].
+pub const DEFAULT_DEEP360_RIG_FRACTION: f64 = 0.25;
+
+/// The options of a sample stream, shared by both of `mode360 train`'s stages (they are its
+/// command-line options under the `cli` feature) and carried by [`DataConfig`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct StreamOptions {
+    /// Data seed.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_STREAM_SEED))]
+    pub seed: u64,
+    /// Fraction of samples with lens soiling.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_SOILED_FRACTION))]
+    pub soiled_fraction: f64,
+    /// Fraction of rendered street and object samples on the Deep360 rig (the rest on random
+    /// roof racks of 2 to 5 cameras).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long = "deep360-rig-fraction", value_name = "FRACTION", default_value_t = DEFAULT_DEEP360_RIG_FRACTION)
+    )]
+    pub deep360_fraction: f64,
+    /// Give every rendered camera image a real camera's effects: exposure, white balance,
+    /// vignetting, blur, sensor noise and JPEG compression, drawn per camera from the sample's
+    /// world seed and frame.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub camera_effects: bool,
+    /// What the rendered samples hold.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub mix: SceneMix,
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        Self {
+            seed: DEFAULT_STREAM_SEED,
+            soiled_fraction: DEFAULT_SOILED_FRACTION,
+            deep360_fraction: DEFAULT_DEEP360_RIG_FRACTION,
+            camera_effects: false,
+            mix: SceneMix::default(),
+        }
+    }
 }
 
 /// The paper's Deep360 dataset on disk as a source of training samples.
@@ -178,9 +216,9 @@ impl Deep360Mix {
     }
 }
 
-/// What the rendered samples of a stream hold beyond their seed and size. Set once by
-/// [`super::options::TrainOptions`] (and `mode360 train`'s options, which are these fields),
-/// carried by [`DataConfig`], saved in every checkpoint
+/// What the rendered samples of a stream hold beyond their seed and size. Part of
+/// [`StreamOptions`] (so of [`super::options::TrainOptions`] and `mode360 train`'s options,
+/// which are these fields), carried by [`DataConfig`], saved in every checkpoint
 /// ([`super::checkpoint::CheckpointState`]) and compared on resume; a field missing from an
 /// older checkpoint reads as its default (none, regular streets, roof racks, a new rig every
 /// sample).
@@ -229,11 +267,11 @@ pub struct SceneMix {
 impl DataConfig {
     fn validate(&self) -> Result<(), DataError> {
         for (name, v) in [
-            ("soiled_fraction", self.soiled_fraction),
-            ("deep360_fraction", self.deep360_fraction),
-            ("objects_fraction", self.mix.objects_fraction),
-            ("fisheye_fraction", self.mix.fisheye_fraction),
-            ("blocked_fraction", self.mix.blocked_fraction),
+            ("soiled_fraction", self.stream.soiled_fraction),
+            ("deep360_fraction", self.stream.deep360_fraction),
+            ("objects_fraction", self.stream.mix.objects_fraction),
+            ("fisheye_fraction", self.stream.mix.fisheye_fraction),
+            ("blocked_fraction", self.stream.mix.blocked_fraction),
         ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(DataError::Config(format!(
@@ -315,55 +353,61 @@ pub struct TrainSample {
     pub labels: Option<SceneLabels>,
 }
 
-/// The spec of training sample `index` of the stream `cfg.seed`.
+/// The spec of training sample `index` of the stream `cfg.stream.seed`.
 pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
-    let mut rng = Rng::new(&[cfg.seed, index, SAMPLE_TAG]);
+    let mut rng = Rng::new(&[cfg.stream.seed, index, SAMPLE_TAG]);
     let world_seed = rng.next_u64() & !VALIDATION_SEED_BIT;
     let frame_index = rng.index(STREET_FRAMES);
-    let soiled = rng.chance(cfg.soiled_fraction);
+    let soiled = rng.chance(cfg.stream.soiled_fraction);
     // With a rig pool, every rig draw is taken at the pooled rig's index (super::rig_pool).
-    let rig_index = match cfg.mix.rig_pool {
+    let rig_index = match cfg.stream.mix.rig_pool {
         0 => index,
-        rigs => pooled_rig_index(cfg.seed, index, rigs),
+        rigs => pooled_rig_index(cfg.stream.seed, index, rigs),
     };
-    let rig = if rng.chance(cfg.deep360_fraction) {
+    let rig = if rng.chance(cfg.stream.deep360_fraction) {
         RigChoice::Deep360
     } else {
         let own = rng.next_u64();
-        RigChoice::Random(match cfg.mix.rig_pool {
+        RigChoice::Random(match cfg.stream.mix.rig_pool {
             0 => own,
-            _ => Rng::new(&[cfg.seed, rig_index, RIG_SEED_TAG]).next_u64(),
+            _ => Rng::new(&[cfg.stream.seed, rig_index, RIG_SEED_TAG]).next_u64(),
         })
     };
-    let rig = match (cfg.mix.rig_layouts, rig) {
-        (RigLayouts::Any, RigChoice::Random(seed)) => match draw_family(cfg.seed, rig_index) {
+    let rig = match (cfg.stream.mix.rig_layouts, rig) {
+        (RigLayouts::Any, RigChoice::Random(seed)) => match draw_family(cfg.stream.seed, rig_index)
+        {
             LayoutFamily::RoofRack => RigChoice::Random(seed),
             family => RigChoice::Layout(family, seed),
         },
         (_, rig) => rig,
     };
-    let mut fisheye = Rng::new(&[cfg.seed, rig_index, FISHEYE_TAG]);
-    let rig = if cfg.mix.fisheye_fraction > 0.0 && fisheye.chance(cfg.mix.fisheye_fraction) {
+    let mut fisheye = Rng::new(&[cfg.stream.seed, rig_index, FISHEYE_TAG]);
+    let rig = if cfg.stream.mix.fisheye_fraction > 0.0
+        && fisheye.chance(cfg.stream.mix.fisheye_fraction)
+    {
         RigChoice::Fisheye(fisheye.next_u64())
     } else {
         rig
     };
-    let scene = if Rng::new(&[cfg.seed, index, SCENE_TAG]).chance(cfg.mix.objects_fraction) {
-        SceneKind::Objects
-    } else {
-        SceneKind::Street
-    };
-    let mut blocker = Rng::new(&[cfg.seed, index, BLOCKER_TAG]);
-    let blocker = (cfg.mix.blocked_fraction > 0.0 && blocker.chance(cfg.mix.blocked_fraction))
-        .then(|| SampleBlocker {
-            camera_pick: blocker.next_u64(),
-            fraction: blocker.range(MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION),
-            kind: BlockerKind::ALL[blocker.index(BlockerKind::ALL.len())],
-        });
+    let scene =
+        if Rng::new(&[cfg.stream.seed, index, SCENE_TAG]).chance(cfg.stream.mix.objects_fraction) {
+            SceneKind::Objects
+        } else {
+            SceneKind::Street
+        };
+    let mut blocker = Rng::new(&[cfg.stream.seed, index, BLOCKER_TAG]);
+    let blocker = (cfg.stream.mix.blocked_fraction > 0.0
+        && blocker.chance(cfg.stream.mix.blocked_fraction))
+    .then(|| SampleBlocker {
+        camera_pick: blocker.next_u64(),
+        fraction: blocker.range(MIN_TRAIN_BLOCKED_FRACTION, MAX_TRAIN_BLOCKED_FRACTION),
+        kind: BlockerKind::ALL[blocker.index(BlockerKind::ALL.len())],
+    });
     let pair_pick = cfg
+        .stream
         .mix
         .camera_pairs
-        .then(|| Rng::new(&[cfg.seed, rig_index, PAIR_TAG]).next_u64());
+        .then(|| Rng::new(&[cfg.stream.seed, rig_index, PAIR_TAG]).next_u64());
     let spec = SampleSpec {
         world_seed,
         frame_index,
@@ -371,14 +415,14 @@ pub fn training_spec(cfg: &DataConfig, index: u64) -> SampleSpec {
         rig,
         deep360_frame: None,
         scene,
-        street: cfg.mix.street,
+        street: cfg.stream.mix.street,
         blocker,
         pair_pick,
     };
     match cfg
         .deep360_disk
         .as_ref()
-        .and_then(|m| m.pick(cfg.seed, index))
+        .and_then(|m| m.pick(cfg.stream.seed, index))
     {
         Some(v) => SampleSpec {
             soiled: v.soiled,
@@ -471,7 +515,7 @@ pub fn render_panoramas(cfg: &DataConfig, spec: &SampleSpec) -> Result<RenderedS
         ..SynthConfig::default()
     })?;
     let mut frame = renderer.render_frame(&rig, spec.frame_index);
-    if cfg.camera_effects {
+    if cfg.stream.camera_effects {
         apply_camera_effects(&mut frame.images, spec.world_seed, spec.frame_index as u64);
     }
     // Fisheye images enter the network as panoramas of their own frame, as at inference.

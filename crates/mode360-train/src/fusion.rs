@@ -214,13 +214,13 @@ impl FusionTrainer {
         // seeded, so that a resumed run equals a straight one
         let net = Fusion::new(
             &opts.config,
-            seeded_var_builder(&varmap, opts.data.seed, &device),
+            seeded_var_builder(&varmap, opts.data.stream.seed, &device),
         )?;
         let mut opt = AdamW::new(named_vars(&varmap)?, AdamWParams::default())?;
         let mut state = FusionState {
             step: 0,
             samples: opts.samples,
-            seed: opts.data.seed,
+            seed: opts.data.stream.seed,
             width: opts.config.width,
             stage1_weights: opts.stage1_weights.display().to_string(),
             loss: opts.loss,
@@ -331,7 +331,7 @@ impl FusionTrainer {
     fn step(&mut self) -> Result<f64, TrainError> {
         let step = self.state.step;
         let n = self.opts.samples;
-        let index = epoch_order(self.opts.data.seed, (step / n) as u64, n)[step % n];
+        let index = epoch_order(self.opts.data.stream.seed, (step / n) as u64, n)[step % n];
         let spec = training_spec(&self.opts.data, index as u64);
         let s = self.sample(&format!("train_{index:05}"), &spec)?;
         let out = self.net.forward(&s.pairs, &s.base, &s.rgb)?;

@@ -2,7 +2,7 @@
 //! `mode360 train`, checked by `resolve_config`), [`TrainSummary`], [`StepReport`] and
 //! [`TrainError`].
 
-use super::data::{DataError, SceneMix};
+use super::data::{DataError, StreamOptions};
 use super::log::ValRecord;
 use super::loss::{LossError, LossWeighting};
 use mode360_model::model::{ComputeDevice, ModelError, Preset, SsmodeConfig};
@@ -43,63 +43,115 @@ pub(super) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError +
     }
 }
 
-/// Options of `mode360 train`.
+/// Default of [`TrainOptions::steps`].
+pub const DEFAULT_STEPS: usize = 10_000;
+/// Default of [`TrainOptions::lr`].
+pub const DEFAULT_LR: f64 = 1e-3;
+/// Default of [`TrainOptions::warmup_steps`].
+pub const DEFAULT_WARMUP_STEPS: usize = 200;
+/// Default of [`TrainOptions::val_every`] and [`TrainOptions::checkpoint_every_steps`].
+pub const DEFAULT_EVERY_STEPS: usize = 250;
+
+/// Options of a training run; under the `cli` feature they are `mode360 train`'s options
+/// themselves (the fields without a flag keep their defaults there).
 #[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct TrainOptions {
-    /// Network preset.
+    /// Network preset (the shipped weights are parallax_zncc_log).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = Preset::Parallax))]
     pub preset: Preset,
-    /// Overrides the preset's input width (height = width / 2).
+    /// Override the preset's input width (height = width / 2).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub width: Option<usize>,
     /// Total optimizer steps (a resumed run continues up to this).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_STEPS))]
     pub steps: usize,
+    /// Run folder: checkpoint/, train.csv, val.csv, curves.png, final weights.
+    #[cfg_attr(feature = "cli", arg(long = "out", value_name = "DIR"))]
     pub out_dir: PathBuf,
-    /// Continue from `out_dir/checkpoint` if present.
+    /// Continue from <out>/checkpoint.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub resume: bool,
     /// Samples per step (gradient accumulation).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
     pub batch_size: usize,
-    /// Peak learning rate.
+    /// Peak learning rate (linear warmup, then cosine decay).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_LR))]
     pub lr: f64,
+    /// Steps of the linear learning-rate warmup.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_WARMUP_STEPS))]
     pub warmup_steps: usize,
+    #[cfg_attr(feature = "cli", arg(skip = DEFAULT_WEIGHT_DECAY))]
     pub weight_decay: f64,
-    /// Validate every this many steps (0: never).
+    /// Validate on the held-out set every this many steps.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = DEFAULT_EVERY_STEPS))]
     pub val_every: usize,
     /// Held-out validation frames (Deep360 rig, alternating clean/soiled).
+    #[cfg_attr(feature = "cli", arg(skip = DEFAULT_VAL_SAMPLES))]
     pub val_samples: usize,
-    /// Checkpoint every this many steps (0: only by time and at the end).
+    /// Checkpoint every this many steps (also every 5 minutes; 0: only by time and at the
+    /// end).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long = "checkpoint-every", value_name = "STEPS", default_value_t = DEFAULT_EVERY_STEPS)
+    )]
     pub checkpoint_every_steps: usize,
     /// Checkpoint when this many seconds passed since the last one.
+    #[cfg_attr(feature = "cli", arg(skip = DEFAULT_CHECKPOINT_EVERY_S))]
     pub checkpoint_every_s: f64,
-    /// Data stream seed.
-    pub seed: u64,
-    pub soiled_fraction: f64,
-    pub deep360_fraction: f64,
-    /// Root of the paper's Deep360 dataset: its training frames are mixed into the stream.
+    /// The sample stream: seed, soiling, rigs, scene mix (saved in the checkpoint, compared on
+    /// resume).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub stream: StreamOptions,
+    /// Mix training frames of the paper's Deep360 dataset at this root into the samples.
+    #[cfg_attr(feature = "cli", arg(long = "deep360", value_name = "DIR"))]
     pub deep360_disk: Option<PathBuf>,
-    /// Fraction of training samples read from `deep360_disk` (when set).
+    /// Fraction of samples taken from --deep360 (the rest are rendered).
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long = "deep360-fraction",
+            value_name = "FRACTION",
+            default_value_t = 1.0,
+            requires = "deep360_disk"
+        )
+    )]
     pub deep360_disk_fraction: f64,
-    /// What the rendered samples hold (saved in the checkpoint, compared on resume).
-    pub mix: SceneMix,
-    /// Clip the global gradient norm to this (`None`: no clipping).
+    /// Clip the global gradient norm to this (off when absent).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub max_grad_norm: Option<f64>,
-    /// Extra loss weight of near pixels and too-far predictions (default: none).
+    /// The loss's extra weights (near pixels, too far, obstacles).
+    #[cfg_attr(feature = "cli", command(flatten))]
     pub loss_weighting: LossWeighting,
-    /// Camera effects on every rendered training image ([`super::camera_effects`]).
-    pub camera_effects: bool,
-    /// Start a new run (not a resumed one) from these weights instead of the random
-    /// initialisation: fine-tuning. The file's network must have the preset's layer sizes.
+    /// Fine-tune: start a new run from these weights (e.g. models/ssmode_compact.safetensors)
+    /// instead of a random initialisation. Ignored when --resume finds a checkpoint. The
+    /// file's network must have the preset's layer sizes.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub init_weights: Option<PathBuf>,
-    /// Start a new run from another run's checkpoint folder (its `checkpoint/` or the folder
-    /// itself): its weights, optimizer moments, step and sample position, with this run's data
-    /// options. The arms of a data-mix ablation fork one checkpoint and compare at equal steps.
-    /// Only the network (preset, width) and the batch size must match.
+    /// Start a new run from another run's folder (or its checkpoint/): its weights, optimizer
+    /// moments, step and sample position, with this run's seed and data options (an ablation
+    /// of the data mix at equal steps). Ignored when --resume finds a checkpoint. Only the
+    /// network (preset, width) and the batch size must match.
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "init_weights"))]
     pub fork_from: Option<PathBuf>,
-    /// Stop after this step although the learning-rate schedule runs over `steps` (an
-    /// ablation arm stops where the others do; `None`: run to `steps`).
+    /// Stop after this step; the learning-rate schedule still runs over --steps (the arms of
+    /// an ablation stop at the same step).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub until_step: Option<usize>,
-    /// Where the network trains (the CPU, or a CUDA GPU with the `cuda` feature).
+    /// Where the network trains: cpu, or cuda:N for the N-th NVIDIA GPU (needs a build with
+    /// the `cuda` feature).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = ComputeDevice::Cpu))]
     pub device: ComputeDevice,
+    #[cfg_attr(feature = "cli", arg(skip = true))]
     pub show_progress: bool,
 }
+
+/// Default of [`TrainOptions::weight_decay`].
+pub const DEFAULT_WEIGHT_DECAY: f64 = 1e-4;
+/// Default of [`TrainOptions::val_samples`].
+pub const DEFAULT_VAL_SAMPLES: usize = 8;
+/// Default of [`TrainOptions::checkpoint_every_s`].
+pub const DEFAULT_CHECKPOINT_EVERY_S: f64 = 300.0;
 
 impl TrainOptions {
     /// The step a run stops after: `steps`, or `until_step` when that comes first.
@@ -113,26 +165,22 @@ impl Default for TrainOptions {
         Self {
             preset: Preset::Parallax,
             width: None,
-            steps: 10_000,
+            steps: DEFAULT_STEPS,
             out_dir: PathBuf::from("runs/train"),
             resume: false,
             batch_size: 1,
-            lr: 1e-3,
-            warmup_steps: 200,
-            weight_decay: 1e-4,
-            val_every: 250,
-            val_samples: 8,
-            checkpoint_every_steps: 250,
-            checkpoint_every_s: 300.0,
-            seed: 1,
-            soiled_fraction: 0.3,
-            deep360_fraction: 0.25,
+            lr: DEFAULT_LR,
+            warmup_steps: DEFAULT_WARMUP_STEPS,
+            weight_decay: DEFAULT_WEIGHT_DECAY,
+            val_every: DEFAULT_EVERY_STEPS,
+            val_samples: DEFAULT_VAL_SAMPLES,
+            checkpoint_every_steps: DEFAULT_EVERY_STEPS,
+            checkpoint_every_s: DEFAULT_CHECKPOINT_EVERY_S,
+            stream: StreamOptions::default(),
             deep360_disk: None,
             deep360_disk_fraction: 1.0,
-            mix: SceneMix::default(),
             max_grad_norm: None,
             loss_weighting: LossWeighting::default(),
-            camera_effects: false,
             init_weights: None,
             fork_from: None,
             until_step: None,

@@ -80,7 +80,7 @@ impl Trainer {
         let device = opts.device.open().map_err(ModelError::from)?;
         std::fs::create_dir_all(&opts.out_dir).map_err(io_err(&opts.out_dir))?;
         let mut varmap = VarMap::new();
-        let model = Ssmode::new(&cfg, seeded_var_builder(&varmap, opts.seed, &device))?;
+        let model = Ssmode::new(&cfg, seeded_var_builder(&varmap, opts.stream.seed, &device))?;
         let mut opt = AdamW::new(
             named_vars(&varmap)?,
             AdamWParams {
@@ -95,24 +95,20 @@ impl Trainer {
             next_sample_index: 0,
             preset: opts.preset.to_string(),
             width: cfg.width,
-            seed: opts.seed,
+            seed: opts.stream.seed,
             batch_size: opts.batch_size,
             train_s: 0.0,
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
-            mix: opts.mix,
+            mix: opts.stream.mix,
             loss_weighting: Some(opts.loss_weighting),
         };
         let state = restore(&opts, &cfg, &mut varmap, &mut opt, state, &device)?;
         let (train_csv, val_csv, curves) = prepare_logs(&opts, state.step)?;
         let data_cfg = DataConfig {
-            seed: opts.seed,
+            stream: opts.stream,
             width: cfg.width,
             max_depth_m: cfg.max_depth_m,
-            soiled_fraction: opts.soiled_fraction,
-            deep360_fraction: opts.deep360_fraction,
             deep360_disk,
-            mix: opts.mix,
-            camera_effects: opts.camera_effects,
         };
         let loss_cfg = LossConfig {
             min_depth_m: cfg.min_depth_m,
@@ -142,7 +138,8 @@ impl Trainer {
             None
         };
         // The pool's rigs, the Deep360 rig and the current sample's.
-        let cache = SamplingCache::with_capacity(opts.mix.rig_pool + MIN_SAMPLING_CACHE_RIGS);
+        let cache =
+            SamplingCache::with_capacity(opts.stream.mix.rig_pool + MIN_SAMPLING_CACHE_RIGS);
         Ok(Self {
             opts,
             cfg,
@@ -272,7 +269,7 @@ impl Trainer {
         }
         if self.val_set.is_none() {
             // PSMODE stage 1 validates on one pair of each held-out frame, pairs in turn
-            let pairs = self.opts.mix.camera_pairs;
+            let pairs = self.opts.stream.mix.camera_pairs;
             let set = validation_specs(self.opts.val_samples)
                 .into_iter()
                 .enumerate()

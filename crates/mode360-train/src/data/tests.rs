@@ -2,36 +2,33 @@
 
 use super::super::rig_layouts::RigLayouts;
 use super::super::rig_pool::RENEW_SAMPLES_PER_RIG;
-use super::{training_spec, DataConfig, RigChoice, SceneMix};
+use super::{training_spec, DataConfig, RigChoice, SceneMix, StreamOptions};
 
 #[test]
 fn a_pooled_stream_reuses_its_rigs_and_keeps_its_scenes() {
     let rigs = 4;
     let free = DataConfig {
-        seed: 5,
+        stream: StreamOptions {
+            seed: 5,
+            soiled_fraction: 0.3,
+            deep360_fraction: 0.25,
+            camera_effects: false,
+            mix: SceneMix {
+                objects_fraction: 0.25,
+                street: mode360_synth::StreetStyle::Varied,
+                fisheye_fraction: 0.25,
+                rig_layouts: RigLayouts::Any,
+                blocked_fraction: 0.2,
+                rig_pool: 0,
+                camera_pairs: false,
+            },
+        },
         width: 64,
         max_depth_m: 100.0,
-        soiled_fraction: 0.3,
-        deep360_fraction: 0.25,
         deep360_disk: None,
-        mix: SceneMix {
-            objects_fraction: 0.25,
-            street: mode360_synth::StreetStyle::Varied,
-            fisheye_fraction: 0.25,
-            rig_layouts: RigLayouts::Any,
-            blocked_fraction: 0.2,
-            rig_pool: 0,
-            camera_pairs: false,
-        },
-        camera_effects: false,
     };
-    let pooled = DataConfig {
-        mix: SceneMix {
-            rig_pool: rigs,
-            ..free.mix
-        },
-        ..free.clone()
-    };
+    let mut pooled = free.clone();
+    pooled.stream.mix.rig_pool = rigs;
     let renew = RENEW_SAMPLES_PER_RIG * rigs as u64;
     let mut seen = Vec::new();
     for k in 0..renew {

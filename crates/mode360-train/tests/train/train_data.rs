@@ -3,7 +3,7 @@
 use mode360_core::geometry::Rig;
 use mode360_train::data::{
     render_sample, sample_fingerprint, training_sample, training_spec, validation_specs,
-    DataConfig, RigChoice, SampleStream,
+    DataConfig, RigChoice, SampleStream, StreamOptions,
 };
 use mode360_train::rack::{
     random_rig, MAX_HEIGHT_M, MAX_RIG_CAMERAS, MAX_TILT_RAD, MIN_HEIGHT_M, MIN_RIG_CAMERAS,
@@ -14,14 +14,16 @@ const TEST_WIDTH: usize = 64;
 
 fn cfg(seed: u64) -> DataConfig {
     DataConfig {
-        seed,
+        stream: StreamOptions {
+            seed,
+            soiled_fraction: 0.5,
+            deep360_fraction: 0.25,
+            camera_effects: false,
+            mix: Default::default(),
+        },
         width: TEST_WIDTH,
         max_depth_m: 100.0,
-        soiled_fraction: 0.5,
-        deep360_fraction: 0.25,
         deep360_disk: None,
-        mix: Default::default(),
-        camera_effects: false,
     }
 }
 
@@ -131,15 +133,9 @@ fn training_mix_and_validation_split() {
 fn fisheye_samples_enter_the_network_as_panoramas() {
     // With every sample on a fisheye rack: the rig's cameras are fisheyes, their images are
     // panoramas of the ERP width (black where the lens sees nothing), depth is in rack_center.
-    let base = cfg(11);
-    let cfg = DataConfig {
-        mix: mode360_train::data::SceneMix {
-            fisheye_fraction: 1.0,
-            ..base.mix
-        },
-        deep360_fraction: 0.0,
-        ..base
-    };
+    let mut cfg = cfg(11);
+    cfg.stream.mix.fisheye_fraction = 1.0;
+    cfg.stream.deep360_fraction = 0.0;
     let mut dark_share = Vec::new();
     for index in 0..3 {
         let spec = training_spec(&cfg, index);
@@ -173,13 +169,16 @@ fn a_camera_pair_sample_is_its_rigs_pair_turned_into_the_geer_frame() {
     use mode360_core::geometry::{CameraPair, ErpGrid, PairSide, PairView};
     use mode360_train::data::{SampleSpec, SceneMix};
     let cfg = DataConfig {
-        soiled_fraction: 0.0,
-        deep360_fraction: 0.0,
-        width: 128,
-        mix: SceneMix {
-            camera_pairs: true,
-            ..Default::default()
+        stream: StreamOptions {
+            soiled_fraction: 0.0,
+            deep360_fraction: 0.0,
+            mix: SceneMix {
+                camera_pairs: true,
+                ..Default::default()
+            },
+            ..cfg(12).stream
         },
+        width: 128,
         ..cfg(12)
     };
     let spec = training_spec(&cfg, 2);

@@ -7,7 +7,7 @@ use mode360_core::geometry::Rig;
 use mode360_synth::noise::Rng;
 use mode360_synth::BlockerKind;
 use mode360_train::data::{
-    render_sample, training_spec, DataConfig, RigChoice, SampleSpec, SceneMix,
+    render_sample, training_spec, DataConfig, RigChoice, SampleSpec, SceneMix, StreamOptions,
     MAX_TRAIN_BLOCKED_FRACTION, MIN_TRAIN_BLOCKED_FRACTION,
 };
 use mode360_train::rack::random_rig;
@@ -21,22 +21,24 @@ const SEEDS: u64 = 120;
 
 fn cfg(seed: u64, rig_layouts: RigLayouts, blocked_fraction: f64) -> DataConfig {
     DataConfig {
-        seed,
+        stream: StreamOptions {
+            seed,
+            soiled_fraction: 0.3,
+            deep360_fraction: 0.25,
+            camera_effects: false,
+            mix: SceneMix {
+                objects_fraction: 0.2,
+                street: mode360_synth::StreetStyle::Regular,
+                fisheye_fraction: 0.1,
+                rig_layouts,
+                blocked_fraction,
+                rig_pool: 0,
+                camera_pairs: false,
+            },
+        },
         width: 64,
         max_depth_m: 100.0,
-        soiled_fraction: 0.3,
-        deep360_fraction: 0.25,
         deep360_disk: None,
-        mix: SceneMix {
-            objects_fraction: 0.2,
-            street: mode360_synth::StreetStyle::Regular,
-            fisheye_fraction: 0.1,
-            rig_layouts,
-            blocked_fraction,
-            rig_pool: 0,
-            camera_pairs: false,
-        },
-        camera_effects: false,
     }
 }
 
@@ -102,6 +104,7 @@ fn reference_random_rig(seed: u64) -> Rig {
 /// What the roof-only `training_spec` drew for sample `index` (no Deep360 disk mix):
 /// world seed, frame, soiled, rig choice, objects scene.
 fn reference_spec_fields(c: &DataConfig, index: u64) -> (u64, usize, bool, RigChoice, bool) {
+    let c = &c.stream;
     let mut rng = Rng::new(&[c.seed, index, 0x7A41_0001]);
     let world_seed = rng.next_u64() & !(1 << 63);
     let frame_index = rng.index(400);
@@ -409,10 +412,13 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
         warmup_steps: 1,
         val_every: 0,
         checkpoint_every_steps: 1,
-        seed: 9,
-        mix: SceneMix {
-            rig_layouts: RigLayouts::Any,
-            blocked_fraction: 0.5,
+        stream: StreamOptions {
+            seed: 9,
+            mix: SceneMix {
+                rig_layouts: RigLayouts::Any,
+                blocked_fraction: 0.5,
+                ..Default::default()
+            },
             ..Default::default()
         },
         loss_weighting,
@@ -435,9 +441,12 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
             TrainOptions {
                 steps: 2,
                 resume: true,
-                mix: SceneMix {
-                    rig_layouts: RigLayouts::Roof,
-                    ..opts.mix
+                stream: StreamOptions {
+                    mix: SceneMix {
+                        rig_layouts: RigLayouts::Roof,
+                        ..opts.stream.mix
+                    },
+                    ..opts.stream
                 },
                 ..opts.clone()
             },
@@ -447,9 +456,12 @@ fn checkpoints_record_layouts_and_blockers_and_old_ones_resume_as_roof() {
             TrainOptions {
                 steps: 2,
                 resume: true,
-                mix: SceneMix {
-                    blocked_fraction: 0.1,
-                    ..opts.mix
+                stream: StreamOptions {
+                    mix: SceneMix {
+                        blocked_fraction: 0.1,
+                        ..opts.stream.mix
+                    },
+                    ..opts.stream
                 },
                 ..opts.clone()
             },

@@ -19,23 +19,25 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         val_samples: 2,
         checkpoint_every_steps: 1,
         checkpoint_every_s: 1e9,
-        seed: 5,
-        soiled_fraction: 0.5,
-        deep360_fraction: 0.3,
+        stream: mode360_train::data::StreamOptions {
+            seed: 5,
+            soiled_fraction: 0.5,
+            deep360_fraction: 0.3,
+            camera_effects: false,
+            mix: mode360_train::data::SceneMix {
+                objects_fraction: 0.5,
+                street: mode360_synth::StreetStyle::Varied,
+                fisheye_fraction: 0.25,
+                ..Default::default()
+            },
+        },
         deep360_disk: None,
         deep360_disk_fraction: 1.0,
         init_weights: None,
         fork_from: None,
         until_step: None,
-        mix: mode360_train::data::SceneMix {
-            objects_fraction: 0.5,
-            street: mode360_synth::StreetStyle::Varied,
-            fisheye_fraction: 0.25,
-            ..Default::default()
-        },
         max_grad_norm: Some(5.0),
         loss_weighting: Default::default(),
-        camera_effects: false,
         device: mode360_model::model::ComputeDevice::Cpu,
         show_progress: false,
     }
@@ -163,7 +165,7 @@ fn init_weights_start_a_run_from_a_weights_file() {
     let b = tempfile::tempdir().unwrap();
     let trained = run_training(&opts(a.path(), 2)).unwrap();
     let mut start = opts(b.path(), 0);
-    start.seed = 6; // a different random initialisation, replaced by the file
+    start.stream.seed = 6; // a different random initialisation, replaced by the file
     start.init_weights = Some(trained.weights_path.clone());
     let started = run_training(&start).unwrap();
     assert_eq!(started.final_step, 0);
@@ -173,7 +175,7 @@ fn init_weights_start_a_run_from_a_weights_file() {
     );
 
     let mut fresh = opts(b.path(), 0);
-    fresh.seed = 6;
+    fresh.stream.seed = 6;
     let random = run_training(&fresh).unwrap();
     assert_ne!(
         weights(&random.weights_path),
@@ -251,13 +253,10 @@ fn forks_and_until_step_body() {
     assert_eq!(train.column("step"), vec![3.0, 4.0]);
 
     // another data mix: a resume refuses it, a fork takes it and trains on other samples
-    let other_mix = |o: TrainOptions| TrainOptions {
-        mix: mode360_train::data::SceneMix {
-            objects_fraction: 0.0,
-            street: mode360_synth::StreetStyle::Regular,
-            ..o.mix
-        },
-        ..o
+    let other_mix = |mut o: TrainOptions| {
+        o.stream.mix.objects_fraction = 0.0;
+        o.stream.mix.street = mode360_synth::StreetStyle::Regular;
+        o
     };
     let err = run_training(&other_mix(TrainOptions {
         resume: true,
