@@ -55,6 +55,11 @@ const MAX_OFFSET_S: f64 = 24.0 * 3600.0;
 /// the subscriber as coming from an unknown writer (the node then lost a bag's whole first
 /// frame now and then on a loaded machine).
 pub const SUBSCRIBER_SETTLE: Duration = Duration::from_secs(1);
+/// After the last message, keep the player's writers this long before they go: RustDDS
+/// paces the fragments of large samples (a frame of four 512-wide images, 1.6 MB, leaves in
+/// about 50 ms; docs/node.md) and a lost fragment is repaired after the writer's next
+/// heartbeat. Without it the demo lost its last frame.
+pub const FLUSH_LINGER: Duration = Duration::from_secs(1);
 /// Loop gap when the bag has no measurable frame period (one message per topic).
 pub const DEFAULT_LOOP_GAP_NS: u64 = 100_000_000;
 
@@ -470,6 +475,8 @@ pub fn play_bag_until(
         }
     }
     summary.elapsed_s = t0.elapsed().as_secs_f64();
+    // The last messages may still be on their way (paced fragments, repair): linger.
+    pace(Instant::now(), FLUSH_LINGER, stop);
     drop(clock);
     drop(publishers);
     spun.stop()?;
