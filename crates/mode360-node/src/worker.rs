@@ -96,9 +96,12 @@ impl OutputPublisher {
 /// The publishers of the worker's outputs.
 pub(super) type OutputPublishers = PerOutput<OutputPublisher>;
 
-/// Whether output `o` goes out: every output the pipeline built, confidence when asked for.
-fn goes_out(o: Output, confidence: bool) -> bool {
-    confidence || o != Output::Confidence
+/// The outputs that go out, in table order: every output, confidence when asked for (of
+/// these, what the pipeline built).
+fn outgoing(confidence: bool) -> impl Iterator<Item = Output> {
+    Output::ALL
+        .into_iter()
+        .filter(move |&o| confidence || o != Output::Confidence)
 }
 
 /// Publishes a group's outgoing messages, moving them out of `out`; returns what failed.
@@ -107,9 +110,7 @@ fn publish_outputs(
     mut out: PipelineOutput,
     confidence: bool,
 ) -> Vec<String> {
-    Output::ALL
-        .into_iter()
-        .filter(|&o| goes_out(o, confidence))
+    outgoing(confidence)
         .filter_map(|o| {
             let msg = out.take_message(o)?;
             publishers[o]
@@ -172,10 +173,7 @@ pub(super) fn worker_main(
                     h.record_group(out.latency, out.points.is_some());
                 }
                 if let Some(live) = live {
-                    for o in Output::ALL
-                        .into_iter()
-                        .filter(|&o| goes_out(o, outputs.confidence))
-                    {
+                    for o in outgoing(outputs.confidence) {
                         if let Some(msg) = out.message(o) {
                             live.outputs[o].log(msg);
                         }
