@@ -26,6 +26,14 @@ types are rclpy's own (sensor_msgs, rcl_interfaces); discovery stays on this hos
       A, B and C, set NAME (must succeed), set the other (must be refused); prints
       `result {json}`.
 
+  rclpy_peer.py types --domain D --node /mode360 [--timeout-s 30]
+      The graph as `ros2 topic info -v` reads it: once the node's topics and services have
+      held still for a second, for each of its publishers, subscriptions and service
+      endpoints (`rq/<service>Request`, `rr/<service>Reply`) the type and the type hash its
+      discovery announced, beside the hash rosidl generated for that type in this
+      distribution (`share/<pkg>/{msg,srv}/<Type>.json`; null where rclpy lacks the package);
+      prints `result {"endpoints": [...]}`.
+
 Exit status 0 on success; 1 with a message on stderr when something is missing or malformed;
 2 on bad usage.
 """
@@ -216,6 +224,82 @@ def params(args):
     )
 
 
+def rosidl_type_hash(type_name):
+    """The hash rosidl generated for `pkg/msg/T` or `pkg/srv/S_Request` (or DDS's
+    `pkg::srv::dds_::S_Request_`), or None where this distribution lacks the package."""
+    if "::dds_::" in type_name:
+        type_name = type_name.replace("::dds_::", "/").replace("::", "/").removesuffix("_")
+    package, kind, name = type_name.split("/")
+    file_name = name
+    if kind == "srv":
+        file_name = name.removesuffix("_Request").removesuffix("_Response")
+    # The wheels install every package's share/ under the venv (no AMENT_PREFIX_PATH).
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    shares = [os.path.join(p, "share", package) for p in prefixes + [sys.prefix]]
+    share = next((d for d in shares if os.path.isdir(d)), None)
+    if share is None:
+        return None
+    with open(os.path.join(share, kind, file_name + ".json")) as f:
+        hashes = json.load(f)["type_hashes"]
+    return next(h["hash_string"] for h in hashes if h["type_name"] == type_name)
+
+
+def types(args):
+    rclpy, node = start(args.domain)
+    ns, _, name = args.node.rpartition("/")
+    ns = ns or "/"
+
+    def graph():
+        try:
+            return (
+                sorted(node.get_publisher_names_and_types_by_node(name, ns)),
+                sorted(node.get_subscriber_names_and_types_by_node(name, ns)),
+                sorted(node.get_service_names_and_types_by_node(name, ns)),
+            )
+        except Exception:  # the node is not discovered yet
+            return None
+
+    # Discovery announces endpoints one by one: wait until the node's graph holds still.
+    deadline = time.monotonic() + args.timeout_s
+    last, stable_since = None, time.monotonic()
+    while True:
+        rclpy.spin_once(node, timeout_sec=POLL_S)
+        now = graph()
+        if now != last:
+            last, stable_since = now, time.monotonic()
+        elif now and now[0] and now[2] and time.monotonic() - stable_since > 1.0:
+            break
+        if time.monotonic() > deadline:
+            raise PeerError(f"timed out after {args.timeout_s} s waiting for {args.node}'s graph")
+    publishers, subscriptions, services = last
+
+    endpoints = []
+
+    def add(kind, topic, infos):
+        for info in infos:
+            if info.node_name != name or info.node_namespace != ns:
+                continue
+            endpoints.append(
+                {
+                    "kind": kind,
+                    "topic": topic,
+                    "type": info.topic_type,
+                    "hash": str(info.topic_type_hash),
+                    "expected": rosidl_type_hash(info.topic_type),
+                }
+            )
+
+    for topic, _ in publishers:
+        add("publisher", topic, node.get_publishers_info_by_topic(topic))
+    for topic, _ in subscriptions:
+        add("subscription", topic, node.get_subscriptions_info_by_topic(topic))
+    for service, _ in services:
+        request, reply = f"rq{service}Request", f"rr{service}Reply"
+        add("service request", request, node.get_subscriptions_info_by_topic(request, no_mangle=True))
+        add("service reply", reply, node.get_publishers_info_by_topic(reply, no_mangle=True))
+    say("result " + json.dumps({"endpoints": endpoints}))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -231,8 +315,12 @@ def main():
     pa.add_argument("--describe", required=True, help="comma-separated names")
     pa.add_argument("--names-per-call", type=int, default=8, help="names in one get_parameters request")
     pa.add_argument("--timeout-s", type=float, default=30.0)
+    ty = sub.add_parser("types")
+    ty.add_argument("--domain", type=int, required=True)
+    ty.add_argument("--node", default="/mode360")
+    ty.add_argument("--timeout-s", type=float, default=30.0)
     args = parser.parse_args()
-    commands = {"subscribe": subscribe, "publish": publish, "stream": stream, "params": params}
+    commands = {"subscribe": subscribe, "publish": publish, "stream": stream, "params": params, "types": types}
     try:
         commands[args.command](args)
     except PeerError as e:

@@ -13,7 +13,10 @@
 //!   is printed);
 //! * `params`: `list_parameters`, `get_parameters`, `describe_parameters` and
 //!   `set_parameters` as `ros2 param` calls them: every parameter listed with its value, a
-//!   run-time one set, a start-time one refused with the reason.
+//!   run-time one set, a start-time one refused with the reason;
+//! * `types`: every endpoint of the node that rclpy's graph shows (publishers,
+//!   subscriptions, the parameter services' request and reply endpoints) carries the REP 2011
+//!   type hash that rosidl generated for its type in that distribution.
 //!
 //! Needs `MODE360_RCLPY_JAZZY` / `MODE360_RCLPY_KILTED`: a Python with that distribution's
 //! rclpy (setup.sh prints them). Without one its tests are skipped, unless `CI` is set.
@@ -25,7 +28,7 @@ use super::harness::{loopback, render, wait_for, Cameras, Peer};
 use crate::common::{reliable_qos, TestResult, RIG_PATH};
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;
-use mode360::msgs::{Image, PointCloud2};
+use mode360::msgs::{type_hash, Image, PointCloud2};
 use mode360::node::{create_subscription, dds_context, spawn_node, NodeParams, SpunNode};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -371,6 +374,62 @@ fn rclpy_reads_and_sets_parameters<D: Distro>(domain_id: u16) -> TestResult {
     Ok(())
 }
 
+/// The type-hash test of distribution `D` in `domain_id` (see the module docs).
+fn rclpy_sees_type_hashes_on_every_endpoint<D: Distro>(domain_id: u16) -> TestResult {
+    let Some(peer) = Rclpy::<D>::from_env() else {
+        return Ok(());
+    };
+    let _one_node_at_a_time = crate::common::live_node_lock();
+    let params = NodeParams {
+        rig_file: RIG_PATH.into(),
+        output_width: 64,
+        ..Default::default()
+    };
+    let node = spawn_node(params, loopback(domain_id))?;
+    let rclpy = peer.run(&["types".into(), "--domain".into(), domain_id.to_string()])?;
+    let result: Value =
+        serde_json::from_str(&rclpy.expect_line("result", PEER_DISCOVERY_TIMEOUT * 2)?)?;
+    rclpy.finish(DRAIN)?;
+    let endpoints = result["endpoints"].as_array().cloned().unwrap_or_default();
+    let field = |e: &Value, key: &str| e[key].as_str().unwrap_or_default().to_string();
+    let mut per_kind: BTreeMap<String, usize> = BTreeMap::new();
+    let mut without_rosidl_hash = Vec::new();
+    for e in &endpoints {
+        *per_kind.entry(field(e, "kind")).or_default() += 1;
+        let (topic, type_name, hash) = (field(e, "topic"), field(e, "type"), field(e, "hash"));
+        match e["expected"].as_str() {
+            Some(expected) => assert_eq!(hash, expected, "{topic} ({type_name})"),
+            None => without_rosidl_hash.push((type_name, hash)),
+        }
+    }
+    println!(
+        "{}: {} endpoints of the node, per kind {per_kind:?}; without a rosidl hash in the wheels: {without_rosidl_hash:?}",
+        D::LABEL,
+        endpoints.len()
+    );
+    // depth, confidence, points, /diagnostics, /tf_static, /rosout, /parameter_events.
+    assert!(
+        per_kind.get("publisher").copied().unwrap_or(0) >= 7,
+        "{per_kind:?}"
+    );
+    assert!(
+        per_kind.get("subscription").copied().unwrap_or(0) >= 4,
+        "{per_kind:?}"
+    );
+    // The six parameter services, a request reader and a reply writer each.
+    assert_eq!(per_kind.get("service request"), Some(&6), "{per_kind:?}");
+    assert_eq!(per_kind.get("service reply"), Some(&6), "{per_kind:?}");
+    // rclpy's wheels have no tf2_msgs: /tf_static's hash is checked against rosidl's
+    // generated constant in mode360-io's unit test instead.
+    let tf_hash = type_hash::type_hash("tf2_msgs/msg/TFMessage")?.to_string();
+    for (type_name, hash) in &without_rosidl_hash {
+        assert_eq!(type_name, "tf2_msgs/msg/TFMessage");
+        assert_eq!(hash, &tf_hash);
+    }
+    assert_eq!(node.health().pipeline_errors, 0);
+    Ok(())
+}
+
 dds_peer_tests!(
     Rclpy::<Jazzy>::from_env(),
     rclpy_jazzy_subscriber_decodes_depth_and_points in 56,
@@ -414,4 +473,14 @@ fn rclpy_jazzy_reads_and_sets_parameters() -> TestResult {
 #[test]
 fn rclpy_kilted_reads_and_sets_parameters() -> TestResult {
     rclpy_reads_and_sets_parameters::<Kilted>(63)
+}
+
+#[test]
+fn rclpy_jazzy_sees_type_hashes_on_every_endpoint() -> TestResult {
+    rclpy_sees_type_hashes_on_every_endpoint::<Jazzy>(68)
+}
+
+#[test]
+fn rclpy_kilted_sees_type_hashes_on_every_endpoint() -> TestResult {
+    rclpy_sees_type_hashes_on_every_endpoint::<Kilted>(69)
 }

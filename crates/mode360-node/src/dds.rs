@@ -8,13 +8,14 @@
 
 use super::discovery_range::DiscoverySettings;
 use super::{NodeError, ROS_DOMAIN_ID_ENV};
-use mode360_io::msgs::RosMessage;
-use ros2_client::dds::rustdds::DomainParticipantBuilder;
+use mode360_io::msgs::{type_hash, RosMessage};
+use ros2_client::dds::rustdds::{set_endpoint_user_data, DomainParticipantBuilder};
 use ros2_client::{
     Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher,
     QosProfile,
 };
 use std::net::{IpAddr, Ipv4Addr};
+use std::sync::Once;
 use std::thread::JoinHandle;
 
 /// Depth of the sensor-data subscriptions.
@@ -69,8 +70,29 @@ impl DdsOptions {
     }
 }
 
-/// A ros2-client context on `opts`.
+/// Registers with RustDDS the REP 2011 type hash of every type our endpoints and
+/// ros2-client's (`/rosout`, `/parameter_events`, `ros_discovery_info`, the parameter
+/// services) carry, so each endpoint announces `typehash=RIHS01_<hex>;` in its USER_DATA as
+/// rmw does, and `ros2 topic info -v` and rmw_zenoh bridges can match on it. Runs once, before
+/// the first participant makes any endpoint.
+pub fn register_type_hashes() {
+    static REGISTERED: Once = Once::new();
+    REGISTERED.call_once(|| {
+        for type_name in type_hash::endpoint_type_names() {
+            match type_hash::type_hash(&type_name) {
+                Ok(hash) => set_endpoint_user_data(
+                    &type_hash::dds_type_name(&type_name),
+                    hash.user_data().into_bytes(),
+                ),
+                Err(e) => tracing::warn!("no type hash for {type_name}: {e}"),
+            }
+        }
+    });
+}
+
+/// A ros2-client context on `opts` (with the type hashes registered first).
 pub fn dds_context(opts: &DdsOptions) -> Result<Context, NodeError> {
+    register_type_hashes();
     if opts.loopback_only {
         let dp = DomainParticipantBuilder::new(opts.domain_id)
             .with_only_networks([IpAddr::V4(Ipv4Addr::LOCALHOST)])

@@ -221,7 +221,7 @@ pub use dds::{
     LostReason, ParticipantDescription, StatusEvented,
   },
   topic::{Topic, TopicDescription, TopicKind},
-  typedesc::TypeDesc,
+  typedesc::{endpoint_user_data, set_endpoint_user_data, TypeDesc},
   with_key::{datareader::SelectByKey, WriteOptions, WriteOptionsBuilder},
 };
 /// Needed to specify serialized data representation in case it is other than

@@ -12,6 +12,7 @@ pub mod compressed_depth;
 pub mod image;
 pub mod labels;
 pub mod schema;
+pub mod type_hash;
 pub mod types;
 
 use byteorder::{BigEndian, LittleEndian};
@@ -48,6 +49,8 @@ pub enum MsgError {
         type_name: String,
         dependency: String,
     },
+    #[error("definition of '{type_name}', {problem}")]
+    BadDefinition { type_name: String, problem: String },
     #[error("{type_name}: {len} bytes is too short for the 4-byte CDR encapsulation header")]
     TooShort { type_name: &'static str, len: usize },
     #[error(

@@ -42,17 +42,17 @@ impl MsgDefinition {
 }
 
 macro_rules! definitions {
-    ($($pkg:literal / $name:literal),* $(,)?) => {
+    ($ext:literal: $($pkg:literal / $name:literal),* $(,)?) => {
         &[$(MsgDefinition {
             package: $pkg,
             name: $name,
-            text: include_str!(concat!("../../../../msg/", $pkg, "/", $name, ".msg")),
+            text: include_str!(concat!("../../../../msg/", $pkg, "/", $name, $ext)),
         }),*]
     };
 }
 
 /// Every message definition mode360 ships.
-pub const DEFINITIONS: &[MsgDefinition] = definitions![
+pub const DEFINITIONS: &[MsgDefinition] = definitions![".msg":
     "builtin_interfaces" / "Time",
     "std_msgs" / "Header",
     "sensor_msgs" / "Image",
@@ -68,6 +68,31 @@ pub const DEFINITIONS: &[MsgDefinition] = definitions![
     "diagnostic_msgs" / "DiagnosticStatus",
     "diagnostic_msgs" / "KeyValue",
     "rosgraph_msgs" / "Clock",
+    // The types of the endpoints ros2-client makes for the node (`/rosout`,
+    // `/parameter_events`, `ros_discovery_info`, the parameter services), for their hashes.
+    "rcl_interfaces" / "Log",
+    "rcl_interfaces" / "ParameterEvent",
+    "rcl_interfaces" / "Parameter",
+    "rcl_interfaces" / "ParameterValue",
+    "rcl_interfaces" / "ParameterDescriptor",
+    "rcl_interfaces" / "FloatingPointRange",
+    "rcl_interfaces" / "IntegerRange",
+    "rcl_interfaces" / "SetParametersResult",
+    "rcl_interfaces" / "ListParametersResult",
+    "rmw_dds_common" / "Gid",
+    "rmw_dds_common" / "NodeEntitiesInfo",
+    "rmw_dds_common" / "ParticipantEntitiesInfo",
+];
+
+/// Every service definition mode360 ships (`.srv` files under `msg/<pkg>/`): the parameter
+/// services ros2-client serves for the node.
+pub const SERVICE_DEFINITIONS: &[MsgDefinition] = definitions![".srv":
+    "rcl_interfaces" / "GetParameters",
+    "rcl_interfaces" / "GetParameterTypes",
+    "rcl_interfaces" / "SetParameters",
+    "rcl_interfaces" / "SetParametersAtomically",
+    "rcl_interfaces" / "ListParameters",
+    "rcl_interfaces" / "DescribeParameters",
 ];
 
 /// Field types that are not messages.
@@ -100,6 +125,20 @@ pub fn definition(type_name: &str) -> Result<&'static MsgDefinition, MsgError> {
         .ok_or_else(|| MsgError::UnknownType {
             type_name: type_name.to_string(),
         })
+}
+
+/// The embedded definition of service `pkg/srv/Service`.
+pub fn service_definition(service_name: &str) -> Result<&'static MsgDefinition, MsgError> {
+    let mut parts = service_name.split('/');
+    let found = match (parts.next(), parts.next(), parts.next(), parts.next()) {
+        (Some(pkg), Some("srv"), Some(name), None) => SERVICE_DEFINITIONS
+            .iter()
+            .find(|d| d.package == pkg && d.name == name),
+        _ => None,
+    };
+    found.ok_or_else(|| MsgError::UnknownType {
+        type_name: service_name.to_string(),
+    })
 }
 
 /// The message types a definition's fields use, as `pkg/Type`, in order of first use

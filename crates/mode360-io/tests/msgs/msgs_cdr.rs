@@ -368,6 +368,40 @@ fn every_schema_lists_each_dependency_once() {
         ),
         ("diagnostic_msgs/msg/KeyValue", &[]),
         ("rosgraph_msgs/msg/Clock", &["builtin_interfaces/Time"]),
+        ("rcl_interfaces/msg/Log", &["builtin_interfaces/Time"]),
+        (
+            "rcl_interfaces/msg/ParameterEvent",
+            &[
+                "builtin_interfaces/Time",
+                "rcl_interfaces/Parameter",
+                "rcl_interfaces/ParameterValue",
+            ],
+        ),
+        (
+            "rcl_interfaces/msg/Parameter",
+            &["rcl_interfaces/ParameterValue"],
+        ),
+        ("rcl_interfaces/msg/ParameterValue", &[]),
+        (
+            "rcl_interfaces/msg/ParameterDescriptor",
+            &[
+                "rcl_interfaces/FloatingPointRange",
+                "rcl_interfaces/IntegerRange",
+            ],
+        ),
+        ("rcl_interfaces/msg/FloatingPointRange", &[]),
+        ("rcl_interfaces/msg/IntegerRange", &[]),
+        ("rcl_interfaces/msg/SetParametersResult", &[]),
+        ("rcl_interfaces/msg/ListParametersResult", &[]),
+        ("rmw_dds_common/msg/Gid", &[]),
+        (
+            "rmw_dds_common/msg/NodeEntitiesInfo",
+            &["rmw_dds_common/Gid"],
+        ),
+        (
+            "rmw_dds_common/msg/ParticipantEntitiesInfo",
+            &["rmw_dds_common/Gid", "rmw_dds_common/NodeEntitiesInfo"],
+        ),
     ];
     assert_eq!(expected.len(), DEFINITIONS.len());
     for (type_name, deps) in expected {

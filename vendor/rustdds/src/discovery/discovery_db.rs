@@ -670,7 +670,8 @@ impl DiscoveryDB {
       reader_proxy: ReaderProxy::from(reader_proxy),
       subscription_topic_data: subscription_data,
       content_filter,
-      user_data: Vec::new(),
+      // mode360 patch: the USER_DATA registered for the type (its ROS 2 type hash)
+      user_data: crate::dds::typedesc::endpoint_user_data(topic.get_type().name()),
     }
   }
 

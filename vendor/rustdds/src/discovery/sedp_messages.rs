@@ -421,7 +421,7 @@ impl PlCdrDeserialize for DiscoveredReaderData {
     let user_data = pl_map
       .get(&ParameterId::PID_USER_DATA)
       .and_then(|v| v.first())
-      .map(|p| p.value.clone())
+      .map(|p| user_data_octets(ctx, &p.value))
       .unwrap_or_default();
 
     Ok(DiscoveredReaderData {
@@ -498,7 +498,7 @@ impl ParameterListable for DiscoveredReaderData {
           security_info,
         },
       content_filter,
-      user_data: _,
+      user_data,
     } = self;
 
     let mut pl = ParameterList::new();
@@ -572,6 +572,11 @@ impl ParameterListable for DiscoveredReaderData {
       content_filter,
       ContentFilterProperty
     );
+
+    // mode360 patch: the endpoint's USER_DATA (a ROS 2 type hash)
+    if !user_data.is_empty() {
+      pl.push(user_data_parameter(ctx, user_data));
+    }
 
     #[cfg(feature = "security")]
     emit_option!(
@@ -810,7 +815,8 @@ impl DiscoveredWriterData {
       last_updated: Instant::now(),
       writer_proxy,
       publication_topic_data,
-      user_data: Vec::new(),
+      // mode360 patch: the USER_DATA registered for the type (its ROS 2 type hash)
+      user_data: crate::dds::typedesc::endpoint_user_data(topic.get_type().name()),
     }
   }
 }
@@ -880,7 +886,7 @@ impl PlCdrDeserialize for DiscoveredWriterData {
     let user_data = pl_map
       .get(&ParameterId::PID_USER_DATA)
       .and_then(|v| v.first())
-      .map(|p| p.value.clone())
+      .map(|p| user_data_octets(ctx, &p.value))
       .unwrap_or_default();
 
     Ok(DiscoveredWriterData {
@@ -956,7 +962,7 @@ impl ParameterListable for DiscoveredWriterData {
           #[cfg(feature = "security")]
           security_info,
         },
-      user_data: _,
+      user_data,
     } = self;
 
     let mut pl = ParameterList::new();
@@ -1024,6 +1030,11 @@ impl ParameterListable for DiscoveredWriterData {
         &topic_alias.clone().into(),
         StringWithNul
       );
+    }
+
+    // mode360 patch: the endpoint's USER_DATA (a ROS 2 type hash)
+    if !user_data.is_empty() {
+      pl.push(user_data_parameter(ctx, user_data));
     }
 
     #[cfg(feature = "security")]
@@ -1312,6 +1323,38 @@ impl Key for ParticipantMessageDataKey {}
 // =======================================================================
 // =======================================================================
 // =======================================================================
+
+// mode360 patch: USER_DATA's value is a CDR sequence<octet> (a u32 length in the
+// parameter list's byte order, then the octets); `user_data` fields hold the octets.
+
+/// The octets of a PID_USER_DATA value (empty if it is shorter than its length says).
+fn user_data_octets(ctx: speedy::Endianness, value: &[u8]) -> Vec<u8> {
+  let Some(length) = value.get(..4).and_then(|b| <[u8; 4]>::try_from(b).ok()) else {
+    return Vec::new();
+  };
+  let length = match ctx {
+    speedy::Endianness::LittleEndian => u32::from_le_bytes(length),
+    speedy::Endianness::BigEndian => u32::from_be_bytes(length),
+  } as usize;
+  value
+    .get(4..)
+    .and_then(|octets| octets.get(..length))
+    .map(<[u8]>::to_vec)
+    .unwrap_or_default()
+}
+
+/// The PID_USER_DATA parameter carrying `octets`.
+fn user_data_parameter(ctx: speedy::Endianness, octets: &[u8]) -> Parameter {
+  let length = octets.len() as u32;
+  let mut value = Vec::with_capacity(4 + octets.len());
+  value.extend_from_slice(&match ctx {
+    speedy::Endianness::LittleEndian => length.to_le_bytes(),
+    speedy::Endianness::BigEndian => length.to_be_bytes(),
+  });
+  value.extend_from_slice(octets);
+  Parameter::new(ParameterId::PID_USER_DATA, value)
+}
+
 
 #[cfg(test)]
 mod tests {
