@@ -24,6 +24,7 @@ mod fuzz;
 mod harness;
 mod installed;
 mod lazy;
+mod node_process;
 mod params;
 mod process;
 mod qos;

@@ -5,6 +5,7 @@
 //! counters agree with what was sent and received.
 
 use super::harness::loopback;
+use super::node_process::NodeProcess;
 use crate::common::TestResult;
 use mode360::bag::RigBagReader;
 use mode360::geometry::Rig;
@@ -17,9 +18,6 @@ use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
 use std::collections::{BTreeMap, BTreeSet};
-use std::io::{BufRead, BufReader, Read};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
@@ -40,20 +38,7 @@ const EXIT_LIMIT: Duration = Duration::from_secs(5);
 const AGE_PROBE_DELAY: Duration = Duration::from_millis(1500);
 const MAX_SIM_AGE_SECS: f64 = 0.2;
 const POLL: Duration = Duration::from_millis(20);
-const UP_MARKER: &str = " up on domain";
 const SUMMARY_PREFIX: &str = "mode360 node stopped by SIGINT:";
-
-/// Kills the child if the test fails before it exits.
-struct ChildGuard(Option<Child>);
-
-impl Drop for ChildGuard {
-    fn drop(&mut self) {
-        if let Some(mut c) = self.0.take() {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
-}
 
 /// `key=value` pairs of the summary line.
 fn summary_counts(line: &str) -> BTreeMap<String, u64> {
@@ -91,42 +76,7 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
         ),
     )?;
 
-    let child = Command::new(env!("CARGO_BIN_EXE_mode360"))
-        .args(["node", "--ros-args", "--params-file"])
-        .arg(&params_path)
-        .current_dir(MANIFEST_DIR)
-        .env("ROS_DOMAIN_ID", DOMAIN_ID.to_string())
-        .env("RUST_LOG", "info,rustdds=off")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()?;
-    let mut guard = ChildGuard(Some(child));
-    let child = guard.0.as_mut().ok_or("no child")?;
-    let pid = child.id();
-    let stderr = child.stderr.take().ok_or("no stderr")?;
-    let mut stdout = child.stdout.take().ok_or("no stdout")?;
-    let (line_tx, line_rx) = mpsc::channel::<String>();
-    let stderr_reader = std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            let _ = line_tx.send(line);
-        }
-    });
-    let stdout_reader = std::thread::spawn(move || {
-        let mut text = String::new();
-        let _ = stdout.read_to_string(&mut text);
-        text
-    });
-    let mut log = Vec::new();
-    let t0 = Instant::now();
-    while !log.iter().any(|l: &String| l.contains(UP_MARKER)) {
-        let left = UP_TIMEOUT
-            .checked_sub(t0.elapsed())
-            .ok_or_else(|| format!("node not up after {UP_TIMEOUT:?}; its log: {log:#?}"))?;
-        match line_rx.recv_timeout(left) {
-            Ok(line) => log.push(line),
-            Err(_) => return Err(format!("node not up; its log: {log:#?}").into()),
-        }
-    }
+    let node = NodeProcess::spawn(&params_path, DOMAIN_ID, UP_TIMEOUT)?;
 
     let dds = loopback(DOMAIN_ID);
     let context = dds_context(&dds)?;
@@ -231,26 +181,13 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
     }
 
     // SIGINT: clean exit with a summary.
-    // SAFETY: kill(2) on the pid of our own child process.
-    let rc = unsafe { libc::kill(pid as libc::pid_t, libc::SIGINT) };
-    assert_eq!(rc, 0, "kill failed");
-    let t_sig = Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait()? {
-            break status;
-        }
-        if t_sig.elapsed() > EXIT_LIMIT {
-            return Err(format!("still running {EXIT_LIMIT:?} after SIGINT").into());
-        }
-        std::thread::sleep(POLL);
-    };
-    let exit_secs = t_sig.elapsed().as_secs_f64();
-    guard.0 = None;
-    let out = stdout_reader.join().map_err(|_| "stdout reader panicked")?;
-    let _ = stderr_reader.join();
-    log.extend(line_rx.try_iter());
-    println!("exit after {exit_secs:.2} s: {status:?}; stdout: {out}");
-    assert_eq!(status.code(), Some(0), "stderr: {log:#?}");
+    let exit = node.interrupt(EXIT_LIMIT)?;
+    let out = exit.stdout;
+    println!(
+        "exit after {:.2} s: {:?}; stdout: {out}",
+        exit.exit_s, exit.status
+    );
+    assert_eq!(exit.status.code(), Some(0), "stderr: {:#?}", exit.log);
     while let Some((m, _)) = depth_sub.take()? {
         depth_stamps.insert(m.header.stamp.to_nanos());
     }
