@@ -21,10 +21,10 @@ types are rclpy's own (sensor_msgs, rcl_interfaces); discovery stays on this hos
 
   rclpy_peer.py params --domain D --node /mode360 --set NAME=VALUE --refused NAME=VALUE
                        --describe A,B,C [--names-per-call 8]
-      The parameter services as `ros2 param` uses them: list, get every listed one (a few
-      names a request, as `ros2 param get` asks one by one), describe
-      A, B and C, set NAME (must succeed), set the other (must be refused); prints
-      `result {json}`.
+      The parameter services as `ros2 param` uses them: list, get every listed one (all in
+      one request, as `ros2 param dump` asks, or --names-per-call at a time), describe A, B
+      and C (`--describe all`: every listed one in one request), set NAME (must succeed),
+      set the other (must be refused); prints `result {json}`.
 
   rclpy_peer.py types --domain D --node /mode360 [--timeout-s 30]
       The graph as `ros2 topic info -v` reads it: once the node's topics and services have
@@ -194,14 +194,16 @@ def params(args):
         return Parameter(name=name, value=value)
 
     names = list(call(ListParameters, "list_parameters", ListParameters.Request()).result.names)
-    # A few names a call: a reply longer than one datagram never reaches Fast DDS (see
-    # tests/node/rclpy.rs), and the values' length depends on paths such as rig_file.
+    # All names in one request by default, as `ros2 param dump` asks (the reply is several
+    # kB: more than one datagram behind this host's MTU).
+    per_call = args.names_per_call or len(names)
     got = []
-    for i in range(0, len(names), args.names_per_call):
-        chunk = names[i : i + args.names_per_call]
+    for i in range(0, len(names), per_call):
+        chunk = names[i : i + per_call]
         got += call(GetParameters, "get_parameters", GetParameters.Request(names=chunk)).values
+    to_describe = names if args.describe == "all" else args.describe.split(",")
     described = call(
-        DescribeParameters, "describe_parameters", DescribeParameters.Request(names=args.describe.split(","))
+        DescribeParameters, "describe_parameters", DescribeParameters.Request(names=to_describe)
     ).descriptors
     results = {}
     for key, assignment in (("set", args.set), ("refused", args.refused)):
@@ -216,6 +218,10 @@ def params(args):
                 "names": names,
                 "values": {n: value_of(v) for n, v in zip(names, got)},
                 "types": {d.name: d.type for d in described},
+                "described": [
+                    {"name": d.name, "read_only": d.read_only, "description": d.description}
+                    for d in described
+                ],
                 "set": results["set"],
                 "refused": results["refused"],
                 "after_set": value_of(after[0]),
@@ -312,8 +318,8 @@ def main():
     pa.add_argument("--node", default="/mode360")
     pa.add_argument("--set", required=True)
     pa.add_argument("--refused", required=True)
-    pa.add_argument("--describe", required=True, help="comma-separated names")
-    pa.add_argument("--names-per-call", type=int, default=8, help="names in one get_parameters request")
+    pa.add_argument("--describe", required=True, help="comma-separated names, or all")
+    pa.add_argument("--names-per-call", type=int, default=0, help="names in one get_parameters request (0: all)")
     pa.add_argument("--timeout-s", type=float, default=30.0)
     ty = sub.add_parser("types")
     ty.add_argument("--domain", type=int, required=True)

@@ -45,15 +45,9 @@ const PEER_SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop/rc
 /// At the node's default 512 (depth 0.5 MB, cloud up to 1.6 MB: `*_receives_every_output_at_512`)
 /// RustDDS 0.15.1 as it ships sent a sample's fragments back to back, the reader's buffer
 /// overflowed and repair brought outputs seconds late or never (4 of 7 confidence images, 2.7
-/// to 5 s late); the vendored RustDDS paces them (docs/node.md). Known failure: a service
-/// reply that RustDDS fragments never arrives: one larger than the reader's path-MTU
-/// budget (1,352 bytes behind a 1,400-byte MTU interface, which Fast DDS advertises even with
-/// discovery on this host only), such as `describe_parameters` of 16 or more names or
-/// `get_parameters` of every name once `rig_file` is a long path (`ros2 param dump`). Topic
-/// samples fragmented the same way arrive; the reply's inline QoS (its related sample identity)
-/// is what differs. The peer therefore asks a few names a request.
+/// to 5 s late); the vendored RustDDS paces them (docs/node.md).
 const STREAM_WIDTH: usize = 128;
-/// Output width of the ignored measurement at the node's default size.
+/// Output width of the measurement at the node's default size.
 const FULL_WIDTH: usize = 512;
 /// Camera groups a second in the streaming test.
 const STREAM_RATE_HZ: f64 = 10.0;
@@ -335,9 +329,9 @@ fn rclpy_reads_and_sets_parameters<D: Distro>(domain_id: u16) -> TestResult {
         "max_depth_m=250.0".into(),
         "--refused".into(),
         "output_width=128".into(),
-        // A few names: a reply over one datagram never arrives (see STREAM_WIDTH's note).
+        // Every name in one request: a reply of several datagrams behind this host's MTU.
         "--describe".into(),
-        "output_width,max_depth_m,estimator".into(),
+        "all".into(),
     ])?;
     let result: Value =
         serde_json::from_str(&rclpy.expect_line("result", PEER_DISCOVERY_TIMEOUT * 2)?)?;
@@ -362,6 +356,14 @@ fn rclpy_reads_and_sets_parameters<D: Distro>(domain_id: u16) -> TestResult {
     assert_eq!(result["types"]["output_width"], 2);
     assert_eq!(result["types"]["max_depth_m"], 3);
     assert_eq!(result["types"]["estimator"], 4);
+    // Every parameter described in one reply, each with its type (0: not set).
+    let described = result["described"].as_array().cloned().unwrap_or_default();
+    assert_eq!(described.len(), names.len(), "{described:?}");
+    for d in &described {
+        let name = d["name"].as_str().unwrap_or_default();
+        assert!(names.iter().any(|n| n == name), "{d}");
+        assert_ne!(result["types"][name], 0, "{d}");
+    }
     assert_eq!(result["set"]["successful"], true, "{}", result["set"]);
     assert_eq!(result["after_set"], 250.0);
     assert_eq!(result["refused"]["successful"], false);

@@ -94,6 +94,18 @@ pub const MAX_WITHHELD_BYTES_PER_TOPIC: usize = 16 * 1024 * 1024;
 // path).
 pub const FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE: usize = 1452;
 
+// mode360 patch: the largest unfragmented sample sent to a reader on this host.
+// A datagram to one of this host's own addresses goes over the loopback device
+// (Linux routes local addresses through `lo`, whatever interface holds them), so
+// it is never IP-fragmented; a UDP datagram carries at most 65,507 bytes, and this
+// leaves room for the RTPS header and submessages around the DATA. Fast DDS
+// readers on this host (rclpy) advertise their LAN address as well as loopback,
+// which made the path-MTU budget that of the LAN interface (1,352 bytes behind a
+// 1,400-byte MTU), and they never completed a fragmented service reply (one that
+// carries the related sample identity as inline QoS), so `ros2 param describe`
+// of many names timed out. Such replies now go as one DATA.
+pub const SAME_HOST_MAX_UNFRAGMENTED_DATAGRAM_SIZE: usize = 64_000;
+
 // Overhead subtracted from an interface MTU to obtain the RTPS-message (UDP
 // payload) budget usable for submessage/fragment packing: IPv4 (20) + UDP (8) +
 // RTPS message header (20) = 48 bytes. Matches

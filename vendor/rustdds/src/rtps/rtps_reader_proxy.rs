@@ -95,6 +95,10 @@ pub(crate) struct RtpsReaderProxy {
   // multi-fragment DATAFRAG datagrams. An overestimate only causes IP
   // fragmentation, never data loss.
   max_datagram_payload: usize,
+  // mode360 patch: the largest datagram for one unfragmented sample to this
+  // reader: `max_datagram_payload`, or more when every address it advertises
+  // belongs to this host (see `SAME_HOST_MAX_UNFRAGMENTED_DATAGRAM_SIZE`).
+  max_unfragmented_payload: usize,
 }
 
 impl RtpsReaderProxy {
@@ -119,6 +123,7 @@ impl RtpsReaderProxy {
       frags_requested: BTreeMap::new(),
       send_route: SendRoute::default(),
       max_datagram_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
+      max_unfragmented_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
     }
   }
 
@@ -248,6 +253,7 @@ impl RtpsReaderProxy {
       frags_requested: BTreeMap::new(),
       send_route: SendRoute::default(),
       max_datagram_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
+      max_unfragmented_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
     }
   }
 
@@ -326,6 +332,7 @@ impl RtpsReaderProxy {
       frags_requested: BTreeMap::new(),
       send_route: SendRoute::default(),
       max_datagram_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
+      max_unfragmented_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
     }
   }
 
@@ -411,6 +418,28 @@ impl RtpsReaderProxy {
       .map(|l| path_mtu_payload_for_peer(local_interfaces, SocketAddr::from(*l).ip()))
       .min();
     self.max_datagram_payload = budget.unwrap_or(FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE);
+    // mode360 patch: a reader whose every address is one of this host's is
+    // reached over loopback.
+    let mut addresses = self
+      .unicast_locator_list
+      .iter()
+      .chain(self.loopback_unicast_locators.iter())
+      .filter(|l| l.is_udp())
+      .map(|l| SocketAddr::from(*l).ip())
+      .peekable();
+    let same_host = addresses.peek().is_some()
+      && addresses.all(|ip| ip.is_loopback() || local_interfaces.iter().any(|i| i.ip == ip));
+    self.max_unfragmented_payload = if same_host {
+      SAME_HOST_MAX_UNFRAGMENTED_DATAGRAM_SIZE.max(self.max_datagram_payload)
+    } else {
+      self.max_datagram_payload
+    };
+  }
+
+  /// mode360 patch: the largest datagram for one unfragmented sample to this
+  /// reader (see `resolve_path_mtu`).
+  pub fn max_unfragmented_payload(&self) -> usize {
+    self.max_unfragmented_payload
   }
 
   pub fn handle_ack_nack(

@@ -229,6 +229,9 @@ pub(crate) struct Writer {
   // MTU. Recomputed whenever a reader is added, updated, or removed. Falls back
   // to `FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE` when there are no matched readers.
   min_datagram_payload: usize,
+  // mode360 patch: the smallest `max_unfragmented_payload` over all matched
+  // readers (the largest unfragmented sample that every one of them takes).
+  min_unfragmented_payload: usize,
 
   // By default, this writer is a StatefulWriter (see RTPS spec section 8.4.9)
   // If like_stateless is true, then the writer mimics the behavior of a Best-Effort
@@ -363,6 +366,7 @@ impl Writer {
       interface_observations,
       local_interfaces,
       min_datagram_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
+      min_unfragmented_payload: FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE,
       my_topic_name: i.topic_name,
       send_buffer: i.send_buffer,
       last_sent: SequenceNumber::zero(),
@@ -611,7 +615,12 @@ impl Writer {
     &self,
     target_reader_opt: Option<&RtpsReaderProxy>,
   ) -> usize {
-    let budget = self.datagram_budget(target_reader_opt);
+    // mode360 patch: readers on this host take a larger datagram (see
+    // `SAME_HOST_MAX_UNFRAGMENTED_DATAGRAM_SIZE`).
+    let budget = match target_reader_opt {
+      Some(reader) => reader.max_unfragmented_payload(),
+      None => self.min_unfragmented_payload,
+    };
     let hb_reserve = if self.is_reliable() && !self.like_stateless {
       HEARTBEAT_SUBMESSAGE_SERIALIZED_SIZE
     } else {
@@ -2167,6 +2176,12 @@ impl Writer {
       .readers
       .values()
       .map(RtpsReaderProxy::max_datagram_payload)
+      .min()
+      .unwrap_or(FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE);
+    self.min_unfragmented_payload = self
+      .readers
+      .values()
+      .map(RtpsReaderProxy::max_unfragmented_payload)
       .min()
       .unwrap_or(FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE);
   }
