@@ -219,7 +219,13 @@ def params(args):
                 "values": {n: value_of(v) for n, v in zip(names, got)},
                 "types": {d.name: d.type for d in described},
                 "described": [
-                    {"name": d.name, "read_only": d.read_only, "description": d.description}
+                    {
+                        "name": d.name,
+                        "read_only": d.read_only,
+                        "description": d.description,
+                        "ranges": [[r.from_value, r.to_value] for r in d.floating_point_range]
+                        + [[r.from_value, r.to_value] for r in d.integer_range],
+                    }
                     for d in described
                 ],
                 "set": results["set"],

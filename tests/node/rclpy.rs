@@ -29,6 +29,8 @@ use crate::common::{reliable_qos, TestResult, RIG_PATH};
 use mode360::frame::RigFrame;
 use mode360::geometry::Rig;
 use mode360::msgs::{type_hash, Image, PointCloud2};
+use mode360::node::param_docs;
+use mode360::node::param_table::parameter;
 use mode360::node::{create_subscription, dds_context, spawn_node, NodeParams, SpunNode};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -356,14 +358,38 @@ fn rclpy_reads_and_sets_parameters<D: Distro>(domain_id: u16) -> TestResult {
     assert_eq!(result["types"]["output_width"], 2);
     assert_eq!(result["types"]["max_depth_m"], 3);
     assert_eq!(result["types"]["estimator"], 4);
-    // Every parameter described in one reply, each with its type (0: not set).
+    // Every parameter described in one reply, each with its type (0: not set), the README's
+    // description, and read-only unless it changes at run time.
     let described = result["described"].as_array().cloned().unwrap_or_default();
     assert_eq!(described.len(), names.len(), "{described:?}");
     for d in &described {
         let name = d["name"].as_str().unwrap_or_default();
         assert!(names.iter().any(|n| n == name), "{d}");
         assert_ne!(result["types"][name], 0, "{d}");
+        let Some(spec) = parameter(name) else {
+            continue;
+        };
+        assert_eq!(d["read_only"], !spec.runtime, "{d}");
+        let expected = param_docs::description(name).unwrap_or_default();
+        assert!(expected.len() > 10, "{name}: {expected}");
+        assert_eq!(d["description"].as_str(), Some(expected.as_str()), "{d}");
     }
+    let read_only = |name: &str| {
+        described
+            .iter()
+            .find(|d| d["name"] == name)
+            .map(|d| d["read_only"].clone())
+    };
+    assert_eq!(read_only("output_width"), Some(Value::Bool(true)));
+    assert_eq!(read_only("max_depth_m"), Some(Value::Bool(false)));
+    let ranges = |name: &str| {
+        described
+            .iter()
+            .find(|d| d["name"] == name)
+            .map(|d| d["ranges"].to_string())
+    };
+    assert_eq!(ranges("min_confidence").as_deref(), Some("[[0.0,1.0]]"));
+    assert_eq!(ranges("foxglove_port").as_deref(), Some("[[0,65535]]"));
     assert_eq!(result["set"]["successful"], true, "{}", result["set"]);
     assert_eq!(result["after_set"], 250.0);
     assert_eq!(result["refused"]["successful"], false);

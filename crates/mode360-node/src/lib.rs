@@ -5,8 +5,9 @@
 //!
 //! [`pipeline`] is the DDS-free core shared with offline replay (`mode360 replay`). The
 //! parameters: [`params`] (what the node is configured with), [`param_table`] (each
-//! parameter declared once), [`ros_args`] (`--ros-args`), `params_file.rs` (ROS 2 params
-//! files), [`ros_params`] (ROS 2 parameter services); [`diagnostics`] builds `/diagnostics`,
+//! parameter declared once), [`param_docs`] (their descriptors: the README's text, ranges,
+//! read-only), [`ros_args`] (`--ros-args`), `params_file.rs` (ROS 2 params files),
+//! [`ros_params`] (ROS 2 parameter services); [`diagnostics`] builds `/diagnostics`,
 //! [`clock`] is the node's system or simulated clock, [`topics`] names every topic.
 //!
 //! The live node over ros2-client (RustDDS, no ROS install needed), one concern per file:
@@ -38,6 +39,7 @@ pub mod discovery_range;
 pub mod live_view;
 pub mod outputs;
 pub mod page_release;
+pub mod param_docs;
 pub mod param_table;
 pub mod params;
 mod params_file;

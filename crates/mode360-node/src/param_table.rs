@@ -67,6 +67,19 @@ impl ParamValue {
     }
 }
 
+/// The values a parameter takes beyond its type, as its setter checks them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Constraint {
+    /// Any value of its type (a string's own rules are in its description).
+    None,
+    /// Greater than zero.
+    Positive,
+    /// From 0 to 1.
+    UnitInterval,
+    /// A TCP port, 0 to 65535.
+    Port,
+}
+
 /// One parameter: name, whether it changes at run time, and its accessors.
 pub struct ParamSpec {
     /// Dotted name (`sync.tolerance_s`), as in a params file's nesting.
@@ -74,6 +87,9 @@ pub struct ParamSpec {
     /// Takes effect at once when set while the node runs; otherwise a change is refused
     /// (restart the node with the new value).
     pub runtime: bool,
+    /// What values it takes beyond its type (what `ros2 param describe` shows as its range
+    /// and constraints).
+    pub constraint: Constraint,
     /// The current value.
     pub get: fn(&NodeParams) -> ParamValue,
     /// Sets it from text; the error says what was expected.
@@ -129,6 +145,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "rig_file",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.rig_file.display().to_string()),
         set: |p, v| {
             p.rig_file = v.into();
@@ -138,6 +155,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "estimator",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.estimator.kind.to_string()),
         set: |p, v| {
             p.estimator.kind = v.parse().map_err(|e: EstimatorError| e.to_string())?;
@@ -147,6 +165,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "weights",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| {
             let w = p.estimator.weights.as_ref();
             ParamValue::String(w.map(|w| w.display().to_string()).unwrap_or_default())
@@ -159,6 +178,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "fusion_weights",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| {
             let w = p.estimator.fusion_weights.as_ref();
             ParamValue::String(w.map(|w| w.display().to_string()).unwrap_or_default())
@@ -171,6 +191,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "pairs",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.estimator.pairs.to_string()),
         set: |p, v| {
             p.estimator.pairs = PairChoice::parse(v).map_err(|e| e.to_string())?;
@@ -180,6 +201,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "near_pass_width",
         runtime: false,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Integer(p.estimator.near_pass_width.unwrap_or(0) as i64),
         set: |p, v| {
             // 0: off
@@ -193,6 +215,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "device",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.estimator.device.to_string()),
         set: |p, v| {
             p.estimator.device = v.parse().map_err(|e: DeviceError| e.to_string())?;
@@ -202,6 +225,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "output_width",
         runtime: false,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Integer(p.output_width as i64),
         set: |p, v| {
             let w = positive_usize(v)?;
@@ -215,6 +239,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "sync.tolerance_s",
         runtime: false,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Double(p.sync_tolerance_s),
         set: |p, v| {
             p.sync_tolerance_s = positive_f64(v)?;
@@ -224,6 +249,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "sync.queue_size",
         runtime: false,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Integer(p.sync_queue_size as i64),
         set: |p, v| {
             p.sync_queue_size = positive_usize(v)?;
@@ -233,6 +259,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "camera_timeout_s",
         runtime: false,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Double(p.camera_timeout_s),
         set: |p, v| {
             p.camera_timeout_s = positive_f64(v)?;
@@ -242,6 +269,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "max_depth_m",
         runtime: true,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Double(p.max_depth_m),
         set: |p, v| {
             p.max_depth_m = positive_f64(v)?;
@@ -251,6 +279,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "depth_far_value",
         runtime: true,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.far_value.as_str().into()),
         set: |p, v| {
             p.far_value = FarValue::parse(v)
@@ -261,6 +290,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "depth_quantization",
         runtime: true,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Double(p.depth_quantization),
         set: |p, v| {
             p.depth_quantization = positive_f64(v)?;
@@ -270,6 +300,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "min_confidence",
         runtime: true,
+        constraint: Constraint::UnitInterval,
         get: |p| ParamValue::Double(p.min_confidence),
         set: |p, v| {
             p.min_confidence = unit_interval(v)?;
@@ -279,6 +310,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "use_sim_time",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::Bool(p.use_sim_time),
         set: |p, v| {
             p.use_sim_time = boolean(v)?;
@@ -288,6 +320,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "image_transport",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.image_transport_default.as_str().into()),
         set: |p, v| {
             p.image_transport_default = image_transport(v)?;
@@ -297,6 +330,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "extrinsics_source",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.extrinsics_source.as_str().into()),
         set: |p, v| {
             p.extrinsics_source = match v {
@@ -310,6 +344,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "tf_timeout_s",
         runtime: false,
+        constraint: Constraint::Positive,
         get: |p| ParamValue::Double(p.tf_timeout_s),
         set: |p, v| {
             p.tf_timeout_s = positive_f64(v)?;
@@ -319,6 +354,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "publish_points",
         runtime: true,
+        constraint: Constraint::None,
         get: |p| ParamValue::Bool(p.publish_points),
         set: |p, v| {
             p.publish_points = boolean(v)?;
@@ -328,6 +364,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "publish_confidence",
         runtime: true,
+        constraint: Constraint::None,
         get: |p| ParamValue::Bool(p.publish_confidence),
         set: |p, v| {
             p.publish_confidence = boolean(v)?;
@@ -337,6 +374,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "publish_compressed_depth",
         runtime: true,
+        constraint: Constraint::None,
         get: |p| ParamValue::Bool(p.publish_compressed_depth),
         set: |p, v| {
             p.publish_compressed_depth = boolean(v)?;
@@ -346,6 +384,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "publish_tf",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::Bool(p.publish_tf),
         set: |p, v| {
             p.publish_tf = boolean(v)?;
@@ -355,6 +394,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "foxglove_port",
         runtime: false,
+        constraint: Constraint::Port,
         get: |p| ParamValue::Integer(i64::from(p.foxglove_port)),
         set: |p, v| {
             p.foxglove_port = v
@@ -366,6 +406,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "foxglove_address",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::String(p.foxglove_address.to_string()),
         set: |p, v| {
             p.foxglove_address = v.parse::<IpAddr>().map_err(|_| {
@@ -377,6 +418,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "lens_warn_fraction",
         runtime: false,
+        constraint: Constraint::UnitInterval,
         get: |p| ParamValue::Double(p.lens_warn_fraction),
         set: |p, v| {
             p.lens_warn_fraction = unit_interval(v)?;
@@ -386,6 +428,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "rig_health_checks",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::Bool(p.rig_health_checks),
         set: |p, v| {
             p.rig_health_checks = boolean(v)?;
@@ -395,6 +438,7 @@ pub const PARAMETERS: &[ParamSpec] = &[
     ParamSpec {
         name: "calibration_warn_deg",
         runtime: false,
+        constraint: Constraint::None,
         get: |p| ParamValue::Double(p.calibration_warn_deg),
         set: |p, v| {
             p.calibration_warn_deg = v
@@ -487,27 +531,12 @@ mod tests {
     #[test]
     fn readme_parameter_table_matches_the_table() {
         let (path, text) = repo_file("README.md");
-        let mut lines = text
-            .lines()
-            .skip_while(|l| !l.starts_with("### Parameters"));
-        let rows: Vec<Vec<String>> = lines
-            .by_ref()
-            .skip_while(|l| !l.starts_with('|'))
-            .take_while(|l| l.starts_with('|'))
-            .skip(2)
-            .map(|l| {
-                l.trim_matches('|')
-                    .split(" | ")
-                    .map(|c| c.trim().to_string())
-                    .collect()
-            })
-            .collect();
+        let rows = crate::param_docs::parameter_rows(&text);
         assert!(!rows.is_empty(), "{path}: no parameter table");
         let defaults = NodeParams::default();
         let mut documented = BTreeSet::new();
         for row in &rows {
-            for name in row[0].split(", ") {
-                let name = name.trim_matches('`');
+            for name in &row.names {
                 if name.starts_with(QOS_OVERRIDES_PREFIX) {
                     continue;
                 }
@@ -515,13 +544,13 @@ mod tests {
                     .unwrap_or_else(|| panic!("{path}: '{name}' is not a node parameter"));
                 documented.insert(spec.name);
                 assert!(
-                    row[1].starts_with(spec.param_type().as_str()),
+                    row.type_cell.starts_with(spec.param_type().as_str()),
                     "{path}: {name} has type '{}', the node's is {}",
-                    row[1],
+                    row.type_cell,
                     spec.param_type().as_str()
                 );
                 let default = (spec.get)(&defaults).to_text();
-                let cell = row[2].trim_matches('`');
+                let cell = row.default_cell.trim_matches('`');
                 let cell = if cell == "\"\"" { "" } else { cell };
                 assert_eq!(cell, default, "{path}: default of {name}");
             }

@@ -5,8 +5,10 @@
 //! `runtime` there take effect at once when set ([`RuntimeParams`], read by the
 //! inference worker before each group); setting any other one is refused with the reason
 //! (restart the node with the new value). A value the node would refuse at start is refused
-//! at run time with the same reason, and the node keeps running.
+//! at run time with the same reason, and the node keeps running. `describe_parameters`
+//! answers with [`param_docs`]' descriptors (the README's description, range, read-only).
 
+use super::param_docs;
 use super::param_table::{parameter, runtime_parameter_names, ParamValue, PARAMETERS};
 use super::params::NodeParams;
 use super::pipeline::PipelineParams;
@@ -99,6 +101,9 @@ pub fn node_options(params: &NodeParams, runtime: RuntimeParams) -> NodeOptions 
         .start_parameter_services(true);
     for (name, value) in declared_parameters(params) {
         options = options.declare_parameter(name, value);
+    }
+    for descriptor in param_docs::descriptors() {
+        options = options.describe_parameter(descriptor);
     }
     let current = Arc::new(Mutex::new(params.clone()));
     let for_validator = current.clone();
