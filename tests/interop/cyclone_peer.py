@@ -17,7 +17,9 @@ Discovery and data stay on the loopback interface.
       "frames": [{"stamp_ns", "files": [raw rgb8 file per camera]}]}.
       Prints `ready` once every camera writer is matched with a reader, then obeys stdin
       lines: `publish K` sends frame K on every camera topic (rgb8 sensor_msgs/Image, all
-      with the frame's stamp; prints `published K STAMP`), `quit` (or end of input) exits.
+      with the frame's stamp; prints `published K STAMP`), `publish K STAMP_NS` the same
+      stamped STAMP_NS, `publish K STAMP_NS I` only camera I's image; `quit` (or end of
+      input) exits.
       QoS as the node's camera subscriptions (sensor data): best effort, volatile, keep last 5.
 
   cyclone_peer.py rosout --domain D [--timeout-s 60]
@@ -186,7 +188,10 @@ def publish(args):
     )
     say("ready")
     for k, stamp, images in frames_to_publish(spec, sys.stdin):
-        for (cam, data), writer in zip(images, writers):
+        for image, writer in zip(images, writers):
+            if image is None:
+                continue
+            cam, data = image
             writer.write(
                 Image(
                     header=Header(

@@ -132,9 +132,11 @@ def summarize(depth, cloud, max_depth_m):
 
 
 def frames_to_publish(spec, lines):
-    """The publishing peers' protocol: for each `publish K` line of `lines` (stdin), yields
-    (K, stamp_ns, [(camera, rgb8 bytes)]) of frame K of `spec` (frames.json); returns on `quit`
-    or at the end of input."""
+    """The publishing peers' protocol: for each line `publish K [STAMP_NS [CAMERA]]` of
+    `lines` (stdin), yields (K, stamp_ns, images) of frame K of `spec` (frames.json): stamped
+    with STAMP_NS instead of the frame's own stamp when given, and only camera index CAMERA's
+    image when given (the other entries of `images`, one per camera, are None; each image is
+    (camera, rgb8 bytes)); returns on `quit` or at the end of input."""
     width, height = spec["width"], spec["height"]
     for line in lines:
         words = line.split()
@@ -142,18 +144,23 @@ def frames_to_publish(spec, lines):
             continue
         if words[0] == "quit":
             return
-        if words[0] != "publish" or len(words) != 2:
+        if words[0] != "publish" or not 2 <= len(words) <= 4:
             raise PeerError(f"unknown command '{line.strip()}'")
         k = int(words[1])
         frame = spec["frames"][k]
+        stamp = int(words[2]) if len(words) > 2 else int(frame["stamp_ns"])
+        only = int(words[3]) if len(words) > 3 else None
         images = []
-        for cam, path in zip(spec["cameras"], frame["files"]):
+        for i, (cam, path) in enumerate(zip(spec["cameras"], frame["files"])):
+            if only is not None and i != only:
+                images.append(None)
+                continue
             with open(path, "rb") as f:
                 data = f.read()
             if len(data) != width * height * 3:
                 raise PeerError(f"{path}: {len(data)} bytes, expected {width}x{height}x3")
             images.append((cam, data))
-        yield k, int(frame["stamp_ns"]), images
+        yield k, stamp, images
 
 
 def add_peer_commands(sub):

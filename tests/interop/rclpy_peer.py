@@ -11,7 +11,9 @@ types are rclpy's own (sensor_msgs, rcl_interfaces); discovery stays on this hos
       `result {json}` (peer_checks.summarize) of the first depth image and cloud with one stamp.
 
   rclpy_peer.py publish --domain D --frames frames.json [--timeout-s 30]
-      As cyclone_peer.py publish: rclpy as the camera driver (sensor-data QoS).
+      As cyclone_peer.py publish: rclpy as the camera driver (sensor-data QoS), including
+      `publish K STAMP_NS [I]` (another stamp; one camera only): the time-jump test drives
+      poisoned stamps, a clock reset, a looped sequence and a flooding camera with it.
 
   rclpy_peer.py stream --domain D [--timeout-s 120]
       Reliable subscriptions with rclpy's defaults (reliable, volatile, keep last 10: what
@@ -111,7 +113,10 @@ def publish(args):
     )
     say("ready")
     for k, stamp, images in frames_to_publish(spec, sys.stdin):
-        for (cam, data), writer in zip(images, writers):
+        for image, writer in zip(images, writers):
+            if image is None:
+                continue
+            cam, data = image
             msg = Image()
             msg.header.stamp.sec = stamp // NANOS
             msg.header.stamp.nanosec = stamp % NANOS

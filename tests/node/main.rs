@@ -29,5 +29,6 @@ mod params;
 mod process;
 mod qos;
 mod rclpy;
+mod rclpy_time;
 mod rosout;
 mod tf;

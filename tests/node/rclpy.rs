@@ -14,6 +14,8 @@
 //! * `params`: `list_parameters`, `get_parameters`, `describe_parameters` and
 //!   `set_parameters` as `ros2 param` calls them: every parameter listed with its value, a
 //!   run-time one set, a start-time one refused with the reason;
+//! * the driver's clock misbehaving (poisoned stamps, a reset, a loop, a flooding camera):
+//!   `rclpy_time.rs`;
 //! * `types`: every endpoint of the node that rclpy's graph shows (publishers,
 //!   subscriptions, the parameter services' request and reply endpoints) carries the REP 2011
 //!   type hash that rosidl generated for its type in that distribution.
@@ -68,20 +70,20 @@ const DRAIN: Duration = Duration::from_secs(4);
 const POLL: Duration = Duration::from_millis(5);
 
 /// A ROS 2 distribution whose rclpy wheels the tests run.
-trait Distro {
+pub(crate) trait Distro {
     const ENV: &'static str;
     const LABEL: &'static str;
     const TAG: &'static str;
 }
 
-struct Jazzy;
+pub(crate) struct Jazzy;
 impl Distro for Jazzy {
     const ENV: &'static str = "MODE360_RCLPY_JAZZY";
     const LABEL: &'static str = "rclpy (Jazzy)";
     const TAG: &'static str = "rclpy_jazzy";
 }
 
-struct Kilted;
+pub(crate) struct Kilted;
 impl Distro for Kilted {
     const ENV: &'static str = "MODE360_RCLPY_KILTED";
     const LABEL: &'static str = "rclpy (Kilted)";
@@ -89,14 +91,14 @@ impl Distro for Kilted {
 }
 
 /// `rclpy_peer.py` run by a Python with distribution `D`'s rclpy.
-struct Rclpy<D> {
+pub(crate) struct Rclpy<D> {
     python: String,
     distro: PhantomData<D>,
 }
 
 impl<D: Distro> Rclpy<D> {
     /// The peer, or `None` after printing why the test is skipped (panics under CI).
-    fn from_env() -> Option<Self> {
+    pub(crate) fn from_env() -> Option<Self> {
         let python = std::env::var(D::ENV).ok().filter(|p| !p.is_empty());
         let problem = match python {
             None => format!("{} is not set", D::ENV),
@@ -147,7 +149,7 @@ impl<D: Distro> DdsPeer for Rclpy<D> {
     }
 }
 
-fn wall_ns() -> u64 {
+pub(crate) fn wall_ns() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64)
