@@ -15,9 +15,10 @@ types are rclpy's own (sensor_msgs, rcl_interfaces); discovery stays on this hos
       `publish K STAMP_NS [I]` (another stamp; one camera only): the time-jump test drives
       poisoned stamps, a clock reset, a looped sequence and a flooding camera with it.
 
-  rclpy_peer.py stream --domain D [--timeout-s 120]
+  rclpy_peer.py stream --domain D [--timeout-s 120] [--best-effort]
       Reliable subscriptions with rclpy's defaults (reliable, volatile, keep last 10: what
-      rviz and `ros2 topic echo` use) to /depth, /confidence and /points; `ready` once each
+      rviz and `ros2 topic echo` use), or with --best-effort rclpy's sensor-data QoS (best
+      effort, keep last 5), to /depth, /confidence and /points; `ready` once each
       sees a publisher; on stdin `quit` (or end of input) prints `result {json}`: per topic
       the [stamp_ns, receive_ns] of every message received (receive_ns: wall clock).
 
@@ -134,9 +135,13 @@ def stream(args):
     rclpy, node = start(args.domain)
     topics = {"/depth": Image, "/confidence": Image, "/points": PointCloud2}
     got = {t: [] for t in topics}
+    if args.best_effort:
+        from rclpy.qos import qos_profile_sensor_data as qos
+    else:
+        qos = 10
     for topic, kind in topics.items():
         node.create_subscription(
-            kind, topic, lambda m, t=topic: got[t].append([str(stamp_ns(m.header)), str(time.time_ns())]), 10
+            kind, topic, lambda m, t=topic: got[t].append([str(stamp_ns(m.header)), str(time.time_ns())]), qos
         )
     spin_until(
         rclpy, node, lambda: all(node.count_publishers(t) for t in topics), args.timeout_s, "publishers of " + ", ".join(topics)
@@ -324,6 +329,7 @@ def main():
     st = sub.add_parser("stream")
     st.add_argument("--domain", type=int, required=True)
     st.add_argument("--timeout-s", type=float, default=120.0)
+    st.add_argument("--best-effort", action="store_true", help="sensor-data QoS instead of reliable")
     pa = sub.add_parser("params")
     pa.add_argument("--domain", type=int, required=True)
     pa.add_argument("--node", default="/mode360")
