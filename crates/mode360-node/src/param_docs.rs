@@ -137,6 +137,9 @@ pub fn descriptors() -> Vec<ParameterDescriptor> {
 mod tests {
     use super::*;
     use crate::param_table::parameter;
+    use crate::params::NodeParams;
+    use crate::qos_overrides::QOS_OVERRIDES_PREFIX;
+    use std::collections::BTreeSet;
 
     #[test]
     fn every_parameter_has_the_readme_meaning_as_its_description() {
@@ -190,5 +193,38 @@ mod tests {
     fn links_become_their_labels() {
         assert_eq!(plain_text("a [b](#c) d [e"), "a b d [e");
         assert_eq!(plain_text("`x` [y](z)"), "x y");
+    }
+
+    /// The README's parameter table lists exactly the table's parameters (plus the families),
+    /// each with its type and default.
+    #[test]
+    fn readme_parameter_table_matches_the_table() {
+        let (path, text) = ("README.md", README);
+        let rows = parameter_rows(text);
+        assert!(!rows.is_empty(), "{path}: no parameter table");
+        let defaults = NodeParams::default();
+        let mut documented = BTreeSet::new();
+        for row in &rows {
+            for name in &row.names {
+                if name.starts_with(QOS_OVERRIDES_PREFIX) {
+                    continue;
+                }
+                let spec = parameter(name)
+                    .unwrap_or_else(|| panic!("{path}: '{name}' is not a node parameter"));
+                documented.insert(spec.name);
+                assert!(
+                    row.type_cell.starts_with(spec.param_type().as_str()),
+                    "{path}: {name} has type '{}', the node's is {}",
+                    row.type_cell,
+                    spec.param_type().as_str()
+                );
+                let default = (spec.get)(&defaults).to_text();
+                let cell = row.default_cell.trim_matches('`');
+                let cell = if cell == "\"\"" { "" } else { cell };
+                assert_eq!(cell, default, "{path}: default of {name}");
+            }
+        }
+        let all: BTreeSet<&str> = PARAMETERS.iter().map(|s| s.name).collect();
+        assert_eq!(documented, all, "{path}: parameters documented");
     }
 }

@@ -1,8 +1,9 @@
 //! The node's parameters, declared once: [`PARAMETERS`] gives each one's name, type, whether
 //! it may change while the node runs, how to read it from [`NodeParams`] and how to set it
 //! from text. Everything else is derived from the table: [`NodeParams::set`], the ROS 2
-//! declarations and run-time updates ([`super::ros_params`]), and the tests that check the
-//! shipped params file and the README's parameter table against it.
+//! declarations and run-time updates ([`super::ros_params`]), the descriptors
+//! ([`super::param_docs`], whose tests check the README's parameter table against it), and the
+//! test that checks the shipped params file against it.
 //!
 //! Parameter families that are not single names (`image_transport.CAMERA`,
 //! `qos_overrides./TOPIC.ENDPOINT.POLICY`) are parsed by [`NodeParams::set`] itself.
@@ -476,7 +477,6 @@ pub const DEPRECATED_NAMES: [(&str, &str); 2] = [
 mod tests {
     use super::*;
     use crate::params_file::file_parameters;
-    use crate::qos_overrides::QOS_OVERRIDES_PREFIX;
     use std::collections::BTreeSet;
 
     fn repo_file(relative: &str) -> (String, String) {
@@ -524,37 +524,5 @@ mod tests {
             p.set(name, value).unwrap();
             assert_eq!(p, defaults, "{path}: {name} = {value} is not the default");
         }
-    }
-
-    /// The README's parameter table lists exactly the table's parameters (plus the families),
-    /// each with its type and default.
-    #[test]
-    fn readme_parameter_table_matches_the_table() {
-        let (path, text) = repo_file("README.md");
-        let rows = crate::param_docs::parameter_rows(&text);
-        assert!(!rows.is_empty(), "{path}: no parameter table");
-        let defaults = NodeParams::default();
-        let mut documented = BTreeSet::new();
-        for row in &rows {
-            for name in &row.names {
-                if name.starts_with(QOS_OVERRIDES_PREFIX) {
-                    continue;
-                }
-                let spec = parameter(name)
-                    .unwrap_or_else(|| panic!("{path}: '{name}' is not a node parameter"));
-                documented.insert(spec.name);
-                assert!(
-                    row.type_cell.starts_with(spec.param_type().as_str()),
-                    "{path}: {name} has type '{}', the node's is {}",
-                    row.type_cell,
-                    spec.param_type().as_str()
-                );
-                let default = (spec.get)(&defaults).to_text();
-                let cell = row.default_cell.trim_matches('`');
-                let cell = if cell == "\"\"" { "" } else { cell };
-                assert_eq!(cell, default, "{path}: default of {name}");
-            }
-        }
-        assert_eq!(documented, table_names(), "{path}: parameters documented");
     }
 }
