@@ -50,8 +50,6 @@ const POLL: Duration = Duration::from_millis(20);
 /// How long the node process may take to come up, and to exit after SIGINT.
 const UP_TIMEOUT: Duration = Duration::from_secs(60);
 const EXIT_LIMIT: Duration = Duration::from_secs(10);
-/// The node binary's exit summary line.
-const SUMMARY_PREFIX: &str = "mode360 node stopped by SIGINT:";
 /// The process may hold this much more memory after any burst than after the warm-up
 /// (at 64 wide).
 const MEMORY_GROWTH_LIMIT_MIB: f64 = 300.0;
@@ -447,24 +445,15 @@ fn fuzz(domain_id: u16, width: usize, growth_limit_mib: f64, placement: Placemen
             let exit = process.interrupt(EXIT_LIMIT)?;
             assert_eq!(exit.status.code(), Some(0), "{:#?}", exit.log);
             println!("node summary: {}", exit.stdout.trim());
-            let summary = exit
-                .stdout
-                .lines()
-                .find(|l| l.starts_with(SUMMARY_PREFIX))
-                .ok_or_else(|| format!("no summary line in {:?}", exit.stdout))?;
-            let count = |key: &str| -> Result<u64, String> {
-                summary
-                    .split_whitespace()
-                    .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
-                    .and_then(|v| v.parse().ok())
-                    .ok_or_else(|| format!("no {key} in '{summary}'"))
-            };
-            assert_eq!(count("pipeline_errors")?, 0, "{summary}");
+            let summary = exit.summary()?;
+            let count = |key: &str| summary.get(key);
+            assert_eq!(count("pipeline_errors")?, 0, "{}", summary.line);
             let countable = countable(&sent);
             let counted = count("images_bad")?;
             assert!(
                 counted * 10 >= countable * 8,
-                "{counted} of {countable} malformed samples counted: {summary}"
+                "{counted} of {countable} malformed samples counted: {}",
+                summary.line
             );
         }
     }

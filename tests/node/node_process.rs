@@ -4,6 +4,7 @@
 //! fails first.
 
 use mode360::memory::resident_mib_of;
+use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -15,6 +16,8 @@ const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
 /// What the node logs once its endpoints exist.
 pub const UP_MARKER: &str = " up on domain";
 const POLL: Duration = Duration::from_millis(20);
+/// How the node's exit summary line on stdout begins.
+pub const SUMMARY_PREFIX: &str = "mode360 node stopped by SIGINT:";
 
 /// A running node process (killed on drop unless [`NodeProcess::interrupt`] stopped it).
 pub struct NodeProcess {
@@ -35,6 +38,42 @@ pub struct NodeExit {
     pub stdout: String,
     /// Every stderr line.
     pub log: Vec<String>,
+}
+
+impl NodeExit {
+    /// The counters of the exit summary line (`key=value` pairs after [`SUMMARY_PREFIX`]).
+    pub fn summary(&self) -> Result<Summary, String> {
+        let line = self
+            .stdout
+            .lines()
+            .find(|l| l.starts_with(SUMMARY_PREFIX))
+            .ok_or_else(|| format!("no summary line in {:?}", self.stdout))?;
+        let counts = line
+            .split_whitespace()
+            .filter_map(|kv| kv.split_once('='))
+            .filter_map(|(k, v)| Some((k.to_string(), v.parse().ok()?)))
+            .collect();
+        Ok(Summary {
+            line: line.to_string(),
+            counts,
+        })
+    }
+}
+
+/// The node's exit summary: the line and its counters.
+pub struct Summary {
+    pub line: String,
+    pub counts: BTreeMap<String, u64>,
+}
+
+impl Summary {
+    /// The counter `key`.
+    pub fn get(&self, key: &str) -> Result<u64, String> {
+        self.counts
+            .get(key)
+            .copied()
+            .ok_or_else(|| format!("no {key} in '{}'", self.line))
+    }
 }
 
 impl NodeProcess {

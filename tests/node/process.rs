@@ -17,7 +17,7 @@ use mode360::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
 const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
@@ -38,15 +38,6 @@ const EXIT_LIMIT: Duration = Duration::from_secs(5);
 const AGE_PROBE_DELAY: Duration = Duration::from_millis(1500);
 const MAX_SIM_AGE_SECS: f64 = 0.2;
 const POLL: Duration = Duration::from_millis(20);
-const SUMMARY_PREFIX: &str = "mode360 node stopped by SIGINT:";
-
-/// `key=value` pairs of the summary line.
-fn summary_counts(line: &str) -> BTreeMap<String, u64> {
-    line.split_whitespace()
-        .filter_map(|kv| kv.split_once('='))
-        .filter_map(|(k, v)| Some((k.to_string(), v.parse().ok()?)))
-        .collect()
-}
 
 #[test]
 fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResult {
@@ -182,21 +173,17 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
 
     // SIGINT: clean exit with a summary.
     let exit = node.interrupt(EXIT_LIMIT)?;
-    let out = exit.stdout;
     println!(
-        "exit after {:.2} s: {:?}; stdout: {out}",
-        exit.exit_s, exit.status
+        "exit after {:.2} s: {:?}; stdout: {}",
+        exit.exit_s, exit.status, exit.stdout
     );
     assert_eq!(exit.status.code(), Some(0), "stderr: {:#?}", exit.log);
     while let Some((m, _)) = depth_sub.take()? {
         depth_stamps.insert(m.header.stamp.to_nanos());
     }
-    let line = out
-        .lines()
-        .find(|l| l.starts_with(SUMMARY_PREFIX))
-        .ok_or_else(|| format!("no summary line in {out:?}"))?;
-    let c = summary_counts(line);
-    let get = |k: &str| c.get(k).copied().ok_or(format!("no {k} in '{line}'"));
+    let summary = exit.summary()?;
+    let line = summary.line.as_str();
+    let get = |k: &str| summary.get(k);
     let groups = (FRAMES * LOOPS) as u64;
     let n_cams = rig.cameras.len() as u64;
     let images = groups * n_cams;
