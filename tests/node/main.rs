@@ -5,7 +5,7 @@
 //! output of a reliable stream, parameters; `rclpy`), bad input seen on `/diagnostics` (`bad_input`), a hostile sender's
 //! malformed and oversized samples (`fuzz`), outputs built only while
 //! subscribed (`lazy`), QoS overrides and `publish_tf` (`qos`), the parameter services
-//! (`params`), extrinsics from TF (`tf`), the Foxglove live view read by Foxglove's own
+//! (`params`), the bag player's delivery at 512 (`player`), extrinsics from TF (`tf`), the Foxglove live view read by Foxglove's own
 //! client (`foxglove`), the binary's log records on `/rosout` (`rosout`) and the binary's demo
 //! run from an empty folder, away from its source tree (`installed`). The tests take [`common::live_node_lock`] so that one node runs at a
 //! time.
@@ -26,6 +26,7 @@ mod installed;
 mod lazy;
 mod node_process;
 mod params;
+mod player;
 mod process;
 mod qos;
 mod rclpy;

@@ -185,6 +185,21 @@ impl AssemblyBuffer {
 // under best effort is lost anyway and under reliable will be re-requested.
 const MAX_ASSEMBLY_BUFFERS: usize = 128;
 
+// mode360 patch: a best-effort reader keeps at most this many incomplete
+// samples per writer. A writer sends one sample's fragments before the next
+// one's, and nothing repairs a best-effort sample, so an incomplete sample
+// older than the newest few never completes; upstream kept up to
+// MAX_ASSEMBLY_BUFFERS of them for the 10 s timeout (measured: `mode360 node`
+// at 512 held about 115 MiB of partial camera images when its player lost
+// fragments). A few stay, for datagrams reordered between two samples.
+const MAX_BEST_EFFORT_ASSEMBLY_BUFFERS: usize = 3;
+
+// mode360 patch: the incomplete samples of one writer hold at most this many
+// bytes (each buffer is its sample's announced size, allocated on the first
+// fragment), evicted as the count cap evicts; the buffer being filled is
+// always kept, so a single sample may be larger.
+const MAX_ASSEMBLY_BYTES: usize = 64 * 1024 * 1024;
+
 // Assembles fragments from a single (remote) Writer
 // So there is only one sequence of SNs
 pub(crate) struct FragmentAssembler {
@@ -283,18 +298,42 @@ impl FragmentAssembler {
       //  * Best effort: there is no retransmission, so a low incomplete buffer is
       //    lost anyway. Evict the OLDEST (lowest SN) to free room for newer samples
       //    that may still complete.
-      while self.assembly_buffers.len() > MAX_ASSEMBLY_BUFFERS {
-        let evicted = if self.reliable {
-          self.assembly_buffers.pop_last()
+      let max_buffers = if self.reliable {
+        MAX_ASSEMBLY_BUFFERS
+      } else {
+        MAX_BEST_EFFORT_ASSEMBLY_BUFFERS
+      };
+      while self.assembly_buffers.len() > max_buffers
+        || (self.assembly_buffers.len() > 1 && self.held_bytes() > MAX_ASSEMBLY_BYTES)
+      {
+        // The buffer of the fragment just taken stays (see the constants).
+        let evict = if self.reliable {
+          self.assembly_buffers.keys().rev().find(|k| **k != sn)
         } else {
-          self.assembly_buffers.pop_first()
+          self.assembly_buffers.keys().find(|k| **k != sn)
         };
-        if evicted.is_none() {
+        let Some(evict) = evict.copied() else {
           break;
-        }
+        };
+        self.assembly_buffers.remove(&evict);
       }
       None
     }
+  }
+
+  /// Bytes held by the incomplete samples (their announced sizes).
+  pub fn held_bytes(&self) -> usize {
+    self
+      .assembly_buffers
+      .values()
+      .map(|ab| ab.buffer_bytes.len())
+      .sum()
+  }
+
+  /// Incomplete samples held.
+  #[cfg(test)]
+  pub fn incomplete_samples(&self) -> usize {
+    self.assembly_buffers.len()
   }
 
   pub fn garbage_collect_before(&mut self, expire_before: Timestamp) {
@@ -425,5 +464,69 @@ mod tests {
     assert!(fa
       .new_datafrag(&bad, BitFlags::<DATAFRAG_Flags>::empty())
       .is_none());
+  }
+
+  // mode360 patch: the first fragment of each of `samples` samples (never
+  // completed), from one writer; returns the assembler.
+  fn first_fragments_of(
+    reliable: bool,
+    samples: i64,
+    data_size: u32,
+  ) -> super::FragmentAssembler {
+    use enumflags2::BitFlags;
+
+    use super::FragmentAssembler;
+    use crate::{
+      messages::submessages::submessages::DATAFRAG_Flags,
+      structure::sequence_number::SequenceNumber,
+    };
+
+    let frag_size = 1024u16;
+    let mut fa = FragmentAssembler::new(frag_size, reliable);
+    for sn in 1..=samples {
+      let mut first = datafrag(1, 1, frag_size, data_size, vec![7u8; 1024]);
+      first.writer_sn = SequenceNumber::new(sn);
+      assert!(fa
+        .new_datafrag(&first, BitFlags::<DATAFRAG_Flags>::empty())
+        .is_none());
+    }
+    fa
+  }
+
+  #[test]
+  fn best_effort_keeps_only_the_newest_incomplete_samples() {
+    use crate::structure::sequence_number::SequenceNumber;
+
+    let data_size = 400_000;
+    let fa = first_fragments_of(false, 40, data_size);
+    assert_eq!(fa.incomplete_samples(), super::MAX_BEST_EFFORT_ASSEMBLY_BUFFERS);
+    assert_eq!(
+      fa.held_bytes(),
+      super::MAX_BEST_EFFORT_ASSEMBLY_BUFFERS * data_size as usize
+    );
+    // The newest stay: they may still complete.
+    assert!(fa.is_partially_received(SequenceNumber::new(40)));
+    assert!(!fa.is_partially_received(SequenceNumber::new(37)));
+    // A reliable reader keeps what repair may still complete (up to the caps).
+    let fa = first_fragments_of(true, 40, data_size);
+    assert_eq!(fa.incomplete_samples(), 40);
+  }
+
+  #[test]
+  fn incomplete_samples_hold_at_most_the_byte_cap() {
+    use crate::structure::sequence_number::SequenceNumber;
+
+    // 20 MB announced each: a reliable reader keeps 3 (60 MB), dropping the newest
+    // others, but always the one just begun.
+    let data_size = 20_000_000;
+    let fa = first_fragments_of(true, 10, data_size);
+    assert!(fa.held_bytes() <= super::MAX_ASSEMBLY_BYTES, "{}", fa.held_bytes());
+    assert_eq!(fa.incomplete_samples(), 3);
+    assert!(fa.is_partially_received(SequenceNumber::new(1)));
+    assert!(fa.is_partially_received(SequenceNumber::new(10)));
+    // One sample larger than the cap is still assembled alone.
+    let fa = first_fragments_of(false, 2, 100_000_000);
+    assert_eq!(fa.incomplete_samples(), 1);
+    assert!(fa.is_partially_received(SequenceNumber::new(2)));
   }
 }

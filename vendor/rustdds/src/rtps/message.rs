@@ -48,6 +48,18 @@ impl Message {
     self.submessages.push(submessage);
   }
 
+  /// mode360 patch: the size of the datagram this message serializes to (the
+  /// 20-byte RTPS header and every submessage with its header; content lengths
+  /// are 4-byte aligned), which the fragment pacing counts.
+  pub fn datagram_len(&self) -> usize {
+    RTPS_MESSAGE_HEADER_SIZE
+      + self
+        .submessages
+        .iter()
+        .map(|s| SUBMESSAGE_HEADER_SIZE + s.header.content_length as usize)
+        .sum::<usize>()
+  }
+
   /// Serialize this outbound message into a single datagram buffer, copying the
   /// payload exactly once.
   ///

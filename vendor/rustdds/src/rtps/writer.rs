@@ -1044,16 +1044,21 @@ impl Writer {
       FragmentationIter::new_resume(self, cc, target_reader_opt, send_also_heartbeat, cursor);
     let fragmentation_needed = messages_to_send.fragmentation_needed();
     // mode360 patch: the datagrams of a fragmented user sample are paced
-    // (super::pacing), counted at the datagram budget, an upper bound.
-    let paced_bytes = (fragmentation_needed
+    // (super::pacing), each counted at its serialized size (the datagram
+    // budget, counted before, is up to 64 kB to a reader on this host: the
+    // player's 512-wide frames then counted 3.1 MB for 2.6 MB sent and fell
+    // behind the recorded 10 Hz).
+    let paced = fragmentation_needed
       && class == TrafficClass::Bulk
-      && !self.my_guid.entity_id.kind().is_built_in())
-    .then(|| self.datagram_budget(target_reader_opt));
+      && !self.my_guid.entity_id.kind().is_built_in();
 
     // Send the messages, either to all readers or just one, stopping at the
     // first message that a socket could not accept.
     for (resume_cursor, msg) in messages_to_send {
-      if let Some(wait) = paced_bytes.and_then(super::pacing::take) {
+      if let Some(wait) = paced
+        .then(|| msg.datagram_len())
+        .and_then(super::pacing::take)
+      {
         return (
           fragmentation_needed,
           SendProgress::Paced {
