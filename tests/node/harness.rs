@@ -8,6 +8,7 @@ use mode360::geometry::Rig;
 use mode360::msgs::image::image_msg_from_rgb;
 use mode360::msgs::{Header, Image};
 use mode360::node::{create_publisher, sensor_qos, DdsOptions, SpunNode};
+use mode360::synth::record::{record_synthetic_bag, RecordOptions};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use ros2_client::Publisher;
 use serde_json::Value;
@@ -37,6 +38,30 @@ pub fn render(rig: &Rig, seed: u64, width: usize) -> Result<RigFrame, Box<dyn st
         ..Default::default()
     })?
     .render_frame(rig, 0))
+}
+
+/// A rig bag of `frames` street frames rendered with `seed` at `width` on `rig`, written to
+/// `out` (the renderer's defaults otherwise).
+pub fn record_street_bag(
+    rig: &Rig,
+    seed: u64,
+    width: usize,
+    frames: usize,
+    out: &std::path::Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    record_synthetic_bag(&RecordOptions {
+        rig: rig.clone(),
+        config: SynthConfig {
+            seed,
+            width,
+            ..Default::default()
+        },
+        frames,
+        first_frame: 0,
+        out: out.to_path_buf(),
+        show_progress: false,
+    })?;
+    Ok(())
 }
 
 /// One best-effort image publisher per rig camera on a client node, sending one frame's

@@ -8,14 +8,12 @@
 //! datagram at its size (on loopback the 64 kB budget was counted for every datagram);
 //! docs/node.md, "Large outputs".
 
-use super::harness::loopback;
+use super::harness::{loopback, record_street_bag};
 use crate::common::{TestResult, RIG_PATH};
 use mode360::geometry::Rig;
 use mode360::msgs::Image;
 use mode360::node::player::{play_bag, PlayOptions};
 use mode360::node::{create_subscription, dds_context, sensor_qos, SpunNode};
-use mode360::synth::record::{record_synthetic_bag, RecordOptions};
-use mode360::synth::SynthConfig;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -44,18 +42,7 @@ fn the_player_delivers_every_camera_image_at_512() -> TestResult {
     let dir = tempfile::tempdir()?;
     let bag_path = dir.path().join("in_512.mcap");
     let rig = Rig::from_file(RIG_PATH)?;
-    record_synthetic_bag(&RecordOptions {
-        rig: rig.clone(),
-        config: SynthConfig {
-            seed: 11,
-            width: WIDTH,
-            ..Default::default()
-        },
-        frames: FRAMES,
-        first_frame: 0,
-        out: bag_path.clone(),
-        show_progress: false,
-    })?;
+    record_street_bag(&rig, 11, WIDTH, FRAMES, &bag_path)?;
 
     let dds = loopback(DOMAIN_ID);
     let context = dds_context(&dds)?;
@@ -101,6 +88,7 @@ fn the_player_delivers_every_camera_image_at_512() -> TestResult {
                 wait_for_subscribers: Some(DISCOVERY_TIMEOUT),
                 wait_topics: topics,
             })
+            .map_err(|e| e.to_string())
         })
     };
     let mut whole: BTreeMap<String, BTreeSet<u64>> = BTreeMap::new();

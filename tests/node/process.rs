@@ -4,7 +4,7 @@
 //! SIGINT must stop the process cleanly (exit code 0, within seconds) with a summary line whose
 //! counters agree with what was sent and received.
 
-use super::harness::loopback;
+use super::harness::{loopback, record_street_bag};
 use super::node_process::NodeProcess;
 use crate::common::TestResult;
 use mode360::bag::RigBagReader;
@@ -13,8 +13,6 @@ use mode360::msgs::{DiagnosticArray, Image};
 use mode360::node::diagnostics::diagnostic_value;
 use mode360::node::player::{play_bag, PlayOptions};
 use mode360::node::{create_subscription, dds_context, SpunNode};
-use mode360::synth::record::{record_synthetic_bag, RecordOptions};
-use mode360::synth::SynthConfig;
 use ros2_client::qos::History;
 use ros2_client::QosProfile;
 use std::collections::BTreeSet;
@@ -46,18 +44,7 @@ fn node_binary_follows_looped_bag_in_sim_time_and_stops_on_sigint() -> TestResul
     let rig_path = format!("{MANIFEST_DIR}/launch_configs/rig_deep360.yaml");
     let rig = Rig::from_file(&rig_path)?;
     let bag_path = dir.path().join("in.mcap");
-    record_synthetic_bag(&RecordOptions {
-        rig: rig.clone(),
-        config: SynthConfig {
-            seed: 3,
-            width: WIDTH,
-            ..Default::default()
-        },
-        frames: FRAMES,
-        first_frame: 0,
-        out: bag_path.clone(),
-        show_progress: false,
-    })?;
+    record_street_bag(&rig, 3, WIDTH, FRAMES, &bag_path)?;
     let params_path = dir.path().join("params.yaml");
     std::fs::write(
         &params_path,
