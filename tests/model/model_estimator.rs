@@ -327,3 +327,73 @@ fn readout_settings_change_what_the_shipped_weights_read() {
         .to_string();
     assert!(e.contains("readout") && e.contains("photometric"), "{e}");
 }
+
+#[test]
+fn hidden_points_get_low_confidence_and_are_where_the_estimate_is_wrong() {
+    use mode360::estimator::ssmode::HIDDEN_CONFIDENCE;
+    use mode360::geometry::occlusion::unoccluded_views;
+    // the shipped weights on a cluttered street (near clutter from 0.7 m out), scored against
+    // the rendered truth: pixels capped at HIDDEN_CONFIDENCE against the rest
+    let path = mode360::estimator::ssmode::default_weights_path();
+    let rig = rig();
+    let output = ErpGrid::new(256).unwrap();
+    let frame = SynthRenderer::new(SynthConfig {
+        width: 256,
+        seed: 5,
+        street: mode360::synth::StreetStyle::Cluttered,
+        ..SynthConfig::default()
+    })
+    .unwrap()
+    .render_frame(&rig, 0);
+    let truth = frame.ground_truth.clone().expect("ground truth");
+    let mut checked = SsmodeEstimator::load(&path).unwrap();
+    let mut unchecked = SsmodeEstimator::load(&path)
+        .unwrap()
+        .with_occlusion_check(false);
+    let a = checked.estimate(&rig, &frame.images, output).unwrap();
+    let b = unchecked.estimate(&rig, &frame.images, output).unwrap();
+    // the check changes the confidence only, and only by capping it
+    assert_eq!(a.range_m.data, b.range_m.data);
+    let (mut hidden, mut seen) = ((0usize, 0usize), (0usize, 0usize));
+    for k in 0..output.len() {
+        let (r, g) = (a.range_m.data[k], truth.data[k]);
+        let (ca, cb) = (a.confidence.data[k], b.confidence.data[k]);
+        assert!(
+            ca == cb || (ca == HIDDEN_CONFIDENCE && cb > ca),
+            "{ca} against {cb}"
+        );
+        let capped = ca < cb;
+        if !(g.is_finite() && g > 0.0 && g < 1000.0 && r.is_finite()) {
+            continue;
+        }
+        let good = (r / g).max(g / r) < 1.25;
+        let tally = if capped { &mut hidden } else { &mut seen };
+        tally.0 += usize::from(good);
+        tally.1 += 1;
+    }
+    let pct = |t: (usize, usize)| 100.0 * t.0 as f64 / t.1.max(1) as f64;
+    println!(
+        "hidden: {} px, δ1 {:.1} %; seen by two or more: {} px, δ1 {:.1} %",
+        hidden.1,
+        pct(hidden),
+        seen.1,
+        pct(seen)
+    );
+    // where the estimate itself says a pixel is hidden, it is mostly wrong there; the truth's
+    // own hidden pixels for comparison
+    let truly_hidden = unoccluded_views(&rig, output, &truth.data)
+        .unwrap()
+        .iter()
+        .zip(&truth.data)
+        .filter(|(&n, &g)| g < 1000.0 && n < 2)
+        .count();
+    println!("hidden by the true range: {truly_hidden} px");
+    assert!(
+        hidden.1 > 0,
+        "no pixel was found hidden on a cluttered street"
+    );
+    assert!(
+        pct(hidden) + 20.0 < pct(seen),
+        "{hidden:?} against {seen:?}"
+    );
+}

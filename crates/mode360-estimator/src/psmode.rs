@@ -200,7 +200,8 @@ impl PsmodeEstimator {
                 self.base.model().clone(),
                 self.stage1_path.clone(),
                 self.base.device().clone(),
-            );
+            )
+            .with_occlusion_check(false);
             stages.push(PairStage {
                 view,
                 stage1,

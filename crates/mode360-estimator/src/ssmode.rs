@@ -16,6 +16,7 @@ use super::guided_upsample::{grey_on_grid, guided_upsample};
 use super::lens_mask::LensMask;
 use super::{DepthEstimate, DepthEstimator, EstimatorError};
 use mode360_core::frame::RgbImage;
+use mode360_core::geometry::occlusion::unoccluded_views;
 use mode360_core::geometry::panorama::RigRemap;
 pub use mode360_core::geometry::resample_erp;
 use mode360_core::geometry::{ErpGrid, Rig};
@@ -100,7 +101,20 @@ pub struct SsmodeEstimator {
     lens_masks: Vec<Option<LensMask>>,
     /// The cached tables with `lens_masks` applied, and the masks they were built with.
     masked: Option<(Vec<Option<LensMask>>, SweepSampling)>,
+    /// Whether the confidence is capped at [`HIDDEN_CONFIDENCE`] where fewer than two cameras
+    /// see the estimated point ([`Self::with_occlusion_check`]).
+    occlusion_check: bool,
 }
+
+/// Highest confidence of a pixel whose estimated point fewer than two cameras see, because a
+/// nearer surface of the same estimate stands in the way for the others
+/// (`geometry::occlusion`): nothing was matched there, so its range is the network's guess
+/// (issue 38: the background hidden behind a near obstacle). With the node's `min_confidence`
+/// above it, such pixels are NaN.
+pub const HIDDEN_CONFIDENCE: f32 = 0.1;
+/// An output pixel is hidden where at least this share of the network cells it is resampled
+/// from are.
+pub const HIDDEN_SHARE: f32 = 0.5;
 
 fn model_err(e: impl Into<ModelError>) -> EstimatorError {
     EstimatorError::Model(e.into())
@@ -173,6 +187,7 @@ impl SsmodeEstimator {
             remap: None,
             lens_masks: Vec::new(),
             masked: None,
+            occlusion_check: true,
         })
     }
 
@@ -186,7 +201,16 @@ impl SsmodeEstimator {
             remap: None,
             lens_masks: Vec::new(),
             masked: None,
+            occlusion_check: true,
         }
+    }
+
+    /// Whether the confidence is capped at [`HIDDEN_CONFIDENCE`] where fewer than two cameras
+    /// see the estimated point (on by default; PSMODE's first stage turns it off, as its fusion
+    /// and pair choice were tuned on the confidence without it).
+    pub fn with_occlusion_check(mut self, on: bool) -> Self {
+        self.occlusion_check = on;
+        self
     }
 
     /// Wraps an already built network whose weights live on `device`.
@@ -403,6 +427,19 @@ impl DepthEstimator for SsmodeEstimator {
                 range = weighted_median_refine(&range, &conf_net, &rgb, net_grid, &params);
             }
         }
+        // 1 where a nearer surface of this estimate hides the point from all cameras but one
+        // (on the network's grid: a quarter of the output's pixels at 512, about 15 ms).
+        let hidden = if self.occlusion_check {
+            let views = unoccluded_views(rig, net_grid, &range)?;
+            let flags: Vec<f32> = views
+                .iter()
+                .zip(&range)
+                .map(|(&n, r)| f32::from(u8::from(r.is_finite() && *r > 0.0 && n < 2)))
+                .collect();
+            Some(resample_erp(&flags, 1, net_grid, output))
+        } else {
+            None
+        };
         let range = match guide_images(rig, images, net_grid, output) {
             Some((guide_net, guide_out)) => {
                 guided_upsample(&range, &guide_net, net_grid, &guide_out, output)
@@ -415,6 +452,13 @@ impl DepthEstimator for SsmodeEstimator {
             let coverage = resample_erp(coverage, 1, sampling.geometry().output(), output);
             for (c, k) in conf.iter_mut().zip(coverage) {
                 *c *= k.clamp(0.0, 1.0);
+            }
+        }
+        if let Some(hidden) = hidden {
+            for (c, h) in conf.iter_mut().zip(hidden) {
+                if h >= HIDDEN_SHARE {
+                    *c = c.min(HIDDEN_CONFIDENCE);
+                }
             }
         }
         Ok(DepthEstimate::on_grid(output, range, conf))

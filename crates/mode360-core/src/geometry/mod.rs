@@ -15,6 +15,8 @@
 //!   a fisheye image resampled into an ERP panorama with a validity mask).
 //! * [`sweep`]: inverse-depth hypotheses and exact spherical-sweep sampling tables.
 //! * [`far_field`]: per output pixel, the hypotheses a rig cannot tell from the far plane.
+//! * [`occlusion`]: per pixel of a range image, the cameras that see its point with no nearer
+//!   surface of the same image in the way.
 
 pub mod camera;
 pub mod erp;
@@ -22,6 +24,7 @@ pub mod erp_rotation;
 pub mod far_field;
 pub mod geer;
 pub mod import;
+pub mod occlusion;
 pub mod pair_view;
 pub mod panorama;
 pub mod rig;
