@@ -428,7 +428,8 @@ impl DepthEstimator for SsmodeEstimator {
             }
         }
         // 1 where a nearer surface of this estimate hides the point from all cameras but one
-        // (on the network's grid: a quarter of the output's pixels at 512, about 15 ms).
+        // (on the network's grid, a quarter of the output's pixels at 512: 30 ms with both cores
+        // busy with a build beside it; not yet measured in `bench-node`).
         let hidden = if self.occlusion_check {
             let views = unoccluded_views(rig, net_grid, &range)?;
             let flags: Vec<f32> = views
