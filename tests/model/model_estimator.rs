@@ -197,14 +197,7 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
         1.5 * coarse.model().readout().far_parallax_cells
     );
     let rig = rig();
-    let frame = SynthRenderer::new(SynthConfig {
-        width: 256,
-        seed: 5,
-        street: mode360::synth::StreetStyle::Cluttered,
-        ..SynthConfig::default()
-    })
-    .unwrap()
-    .render_frame(&rig, 0);
+    let frame = cluttered_street(&rig);
     let output = ErpGrid::new(64).unwrap();
     let got = near.estimate(&rig, &frame.images, output).unwrap();
     let (c, f) = (
@@ -337,14 +330,7 @@ fn hidden_points_get_low_confidence_and_are_where_the_estimate_is_wrong() {
     let path = mode360::estimator::ssmode::default_weights_path();
     let rig = rig();
     let output = ErpGrid::new(256).unwrap();
-    let frame = SynthRenderer::new(SynthConfig {
-        width: 256,
-        seed: 5,
-        street: mode360::synth::StreetStyle::Cluttered,
-        ..SynthConfig::default()
-    })
-    .unwrap()
-    .render_frame(&rig, 0);
+    let frame = cluttered_street(&rig);
     let truth = frame.ground_truth.clone().expect("ground truth");
     let mut checked = SsmodeEstimator::load(&path).unwrap();
     let mut unchecked = SsmodeEstimator::load(&path)
@@ -396,4 +382,16 @@ fn hidden_points_get_low_confidence_and_are_where_the_estimate_is_wrong() {
         pct(hidden) + 20.0 < pct(seen),
         "{hidden:?} against {seen:?}"
     );
+}
+
+/// Frame 0 of a cluttered street (near clutter from 0.7 m out), seed 5, at 256 on `rig`.
+fn cluttered_street(rig: &mode360::geometry::Rig) -> mode360::frame::RigFrame {
+    SynthRenderer::new(SynthConfig {
+        width: 256,
+        seed: 5,
+        street: mode360::synth::StreetStyle::Cluttered,
+        ..SynthConfig::default()
+    })
+    .unwrap()
+    .render_frame(rig, 0)
 }

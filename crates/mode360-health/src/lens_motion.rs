@@ -78,7 +78,7 @@ impl LensGeometry {
             .iter()
             .map(|p| {
                 (0..grid.len())
-                    .map(|k| p.sees(&grid.dir_from_pixel(cell_centre(grid, k))))
+                    .map(|k| p.sees(&grid.dir_from_pixel(grid.pixel_of_index(k))))
                     .collect()
             })
             .collect();
@@ -99,7 +99,7 @@ impl LensGeometry {
                     if !sees[c][k] {
                         return cells;
                     }
-                    let dir_rig = rig_from_c.rotation * grid.dir_from_pixel(cell_centre(grid, k));
+                    let dir_rig = rig_from_c.rotation * grid.dir_from_pixel(grid.pixel_of_index(k));
                     for d in (0..n).filter(|&d| d != c) {
                         let d_from_rig = pano_rig.cameras[d].rig_from_cam.inverse();
                         // q(s) = s a + b: the ray's point at range 1/s, in d's panorama frame
@@ -186,22 +186,6 @@ struct RaySample {
     cell: u32,
 }
 
-/// Centre of cell `k` of `grid`.
-fn cell_centre(grid: ErpGrid, k: usize) -> PixelCoord {
-    PixelCoord {
-        u: (k % grid.width()) as f64,
-        v: (k / grid.width()) as f64,
-    }
-}
-
-/// The cell of `grid` that looks along `dir`.
-fn cell_of(grid: ErpGrid, dir: &Vector3<f64>) -> usize {
-    let p = grid.pixel_from_dir(dir);
-    let u = (p.u.round() as i64).rem_euclid(grid.width() as i64) as usize;
-    let v = (p.v.round().max(0.0) as usize).min(grid.height() - 1);
-    v * grid.width() + u
-}
-
 /// Calls `push` with every cell (seen by the other camera) of the curve `q(s) = s a + b`,
 /// `s` from 0 (the direction at infinity) to `1 / MIN_RANGE_M`, stepping so that the direction
 /// moves by at most [`STEP_CELLS`] cells.
@@ -219,7 +203,7 @@ fn ray_cells_of(
     loop {
         let q = a * s + b;
         if q.norm() > 1e-9 {
-            let j = cell_of(grid, &q);
+            let j = grid.index_from_dir(&q);
             if sees[j] {
                 push(s, j);
             }
@@ -236,7 +220,7 @@ fn ray_cells_of(
 fn cell_weights(grid: ErpGrid, projection: &Projection, sees: &[bool]) -> Vec<f64> {
     let Some(model) = projection.fisheye_model() else {
         return (0..grid.len())
-            .map(|k| grid.lonlat_from_pixel(cell_centre(grid, k)).lat_rad.cos())
+            .map(|k| grid.lonlat_from_pixel(grid.pixel_of_index(k)).lat_rad.cos())
             .collect();
     };
     let panorama_from_cam = mode360_core::geometry::panorama::cam_from_panorama(projection)
@@ -254,7 +238,7 @@ fn cell_weights(grid: ErpGrid, projection: &Projection, sees: &[bool]) -> Vec<f6
                         v: f64::from(v),
                     };
                     if let Some(ray) = model.unproject(px) {
-                        let j = cell_of(grid, &(panorama_from_cam * ray.into_inner()));
+                        let j = grid.index_from_dir(&(panorama_from_cam * ray.into_inner()));
                         if sees[j] {
                             weights[j] += 1.0;
                         }

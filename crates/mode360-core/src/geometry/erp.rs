@@ -139,6 +139,23 @@ impl ErpGrid {
         self.pixel_from_lonlat(lonlat_from_dir(dir))
     }
 
+    /// Centre of the pixel with row-major index `k`: `(k mod W, k div W)`.
+    pub fn pixel_of_index(&self, k: usize) -> PixelCoord {
+        PixelCoord {
+            u: (k % self.width) as f64,
+            v: (k / self.width) as f64,
+        }
+    }
+
+    /// Row-major index of the pixel whose centre is nearest to the direction `dir`: the
+    /// column rounded and wrapped around the seam, the row rounded and clamped at the poles.
+    pub fn index_from_dir(&self, dir: &Vector3<f64>) -> usize {
+        let p = self.pixel_from_dir(dir);
+        let u = (p.u.round() as i64).rem_euclid(self.width as i64) as usize;
+        let v = (p.v.round().max(0.0) as usize).min(self.height - 1);
+        v * self.width + u
+    }
+
     /// Bilinear taps at a continuous pixel position: columns wrap around the longitude seam,
     /// rows clamp at the poles. [`Self::taps_of`] of [`Self::bilinear_sample`] are the same
     /// taps with the offsets rounded to [`ErpSample::FRACTION_STEPS`].

@@ -22,7 +22,7 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::erp::{ErpGrid, PixelCoord};
+use super::erp::ErpGrid;
 use super::panorama::rig_panoramas;
 use super::rig::Rig;
 use super::GeometryError;
@@ -50,7 +50,7 @@ pub fn unoccluded_views(
     let dirs: Vec<Vector3<f64>> = (0..grid.len())
         .into_par_iter()
         .with_min_len(grid.width())
-        .map(|k| grid.dir_from_pixel(pixel(grid, k)))
+        .map(|k| grid.dir_from_pixel(grid.pixel_of_index(k)))
         .collect();
     let mut views = vec![0u8; grid.len()];
     for pano in rig_panoramas(rig) {
@@ -67,7 +67,7 @@ pub fn unoccluded_views(
                 }
                 let p = panorama_from_output * Point3::from(dirs[k] * r);
                 let d = p.coords.norm();
-                (d > 0.0 && pano.sees(&p.coords)).then(|| (nearest_cell(grid, &p.coords), d))
+                (d > 0.0 && pano.sees(&p.coords)).then(|| (grid.index_from_dir(&p.coords), d))
             })
             .collect();
         let mut zbuffer = vec![f64::INFINITY; grid.len()];
@@ -85,22 +85,6 @@ pub fn unoccluded_views(
         }
     }
     Ok(views)
-}
-
-fn pixel(grid: ErpGrid, k: usize) -> PixelCoord {
-    PixelCoord {
-        u: (k % grid.width()) as f64,
-        v: (k / grid.width()) as f64,
-    }
-}
-
-/// Index of the cell of `grid` whose centre is nearest to the direction `dir` (columns wrap).
-fn nearest_cell(grid: ErpGrid, dir: &Vector3<f64>) -> usize {
-    let p = grid.pixel_from_dir(dir);
-    let (w, h) = (grid.width(), grid.height());
-    let u = ((p.u + 0.5).floor() as isize).rem_euclid(w as isize) as usize;
-    let v = ((p.v + 0.5).floor().max(0.0) as usize).min(h - 1);
-    v * w + u
 }
 
 #[cfg(test)]
@@ -138,7 +122,7 @@ mod tests {
     fn post_before_wall(grid: ErpGrid, half_width_deg: f64) -> Vec<f32> {
         (0..grid.len())
             .map(|k| {
-                let ll = grid.lonlat_from_pixel(pixel(grid, k));
+                let ll = grid.lonlat_from_pixel(grid.pixel_of_index(k));
                 if ll.lon_rad.to_degrees().abs() < half_width_deg {
                     1.0
                 } else {
@@ -188,10 +172,7 @@ mod tests {
         let mut checked_hidden = 0;
         for u in 0..WIDTH {
             let lon = grid
-                .lonlat_from_pixel(PixelCoord {
-                    u: u as f64,
-                    v: v as f64,
-                })
+                .lonlat_from_pixel(grid.pixel_of_index(v * WIDTH + u))
                 .lon_rad
                 .to_degrees();
             let inside = behind_post(lon - cell_deg) && behind_post(lon + cell_deg);
