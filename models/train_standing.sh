@@ -36,6 +36,13 @@
 #                          too near), obst2's loss. Tried 2026-11-29 and stopped after 3 steps:
 #                          56 to 113 s a step (a CI build beside it), 8.7 GB: a GPU's job (about
 #                          a minute a step here against 3 s at 256).
+#   runs/clutter_fine_ctrl issue 38, the fine head's control: the shipped weights fine-tuned
+#                          with obst2's loss on a new data stream (seed 7), snapshots every 250
+#                          steps (`SNAPSHOT_EVERY=250`); 3,800 steps by 2026-12-02;
+#   runs/clutter_fine      the same with the fine head (`--preset parallax_zncc_log_fine`, the
+#                          shipped weights plus a head whose output layer starts at zero), the
+#                          same stream and snapshots, compared with `fine_ctrl` at equal steps:
+#     ARMS=fine SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
 # `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
 # step 3,100 ships as models/psmode_stage1.safetensors. `pairs_decay` finished it with a
 # decaying rate to 5,000 (2026-11-29; validation 68.97, the best) and held out no better
@@ -69,7 +76,7 @@
 # --camera-effects), rigs from a pool of 6 renewed every 400 samples. The arms are compared on held-out cluttered
 # streets with `tools/eval_heldout.sh` (obstacle recall beside δ1).
 #
-# env: MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
+# env: SNAPSHOT_EVERY (none: weights every N steps as step_N.safetensors), MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
 # shipped file), ARMS (none: see above), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
@@ -98,6 +105,8 @@ for arm in $arms; do
   lr=2e-5
   width=256
   steps_override=
+  preset=parallax_zncc_log
+  seed=6
   case "$arm" in
   plain) loss=(--init-weights "$init") ;;
   weighted) loss=(--near-weight 4 --too-far-weight 2 --init-weights "$init") ;;
@@ -110,6 +119,20 @@ for arm in $arms; do
   obst) loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 2 --fork-from runs/clutter_near) ;;
   obst2)
     loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --fork-from runs/clutter_obst)
+    ;;
+  fine_ctrl)
+    # issue 38, the fine head's control: the shipped weights fine-tuned with obst2's loss on a
+    # new data stream (seed 7), to be compared with `fine` at equal steps
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init")
+    seed=7
+    ;;
+  fine)
+    # issue 38: the same with the fine head (`parallax_zncc_log_fine`: a readout at the cost
+    # volume's full resolution, 1.4 degrees at 256, where the hourglasses decide at 2.8), its
+    # output layer starting at zero, so step 0 is the shipped network
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init")
+    preset=parallax_zncc_log_fine
+    seed=7
     ;;
   w512)
     # issue 38: the shipped weights fine-tuned at a 512 input, where the cost volume's cells
@@ -165,14 +188,30 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
-  "$bin" train --preset parallax_zncc_log --width "$width" \
-    --steps "${steps_override:-${STEPS:-20000}}" --lr "$lr" \
-    --warmup-steps 50 "${mix[@]}" "${loss[@]}" --rig-pool 6 --val-every 250 \
-    --checkpoint-every 50 --seed 6 --resume --out "runs/$(run_dir "$arm")" &
+  out="runs/$(run_dir "$arm")"
+  train_arm() {
+    "$bin" train --preset "$preset" --width "$width" \
+      --steps "${steps_override:-${STEPS:-20000}}" --lr "$lr" \
+      --warmup-steps 50 "${mix[@]}" "${loss[@]}" --rig-pool 6 --val-every 250 \
+      --checkpoint-every 50 --seed "$seed" --resume --out "$out" "$@"
+  }
+  if [[ -n "${SNAPSHOT_EVERY:-}" ]]; then
+    # equal-step snapshots for an ablation: stop every SNAPSHOT_EVERY steps, keep the weights
+    # as step_N.safetensors, resume
+    (
+      for ((m = SNAPSHOT_EVERY; m <= ${steps_override:-${STEPS:-20000}}; m += SNAPSHOT_EVERY)); do
+        [[ -f "$out/step_$m.safetensors" ]] && continue
+        train_arm --until-step "$m"
+        cp "$out/ssmode_$preset.safetensors" "$out/step_$m.safetensors"
+      done
+    ) &
+  else
+    train_arm &
+  fi
   pids+=($!)
 done
 wait "${pids[@]}"

@@ -5,6 +5,7 @@
 use super::options::TrainError;
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
+use mode360_model::model::fine_head::FINE_HEAD_PREFIX;
 use mode360_model::model::{ModelError, SsmodeConfig};
 use std::path::Path;
 
@@ -12,7 +13,8 @@ use std::path::Path;
 fn architecture(cfg: &SsmodeConfig) -> String {
     format!(
         "features {:?} x {:?} -> {}, fine branch {} at 1/{}, {:?} cost over {} spheres, \
-         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}",
+         entry stride {}, {} hourglasses of {} channels, photometric cost channel {}, \
+         fine head of {} channels",
         cfg.feature_channels,
         cfg.feature_blocks,
         cfg.feature_out_channels,
@@ -23,7 +25,8 @@ fn architecture(cfg: &SsmodeConfig) -> String {
         cfg.aggregation_stride,
         cfg.hourglasses,
         cfg.hourglass_channels,
-        cfg.photometric_cost
+        cfg.photometric_cost,
+        cfg.fine_head_channels
     )
 }
 
@@ -44,10 +47,23 @@ fn widens_to(file: &SsmodeConfig, cfg: &SsmodeConfig) -> bool {
         }) == architecture(cfg)
 }
 
+/// Whether `file` is `cfg` without its fine head ([`mode360_model::model::fine_head`]): its
+/// weights start a run of `cfg` with the head freshly initialized, whose output layer starts
+/// at zero ([`load_widened`] with `new_fine_head`).
+fn adds_fine_head(file: &SsmodeConfig, cfg: &SsmodeConfig) -> bool {
+    cfg.fine_head_channels > 0
+        && file.fine_head_channels == 0
+        && architecture(&SsmodeConfig {
+            fine_head_channels: cfg.fine_head_channels,
+            ..file.clone()
+        }) == architecture(cfg)
+}
+
 /// Loads `path` into `varmap`, widening the entry convolution by zero weights for the
-/// channels the file lacks: at the start the network computes what the file's network did,
-/// and training brings the new channel in.
-fn load_widened(path: &Path, varmap: &mut VarMap) -> Result<(), TrainError> {
+/// channels the file lacks, and with `new_fine_head` keeping the fresh initialization of the
+/// fine head's variables the file lacks: at the start the network computes what the file's
+/// network did, and training brings the new channel or head in.
+fn load_widened(path: &Path, varmap: &mut VarMap, new_fine_head: bool) -> Result<(), TrainError> {
     let weights_err = |problem: String| {
         TrainError::Model(ModelError::Weights {
             path: path.display().to_string(),
@@ -61,9 +77,13 @@ fn load_widened(path: &Path, varmap: &mut VarMap) -> Result<(), TrainError> {
         .lock()
         .map_err(|_| TrainError::Other("variable map lock poisoned".into()))?;
     for (name, var) in data.iter() {
-        let t = file
-            .get(name)
-            .ok_or_else(|| weights_err(format!("no tensor '{name}'")))?;
+        let fresh = new_fine_head && name.starts_with(&format!("{FINE_HEAD_PREFIX}."));
+        let Some(t) = file.get(name) else {
+            if fresh {
+                continue;
+            }
+            return Err(weights_err(format!("no tensor '{name}'")));
+        };
         let want = var.as_tensor().dims().to_vec();
         let t = if name == ENTRY_CONV_WEIGHT && t.dims() != want.as_slice() {
             let mut extra = want.clone();
@@ -94,7 +114,10 @@ pub(super) fn load_init_weights(
 ) -> Result<(), TrainError> {
     let file_cfg = mode360_model::model::read_config(path)?;
     if widens_to(&file_cfg, cfg) {
-        return load_widened(path, varmap);
+        return load_widened(path, varmap, false);
+    }
+    if adds_fine_head(&file_cfg, cfg) {
+        return load_widened(path, varmap, true);
     }
     if architecture(&file_cfg) != architecture(cfg) {
         return Err(TrainError::Option {
@@ -315,6 +338,19 @@ mod tests {
             &SsmodeConfig::tiny_zncc(),
             1,
         );
+    }
+
+    #[test]
+    fn start_weights_without_the_fine_head_compute_what_the_file_network_did() {
+        let plain = SsmodeConfig::tiny_zncc();
+        let fine = SsmodeConfig {
+            fine_head_channels: 2,
+            ..plain.clone()
+        };
+        assert!(adds_fine_head(&plain, &fine));
+        assert!(!adds_fine_head(&fine, &plain));
+        // the head gets no tensors from the file and its output layer starts at zero
+        check_widening(&plain, &fine, 0);
     }
 
     #[test]

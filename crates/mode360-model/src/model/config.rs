@@ -110,6 +110,11 @@ pub struct SsmodeConfig {
     /// (files without it: uniform in inverse depth, the paper's).
     #[serde(default)]
     pub hypothesis_spacing: HypothesisSpacing,
+    /// Hidden channels of the fine head ([`super::fine_head`]), a readout at the cost volume's
+    /// own resolution in latitude and longitude after the hourglasses, which decide at
+    /// `1 / aggregation_stride` of it; 0 (files without it): none, the coarse cost is upsampled.
+    #[serde(default)]
+    pub fine_head_channels: usize,
     /// Position channels in the cost volume: an ablation that lost (models/README.md, "Issue
     /// 22") and is no longer built; a file that sets it is refused.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -262,6 +267,7 @@ impl SsmodeConfig {
             ),
             ("hourglass_channels", self.hourglass_channels, MAX_CHANNELS),
             ("fine_channels", self.fine_channels, MAX_CHANNELS),
+            ("fine_head_channels", self.fine_head_channels, MAX_CHANNELS),
             ("hourglasses", self.hourglasses, MAX_BLOCKS),
         ]
         .into_iter()

@@ -63,6 +63,17 @@ impl Conv3d {
         self.add_bias(conv3d(x, &self.weight, stride, PAD)?)
     }
 
+    /// A convolution whose weights start at zero (no bias): a residual branch that leaves
+    /// the network it is added to unchanged until it is trained.
+    pub fn new_zeroed_no_bias(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Self> {
+        let weight = vb.get_with_hints(
+            (KERNEL_3D, KERNEL_3D, KERNEL_3D, c_in, c_out),
+            "weight",
+            Init::Const(0.0),
+        )?;
+        Ok(Self { weight, bias: None })
+    }
+
     /// `relu?(forward(x, stride) + residual)`, by the fused kernel when nothing is tracked.
     pub fn forward_then(
         &self,
@@ -78,16 +89,17 @@ impl Conv3d {
         Self::finish(self.forward(x, stride)?, residual, relu)
     }
 
-    /// Inference's `relu(forward(x, stride))` with `padding` instead of 1 on every side (the
+    /// Inference's `relu?(forward(x, stride))` with `padding` instead of 1 on every side (the
     /// fused kernel; for [`CostAggregation::forward_slabs`], whose slabs carry their own
     /// neighbouring spheres).
-    fn forward_relu_padded(
+    pub(crate) fn forward_padded(
         &self,
         x: &Tensor,
         stride: [usize; 3],
         padding: [usize; 3],
+        relu: bool,
     ) -> Result<Tensor> {
-        conv3d_fused(x, &self.weight, stride, padding, self.epilogue(None, true))
+        conv3d_fused(x, &self.weight, stride, padding, self.epilogue(None, relu))
     }
 
     /// `relu?(forward_up(x) + residual)`, by the fused kernel when nothing is tracked.
@@ -227,16 +239,22 @@ impl CostAggregation {
     /// output spheres at a time, each slab with the neighbouring spheres its kernel reaches
     /// (the first with the zero padding of the whole), so the result is the whole volume's bit
     /// for bit and at most [`SLAB_OUTPUT_SPHERES`] output spheres' worth of volume is held.
+    ///
+    /// With `side`, a convolution (the fine head's first layer) runs on each slab too, with
+    /// stride `s` along D and 1 along H and W, so it reaches the same spheres, and its output
+    /// `(B, D/s, H, W, Cf)` (no ReLU) is returned beside the hourglasses'.
     pub fn forward_slabs(
         &self,
         spheres: usize,
         mut slab: impl FnMut(std::ops::Range<usize>) -> Result<Tensor>,
         seam_pad_cells: usize,
-    ) -> Result<Vec<Tensor>> {
+        side: Option<&Conv3d>,
+    ) -> Result<(Vec<Tensor>, Option<Tensor>)> {
         let s = self.entry_stride[0];
         // output spheres of the entry convolution: (D + 2 - 3) / s + 1
         let out_spheres = (spheres + 2 * PAD[0] - KERNEL_3D) / s + 1;
         let mut parts = Vec::new();
+        let mut side_parts = Vec::new();
         let mut first = 0;
         while first < out_spheres {
             let end = (first + SLAB_OUTPUT_SPHERES).min(out_spheres);
@@ -257,15 +275,25 @@ impl CostAggregation {
             let pad_d = usize::from(front_pad);
             let padding = [pad_d, PAD[1], PAD[2]];
             // (B, end - first (+ extra), H/s, W/s, Ch)
-            let y = self.dres0[0].forward_relu_padded(&x, self.entry_stride, padding)?;
-            drop(x);
+            let y = self.dres0[0].forward_padded(&x, self.entry_stride, padding, true)?;
             parts.push(y.narrow(1, 0, end - first)?);
+            if let Some(conv) = side {
+                // (B, end - first (+ extra), H, W, Cf)
+                let y = conv.forward_padded(&x, [s, 1, 1], padding, false)?;
+                side_parts.push(y.narrow(1, 0, end - first)?);
+            }
+            drop(x);
             first = end;
         }
         // (B, D/s, H/s, W/s, Ch)
         let x = Tensor::cat(&parts, 1)?;
         drop(parts);
-        self.after_entry(x, seam_pad_cells)
+        let side = match side {
+            // (B, D/s, H, W, Cf)
+            Some(_) => Some(Tensor::cat(&side_parts, 1)?),
+            None => None,
+        };
+        Ok((self.after_entry(x, seam_pad_cells)?, side))
     }
 
     /// Everything after the entry convolution `x (B, D/s, H/s, W/s, Ch)`.

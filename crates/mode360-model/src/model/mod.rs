@@ -3,6 +3,7 @@
 //! Stages, one file each: [`feature`] (spherical feature extraction, per camera, weights shared),
 //! [`sphere_conv`] (SphereNet kernel tables), [`cost_volume`] (spherical sweep with exact tables,
 //! count-invariant mean/variance over views), [`hourglass`] (3-D stacked hourglass aggregation),
+//! [`fine_head`] (the final cost corrected at the cost volume's full resolution),
 //! [`regression`] (soft-argmin over inverse-depth hypotheses, confidence), [`ssmode`] (the whole
 //! network), [`photometric_cost`] (the sweep's ZNCC matching cost as a cost-volume channel),
 //! [`seam`] (the aggregation's longitude wrap), [`fusion`] (PSMODE's second stage: the pairs'
@@ -15,6 +16,7 @@ pub mod config;
 pub mod cost_volume;
 pub mod device;
 pub mod feature;
+pub mod fine_head;
 pub mod fusion;
 pub mod hourglass;
 pub mod input;

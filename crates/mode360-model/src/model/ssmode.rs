@@ -9,6 +9,7 @@
 //! aggregation               -> K x (B, D/s, h/s, (w + 2 p)/s, Ch) stacked hourglasses, entry
 //!                              stride s, then p/s columns copied across the longitude seam
 //! classif{k}, crop          -> K x (B, D/s, h/s, w/s)
+//! fine_head (optional)      -> the last one corrected at full h and w: (B, D/s, h, w)
 //! regression                -> K x (B, H, W) range, index; confidence of the last
 //! ```
 
@@ -22,6 +23,7 @@ use super::cost_volume::{
     appended_in_slabs, cost_volume, cost_volume_appended, cost_volume_appended_spheres,
 };
 use super::feature::FeatureExtractor;
+use super::fine_head::{FineHead, FINE_HEAD_PREFIX};
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
 use super::readout::Readout;
@@ -141,7 +143,8 @@ impl StageProfiler {
     }
 }
 
-/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`.
+/// The network. Variable names: `feature.*`, `aggregation.*`, `classif{k}.*`, `fine_head.*`
+/// (with `fine_head_channels`).
 #[derive(Clone, Debug)]
 pub struct Ssmode {
     cfg: SsmodeConfig,
@@ -151,6 +154,7 @@ pub struct Ssmode {
     feature: FeatureExtractor,
     aggregation: CostAggregation,
     classif: Vec<RegressionHead>,
+    fine_head: Option<FineHead>,
 }
 
 impl Ssmode {
@@ -166,7 +170,27 @@ impl Ssmode {
             classif: (0..cfg.hourglasses)
                 .map(|k| RegressionHead::new(cfg.hourglass_channels, vb.pp(format!("classif{k}"))))
                 .collect::<Result<_>>()?,
+            fine_head: (cfg.fine_head_channels > 0)
+                .then(|| FineHead::new(cfg, vb.pp(FINE_HEAD_PREFIX)))
+                .transpose()?,
         })
+    }
+
+    /// The fine head's first layer on the whole volume, when the network has the head.
+    fn fine_cost_part(&self, volume: &Tensor) -> Result<Option<Tensor>> {
+        self.fine_head
+            .as_ref()
+            .map(|h| h.cost_part(volume))
+            .transpose()
+    }
+
+    /// The last hourglass's cropped cost `(B, D/s, h/s, w/s)`, corrected by the fine head
+    /// from its first layer's output `fine_part` when the network has one: `(B, D/s, h, w)`.
+    fn finish_cost(&self, coarse: Tensor, fine_part: Option<&Tensor>) -> Result<Tensor> {
+        match (&self.fine_head, fine_part) {
+            (Some(head), Some(part)) => head.forward(part, &coarse),
+            _ => Ok(coarse),
+        }
     }
 
     /// A regression head's cost `(B, D/s, h/s, (w + 2 p)/s)` -> `(B, D/s, h/s, w/s)`: the
@@ -260,6 +284,7 @@ impl Ssmode {
     fn regress_last(
         &self,
         mut aggregated: Vec<Tensor>,
+        fine_part: Option<Tensor>,
         sampling: &SweepSampling,
     ) -> Result<SsmodeOutput> {
         let (head, x) = self
@@ -271,9 +296,10 @@ impl Ssmode {
                 what: "no hourglass stages".to_string(),
             })?;
         drop(aggregated);
-        // (B, D/s, h/s, w/s)
-        let cost = self.crop_seam(head.forward(&x)?)?;
+        // (B, D/s, h/s, w/s), with the fine head (B, D/s, h, w)
+        let cost = self.finish_cost(self.crop_seam(head.forward(&x)?)?, fine_part.as_ref())?;
         drop(x);
+        drop(fine_part);
         // (B, H, W) each
         let r = regress_inference(
             &cost,
@@ -332,15 +358,19 @@ impl Ssmode {
                 sweep_time += start.elapsed();
                 volume
             };
-            // K x (B, D/s, h/s, (w + 2 p)/s, Ch)
-            let aggregated =
-                self.aggregation
-                    .forward_slabs(self.cfg.spheres, slab, self.cfg.seam_pad_cells)?;
+            // K x (B, D/s, h/s, (w + 2 p)/s, Ch), and the fine head's first layer
+            // (B, D/s, h, w, Cf)
+            let (aggregated, fine_part) = self.aggregation.forward_slabs(
+                self.cfg.spheres,
+                slab,
+                self.cfg.seam_pad_cells,
+                self.fine_head.as_ref().map(FineHead::cost_conv),
+            )?;
             drop(features);
             if let Some(p) = profiler.as_deref_mut() {
                 p.mark_split("cost_volume", sweep_time, "aggregation");
             }
-            let out = self.regress_last(aggregated, sampling)?;
+            let out = self.regress_last(aggregated, fine_part, sampling)?;
             StageProfiler::mark_on(&mut profiler, "regression");
             return Ok(out);
         }
@@ -357,19 +387,27 @@ impl Ssmode {
         StageProfiler::mark_on(&mut profiler, "cost_volume");
         // K x (B, D/s, h/s, (w + 2 p)/s, Ch), p columns from across the longitude seam each side
         let aggregated = self.aggregation.forward(&volume, self.cfg.seam_pad_cells)?;
+        // (B, D/s, h, w, Cf)
+        let fine_part = self.fine_cost_part(&volume)?;
         drop(volume);
         StageProfiler::mark_on(&mut profiler, "aggregation");
         if !train {
-            let out = self.regress_last(aggregated, sampling)?;
+            let out = self.regress_last(aggregated, fine_part, sampling)?;
             StageProfiler::mark_on(&mut profiler, "regression");
             return Ok(out);
         }
         let mut stages = Vec::with_capacity(aggregated.len());
         let mut inverse_depth_stages = Vec::with_capacity(aggregated.len());
         let mut last_probabilities = None;
-        for (head, x) in self.classif.iter().zip(&aggregated) {
-            // (B, D/s, h/s, w/s)
+        let last = aggregated.len().saturating_sub(1);
+        for (k, (head, x)) in self.classif.iter().zip(&aggregated).enumerate() {
+            // (B, D/s, h/s, w/s); the last with the fine head (B, D/s, h, w)
             let cost = self.crop_seam(head.forward(x)?)?;
+            let cost = if k == last {
+                self.finish_cost(cost, fine_part.as_ref())?
+            } else {
+                cost
+            };
             // (B, H, W)
             let r = regress(
                 &cost,

@@ -8,6 +8,7 @@ use std::path::Path;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 
+use super::fine_head::FINE_HEAD_KEY;
 use super::readout::{Readout, RECORDED_KEYS};
 use super::{FusionConfig, ModelError, SsmodeConfig};
 
@@ -235,7 +236,19 @@ pub fn load_weights_and_readout(
     let path = path.as_ref();
     let bytes = read_bytes(path)?;
     let (cfg, readout) = ssmode_config(&bytes, path)?;
-    Ok((cfg, readout, tensors_of(&bytes, path, device)?))
+    let vb = tensors_of(&bytes, path, device)?;
+    if cfg.fine_head_channels > 0 && !vb.contains_tensor(FINE_HEAD_KEY) {
+        return Err(weights_err(
+            path,
+            format!(
+                "its config has a fine head (fine_head_channels {}) but the file holds none of \
+                 its weights (no tensor '{FINE_HEAD_KEY}'): a file of a network without the \
+                 head with a changed config, or a truncated one",
+                cfg.fine_head_channels
+            ),
+        ));
+    }
+    Ok((cfg, readout, vb))
 }
 
 #[cfg(test)]
@@ -306,6 +319,28 @@ mod tests {
         }
         assert!(base.validate().is_ok());
         assert!(SsmodeConfig::paper().validate().is_ok());
+    }
+
+    #[test]
+    fn a_fine_head_config_without_its_weights_is_refused_naming_the_file_and_the_part() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = SsmodeConfig::parallax_zncc_log_fine();
+        let path = file_with_config(dir.path(), &serde_json::to_string(&cfg).unwrap());
+        let err = match load_weights(&path, &Device::Cpu) {
+            Ok(_) => panic!("a fine head without its weights loaded"),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            err.contains("weights.safetensors")
+                && err.contains("fine head")
+                && err.contains(FINE_HEAD_KEY),
+            "{err}"
+        );
+        // the same file without the head in its config loads (its tensors are checked when
+        // the network is built)
+        let plain = SsmodeConfig::parallax_zncc_log();
+        let path = file_with_config(dir.path(), &serde_json::to_string(&plain).unwrap());
+        assert!(load_weights(&path, &Device::Cpu).is_ok());
     }
 
     #[test]

@@ -242,16 +242,19 @@ fn variance_volume_is_zero_where_every_camera_sees_the_same_feature() {
 /// Inference feeds the aggregation the cost volume a few spheres at a time
 /// (`CostAggregation::forward_slabs`): with slabs that split the spheres unevenly, at entry
 /// strides 2 and 1 (whose last slab needs the zero padding appended), every hourglass output
-/// equals the whole volume's bit for bit, and the slabs asked for cover every sphere.
+/// equals the whole volume's bit for bit, and the slabs asked for cover every sphere. So does
+/// the fine head's first layer run on the same slabs.
 #[test]
 fn aggregation_in_slabs_equals_the_whole_volume() {
     use candle_core::DType;
     use candle_nn::{VarBuilder, VarMap};
+    use mode360_model::model::fine_head::FineHead;
     use mode360_model::model::hourglass::{CostAggregation, SLAB_OUTPUT_SPHERES};
     for (stride, spheres) in [(2, 40), (1, 24)] {
         let cfg = SsmodeConfig {
             spheres,
             aggregation_stride: stride,
+            fine_head_channels: 3,
             ..SsmodeConfig::tiny_zncc()
         };
         assert!(
@@ -259,11 +262,9 @@ fn aggregation_in_slabs_equals_the_whole_volume() {
             "three slabs at least"
         );
         let varmap = VarMap::new();
-        CostAggregation::new(
-            &cfg,
-            VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu),
-        )
-        .expect("aggregation");
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        CostAggregation::new(&cfg, vb.clone()).expect("aggregation");
+        FineHead::new(&cfg, vb.pp("fine_head")).expect("fine head");
         // the same weights as plain tensors: both paths run the inference kernels
         let weights = varmap
             .data()
@@ -273,7 +274,8 @@ fn aggregation_in_slabs_equals_the_whole_volume() {
             .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
             .collect();
         let vb = VarBuilder::from_tensors(weights, DType::F32, &Device::Cpu);
-        let aggregation = CostAggregation::new(&cfg, vb).expect("aggregation");
+        let aggregation = CostAggregation::new(&cfg, vb.clone()).expect("aggregation");
+        let head = FineHead::new(&cfg, vb.pp("fine_head")).expect("fine head");
         let dims = (
             1,
             spheres,
@@ -285,8 +287,9 @@ fn aggregation_in_slabs_equals_the_whole_volume() {
         let whole = aggregation
             .forward(&volume, cfg.seam_pad_cells)
             .expect("whole");
+        let whole_side = head.cost_part(&volume).expect("fine head, whole");
         let mut asked = vec![0usize; spheres];
-        let slabs = aggregation
+        let (slabs, side) = aggregation
             .forward_slabs(
                 spheres,
                 |range| {
@@ -294,8 +297,10 @@ fn aggregation_in_slabs_equals_the_whole_volume() {
                     volume.narrow(1, range.start, range.len())?.contiguous()
                 },
                 cfg.seam_pad_cells,
+                Some(head.cost_conv()),
             )
             .expect("slabs");
+        let side = side.expect("the fine head's slabs");
         assert!(asked.iter().all(|&k| k >= 1), "stride {stride}: {asked:?}");
         assert_eq!(whole.len(), slabs.len());
         let bits = |t: &Tensor| -> Vec<u32> {
@@ -307,7 +312,17 @@ fn aggregation_in_slabs_equals_the_whole_volume() {
                 .map(f32::to_bits)
                 .collect()
         };
-        for (a, b) in whole.iter().zip(&slabs) {
+        assert_eq!(
+            whole_side.dims(),
+            [
+                1,
+                spheres.div_ceil(stride),
+                cfg.cost_height(),
+                cfg.cost_width(),
+                3
+            ]
+        );
+        for (a, b) in whole.iter().zip(&slabs).chain([(&whole_side, &side)]) {
             assert_eq!(a.dims(), b.dims(), "stride {stride}");
             assert!(
                 bits(a) == bits(b),
