@@ -8,29 +8,30 @@
 //! spheres) beside the coarse cost and adds a correction:
 //!
 //! ```text
-//! volume (B, D, H, W, C')   -> cost: conv, stride (s, 1, 1)          (B, D/s, H, W, Cf)
+//! volume (B, D, H, W, C')   -> cost: 3x3x3 conv, stride (s, 1, 1)    (B, D/s, H, W, Cf)
 //! coarse (B, D/s, H/s, W/s) -> linear x s in H and W: up             (B, D/s, H, W)
-//! hidden = relu(cost + coarse_conv(up))                             (B, D/s, H, W, Cf)
-//! fine = up + out(hidden)                                           (B, D/s, H, W)
+//! hidden = relu(cost + up · coarse.weight)                          (B, D/s, H, W, Cf)
+//! fine = up + hidden · out.weight                                   (B, D/s, H, W)
 //! ```
 //!
-//! `out` starts at zero, so a network given the head is the network without it until the head
-//! is trained, and its correction is residual. The first layer is split in two (`cost` on the
-//! volume, `coarse` on the upsampled cost; the sum is one convolution over both) so that
-//! inference can run `cost` on each slab of the volume while the hourglasses' entry convolution
-//! takes it ([`super::hourglass::CostAggregation::forward_slabs`]), before the coarse cost
-//! exists. Variable names: `fine_head.cost.*`, `fine_head.coarse.weight`,
+//! Only `cost` looks at neighbours; `coarse` and `out` act per cell (weights `(Cf)`), because
+//! at full resolution a 3x3x3 layer costs as much as the hourglasses' entry (a first version
+//! with three of them took a training step from 3 to 9 s). `out` starts at zero, so a network
+//! given the head is the network without it until the head is trained, and its correction is
+//! residual. Training reads the volume detached: the head learns to read the volume, the
+//! features keep learning through the hourglasses only (its gradient into the 9-channel volume
+//! doubled the head's backward pass). `cost` runs on each slab of the volume while the
+//! hourglasses' entry convolution takes it ([`super::hourglass::CostAggregation::forward_slabs`]),
+//! before the coarse cost exists. Variable names: `fine_head.cost.*`, `fine_head.coarse.weight`,
 //! `fine_head.out.weight`.
 
 use candle_core::{Result, Tensor};
-use candle_nn::VarBuilder;
+use candle_nn::{Init, VarBuilder};
 
 use super::config::SsmodeConfig;
 use super::hourglass::Conv3d;
 use crate::model::ops::upsample_trilinear;
 
-/// Stride 1 along every axis.
-const UNIT: [usize; 3] = [1, 1, 1];
 /// Channel axis of a channels-last volume `(B, D, H, W, C)`.
 const CHANNEL_AXIS: usize = 4;
 
@@ -43,8 +44,10 @@ pub const FINE_HEAD_KEY: &str = "fine_head.cost.weight";
 #[derive(Clone, Debug)]
 pub struct FineHead {
     cost: Conv3d,
-    coarse: Conv3d,
-    out: Conv3d,
+    /// `(Cf)`: the upsampled coarse cost's weight in each hidden channel.
+    coarse: Tensor,
+    /// `(Cf)`: each hidden channel's weight in the correction (starts at zero).
+    out: Tensor,
     /// `(s, 1, 1)`: the hourglasses' spheres, the volume's rows and columns.
     stride: [usize; 3],
 }
@@ -55,8 +58,10 @@ impl FineHead {
         let c = cfg.fine_head_channels.max(1);
         Ok(Self {
             cost: Conv3d::new(cfg.cost_volume_channels(), c, vb.pp("cost"))?,
-            coarse: Conv3d::new_no_bias(1, c, vb.pp("coarse"))?,
-            out: Conv3d::new_zeroed_no_bias(c, 1, vb.pp("out"))?,
+            coarse: vb
+                .pp("coarse")
+                .get_with_hints(c, "weight", Init::Const(1.0))?,
+            out: vb.pp("out").get_with_hints(c, "weight", Init::Const(0.0))?,
             stride: [cfg.aggregation_stride.max(1), 1, 1],
         })
     }
@@ -67,9 +72,11 @@ impl FineHead {
         &self.cost
     }
 
-    /// The first layer on the whole volume `(B, D, H, W, C')` -> `(B, D/s, H, W, Cf)`.
+    /// The first layer on the whole volume `(B, D, H, W, C')` -> `(B, D/s, H, W, Cf)`, the
+    /// volume detached (see the module docs).
     pub fn cost_part(&self, volume: &Tensor) -> Result<Tensor> {
-        self.cost.forward_then(volume, self.stride, None, false)
+        self.cost
+            .forward_then(&volume.detach(), self.stride, None, false)
     }
 
     /// `cost_part (B, D/s, H, W, Cf)` ([`Self::cost_part`]) and the last hourglass's cost
@@ -79,14 +86,13 @@ impl FineHead {
         // (B, D/s, H, W)
         let up = upsample_trilinear(coarse, spheres, height, width)?;
         // (B, D/s, H, W, Cf)
-        let hidden =
-            self.coarse
-                .forward_then(&up.unsqueeze(CHANNEL_AXIS)?, UNIT, Some(cost_part), true)?;
+        let hidden = up
+            .unsqueeze(CHANNEL_AXIS)?
+            .broadcast_mul(&self.coarse)?
+            .add(cost_part)?
+            .relu()?;
         // (B, D/s, H, W)
-        let correction = self
-            .out
-            .forward_then(&hidden, UNIT, None, false)?
-            .squeeze(CHANNEL_AXIS)?;
+        let correction = hidden.broadcast_mul(&self.out)?.sum(CHANNEL_AXIS)?;
         up + correction
     }
 }

@@ -63,17 +63,6 @@ impl Conv3d {
         self.add_bias(conv3d(x, &self.weight, stride, PAD)?)
     }
 
-    /// A convolution whose weights start at zero (no bias): a residual branch that leaves
-    /// the network it is added to unchanged until it is trained.
-    pub fn new_zeroed_no_bias(c_in: usize, c_out: usize, vb: VarBuilder) -> Result<Self> {
-        let weight = vb.get_with_hints(
-            (KERNEL_3D, KERNEL_3D, KERNEL_3D, c_in, c_out),
-            "weight",
-            Init::Const(0.0),
-        )?;
-        Ok(Self { weight, bias: None })
-    }
-
     /// `relu?(forward(x, stride) + residual)`, by the fused kernel when nothing is tracked.
     pub fn forward_then(
         &self,

@@ -234,6 +234,22 @@ fn conv3d_stride2_pad1_odd_sizes() {
 }
 
 #[test]
+fn conv3d_stride_in_depth_only_odd_sizes() {
+    // the fine head's geometry (stride 2 over spheres, 1 over rows and columns), whose weight
+    // gradient runs by planes, here with an uneven kernel and padding
+    check_conv3d_case(
+        &ConvCase {
+            x_dims: [2, 7, 5, 9, 3],
+            kernel: [3, 3, 2],
+            c_out: 4,
+            stride: [2, 1, 1],
+            padding: [1, 0, 1],
+        },
+        31,
+    );
+}
+
+#[test]
 fn conv3d_mixed_stride_padding_kernel() {
     check_conv3d_case(
         &ConvCase {

@@ -361,9 +361,14 @@ fn conv3d_input_grad_x2_cpu(dy: &[f32], w: &[f32], g: &Conv3dGeometry) -> Vec<f3
     dx
 }
 
-/// Weight-gradient kernel: rayon fold over output rows with one `(kD, kH, kW, Ci, Co)`
-/// accumulator per task; per `(a, c)` one GEMM `(kW·Ci × Wo) · (Wo × Co)`.
+/// Weight-gradient kernel: by planes where the strides in `H` and `W` are 1
+/// ([`conv3d_weight_grad_planes_cpu`]), else by rows: a rayon fold over output rows with one
+/// `(kD, kH, kW, Ci, Co)` accumulator per task; per `(a, c)` one GEMM
+/// `(kW·Ci × Wo) · (Wo × Co)`.
 pub(super) fn conv3d_weight_grad_cpu(x: &[f32], dy: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    if g.stride[1] == 1 && g.stride[2] == 1 {
+        return conv3d_weight_grad_planes_cpu(x, dy, g);
+    }
     let xp = padded_input(x, g);
     let [dp, hp, wp] = g.padded_dims();
     let [do_, ho, wo] = g.out_dims;
@@ -399,6 +404,61 @@ pub(super) fn conv3d_weight_grad_cpu(x: &[f32], dy: &[f32], g: &Conv3dGeometry) 
                 acc
             },
         )
+        .reduce(
+            || vec![0f32; w_len],
+            |mut a, b| {
+                a.iter_mut().zip(b.iter()).for_each(|(x, y)| *x += y);
+                a
+            },
+        )
+}
+
+/// [`conv3d_weight_grad_cpu`] for unit strides in `H` and `W` (any in `D`): a rayon fold over
+/// output planes `(b, od)`. As in [`conv3d_forward_planes_cpu`], the input offset of output
+/// `(oh, ow)` and tap `(c, e)` is linear in the flat index `j = oh Wp + ow`, so with `dy`'s
+/// plane copied into that layout (`M = (Ho − 1) Wp + Wo` rows, zeros in the `Wp − Wo` rows
+/// between two output rows, which then add nothing) each `(a, c)` is one GEMM
+/// `(kW·Ci × M) · (M × Co)`: long panels where the rows' GEMMs had only `Wo` (a fine-head
+/// layer of 4 outputs took 55,000 small GEMMs a step by rows).
+fn conv3d_weight_grad_planes_cpu(x: &[f32], dy: &[f32], g: &Conv3dGeometry) -> Vec<f32> {
+    let xp = padded_input(x, g);
+    let [dp, hp, wp] = g.padded_dims();
+    let [do_, ho, wo] = g.out_dims;
+    let [kd, kh, kw] = g.kernel;
+    let sd = g.stride[0];
+    let (ci, co) = (g.c_in, g.c_out);
+    let w_len = kd * kh * kw * ci * co;
+    let m = (ho - 1) * wp + wo;
+    (0..g.batch * do_)
+        .into_par_iter()
+        .fold(
+            || (vec![0f32; w_len], vec![0f32; m * co]),
+            |(mut acc, mut dyq), plane| {
+                let (od, b) = (plane % do_, plane / do_);
+                let dy_plane = &dy[plane * ho * wo * co..(plane + 1) * ho * wo * co];
+                for (oh, dy_row) in dy_plane.chunks(wo * co).enumerate() {
+                    dyq[oh * wp * co..(oh * wp + wo) * co].copy_from_slice(dy_row);
+                }
+                for a in 0..kd {
+                    for c in 0..kh {
+                        let x_off = ((b * dp + od * sd + a) * hp + c) * wp * ci;
+                        let w_off = (a * kh + c) * kw * ci * co;
+                        // (kW·Ci, Co) += (M, kW·Ci)ᵀ · (M, Co)
+                        gemm_accumulate(
+                            [kw * ci, co, m],
+                            &mut acc[w_off..],
+                            co,
+                            &xp[x_off..],
+                            [1, ci],
+                            &dyq,
+                            [co, 1],
+                        );
+                    }
+                }
+                (acc, dyq)
+            },
+        )
+        .map(|(acc, _)| acc)
         .reduce(
             || vec![0f32; w_len],
             |mut a, b| {
