@@ -16,7 +16,8 @@
 //!
 //! Only `cost` looks at neighbours; `coarse` and `out` act per cell (weights `(Cf)`), because
 //! at full resolution a 3x3x3 layer costs as much as the hourglasses' entry (a first version
-//! with three of them took a training step from 3 to 9 s). `out` starts at zero, so a network
+//! with three of them took a training step from 3 to 9 s); [`crate::model::ops::fine_mix`]
+//! runs the two in one pass each way. `out` starts at zero, so a network
 //! given the head is the network without it until the head is trained, and its correction is
 //! residual. Training reads the volume detached: the head learns to read the volume, the
 //! features keep learning through the hourglasses only (its gradient into the 9-channel volume
@@ -30,10 +31,7 @@ use candle_nn::{Init, VarBuilder};
 
 use super::config::SsmodeConfig;
 use super::hourglass::Conv3d;
-use crate::model::ops::upsample_trilinear;
-
-/// Channel axis of a channels-last volume `(B, D, H, W, C)`.
-const CHANNEL_AXIS: usize = 4;
+use crate::model::ops::{fine_mix, upsample_trilinear};
 
 /// Prefix of the fine head's variables in a weights file.
 pub const FINE_HEAD_PREFIX: &str = "fine_head";
@@ -85,14 +83,9 @@ impl FineHead {
         let (_, spheres, height, width, _) = cost_part.dims5()?;
         // (B, D/s, H, W)
         let up = upsample_trilinear(coarse, spheres, height, width)?;
-        // (B, D/s, H, W, Cf)
-        let hidden = up
-            .unsqueeze(CHANNEL_AXIS)?
-            .broadcast_mul(&self.coarse)?
-            .add(cost_part)?
-            .relu()?;
+        // (2, Cf)
+        let w = Tensor::stack(&[&self.coarse, &self.out], 0)?;
         // (B, D/s, H, W)
-        let correction = hidden.broadcast_mul(&self.out)?.sum(CHANNEL_AXIS)?;
-        up + correction
+        fine_mix(&up, cost_part, &w)
     }
 }

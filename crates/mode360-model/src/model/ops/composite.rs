@@ -401,3 +401,16 @@ pub fn upsample_trilinear_composite(
     }
     Ok(t)
 }
+
+/// [`fine_mix`] from candle ops (the path a GPU takes).
+pub fn fine_mix_composite(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<Tensor> {
+    super::fine_mix::check(up, part, w)?;
+    let last = part.rank() - 1;
+    // (…, Cf)
+    let hidden = up
+        .unsqueeze(last)?
+        .broadcast_mul(&w.get(0)?)?
+        .add(part)?
+        .relu()?;
+    up + hidden.broadcast_mul(&w.get(1)?)?.sum(last)?
+}

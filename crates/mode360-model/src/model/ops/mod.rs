@@ -25,12 +25,14 @@
 //! | [`sweep_variance`] | features `(M B, H, W, C)`, M tables of N samples | `(B, N, C)` |
 //! | [`upsample_trilinear`] | cost volume `(B, D, H, W)` | `(B, Do, Ho, Wo)` |
 //! | [`resample_linear_axis`] | any tensor, one axis | same rank, that axis resized |
+//! | [`fine_mix`] | up `(…)`, part `(…, Cf)`, w `(2, Cf)` | `(…)` (the fine head's per-cell layers) |
 
 mod append;
 pub mod composite;
 mod conv3d;
 mod conv3d_direct;
 mod conv3d_gemm;
+mod fine_mix;
 mod fused;
 mod linear_axis;
 mod sample_table;
@@ -44,10 +46,11 @@ pub use append::append_channels;
 pub use composite::{
     conv3d_composite, conv3d_fused_composite, conv3d_input_grad_composite,
     conv3d_weight_grad_composite, conv_transpose3d_composite, conv_transpose3d_x2_fused_composite,
-    resample_linear_axis_composite, sweep_variance_composite, table_sample_composite,
-    upsample_trilinear_composite,
+    fine_mix_composite, resample_linear_axis_composite, sweep_variance_composite,
+    table_sample_composite, upsample_trilinear_composite,
 };
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d};
+pub use fine_mix::fine_mix;
 pub use fused::{conv3d_fused, conv_transpose3d_x2_fused, is_inference, Epilogue};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear};
 pub use sample_table::SampleTable;
