@@ -41,7 +41,8 @@
 #                          steps (`SNAPSHOT_EVERY=250`); 3,800 steps by 2026-12-02;
 #   runs/clutter_fine      the same with the fine head (`--preset parallax_zncc_log_fine`, the
 #                          shipped weights plus a head whose output layer starts at zero), the
-#                          same stream and snapshots, compared with `fine_ctrl` at equal steps:
+#                          same stream and snapshots, compared with `fine_ctrl` at equal steps
+#                          (200 steps by 2026-12-02, 7.5 s a step before `ops::fine_mix`):
 #     ARMS=fine SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
 # `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
 # step 3,100 ships as models/psmode_stage1.safetensors. `pairs_decay` finished it with a
