@@ -76,8 +76,9 @@ fn load_widened(path: &Path, varmap: &mut VarMap, new_fine_head: bool) -> Result
         .data()
         .lock()
         .map_err(|_| TrainError::Other("variable map lock poisoned".into()))?;
+    let head_prefix = format!("{FINE_HEAD_PREFIX}.");
     for (name, var) in data.iter() {
-        let fresh = new_fine_head && name.starts_with(&format!("{FINE_HEAD_PREFIX}."));
+        let fresh = new_fine_head && name.starts_with(&head_prefix);
         let Some(t) = file.get(name) else {
             if fresh {
                 continue;

@@ -277,11 +277,8 @@ impl CostAggregation {
         // (B, D/s, H/s, W/s, Ch)
         let x = Tensor::cat(&parts, 1)?;
         drop(parts);
-        let side = match side {
-            // (B, D/s, H, W, Cf)
-            Some(_) => Some(Tensor::cat(&side_parts, 1)?),
-            None => None,
-        };
+        // (B, D/s, H, W, Cf)
+        let side = side.map(|_| Tensor::cat(&side_parts, 1)).transpose()?;
         Ok((self.after_entry(x, seam_pad_cells)?, side))
     }
 

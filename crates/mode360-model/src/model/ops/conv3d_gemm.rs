@@ -404,13 +404,7 @@ pub(super) fn conv3d_weight_grad_cpu(x: &[f32], dy: &[f32], g: &Conv3dGeometry) 
                 acc
             },
         )
-        .reduce(
-            || vec![0f32; w_len],
-            |mut a, b| {
-                a.iter_mut().zip(b.iter()).for_each(|(x, y)| *x += y);
-                a
-            },
-        )
+        .reduce(|| vec![0f32; w_len], add_into)
 }
 
 /// [`conv3d_weight_grad_cpu`] for unit strides in `H` and `W` (any in `D`): a rayon fold over
@@ -459,11 +453,11 @@ fn conv3d_weight_grad_planes_cpu(x: &[f32], dy: &[f32], g: &Conv3dGeometry) -> V
             },
         )
         .map(|(acc, _)| acc)
-        .reduce(
-            || vec![0f32; w_len],
-            |mut a, b| {
-                a.iter_mut().zip(b.iter()).for_each(|(x, y)| *x += y);
-                a
-            },
-        )
+        .reduce(|| vec![0f32; w_len], add_into)
+}
+
+/// `a + b` elementwise, into `a` (the weight gradients' per-task accumulators).
+fn add_into(mut a: Vec<f32>, b: Vec<f32>) -> Vec<f32> {
+    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+    a
 }
