@@ -42,8 +42,12 @@
 #   runs/clutter_fine      the same with the fine head (`--preset parallax_zncc_log_fine`, the
 #                          shipped weights plus a head whose output layer starts at zero), the
 #                          same stream and snapshots, compared with `fine_ctrl` at equal steps
-#                          (200 steps by 2026-12-02, 7.5 s a step before `ops::fine_mix`):
-#     ARMS=fine SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
+#                          (stopped at 800 by 2026-12-03, 6.5 s a step with `ops::fine_mix`):
+#                          validation matched the control's to 0.01 points at 250, 500 and 750,
+#                          the head's output weights at 0.003 (the rate, 2e-5, is a fine-tune's)
+#   runs/clutter_fine_lr   `fine` with the head at 50 times the rate (`--fine-head-lr-scale 50`),
+#                          the same stream and snapshots, against `fine_ctrl` at equal steps:
+#     ARMS=fine_lr SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
 # `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
 # step 3,100 ships as models/psmode_stage1.safetensors. `pairs_decay` finished it with a
 # decaying rate to 5,000 (2026-11-29; validation 68.97, the best) and held out no better
@@ -135,6 +139,15 @@ for arm in $arms; do
     preset=parallax_zncc_log_fine
     seed=7
     ;;
+  fine_lr)
+    # `fine` with the head at 50 times the rate (1e-3, a fresh run's): at 2e-5 its output
+    # layer had moved 0.003 from zero in 800 steps and validation matched the control's to
+    # 0.01 points at 250, 500 and 750
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init"
+      --fine-head-lr-scale 50)
+    preset=parallax_zncc_log_fine
+    seed=7
+    ;;
   w512)
     # issue 38: the shipped weights fine-tuned at a 512 input, where the cost volume's cells
     # are half as wide and thin obstacles survive (models/README.md, "Resolution, and the
@@ -189,7 +202,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac

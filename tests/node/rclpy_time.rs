@@ -1,15 +1,14 @@
 //! rclpy as a camera driver whose clock misbehaves (issue 39): Fast DDS from the
-//! `ros-<distro>-rclpy` wheels publishes the cameras (sensor-data QoS) through
-//! `rclpy_peer.py publish`, each group stamped by this test. After a few good groups: one group
-//! stamped an hour ahead on every camera (a poisoned stamp), a clock reset 20 s back, the same
-//! stamps played again (a looped bag), and one camera flooding at 200 Hz for a second. After
-//! each, depth must come back for the driver's next good groups (sent every 100 ms) within
-//! [`RESUME_LIMIT`]; issue 39's target is 1 s, and each resume time is printed beside the
-//! node's mean inference latency (about 0.8 s at 64 wide in a test build, so the first good
-//! group's depth alone takes that long; a group still in the worker when the event comes adds
-//! up to as much again). The poisoned
-//! images must be counted as stamped ahead on every camera, and the reset and the loop must
-//! each restart the synchronizer.
+//! `ros-<distro>-rclpy` wheels publishes the cameras (sensor-data QoS) through `rclpy_peer.py
+//! publish`, each group stamped by this test. After a few good groups: one group stamped an hour
+//! ahead on every camera (a poisoned stamp), a clock reset 20 s back, the same stamps played again
+//! (a looped bag), and one camera flooding at 200 Hz for a second. After each, depth must come back
+//! for the driver's next good groups (sent every 100 ms) within [`resume_limit`] (3 s, or 3
+//! inference runs where they take longer); issue 39's target is 1 s, and each resume time is
+//! printed beside the node's mean inference latency (about 0.8 s at 64 wide in a test build, so the
+//! first good group's depth alone takes that long; a group still in the worker when the event comes
+//! adds up to as much again). The poisoned images must be counted as stamped ahead on every camera,
+//! and the reset and the loop must each restart the synchronizer.
 
 use super::dds_peer::{frames_json_publishing, DdsPeer, PeerResult, PEER_WIDTH};
 use super::harness::{loopback, render, wait_for, Peer};
@@ -25,8 +24,12 @@ use std::time::{Duration, Instant};
 
 /// The driver's period between good groups.
 const GROUP_PERIOD: Duration = Duration::from_millis(100);
-/// How soon depth must answer a good group after each event (loaded CI machines included).
+/// How soon depth must answer a good group after each event (loaded CI machines included), at
+/// least: see [`resume_limit`].
 const RESUME_LIMIT: Duration = Duration::from_secs(3);
+/// Inference runs a resume may take: the group still in the worker when the event comes, then
+/// the first good group after it, and one more for the synchronizer's wait.
+const RESUME_INFERENCES: f64 = 3.0;
 /// How soon depth must answer the very first groups (discovery, the model's first run).
 const WARMUP_LIMIT: Duration = Duration::from_secs(30);
 const HOUR_NS: u64 = 3_600_000_000_000;
@@ -113,6 +116,15 @@ impl Driver<'_> {
     }
 }
 
+/// How long depth may take to answer after an event: [`RESUME_LIMIT`], or
+/// [`RESUME_INFERENCES`] times the node's mean inference latency so far where that is longer
+/// (a test build on a loaded 2-core machine took over a second a frame: the resume is bounded
+/// by inference runs, not wall time).
+fn resume_limit(node: &mode360::node::NodeHandle) -> Duration {
+    let mean_s = node.health().mean_latency_ms.unwrap_or(0.0) / 1000.0;
+    RESUME_LIMIT.max(Duration::from_secs_f64(RESUME_INFERENCES * mean_s))
+}
+
 /// The test of distribution `D` in `domain_id` (see the module docs).
 fn rclpy_driver_survives_time_jumps<D: Distro>(domain_id: u16) -> TestResult {
     let Some(rclpy) = Rclpy::<D>::from_env() else {
@@ -156,7 +168,7 @@ fn rclpy_driver_survives_time_jumps<D: Distro>(domain_id: u16) -> TestResult {
     let (warmup, next) = driver.until_depth(wall_ns(), WARMUP_LIMIT)?;
     // 1. One group stamped an hour ahead on every camera.
     driver.publish(next + HOUR_NS, None)?;
-    let (after_poison, next) = driver.until_depth(next, RESUME_LIMIT)?;
+    let (after_poison, next) = driver.until_depth(next, resume_limit(&node))?;
     let health = node.health();
     for cam in &health.cameras {
         let ahead = cam.bad_by_reason.get(&BadImageReason::StampAhead);
@@ -164,12 +176,12 @@ fn rclpy_driver_survives_time_jumps<D: Distro>(domain_id: u16) -> TestResult {
     }
     // 2. The driver's clock jumps 20 s back.
     let back = next - RESET_BACK_NS;
-    let (after_reset, next) = driver.until_depth(back, RESUME_LIMIT)?;
+    let (after_reset, next) = driver.until_depth(back, resume_limit(&node))?;
     let resets_after_reset = node.health().sync.resets;
     // 3. The same stamps again, as a looped bag plays them: a "bag" of LOOP_GROUPS groups
     // from `back` on, then its first stamps again.
     driver.stream(next, LOOP_GROUPS)?;
-    let (after_loop, next) = driver.until_depth(back, RESUME_LIMIT)?;
+    let (after_loop, next) = driver.until_depth(back, resume_limit(&node))?;
     let resets_after_loop = node.health().sync.resets;
     // 4. One camera floods at 200 Hz for a second, stamps running on.
     let flood_period = Duration::from_nanos(1_000_000_000 / FLOOD_RATE_HZ);
@@ -184,7 +196,7 @@ fn rclpy_driver_survives_time_jumps<D: Distro>(domain_id: u16) -> TestResult {
     }
     let flood_rate_hz = flood_images as f64 / t_flood.elapsed().as_secs_f64();
     let after_flood_first = next + FLOOD_DURATION.as_nanos() as u64;
-    let (after_flood, _) = driver.until_depth(after_flood_first, RESUME_LIMIT)?;
+    let (after_flood, _) = driver.until_depth(after_flood_first, resume_limit(&node))?;
 
     driver.peer.send("quit")?;
     driver.peer.finish(PEER_EXIT_TIMEOUT)?;

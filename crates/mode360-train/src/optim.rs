@@ -48,6 +48,8 @@ impl Default for AdamWParams {
 
 struct Slot {
     name: String,
+    /// Multiplier of the step's learning rate for this variable.
+    lr_scale: f64,
     var: Var,
     m: Tensor,
     v: Tensor,
@@ -70,7 +72,13 @@ impl AdamW {
             .map(|(name, var)| {
                 let m = var.zeros_like()?;
                 let v = var.zeros_like()?;
-                Ok(Slot { name, var, m, v })
+                Ok(Slot {
+                    name,
+                    lr_scale: 1.0,
+                    var,
+                    m,
+                    v,
+                })
             })
             .collect::<candle_core::Result<Vec<_>>>()?;
         Ok(Self {
@@ -78,6 +86,17 @@ impl AdamW {
             slots,
             step_t: 0,
         })
+    }
+
+    /// Sets the learning-rate multiplier of the variables whose name starts with `prefix`;
+    /// returns how many there are.
+    pub fn scale_lr_of(&mut self, prefix: &str, scale: f64) -> usize {
+        let mut n = 0;
+        for s in self.slots.iter_mut().filter(|s| s.name.starts_with(prefix)) {
+            s.lr_scale = scale;
+            n += 1;
+        }
+        n
     }
 
     /// The L2 norm of all gradients of the optimizer's variables together.
@@ -112,6 +131,7 @@ impl AdamW {
             // Detached: gradients carry autograd history (they are built from variables), and
             // moments computed from them would otherwise chain every step's graph (a leak).
             let g = (g.detach().to_dtype(DType::F32)? * clip)?;
+            let lr = lr * s.lr_scale;
             let m = ((&s.m * p.beta1)? + (&g * (1.0 - p.beta1))?)?;
             let v = ((&s.v * p.beta2)? + (g.sqr()? * (1.0 - p.beta2))?)?;
             let m_hat = (&m * scale_m)?;
@@ -224,5 +244,38 @@ mod tests {
         );
         let m: Vec<f32> = opt.state_tensors()["m.w"].to_vec1().unwrap();
         assert!((m[0] - 0.3).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_scaled_prefix_moves_by_its_own_rate() {
+        // The first step moves every weight by its rate times sign(g): 0.1 for `a.w`, 5 x 0.1
+        // for the two `head.*` variables.
+        let dev = Device::Cpu;
+        let vars: Vec<(String, Var)> = ["a.w", "head.x", "head.y"]
+            .iter()
+            .map(|n| {
+                (
+                    (*n).to_string(),
+                    Var::from_vec(vec![1.0f32], 1, &dev).unwrap(),
+                )
+            })
+            .collect();
+        let mut opt = AdamW::new(vars.clone(), AdamWParams::default()).unwrap();
+        assert_eq!(opt.scale_lr_of("head.", 5.0), 2);
+        let loss = vars
+            .iter()
+            .map(|(_, v)| v.as_tensor().sum_all().unwrap())
+            .reduce(|a, b| (a + b).unwrap())
+            .unwrap();
+        opt.step(&loss.backward().unwrap(), 0.1).unwrap();
+        let w: Vec<f32> = vars
+            .iter()
+            .map(|(_, v)| v.as_tensor().to_vec1::<f32>().unwrap()[0])
+            .collect();
+        assert!((w[0] - 0.9).abs() < 1e-6, "{w:?}");
+        assert!(
+            (w[1] - 0.5).abs() < 1e-6 && (w[2] - 0.5).abs() < 1e-6,
+            "{w:?}"
+        );
     }
 }

@@ -21,6 +21,7 @@ use super::optim::{AdamW, AdamWParams, LrSchedule};
 use super::options::{io_err, resolve_config, StepReport, TrainError, TrainOptions, TrainSummary};
 use candle_core::{DType, Device};
 use candle_nn::VarMap;
+use mode360_model::model::fine_head::FINE_HEAD_PREFIX;
 use mode360_model::model::{save_weights, ModelError, Ssmode, SsmodeConfig};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -89,6 +90,13 @@ impl Trainer {
                 ..AdamWParams::default()
             },
         )?;
+        let head_vars = opt.scale_lr_of(FINE_HEAD_PREFIX, opts.fine_head_lr_scale);
+        if head_vars > 0 && opts.fine_head_lr_scale != 1.0 {
+            tracing::info!(
+                "the fine head's {head_vars} variables learn at {} times the rate",
+                opts.fine_head_lr_scale
+            );
+        }
         let state = CheckpointState {
             version: STATE_VERSION,
             step: 0,
