@@ -37,6 +37,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         fork_from: None,
         until_step: None,
         max_grad_norm: Some(5.0),
+        fine_head_lr_scale: 1.0,
         loss_weighting: Default::default(),
         device: mode360_model::model::ComputeDevice::Cpu,
         show_progress: false,
@@ -65,6 +66,27 @@ fn training_on_a_missing_gpu_is_a_clear_error() {
             out.display()
         );
     }
+}
+
+#[test]
+fn a_fine_head_rate_scale_that_is_not_positive_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    for scale in [0.0, -2.0, f64::NAN] {
+        let bad = TrainOptions {
+            fine_head_lr_scale: scale,
+            ..opts(&out, 1)
+        };
+        let Err(e) = run_training(&bad) else {
+            panic!("fine_head_lr_scale {scale} was accepted");
+        };
+        let e = e.to_string();
+        assert!(
+            e.contains("fine_head_lr_scale") && e.contains("positive"),
+            "{e}"
+        );
+    }
+    assert!(!out.exists(), "{} made for refused options", out.display());
 }
 
 fn weights(path: &Path) -> HashMap<String, Vec<f32>> {
