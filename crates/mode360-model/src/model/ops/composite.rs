@@ -402,9 +402,24 @@ pub fn upsample_trilinear_composite(
     Ok(t)
 }
 
+/// [`fine_mix`]'s hidden channels `Cf`, after checking the three shapes agree (here, so the
+/// kernel and this composite share it without importing each other).
+pub(super) fn fine_mix_channels(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<usize> {
+    let (du, dp, dw) = (up.dims(), part.dims(), w.dims());
+    let cf = dp.last().copied().unwrap_or(0);
+    if dp.len() != du.len() + 1 || dp[..du.len()] != *du || dw != [2, cf] || cf == 0 {
+        return Err(OpsError::Shape {
+            op: "fine_mix",
+            what: format!("up {du:?}, part {dp:?} and w {dw:?}: want (…), (…, Cf) and (2, Cf)"),
+        }
+        .into());
+    }
+    Ok(cf)
+}
+
 /// [`fine_mix`] from candle ops (the path a GPU takes).
 pub fn fine_mix_composite(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<Tensor> {
-    super::fine_mix::check(up, part, w)?;
+    fine_mix_channels(up, part, w)?;
     let last = part.rank() - 1;
     // (…, Cf)
     let hidden = up

@@ -18,7 +18,7 @@
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::composite::fine_mix_composite;
+use super::composite::{fine_mix_channels, fine_mix_composite};
 use super::types::{cpu_slice, has_custom_kernels, OpsError};
 
 const OP: &str = "fine_mix";
@@ -27,26 +27,12 @@ const CHUNK_CELLS: usize = 1 << 14;
 
 /// See the module docs: `up (…)`, `part (…, Cf)`, `w (2, Cf)` -> `(…)`.
 pub fn fine_mix(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<Tensor> {
-    check(up, part, w)?;
+    fine_mix_channels(up, part, w)?;
     if !has_custom_kernels(up.device()) || up.dtype() != DType::F32 {
         return fine_mix_composite(up, part, w);
     }
     up.contiguous()?
         .apply_op3(&part.contiguous()?, &w.contiguous()?, FineMixOp)
-}
-
-/// The hidden channels `Cf`, after checking the three shapes agree.
-pub(super) fn check(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<usize> {
-    let (du, dp, dw) = (up.dims(), part.dims(), w.dims());
-    let cf = dp.last().copied().unwrap_or(0);
-    if dp.len() != du.len() + 1 || dp[..du.len()] != *du || dw != [2, cf] || cf == 0 {
-        return Err(OpsError::Shape {
-            op: OP,
-            what: format!("up {du:?}, part {dp:?} and w {dw:?}: want (…), (…, Cf) and (2, Cf)"),
-        }
-        .into());
-    }
-    Ok(cf)
 }
 
 struct FineMixOp;
