@@ -21,7 +21,6 @@
 //! as the far plane's rather than average over them: with a 0.3 m baseline everything beyond
 //! about 25 m is one and the same far plane to the rig.
 
-use super::erp::PixelCoord;
 use super::sweep::SweepGeometry;
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -50,10 +49,7 @@ impl FarField {
                 if max_shift_rad.is_nan() || max_shift_rad <= 0.0 {
                     return 1;
                 }
-                let p = PixelCoord {
-                    u: (k % w) as f64,
-                    v: (k / w) as f64,
-                };
+                let p = output.pixel_of_index(k);
                 let far: Vec<Vector3<f64>> = (0..cameras)
                     .map(|cam| geometry.point_in_camera_m(cam, p, ranges_m[0]))
                     .collect();

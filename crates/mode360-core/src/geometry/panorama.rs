@@ -428,10 +428,7 @@ pub fn unseen_part(rig: &Rig, grid: ErpGrid, range_m: f64) -> Option<UnseenPart>
         .enumerate()
         .filter(|&(_, n)| n == 0)
         .map(|(k, _)| {
-            let ll = grid.lonlat_from_pixel(PixelCoord {
-                u: (k % w) as f64,
-                v: (k / w) as f64,
-            });
+            let ll = grid.lonlat_from_pixel(grid.pixel_of_index(k));
             (
                 ll.lon_rad.to_degrees(),
                 ll.lat_rad.to_degrees(),

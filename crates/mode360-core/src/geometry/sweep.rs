@@ -300,13 +300,7 @@ impl SweepGeometry {
         let rotated: Vec<Vector3<f64>> = (0..pixels)
             .into_par_iter()
             .with_min_len(w)
-            .map(|k| {
-                pose.rotation
-                    * self.output.dir_from_pixel(PixelCoord {
-                        u: (k % w) as f64,
-                        v: (k / w) as f64,
-                    })
-            })
+            .map(|k| pose.rotation * self.output.dir_from_pixel(self.output.pixel_of_index(k)))
             .collect();
         let t = pose.translation.vector;
         let ranges_m = self.hypotheses.depths_m();
@@ -336,10 +330,7 @@ impl SweepGeometry {
             .into_par_iter()
             .with_min_len(w)
             .map(|k| {
-                let p = PixelCoord {
-                    u: (k % w) as f64,
-                    v: (k / w) as f64,
-                };
+                let p = self.output.pixel_of_index(k);
                 let q = self.sample_at_range(cam, p, range_m);
                 [q.u as f32, q.v as f32]
             })

@@ -89,15 +89,10 @@ const IDENTITY_TOLERANCE: f64 = 1e-9;
 
 impl CameraSampler {
     pub fn new(output: ErpGrid, cam_from_output: &Isometry3<f64>, grid: ErpGrid) -> Self {
-        let w = output.width();
         let rotation = cam_from_output.rotation;
         let rotated_rays = (0..output.len())
             .map(|k| {
-                let p = mode360_core::geometry::PixelCoord {
-                    u: (k % w) as f64,
-                    v: (k / w) as f64,
-                };
-                let r = rotation * output.dir_from_pixel(p);
+                let r = rotation * output.dir_from_pixel(output.pixel_of_index(k));
                 [r.x as f32, r.y as f32, r.z as f32]
             })
             .collect();

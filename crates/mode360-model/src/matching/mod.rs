@@ -7,7 +7,7 @@
 
 pub mod zncc;
 
-use mode360_core::geometry::{ErpGrid, PixelCoord};
+use mode360_core::geometry::ErpGrid;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -34,7 +34,6 @@ pub fn pair_parallax_weights(
     if exponent == 0.0 {
         return Vec::new();
     }
-    let w = output.width();
     let mut weights = Vec::new();
     for a in 0..centres.len() {
         for b in a + 1..centres.len() {
@@ -49,10 +48,7 @@ pub fn pair_parallax_weights(
                 (0..output.len())
                     .into_par_iter()
                     .map(|k| {
-                        let dir = output.dir_from_pixel(PixelCoord {
-                            u: (k % w) as f64,
-                            v: (k / w) as f64,
-                        });
+                        let dir = output.dir_from_pixel(output.pixel_of_index(k));
                         (dir.cross(&b_hat).norm() as f32).powf(exponent)
                     })
                     .collect(),

@@ -19,7 +19,7 @@ use candle_core::{Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
 use crate::model::ops::{count_flops, table_sample, SampleTable};
-use mode360_core::geometry::{ErpGrid, LonLat, PixelCoord};
+use mode360_core::geometry::{ErpGrid, LonLat};
 
 /// Kernel side (3x3 taps).
 pub const SPHERE_KERNEL: usize = 3;
@@ -39,13 +39,9 @@ impl SphereConvTable {
         let delta_rad = 2.0 * std::f64::consts::PI / grid.width() as f64;
         let step = delta_rad.tan();
         let half = (SPHERE_KERNEL / 2) as i64;
-        let w = grid.width();
         let mut taps = Vec::with_capacity(grid.len() * SPHERE_TAPS);
         for k in 0..grid.len() {
-            let centre = PixelCoord {
-                u: (k % w) as f64,
-                v: (k / w) as f64,
-            };
+            let centre = grid.pixel_of_index(k);
             let ll0 = grid.lonlat_from_pixel(centre);
             let (sin_lat0, cos_lat0) = ll0.lat_rad.sin_cos();
             for i in -half..=half {
@@ -134,6 +130,7 @@ impl SphereConv {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mode360_core::geometry::PixelCoord;
 
     /// The continuous `u` of a tap from its bilinear weights (columns `u0`, `u0 + 1`).
     fn tap_u(t: &mode360_core::geometry::BilinearTaps, width: usize) -> f64 {

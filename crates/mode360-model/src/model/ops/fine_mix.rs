@@ -19,7 +19,7 @@ use candle_core::{CpuStorage, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::composite::{fine_mix_channels, fine_mix_composite};
-use super::types::{cpu_slice, has_custom_kernels, OpsError};
+use super::types::{cpu_slice, has_custom_kernels};
 
 const OP: &str = "fine_mix";
 /// Cells per rayon task in the backward pass's weight sums.
