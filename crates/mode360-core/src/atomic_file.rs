@@ -2,23 +2,30 @@
 //! failed or killed run never touches an existing file: the target is either the old file or
 //! the whole new one (`rename` within a directory is atomic on POSIX file systems).
 //!
-//! The temporary file is `.NAME.partial-PID` in the target's directory; a killed run leaves it
-//! behind (with what was written so far), a failed one removes it.
+//! The temporary file is `.NAME.partial-PID-N` in the target's directory, `N` counting this
+//! process's writers (threads writing the same target at once, as parallel tests unpacking one
+//! shipped file do, each get their own); a killed run leaves it behind (with what was written
+//! so far), a failed one removes it.
 
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Suffix of a temporary output before its process id.
 pub const PARTIAL_SUFFIX: &str = "partial";
 
-/// The temporary path of `target`: `.NAME.partial-PID` beside it.
-pub fn partial_path(target: &Path) -> PathBuf {
+/// Writers this process has started (the `N` of the temporary names).
+static WRITERS: AtomicU64 = AtomicU64::new(0);
+
+/// A new temporary path for `target`: `.NAME.partial-PID-N` beside it, unique in this process.
+fn partial_path(target: &Path) -> PathBuf {
     let name = target
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let temp = format!(".{name}.{PARTIAL_SUFFIX}-{}", std::process::id());
+    let n = WRITERS.fetch_add(1, Ordering::Relaxed);
+    let temp = format!(".{name}.{PARTIAL_SUFFIX}-{}-{n}", std::process::id());
     match target.parent() {
         Some(dir) if !dir.as_os_str().is_empty() => dir.join(temp),
         _ => PathBuf::from(temp),
@@ -96,13 +103,32 @@ mod tests {
             drop((atomic, file)); // a failed run: no commit
         }
         assert_eq!(std::fs::read_to_string(&target).unwrap(), "old");
-        assert!(
-            !partial_path(&target).exists(),
-            "temporary file left behind"
-        );
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "temporary file left behind");
         write_atomic(&target, "new").unwrap();
         assert_eq!(std::fs::read_to_string(&target).unwrap(), "new");
         let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
         assert_eq!(names.len(), 1, "only the target remains");
+    }
+
+    #[test]
+    fn threads_writing_one_target_at_once_all_succeed() {
+        // One temporary file per writer: with one per process, a writer's rename took another's
+        // half-written file, and the other's rename then failed (parallel tests unpacking the
+        // same shipped weights fell back to a second folder).
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("w.bin");
+        let bytes: Vec<u8> = (0..1 << 20).map(|i| (i % 251) as u8).collect();
+        std::thread::scope(|s| {
+            let writers: Vec<_> = (0..8)
+                .map(|_| s.spawn(|| write_atomic(&target, &bytes)))
+                .collect();
+            for w in writers {
+                w.join().unwrap().unwrap();
+            }
+        });
+        assert!(std::fs::read(&target).unwrap() == bytes, "target not whole");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "temporary files left behind");
     }
 }
