@@ -44,9 +44,11 @@
 #                          same stream and snapshots, compared with `fine_ctrl` at equal steps
 #                          (stopped at 800 by 2026-12-03, 6.5 s a step with `ops::fine_mix`):
 #                          validation matched the control's to 0.01 points at 250, 500 and 750,
-#                          the head's output weights at 0.003 (the rate, 2e-5, is a fine-tune's)
+#                          the head's output weights at 0.003 (the rate, 2e-5, is a fine-tune's);
+#                          its run was deleted (superseded by `fine_lr`; numbers in models/README.md)
 #   runs/clutter_fine_lr   `fine` with the head at 50 times the rate (`--fine-head-lr-scale 50`),
-#                          the same stream and snapshots, against `fine_ctrl` at equal steps:
+#                          the same stream and snapshots, against `fine_ctrl` at equal steps
+#                          (1,000 steps by 2026-12-03, compared at 500 and 1,000; next 1,500):
 #     ARMS=fine_lr SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
 # `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
 # step 3,100 ships as models/psmode_stage1.safetensors. `pairs_decay` finished it with a
