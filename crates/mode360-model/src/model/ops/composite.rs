@@ -402,6 +402,9 @@ pub fn upsample_trilinear_composite(
     Ok(t)
 }
 
+/// [`fine_mix`]'s name, in errors and as the custom op's.
+pub(super) const FINE_MIX_OP: &str = "fine_mix";
+
 /// [`fine_mix`]'s hidden channels `Cf`, after checking the three shapes agree (here, so the
 /// kernel and this composite share it without importing each other).
 pub(super) fn fine_mix_channels(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<usize> {
@@ -409,7 +412,7 @@ pub(super) fn fine_mix_channels(up: &Tensor, part: &Tensor, w: &Tensor) -> Resul
     let cf = dp.last().copied().unwrap_or(0);
     if dp.len() != du.len() + 1 || dp[..du.len()] != *du || dw != [2, cf] || cf == 0 {
         return Err(OpsError::Shape {
-            op: "fine_mix",
+            op: FINE_MIX_OP,
             what: format!("up {du:?}, part {dp:?} and w {dw:?}: want (…), (…, Cf) and (2, Cf)"),
         }
         .into());

@@ -18,19 +18,18 @@
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::composite::{fine_mix_channels, fine_mix_composite};
+use super::composite::{fine_mix_channels, fine_mix_composite, FINE_MIX_OP as OP};
 use super::types::{cpu_slice, has_custom_kernels};
 
-const OP: &str = "fine_mix";
 /// Cells per rayon task in the backward pass's weight sums.
 const CHUNK_CELLS: usize = 1 << 14;
 
 /// See the module docs: `up (…)`, `part (…, Cf)`, `w (2, Cf)` -> `(…)`.
 pub fn fine_mix(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<Tensor> {
-    fine_mix_channels(up, part, w)?;
     if !has_custom_kernels(up.device()) || up.dtype() != DType::F32 {
-        return fine_mix_composite(up, part, w);
+        return fine_mix_composite(up, part, w); // checks the shapes itself
     }
+    fine_mix_channels(up, part, w)?;
     up.contiguous()?
         .apply_op3(&part.contiguous()?, &w.contiguous()?, FineMixOp)
 }
