@@ -7,8 +7,8 @@ use std::time::Instant;
 use candle_core::{Device, Tensor, Var};
 use mode360::geometry::{ErpGrid, PixelCoord};
 use mode360::model::ops::{
-    conv3d, conv3d_composite, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d,
-    table_sample, table_sample_composite, Conv3dGeometry, SampleTable,
+    conv3d, conv3d_composite, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d, fine_mix,
+    table_sample, table_sample_composite, upsample_trilinear, Conv3dGeometry, SampleTable,
 };
 
 const REPEATS: usize = 3;
@@ -163,7 +163,66 @@ fn table_sample_throughput() {
     assert!(fwd < comp, "custom {fwd} s slower than composite {comp} s");
 }
 
+/// The fine head's parts at a training step's shapes (256 input: a volume of 96 spheres,
+/// 128 x 256 cells, 9 channels; the head's 4 channels at stride 2 over spheres), forward and
+/// backward each, and the regression's upsampling with and without the head.
+fn fine_head_parts() {
+    let (d, h, w, c, cf, s) = (96, 128, 256, 9, 4, 2);
+    let stride = [s, 1, 1];
+    let unit = [1, 1, 1];
+    let volume = randn(&[1, d, h, w, c]);
+    let weight = Var::from_tensor(&randn(&[3, 3, 3, c, cf])).unwrap();
+    let g = Conv3dGeometry::new(1, [d, h, w], [3, 3, 3], stride, unit, c, cf).unwrap();
+    let gflop = g.flops() / GIGA;
+    let cost_fwd = best_s(|| {
+        conv3d(&volume, weight.as_tensor(), stride, unit).unwrap();
+    });
+    let cost_fwd_bwd = best_s(|| {
+        let y = conv3d(&volume, weight.as_tensor(), stride, unit).unwrap();
+        y.sum_all().unwrap().backward().unwrap();
+    });
+    println!(
+        "fine head cost conv (1,{d},{h},{w},{c}->{cf}) stride {stride:?}: {gflop:.2} GFLOP; \
+         forward {:.0} ms ({:.1} GFLOP/s), forward+weight grad {:.0} ms",
+        cost_fwd * 1e3,
+        gflop / cost_fwd,
+        cost_fwd_bwd * 1e3
+    );
+    let coarse = Var::from_tensor(&randn(&[1, d / s, h / s, w / s])).unwrap();
+    let part = Var::from_tensor(&randn(&[1, d / s, h, w, cf])).unwrap();
+    let mix = Var::from_tensor(&randn(&[2, cf])).unwrap();
+    let up_fwd_bwd = best_s(|| {
+        let up = upsample_trilinear(coarse.as_tensor(), d / s, h, w).unwrap();
+        up.sum_all().unwrap().backward().unwrap();
+    });
+    let mix_fwd_bwd = best_s(|| {
+        let up = upsample_trilinear(coarse.as_tensor(), d / s, h, w).unwrap();
+        let fine = fine_mix(&up, part.as_tensor(), mix.as_tensor()).unwrap();
+        fine.sum_all().unwrap().backward().unwrap();
+    });
+    println!(
+        "  coarse upsampled to (1,{},{h},{w}): forward+backward {:.0} ms; with fine_mix {:.0} ms",
+        d / s,
+        up_fwd_bwd * 1e3,
+        mix_fwd_bwd * 1e3
+    );
+    let fine = Var::from_tensor(&randn(&[1, d / s, h, w])).unwrap();
+    let regress_up = |x: &Tensor| {
+        best_s(|| {
+            let up = upsample_trilinear(x, d, h, w).unwrap();
+            up.sum_all().unwrap().backward().unwrap();
+        })
+    };
+    println!(
+        "  regression's upsampling to (1,{d},{h},{w}), forward+backward: from the coarse cost \
+         {:.0} ms, from the head's {:.0} ms",
+        regress_up(coarse.as_tensor()) * 1e3,
+        regress_up(fine.as_tensor()) * 1e3
+    );
+}
+
 fn main() {
     conv3d_throughput();
     table_sample_throughput();
+    fine_head_parts();
 }

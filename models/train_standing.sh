@@ -209,6 +209,14 @@ for arm in $arms; do
     ;;
   esac
   out="runs/$(run_dir "$arm")"
+  # the step of OUT's checkpoint (0 without one)
+  checkpoint_step() {
+    python3 -c 'import json, sys
+try:
+    print(json.load(open(sys.argv[1] + "/checkpoint/state.json"))["step"])
+except OSError:
+    print(0)' "$1"
+  }
   train_arm() {
     "$bin" train --preset "$preset" --width "$width" \
       --steps "${steps_override:-${STEPS:-20000}}" --lr "$lr" \
@@ -221,8 +229,14 @@ for arm in $arms; do
     (
       for ((m = SNAPSHOT_EVERY; m <= ${steps_override:-${STEPS:-20000}}; m += SNAPSHOT_EVERY)); do
         [[ -f "$out/step_$m.safetensors" ]] && continue
+        # a checkpoint already past m (snapshots lost with a machine) has no weights of step m:
+        # copying would label later weights step_m
+        done_step=$(checkpoint_step "$out")
+        ((done_step > m)) && continue
         train_arm --until-step "$m"
-        cp "$out/ssmode_$preset.safetensors" "$out/step_$m.safetensors"
+        if [[ "$(checkpoint_step "$out")" == "$m" ]]; then
+          cp "$out/ssmode_$preset.safetensors" "$out/step_$m.safetensors"
+        fi
       done
     ) &
   else

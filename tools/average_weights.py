@@ -5,6 +5,10 @@ tensors (names, shapes, F32) and the same `mode360.config` header metadata, whic
 keeps; anything else is an error naming the file and tensor. Needs no third-party package.
 
     tools/average_weights.py A.safetensors B.safetensors [...] --out SOUP.safetensors
+
+With --extra-from-first, A may hold tensors the others lack (a new stage, such as the fine
+head, trained from a file without it): those are copied from A unchanged, the others averaged,
+and A's metadata is kept whatever the others' say.
 """
 import argparse
 import sys
@@ -31,6 +35,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("weights", nargs="+")
     ap.add_argument("--out", required=True)
+    ap.add_argument(
+        "--extra-from-first",
+        action="store_true",
+        help="copy tensors only the first file holds; keep the first file's metadata",
+    )
     args = ap.parse_args()
     if len(args.weights) < 2:
         sys.exit("average_weights: give at least two weights files")
@@ -38,13 +47,15 @@ def main() -> int:
     first_path, first_header, _ = files[0]
     names = sorted(k for k in first_header if k != METADATA)
     for path, header, _ in files[1:]:
-        if header.get(METADATA) != first_header.get(METADATA):
+        if header.get(METADATA) != first_header.get(METADATA) and not args.extra_from_first:
             sys.exit(f"{path}: header metadata (the network's config) differs from {first_path}")
         other = sorted(k for k in header if k != METADATA)
-        if other != names:
-            missing = sorted(set(names) ^ set(other))
+        missing = sorted(set(names) ^ set(other))
+        if args.extra_from_first:
+            missing = sorted(set(other) - set(names))
+        if missing:
             sys.exit(f"{path}: tensors differ from {first_path}: {', '.join(missing[:5])}")
-        for name in names:
+        for name in other:
             if header[name]["shape"] != first_header[name]["shape"]:
                 sys.exit(
                     f"{path}: tensor {name} has shape {header[name]['shape']}, "
@@ -53,12 +64,13 @@ def main() -> int:
     out_header = {METADATA: first_header[METADATA]} if METADATA in first_header else {}
     chunks = []
     offset = 0
-    scale = 1.0 / len(files)
     for name in names:
+        holders = [(path, header, body) for path, header, body in files if name in header]
         sums = None
-        for path, header, body in files:
+        for path, header, body in holders:
             values = tensor(path, header, body, name)
             sums = values if sums is None else array("f", (a + b for a, b in zip(sums, values)))
+        scale = 1.0 / len(holders)
         mean = array("f", (v * scale for v in sums))
         if sys.byteorder != "little":
             mean.byteswap()

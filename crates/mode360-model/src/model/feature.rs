@@ -24,7 +24,7 @@
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
-use crate::model::ops::conv3d;
+use crate::model::ops::{add_bias, conv3d};
 
 use super::config::{SsmodeConfig, FEATURE_DOWNSAMPLE};
 use super::sphere_conv::{SphereConv, SphereConvTable};
@@ -122,7 +122,7 @@ impl ErpConv {
             [1, self.stride, self.stride],
             [0, 0, 0],
         )?;
-        y.squeeze(1)?.broadcast_add(&self.bias)
+        add_bias(&y.squeeze(1)?, &self.bias)
     }
 
     /// `(B, H, W, Cin)` -> `(B, H / stride, W / stride, Cout)`.

@@ -13,7 +13,8 @@ use candle_nn::{Init, VarBuilder};
 use super::config::SsmodeConfig;
 use super::seam::wrap_longitude;
 use crate::model::ops::{
-    conv3d, conv3d_fused, conv_transpose3d, conv_transpose3d_x2_fused, is_inference, Epilogue,
+    add_bias, conv3d, conv3d_fused, conv_transpose3d, conv_transpose3d_x2_fused, is_inference,
+    Epilogue,
 };
 
 /// Kernel side of every 3-D convolution.
@@ -127,7 +128,7 @@ impl Conv3d {
 
     fn add_bias(&self, y: Tensor) -> Result<Tensor> {
         match &self.bias {
-            Some(b) => y.broadcast_add(b),
+            Some(b) => add_bias(&y, b),
             None => Ok(y),
         }
     }

@@ -29,7 +29,9 @@ use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
 use super::hourglass::Conv3d;
-use crate::model::ops::{resample_linear_axis, upsample_trilinear, LinearAxisMap};
+use crate::model::ops::{
+    resample_linear_axis, soft_argmin_index, upsample_trilinear, LinearAxisMap,
+};
 use mode360_core::geometry::{DepthHypotheses, HypothesisSpacing};
 
 /// Hypotheses either side of the argmax counted in the confidence.
@@ -122,12 +124,10 @@ pub fn regress(
     let device = cost.device();
     // (B, N, H, W)
     let up = upsample_trilinear(cost, n, height, width)?;
-    let probabilities = candle_nn::ops::softmax(&up, HYPOTHESIS_AXIS)?;
-    let index: Vec<f32> = (0..n).map(|i| i as f32 / (n - 1) as f32).collect();
-    // (1, N, 1, 1)
-    let index = Tensor::from_vec(index, (1, n, 1, 1), device)?;
-    // (B, H, W)
-    let inverse_depth_index = probabilities.broadcast_mul(&index)?.sum(HYPOTHESIS_AXIS)?;
+    // (B, H, W): the expected index, the only output a loss reads (one op each way)
+    let inverse_depth_index = soft_argmin_index(&up)?;
+    // (B, N, H, W), without a gradient: the far-plane test and the confidence read it
+    let probabilities = candle_nn::ops::softmax(&up.detach(), HYPOTHESIS_AXIS)?;
     // Range from the expected inverse depth, `1 / (inv_far + k (inv_near - inv_far))`, not the
     // expected depth of eq. 7: with hypotheses from 0.5 m to 1000 m uniform in inverse depth,
     // 1 % of probability on the farthest sphere alone would add 10 m to every pixel's range.

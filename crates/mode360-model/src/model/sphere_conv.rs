@@ -18,7 +18,7 @@
 use candle_core::{Result, Tensor};
 use candle_nn::{Init, VarBuilder};
 
-use crate::model::ops::{count_flops, table_sample, SampleTable};
+use crate::model::ops::{add_bias, count_flops, table_sample, SampleTable};
 use mode360_core::geometry::{ErpGrid, LonLat};
 
 /// Kernel side (3x3 taps).
@@ -121,7 +121,7 @@ impl SphereConv {
         // (B H W, SPHERE_TAPS Cin) x (SPHERE_TAPS Cin, Cout) -> (B H W, Cout)
         let flat = sampled.reshape((b * h * w, SPHERE_TAPS * self.c_in))?;
         count_flops(2.0 * (b * h * w * SPHERE_TAPS * self.c_in * self.c_out) as f64);
-        let out = flat.matmul(&self.weight)?.broadcast_add(&self.bias)?;
+        let out = add_bias(&flat.matmul(&self.weight)?, &self.bias)?;
         // (B, H, W, Cout)
         out.reshape((b, h, w, self.c_out))
     }

@@ -7,14 +7,14 @@ use crate::common::{max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Result, Tensor, Var};
 use mode360_core::geometry::{ErpGrid, PixelCoord};
 use mode360_model::model::ops::{
-    conv3d, conv3d_composite, conv3d_fused, conv3d_fused_composite, conv3d_input_grad,
+    add_bias, conv3d, conv3d_composite, conv3d_fused, conv3d_fused_composite, conv3d_input_grad,
     conv3d_input_grad_composite, conv3d_weight_grad, conv3d_weight_grad_composite,
     conv_transpose3d, conv_transpose3d_composite, conv_transpose3d_x2_fused,
     conv_transpose3d_x2_fused_composite, has_custom_kernels, resample_linear_axis,
-    resample_linear_axis_composite, sweep_variance, sweep_variance_composite,
-    sweep_variance_visible, table_sample, table_sample_composite, upsample_trilinear,
-    upsample_trilinear_composite, view_scale, with_composites, Conv3dGeometry, Epilogue,
-    LinearAxisMap, SampleTable,
+    resample_linear_axis_composite, soft_argmin_index, soft_argmin_index_composite, sweep_variance,
+    sweep_variance_composite, sweep_variance_visible, table_sample, table_sample_composite,
+    upsample_trilinear, upsample_trilinear_composite, view_scale, with_composites, Conv3dGeometry,
+    Epilogue, LinearAxisMap, SampleTable,
 };
 
 /// Kernel and composite agree to this, relative to the largest magnitude compared (float32
@@ -367,6 +367,53 @@ fn linear_resampling_matches_its_composite() {
         &|t| upsample_trilinear(t[0], 6, 9, 8),
         &|t| upsample_trilinear_composite(t[0], 6, 9, 8),
     );
+}
+
+#[test]
+fn add_bias_matches_its_composite() {
+    // a volume's channels (more rows than one task takes) and a 2-D layer's
+    for (dims, seed) in [(vec![1, 5, 30, 31, 8], 131), (vec![2, 3, 4, 3], 132)] {
+        let c = dims[dims.len() - 1];
+        let (y, b) = (var(&dims, seed), var(&[c], seed + 1));
+        check(
+            &format!("add_bias {dims:?}"),
+            &[&y, &b],
+            &|t| add_bias(t[0], t[1]),
+            &|t| t[0].broadcast_add(t[1]),
+        );
+    }
+    let y = var(&[2, 3, 4], 133);
+    let wrong = var(&[3], 134);
+    let err = add_bias(y.as_tensor(), wrong.as_tensor())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("add_bias") && err.contains("[3]"), "{err}");
+}
+
+#[test]
+fn soft_argmin_index_matches_its_composite() {
+    // costs spread over several units, so that the softmax is neither flat nor one-hot; two
+    // batches, an odd width, and rows of one pixel
+    for (dims, seed) in [
+        ([2, 7, 3, 5], 121),
+        ([1, 24, 4, 1], 122),
+        ([1, 2, 1, 3], 123),
+    ] {
+        let z = var(&dims, seed);
+        let scaled = |t: &Tensor| t * 4.0;
+        check(
+            &format!("soft_argmin_index {dims:?}"),
+            &[&z],
+            &|t| soft_argmin_index(&scaled(t[0])?),
+            &|t| soft_argmin_index_composite(&scaled(t[0])?),
+        );
+    }
+    // a pixel whose cost peaks on one hypothesis reads that hypothesis' index
+    let mut peaked = vec![0f32; 5];
+    peaked[3] = 50.0;
+    let z = Tensor::from_vec(peaked, (1, 5, 1, 1), &Device::Cpu).unwrap();
+    let index = values(&soft_argmin_index(&z).unwrap());
+    assert!((index[0] - 0.75).abs() < 1e-6, "index {index:?}");
 }
 
 /// Inside `with_composites` the ops themselves take the composites (what a GPU gets), forward

@@ -5,8 +5,8 @@ use crate::common::{dot, max_abs_diff, pseudo_random, tensor, values};
 use candle_core::{Device, Tensor, Var};
 use mode360_model::model::ops::{
     conv3d, conv3d_composite, conv3d_fused, conv3d_weight_grad, conv3d_weight_grad_composite,
-    conv_transpose3d, conv_transpose3d_composite, conv_transpose3d_x2_fused, is_inference,
-    Conv3dGeometry, Epilogue,
+    conv_transpose3d, conv_transpose3d_composite, conv_transpose3d_x2_fused, flop_count,
+    is_inference, Conv3dGeometry, Epilogue,
 };
 
 /// Forward tolerance (f32 sums of a few hundred products of values in [-1, 1]).
@@ -263,7 +263,55 @@ fn conv3d_mixed_stride_padding_kernel() {
     );
 }
 
-// The narrow layers of the aggregation (Cout 8 or 16, and Cout 1 over 8 or 16 channels) take
+#[test]
+fn a_detached_input_gets_no_gradient_and_costs_none() {
+    // the fine head reads the cost volume detached: backward must run the weight gradient
+    // only (one pass's multiply-adds, not two), and that gradient must be the same
+    let (x_dims, c_out, stride) = ([1, 7, 6, 8, 3], 4, [2, 1, 1]);
+    let [_, d, h, wd, ci] = x_dims;
+    let g = Conv3dGeometry::new(1, [d, h, wd], [3, 3, 3], stride, [1; 3], ci, c_out).unwrap();
+    let w_dims = [3, 3, 3, ci, c_out];
+    let x = Var::from_tensor(&tensor(
+        &pseudo_random(x_dims.iter().product(), 41),
+        &x_dims,
+    ))
+    .unwrap();
+    let w = Var::from_tensor(&tensor(
+        &pseudo_random(w_dims.iter().product(), 42),
+        &w_dims,
+    ))
+    .unwrap();
+    let [od, oh, ow] = g.out_dims;
+    let y_dims = [1, od, oh, ow, c_out];
+    let r = tensor(&pseudo_random(y_dims.iter().product(), 43), &y_dims);
+    let backward = |input: &Tensor| {
+        let loss = (conv3d(input, w.as_tensor(), stride, [1; 3]).unwrap() * &r)
+            .unwrap()
+            .sum_all()
+            .unwrap();
+        let before = flop_count();
+        let grads = loss.backward().unwrap();
+        (grads, flop_count() - before)
+    };
+    let (tracked, tracked_flops) = backward(x.as_tensor());
+    let (detached, detached_flops) = backward(&x.as_tensor().detach());
+    assert!(tracked.get(x.as_tensor()).is_some());
+    assert!(detached.get(x.as_tensor()).is_none());
+    assert_eq!(
+        tracked_flops,
+        2 * g.flops() as u64,
+        "input and weight gradients"
+    );
+    assert_eq!(
+        detached_flops,
+        g.flops() as u64,
+        "the weight gradient alone"
+    );
+    let dw = |grads: &candle_core::backprop::GradStore| values(grads.get(w.as_tensor()).unwrap());
+    assert_eq!(max_abs_diff(&dw(&detached), &dw(&tracked)), 0.0);
+}
+
+// The narrow layers of the aggregation (Cout 4, 8 or 16, and Cout 1 over 8 or 16 channels) take
 // the direct register-blocked kernel on AVX2 machines: rows wide enough for full blocks, a
 // remainder and both padded edges.
 
@@ -281,6 +329,8 @@ fn conv3d_direct_kernels_match_the_reference() {
         case([1, 4, 5, 21, 8], [3, 3, 3], 8, [1, 1, 1], [1, 1, 1]),
         // Cout 16, stride 2
         case([2, 5, 6, 23, 8], [3, 3, 3], 16, [2, 2, 2], [1, 1, 1]),
+        // Cout 4 from 9 channels, stride 2 over depth only (the fine head's first layer)
+        case([2, 7, 5, 21, 9], [3, 3, 3], 4, [2, 1, 1], [1, 1, 1]),
         // Cout 8 from 3 channels, planar kernel, no padding
         case([1, 1, 6, 19, 3], [1, 3, 3], 8, [1, 2, 2], [0, 0, 0]),
         // Cout 1: dot products over 8 and 16 channels

@@ -8,7 +8,9 @@
 use candle_core::{IndexOp, Result, Tensor};
 
 use super::sample_table::SampleTable;
-use super::types::{dims_of, Conv3dGeometry, Epilogue, LinearAxisMap, OpsError, SPATIAL_AXES_3D};
+use super::types::{
+    dims_of, Conv3dGeometry, Epilogue, LinearAxisMap, OpsError, COST_VOLUME_RANK, SPATIAL_AXES_3D,
+};
 
 /// First spatial axis of a channels-last volume `(B, D, H, W, C)`.
 const FIRST_SPATIAL_AXIS: usize = 1;
@@ -431,4 +433,17 @@ pub fn fine_mix_composite(up: &Tensor, part: &Tensor, w: &Tensor) -> Result<Tens
         .add(part)?
         .relu()?;
     up + hidden.broadcast_mul(&w.get(1)?)?.sum(last)?
+}
+
+/// [`super::soft_argmin_index`] from candle ops: the softmax over the hypothesis axis of
+/// `z (B, N, H, W)`, then the expected index `n / (N − 1)`: `(B, H, W)`.
+pub fn soft_argmin_index_composite(z: &Tensor) -> Result<Tensor> {
+    const HYPOTHESIS_AXIS: usize = 1;
+    let n = dims_of(z, "soft_argmin_index_composite", "z", COST_VOLUME_RANK)?[HYPOTHESIS_AXIS];
+    let probabilities = candle_nn::ops::softmax(z, HYPOTHESIS_AXIS)?;
+    let step = 1.0 / n.saturating_sub(1).max(1) as f32;
+    let index: Vec<f32> = (0..n).map(|i| i as f32 * step).collect();
+    // (1, N, 1, 1)
+    let index = Tensor::from_vec(index, (1, n, 1, 1), z.device())?.to_dtype(z.dtype())?;
+    probabilities.broadcast_mul(&index)?.sum(HYPOTHESIS_AXIS)
 }

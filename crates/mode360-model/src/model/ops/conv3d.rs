@@ -243,9 +243,15 @@ impl CustomOp2 for Conv3dForwardOp {
         dy: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let g = &self.geom;
-        let dx = conv3d_input_grad(dy, w, g.stride, g.padding, g.in_dims)?;
-        let dw = conv3d_weight_grad(x, dy, g.kernel, g.stride, g.padding)?;
-        Ok((Some(dx), Some(dw)))
+        // only the gradients something upstream learns from (the fine head reads the volume
+        // detached: its input gradient would cost twice its weight gradient, for nothing)
+        let dx = needs_grad(x)
+            .then(|| conv3d_input_grad(dy, w, g.stride, g.padding, g.in_dims))
+            .transpose()?;
+        let dw = needs_grad(w)
+            .then(|| conv3d_weight_grad(x, dy, g.kernel, g.stride, g.padding))
+            .transpose()?;
+        Ok((dx, dw))
     }
 }
 
@@ -281,9 +287,13 @@ impl CustomOp2 for Conv3dInputGradOp {
         g_dx: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let g = &self.geom;
-        let g_dy = conv3d(g_dx, w, g.stride, g.padding)?;
-        let g_w = conv3d_weight_grad(g_dx, dy, g.kernel, g.stride, g.padding)?;
-        Ok((Some(g_dy), Some(g_w)))
+        let g_dy = needs_grad(dy)
+            .then(|| conv3d(g_dx, w, g.stride, g.padding))
+            .transpose()?;
+        let g_w = needs_grad(w)
+            .then(|| conv3d_weight_grad(g_dx, dy, g.kernel, g.stride, g.padding))
+            .transpose()?;
+        Ok((g_dy, g_w))
     }
 }
 
@@ -318,8 +328,19 @@ impl CustomOp2 for Conv3dWeightGradOp {
         g_dw: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let g = &self.geom;
-        let g_x = conv3d_input_grad(dy, g_dw, g.stride, g.padding, g.in_dims)?;
-        let g_dy = conv3d(x, g_dw, g.stride, g.padding)?;
-        Ok((Some(g_x), Some(g_dy)))
+        let g_x = needs_grad(x)
+            .then(|| conv3d_input_grad(dy, g_dw, g.stride, g.padding, g.in_dims))
+            .transpose()?;
+        let g_dy = needs_grad(dy)
+            .then(|| conv3d(x, g_dw, g.stride, g.padding))
+            .transpose()?;
+        Ok((g_x, g_dy))
     }
+}
+
+/// Whether a gradient with respect to `t` reaches anything that learns: `t` is a variable or
+/// was computed from one (candle records the op only then). A detached or constant input
+/// gets none, which candle's backward pass reads as no contribution.
+fn needs_grad(t: &Tensor) -> bool {
+    t.track_op()
 }

@@ -1,6 +1,6 @@
 //! Direct forward kernel of [`super::conv3d`] for the narrow layers of the cost aggregation
-//! (`Cout` of 8 or 16, and `Cout = 1` over 8 or 16 input channels), on x86-64 CPUs with AVX2
-//! and FMA.
+//! (`Cout` of 4, 8 or 16, and `Cout = 1` over 8 or 16 input channels), on x86-64 CPUs with
+//! AVX2 and FMA.
 //!
 //! A GEMM over `(Wo × kW·Ci) · (kW·Ci × Co)` panels runs far below the machine's peak when `Co`
 //! is 8: every panel is a handful of FMAs between two memory passes. Here a block of `R`
@@ -23,6 +23,9 @@ use super::types::Conv3dGeometry;
 const BLOCK_CO8: usize = 8;
 /// Output cells per register block when `Co` fills two 8-lane vectors.
 const BLOCK_CO16: usize = 4;
+/// Output cells per register block when `Co` fills half an 8-lane vector (the fine head's
+/// first layer, in 4-lane vectors; 4, 6, 12 and 16 cells ran slower on the fine head's volume).
+const BLOCK_CO4: usize = 8;
 /// Output cells per register block of the `Co = 1` (dot product) kernel.
 const BLOCK_DOT: usize = 4;
 
@@ -90,6 +93,10 @@ pub(super) fn conv3d_forward_direct(
             (_, 8) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
                 // SAFETY: AVX2 and FMA were detected above.
                 unsafe { row_avx2::<8, BLOCK_CO8>(x, w, g, row, y) }
+            })),
+            (_, 4) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
+                // SAFETY: AVX2 and FMA were detected above.
+                unsafe { row_avx2::<4, BLOCK_CO4>(x, w, g, row, y) }
             })),
             (_, 16) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
                 // SAFETY: AVX2 and FMA were detected above.

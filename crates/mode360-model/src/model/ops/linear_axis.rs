@@ -12,10 +12,9 @@ use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::composite;
-use super::types::{cpu_slice, dims_of, has_custom_kernels, LinearAxisMap, OpsError};
-
-/// Rank of a cost volume `(B, D, H, W)`.
-const COST_VOLUME_RANK: usize = 4;
+use super::types::{
+    cpu_slice, dims_of, has_custom_kernels, LinearAxisMap, OpsError, COST_VOLUME_RANK,
+};
 /// Fewest output elements per rayon task.
 const MIN_ELEMENTS_PER_TASK: usize = 4096;
 

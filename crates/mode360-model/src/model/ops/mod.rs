@@ -22,12 +22,15 @@
 //! | [`conv3d_fused`], [`conv_transpose3d_x2_fused`] | as above, plus bias, residual, ReLU (inference only) | as above |
 //! | [`table_sample`] | features `(B, H, W, C)`, [`SampleTable`] of N taps | `(B, N, C)` |
 //! | [`append_channels`] | a `(…, C1)`, b `(…, C2)` | `(…, C1 + C2)` (`cat` on the last axis) |
+//! | [`add_bias`] | y `(…, C)`, b `(C)` | `(…, C)` (`broadcast_add`) |
 //! | [`sweep_variance`] | features `(M B, H, W, C)`, M tables of N samples | `(B, N, C)` |
 //! | [`upsample_trilinear`] | cost volume `(B, D, H, W)` | `(B, Do, Ho, Wo)` |
 //! | [`resample_linear_axis`] | any tensor, one axis | same rank, that axis resized |
 //! | [`fine_mix`] | up `(…)`, part `(…, Cf)`, w `(2, Cf)` | `(…)` (the fine head's per-cell layers) |
+//! | [`soft_argmin_index`] | cost `(B, N, H, W)` | `(B, H, W)` (softmax over `N`, expected index in [0, 1]) |
 
 mod append;
+mod bias;
 pub mod composite;
 mod conv3d;
 mod conv3d_direct;
@@ -36,6 +39,7 @@ mod fine_mix;
 mod fused;
 mod linear_axis;
 mod sample_table;
+mod soft_argmin;
 mod sweep;
 mod table;
 #[cfg(feature = "cuda")]
@@ -43,17 +47,19 @@ mod table_cuda;
 mod types;
 
 pub use append::append_channels;
+pub use bias::add_bias;
 pub use composite::{
     conv3d_composite, conv3d_fused_composite, conv3d_input_grad_composite,
     conv3d_weight_grad_composite, conv_transpose3d_composite, conv_transpose3d_x2_fused_composite,
-    fine_mix_composite, resample_linear_axis_composite, sweep_variance_composite,
-    table_sample_composite, upsample_trilinear_composite,
+    fine_mix_composite, resample_linear_axis_composite, soft_argmin_index_composite,
+    sweep_variance_composite, table_sample_composite, upsample_trilinear_composite,
 };
 pub use conv3d::{conv3d, conv3d_input_grad, conv3d_weight_grad, conv_transpose3d};
 pub use fine_mix::fine_mix;
 pub use fused::{conv3d_fused, conv_transpose3d_x2_fused, is_inference, Epilogue};
 pub use linear_axis::{resample_linear_axis, upsample_trilinear};
 pub use sample_table::SampleTable;
+pub use soft_argmin::soft_argmin_index;
 pub use sweep::{
     sweep_variance, sweep_variance_appended, sweep_variance_appended_window,
     sweep_variance_visible, view_scale, MIN_VIEWS,

@@ -123,6 +123,8 @@ pub(super) fn dims_of(
 
 /// Rank of a channels-last volume `(B, D, H, W, C)` and of a 3-D kernel `(kD, kH, kW, Cin, Cout)`.
 pub(super) const VOLUME_RANK: usize = 5;
+/// Rank of a cost volume `(B, D, H, W)`.
+pub(super) const COST_VOLUME_RANK: usize = 4;
 
 /// Sizes of one 3-D convolution `x (B, D, H, W, Cin) * w (kD, kH, kW, Cin, Cout) -> (B, Do, Ho, Wo, Cout)`,
 /// with `Do = ⌊(D + 2 pD − kD) / sD⌋ + 1` (likewise for H and W).
