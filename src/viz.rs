@@ -2,6 +2,7 @@
 
 use image::Rgb;
 use mode360_core::frame::{FloatImage, RgbImage};
+use mode360_core::glyphs::TextStyle;
 
 /// Turbo colour map (Google's polynomial approximation), `t` in [0, 1] from blue to red.
 pub fn turbo(t: f32) -> Rgb<u8> {
@@ -51,10 +52,6 @@ pub fn stack_vertical(images: &[RgbImage]) -> RgbImage {
 
 /// Height of a depth legend's colour ramp, pixels.
 const LEGEND_RAMP_PX: u32 = 12;
-/// Scale of the legend's 3x5 pixel glyphs.
-const GLYPH_SCALE: u32 = 2;
-const GLYPH_W: u32 = 3;
-const GLYPH_H: u32 = 5;
 /// Space between glyphs and around the labels, pixels.
 const GLYPH_GAP_PX: u32 = 2;
 /// Depths a legend labels when they fall inside its range, metres.
@@ -62,6 +59,12 @@ const LEGEND_TICKS_M: [f32; 12] = [
     0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0,
 ];
 const LEGEND_INK: Rgb<u8> = Rgb([255, 255, 255]);
+/// The legend's labels: the 3x5 font at twice its size, white.
+const LEGEND_TEXT: TextStyle = TextStyle {
+    scale: 2,
+    gap_px: GLYPH_GAP_PX,
+    ink: LEGEND_INK,
+};
 
 /// Position in `[0, 1]` of `depth_m` on the colour map of [`colorize_range`] (0 far, 1 near).
 fn depth_to_unit(depth_m: f32, min_depth_m: f32, max_depth_m: f32) -> f32 {
@@ -69,57 +72,6 @@ fn depth_to_unit(depth_m: f32, min_depth_m: f32, max_depth_m: f32) -> f32 {
     ((1.0 / depth_m - inv_far) / (inv_near - inv_far))
         .clamp(0.0, 1.0)
         .sqrt()
-}
-
-/// Rows of a 3x5 glyph, top first, bit 2 the left column; digits, `.` and `m`.
-fn glyph(c: char) -> Option<[u8; 5]> {
-    Some(match c {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '.' => [0, 0, 0, 0, 2],
-        'm' => [0, 0, 7, 7, 5],
-        _ => return None,
-    })
-}
-
-/// Width of `text` drawn by [`draw_text`], pixels.
-fn text_width_px(text: &str) -> u32 {
-    let n = text.chars().count() as u32;
-    n * GLYPH_W * GLYPH_SCALE + n.saturating_sub(1) * GLYPH_GAP_PX
-}
-
-/// Draws `text` with its top-left corner at `(x0, y0)`, clipped to the image.
-fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
-    let mut x = x0;
-    for c in text.chars() {
-        if let Some(rows) = glyph(c) {
-            for (r, bits) in rows.iter().enumerate() {
-                for col in 0..GLYPH_W {
-                    if bits & (1 << (GLYPH_W - 1 - col)) == 0 {
-                        continue;
-                    }
-                    for dy in 0..GLYPH_SCALE {
-                        for dx in 0..GLYPH_SCALE {
-                            let (px, py) =
-                                (x + col * GLYPH_SCALE + dx, y0 + r as u32 * GLYPH_SCALE + dy);
-                            if px < img.width() && py < img.height() {
-                                img.put_pixel(px, py, LEGEND_INK);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        x += GLYPH_W * GLYPH_SCALE + GLYPH_GAP_PX;
-    }
 }
 
 /// A depth label: `0.5m`, `20m`, `1000m`.
@@ -135,7 +87,7 @@ fn metres_label(depth_m: f32) -> String {
 /// `max_depth_m` (left) to `min_depth_m` (right), each column the colour of the depth at that
 /// position, with depths in metres printed under their ticks. Stack it under a preview.
 pub fn depth_legend(width: u32, min_depth_m: f32, max_depth_m: f32) -> RgbImage {
-    let label_h = GLYPH_H * GLYPH_SCALE + 2 * GLYPH_GAP_PX;
+    let label_h = LEGEND_TEXT.height_px() + 2 * GLYPH_GAP_PX;
     let mut img = RgbImage::new(width, LEGEND_RAMP_PX + label_h);
     let span = width.saturating_sub(1).max(1) as f32;
     for x in 0..width {
@@ -152,7 +104,7 @@ pub fn depth_legend(width: u32, min_depth_m: f32, max_depth_m: f32) -> RgbImage 
         }
         let x = (depth_to_unit(depth_m, min_depth_m, max_depth_m) * span).round() as u32;
         let text = metres_label(depth_m);
-        let w = text_width_px(&text);
+        let w = LEGEND_TEXT.width_px(&text);
         let left = x.saturating_sub(w / 2).min(width.saturating_sub(w));
         if left < free_from {
             continue; // would overlap the previous label
@@ -160,7 +112,7 @@ pub fn depth_legend(width: u32, min_depth_m: f32, max_depth_m: f32) -> RgbImage 
         for y in LEGEND_RAMP_PX.saturating_sub(4)..LEGEND_RAMP_PX {
             img.put_pixel(x.min(width - 1), y, LEGEND_INK);
         }
-        draw_text(&mut img, left, LEGEND_RAMP_PX + GLYPH_GAP_PX, &text);
+        LEGEND_TEXT.draw(&mut img, left, LEGEND_RAMP_PX + GLYPH_GAP_PX, &text);
         free_from = left + w + 2 * GLYPH_GAP_PX;
     }
     img
@@ -221,7 +173,7 @@ mod tests {
                 .filter(|&(x, y)| *legend.get_pixel(x, y) == LEGEND_INK)
                 .count()
         };
-        let half = text_width_px("10m") / 2 + 1;
+        let half = LEGEND_TEXT.width_px("10m") / 2 + 1;
         assert!(ink_under(x - half, x + half) >= 20, "no 10 m label");
         assert_eq!(metres_label(0.5), "0.5m");
         assert_eq!(metres_label(1000.0), "1000m");

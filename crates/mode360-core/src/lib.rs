@@ -7,6 +7,7 @@
 pub mod atomic_file;
 pub mod frame;
 pub mod geometry;
+pub mod glyphs;
 pub mod memory;
 pub mod metrics;
 pub mod obstacles;

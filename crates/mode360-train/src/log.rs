@@ -7,6 +7,7 @@
 //! `secs` and `peak_rss_mb`).
 
 use image::{Rgb, RgbImage};
+use mode360_core::glyphs::TextStyle;
 use mode360_core::metrics::DepthMetrics;
 use std::io::Write;
 use std::path::Path;
@@ -26,6 +27,20 @@ const BACKGROUND: Rgb<u8> = Rgb([255, 255, 255]);
 const AXIS: Rgb<u8> = Rgb([60, 60, 60]);
 const GRID: Rgb<u8> = Rgb([225, 225, 225]);
 const TRAIN_COLOUR: Rgb<u8> = Rgb([40, 90, 200]);
+/// Each step's training loss, under its running mean ([`TRAIN_COLOUR`]).
+const TRAIN_RAW_COLOUR: Rgb<u8> = Rgb([185, 200, 235]);
+/// Steps in the running mean of the training loss (in log10).
+const TRAIN_SMOOTH_STEPS: usize = 50;
+/// Left margin, wide enough for the value labels, pixels.
+const LEFT_MARGIN_PX: i64 = 64;
+/// Gap between an axis and its labels, pixels.
+const LABEL_GAP_PX: u32 = 5;
+/// The axes' labels: the 3x5 font at twice its size.
+const LABEL_TEXT: TextStyle = TextStyle {
+    scale: 2,
+    gap_px: 2,
+    ink: AXIS,
+};
 const VAL_COLOUR: Rgb<u8> = Rgb([220, 60, 40]);
 /// Horizontal grid lines per panel.
 const GRID_LINES: usize = 4;
@@ -223,6 +238,7 @@ fn draw_series(
     bounds: Bounds,
     series: &[(f64, f64)],
     c: Rgb<u8>,
+    marks: bool,
 ) {
     let xspan = (bounds.x_max - bounds.x_min).max(f64::EPSILON);
     let yspan = (bounds.y_max - bounds.y_min).max(f64::EPSILON);
@@ -241,7 +257,7 @@ fn draw_series(
     for w in pts.windows(2) {
         line(img, w[0], w[1], c);
     }
-    for &(x, y) in &pts {
+    for &(x, y) in pts.iter().filter(|_| marks) {
         for d in -1..=1 {
             put(img, x + d, y, c);
             put(img, x, y + d, c);
@@ -267,10 +283,47 @@ fn draw_frame(img: &mut RgbImage, p: Panel) {
     line(img, (p.x0, p.y0), (p.x0, p.y1), AXIS);
 }
 
-/// Re-plots `curves.png` (no text; the CSV files hold the numbers): top panel training loss
-/// (blue) and validation loss (red) vs step on one shared log10 scale spanning the data;
-/// bottom panel validation delta1 (red) vs step on a fixed 0..100 % scale, grid lines every
-/// 25 %. Both panels share the step axis.
+/// Running mean of `series`' y over the last `window` points (fewer at the start).
+fn running_mean(series: &[(f64, f64)], window: usize) -> Vec<(f64, f64)> {
+    let window = window.max(1);
+    let mut sum = 0.0;
+    series
+        .iter()
+        .enumerate()
+        .map(|(i, &(x, y))| {
+            sum += y;
+            if i >= window {
+                sum -= series[i - window].1;
+            }
+            (x, sum / (i + 1).min(window) as f64)
+        })
+        .collect()
+}
+
+/// A tick's value with two or three significant digits: `0.52`, `1.3`, `12`, `1250`.
+fn tick_label(v: f64) -> String {
+    match v.abs() {
+        a if a >= 10.0 => format!("{v:.0}"),
+        a if a >= 1.0 => format!("{v:.1}"),
+        _ => format!("{v:.2}"),
+    }
+}
+
+/// Labels the grid lines of `panel` (top to bottom) with `labels`, right-aligned left of it.
+fn label_rows(img: &mut RgbImage, p: Panel, labels: &[String]) {
+    let rows = labels.len().saturating_sub(1).max(1) as i64;
+    for (k, text) in (0i64..).zip(labels) {
+        let y = p.y0 + (p.y1 - p.y0) * k / rows - i64::from(LABEL_TEXT.height_px() / 2);
+        let x = p.x0 - i64::from(LABEL_GAP_PX + LABEL_TEXT.width_px(text));
+        LABEL_TEXT.draw(img, x.max(0) as u32, y.max(0) as u32, text);
+    }
+}
+
+/// Re-plots `curves.png`: top panel the training loss (each step light blue, its running mean
+/// over [`TRAIN_SMOOTH_STEPS`] blue) and the validation loss (red) vs step on one shared log10
+/// scale spanning the data; bottom panel validation delta1 (red) vs step on a fixed 0..100 %
+/// scale, grid lines every 25 %. Both panels share the step axis; the grid lines carry their
+/// values and the step axis its first and last step (the CSV files hold the numbers).
 pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(), String> {
     let train = if train_csv.exists() {
         read_columns(train_csv, "step", "loss")
@@ -291,13 +344,13 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
     let mut img = RgbImage::from_pixel(PLOT_WIDTH_PX, PLOT_HEIGHT_PX, BACKGROUND);
     let (w, h) = (i64::from(PLOT_WIDTH_PX), i64::from(PLOT_HEIGHT_PX));
     let top = Panel {
-        x0: PANEL_MARGIN_PX,
+        x0: LEFT_MARGIN_PX,
         y0: PANEL_MARGIN_PX,
         x1: w - PANEL_MARGIN_PX,
         y1: h / 2 - PANEL_MARGIN_PX / 2,
     };
     let bottom = Panel {
-        x0: PANEL_MARGIN_PX,
+        x0: LEFT_MARGIN_PX,
         y0: h / 2 + PANEL_MARGIN_PX / 2,
         x1: w - PANEL_MARGIN_PX,
         y1: h - PANEL_MARGIN_PX,
@@ -306,8 +359,17 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
     draw_frame(&mut img, bottom);
     let (train_log, val_log) = (log10_series(&train), log10_series(&val_loss));
     if let Some(b) = bounds_of(&[&train_log, &val_log]) {
-        draw_series(&mut img, top, b, &train_log, TRAIN_COLOUR);
-        draw_series(&mut img, top, b, &val_log, VAL_COLOUR);
+        draw_series(&mut img, top, b, &train_log, TRAIN_RAW_COLOUR, false);
+        let smooth = running_mean(&train_log, TRAIN_SMOOTH_STEPS);
+        draw_series(&mut img, top, b, &smooth, TRAIN_COLOUR, false);
+        draw_series(&mut img, top, b, &val_log, VAL_COLOUR, true);
+        let labels: Vec<String> = (0..=GRID_LINES)
+            .map(|k| {
+                let log_v = b.y_max - (b.y_max - b.y_min) * k as f64 / GRID_LINES as f64;
+                tick_label(10f64.powf(log_v))
+            })
+            .collect();
+        label_rows(&mut img, top, &labels);
     }
     if let Some(b) = bounds_of(&[&train, &val_d1]) {
         let pct = Bounds {
@@ -315,10 +377,82 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
             y_max: PERCENT_MAX,
             ..b
         };
-        draw_series(&mut img, bottom, pct, &val_d1, VAL_COLOUR);
+        draw_series(&mut img, bottom, pct, &val_d1, VAL_COLOUR, true);
+        let labels: Vec<String> = (0..=GRID_LINES)
+            .map(|k| {
+                format!(
+                    "{:.0}%",
+                    PERCENT_MAX * (GRID_LINES - k) as f64 / GRID_LINES as f64
+                )
+            })
+            .collect();
+        label_rows(&mut img, bottom, &labels);
+        let y = (bottom.y1 + i64::from(LABEL_GAP_PX)) as u32;
+        let (first, last) = (format!("{:.0}", b.x_min), format!("{:.0}", b.x_max));
+        LABEL_TEXT.draw(&mut img, bottom.x0 as u32, y, &first);
+        let x = bottom.x1 - i64::from(LABEL_TEXT.width_px(&last));
+        LABEL_TEXT.draw(&mut img, x.max(0) as u32, y, &last);
     }
     let tmp = out_png.with_extension("png.tmp");
     img.save_with_format(&tmp, image::ImageFormat::Png)
         .map_err(|e| format!("{}: {e}", tmp.display()))?;
     std::fs::rename(&tmp, out_png).map_err(|e| format!("{}: {e}", out_png.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_running_mean_averages_the_last_points() {
+        let s: Vec<(f64, f64)> = [1.0, 3.0, 5.0, 7.0]
+            .iter()
+            .enumerate()
+            .map(|(i, &y)| (i as f64, y))
+            .collect();
+        let m = running_mean(&s, 2);
+        assert_eq!(m, vec![(0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (3.0, 6.0)]);
+        assert_eq!(tick_label(0.523), "0.52");
+        assert_eq!(tick_label(1.26), "1.3");
+        assert_eq!(tick_label(2300.0), "2300");
+    }
+
+    #[test]
+    fn curves_carry_their_labels_and_the_running_mean() {
+        let dir = std::env::temp_dir().join(format!("mode360-curves-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (train, val, png) = (
+            dir.join("train.csv"),
+            dir.join("val.csv"),
+            dir.join("c.png"),
+        );
+        let mut t = format!("{TRAIN_CSV_HEADER}\n");
+        for step in 1..=200 {
+            // alternating 1 and 100: the running mean sits at 10 in the middle of the panel
+            let loss = if step % 2 == 0 { 100.0 } else { 1.0 };
+            t += &format!("{step},{loss},1e-4,1.0,100\n");
+        }
+        std::fs::write(&train, t).unwrap();
+        std::fs::write(&val, "step,loss,delta1_pct\n100,10,50\n200,10,60\n").unwrap();
+        plot_curves(&train, &val, &png).unwrap();
+        let img = image::open(&png).unwrap().to_rgb8();
+        std::fs::remove_dir_all(&dir).ok();
+        // the value labels: ink left of both panels
+        let label_ink = |y0: u32, y1: u32| {
+            (y0..y1)
+                .flat_map(|y| (0..LEFT_MARGIN_PX as u32).map(move |x| (x, y)))
+                .filter(|&(x, y)| *img.get_pixel(x, y) == AXIS)
+                .count()
+        };
+        let h = PLOT_HEIGHT_PX;
+        assert!(label_ink(0, h / 2) > 50, "top panel labels");
+        assert!(label_ink(h / 2, h) > 50, "bottom panel labels");
+        // the running mean (blue) passes the top panel's middle row band, where no raw point lies
+        let mid = ((PANEL_MARGIN_PX + h as i64 / 2 - PANEL_MARGIN_PX / 2) / 2) as u32;
+        let blue = (mid - 3..=mid + 3)
+            .flat_map(|y| (LEFT_MARGIN_PX as u32..PLOT_WIDTH_PX).map(move |x| (x, y)))
+            .filter(|&(x, y)| *img.get_pixel(x, y) == TRAIN_COLOUR)
+            .count();
+        assert!(blue > 200, "running mean pixels near the middle: {blue}");
+    }
 }
