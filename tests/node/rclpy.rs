@@ -61,7 +61,8 @@ const STREAM_DURATION: Duration = Duration::from_secs(8);
 /// least 99 %).
 const MIN_RECEIVED_SHARE: f64 = 0.99;
 /// The same for a best-effort one, which may lose a sample (a fragment lost is the sample
-/// lost; nothing repairs it).
+/// lost; nothing repairs it): 90 %, and always one sample, however few were published (on a
+/// loaded machine the node publishes about 9 in the stream's 8 s, where 90 % allowed none).
 const MIN_RECEIVED_SHARE_BEST_EFFORT: f64 = 0.9;
 
 /// How rclpy subscribes in the streaming test.
@@ -74,10 +75,16 @@ enum Reliability {
 }
 
 impl Reliability {
-    fn min_received_share(self) -> f64 {
-        match self {
+    /// Of `published` messages, how many rclpy must receive.
+    fn min_received(self, published: u64) -> u64 {
+        let share = match self {
             Self::Reliable => MIN_RECEIVED_SHARE,
             Self::BestEffort => MIN_RECEIVED_SHARE_BEST_EFFORT,
+        };
+        let by_share = (share * published as f64).ceil() as u64;
+        match self {
+            Self::Reliable => by_share,
+            Self::BestEffort => by_share.min(published.saturating_sub(1)),
         }
     }
 }
@@ -189,7 +196,7 @@ fn peer_arrivals(result: &Value, topic: &str) -> PeerResult<Arrivals> {
         .collect()
 }
 
-/// rclpy must have received at least `min_share` of the `published` messages of
+/// rclpy must have received at least `min_received` of the `published` messages of
 /// `topic`, each at most [`MAX_EXTRA_DELAY`] after our own subscriber got it (where ours did);
 /// returns (received, published, worst extra delay).
 fn check_topic(
@@ -197,7 +204,7 @@ fn check_topic(
     ours: &Arrivals,
     theirs: &Arrivals,
     published: u64,
-    min_share: f64,
+    min_received: u64,
 ) -> PeerResult<(usize, u64, Duration)> {
     let delays: Vec<String> = theirs
         .iter()
@@ -213,8 +220,8 @@ fn check_topic(
     );
     let received = theirs.len();
     assert!(
-        received as f64 >= min_share * published as f64,
-        "{topic}: rclpy got {received} of {published}; ours got {:?}, rclpy {:?}",
+        received as u64 >= min_received,
+        "{topic}: rclpy got {received} of {published} (at least {min_received}); ours got {:?}, rclpy {:?}",
         ours.keys().collect::<Vec<_>>(),
         theirs.keys().collect::<Vec<_>>()
     );
@@ -334,7 +341,7 @@ fn rclpy_receives_every_output<D: Distro>(
             &in_window(&ours[k]),
             &in_window(&theirs[k]),
             published,
-            reliability.min_received_share(),
+            reliability.min_received(published),
         )?;
         println!(
             "{} {reliability:?}: {topic} {got} of {of}, at most {worst:?} after our subscriber",
