@@ -15,7 +15,7 @@
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::types::{cpu_slice, has_custom_kernels, OpsError};
+use super::types::{add_into, cpu_slice, has_custom_kernels, OpsError};
 
 const OP: &str = "add_bias";
 
@@ -88,13 +88,7 @@ impl CustomOp2 for AddBiasOp {
                         acc
                     },
                 )
-                .reduce(
-                    || vec![0f32; c],
-                    |mut a, b| {
-                        a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                        a
-                    },
-                );
+                .reduce(|| vec![0f32; c], add_into);
             Some(Tensor::from_vec(sums, c, b.device())?)
         } else {
             None

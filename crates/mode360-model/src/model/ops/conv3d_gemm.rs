@@ -14,7 +14,7 @@ use gemm::Parallelism;
 use rayon::prelude::*;
 
 use super::conv3d_direct::{conv3d_forward_direct, RowEpilogue};
-use super::types::{Conv3dGeometry, SPATIAL_AXES_3D};
+use super::types::{add_into, Conv3dGeometry, SPATIAL_AXES_3D};
 
 /// `dst (m × n) += lhs (m × k) · rhs (k × n)` over strided views; `dst` has unit column stride.
 /// Strides are in elements; the views must lie inside the slices (checked).
@@ -454,10 +454,4 @@ fn conv3d_weight_grad_planes_cpu(x: &[f32], dy: &[f32], g: &Conv3dGeometry) -> V
         )
         .map(|(acc, _)| acc)
         .reduce(|| vec![0f32; w_len], add_into)
-}
-
-/// `a + b` elementwise, into `a` (the weight gradients' per-task accumulators).
-fn add_into(mut a: Vec<f32>, b: Vec<f32>) -> Vec<f32> {
-    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-    a
 }

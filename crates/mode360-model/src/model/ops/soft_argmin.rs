@@ -71,15 +71,6 @@ fn row_moments(
     e.iter_mut().zip(s.iter()).for_each(|(ex, &sum)| *ex /= sum);
 }
 
-/// `(B, N, H, W)` dims of a contiguous `z` as (batch, hypotheses, rows, width).
-fn dims(layout: &Layout) -> Result<[usize; 4]> {
-    let d = layout.shape().dims();
-    match d {
-        [b, n, h, w] => Ok([*b, *n, *h, *w]),
-        _ => candle_core::bail!("{OP}: expected (B, N, H, W), got {d:?}"),
-    }
-}
-
 impl CustomOp1 for SoftArgminOp {
     fn name(&self) -> &'static str {
         OP
@@ -87,7 +78,7 @@ impl CustomOp1 for SoftArgminOp {
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
         let z = cpu_slice(s, l, OP)?;
-        let [b, n, h, w] = dims(l)?;
+        let (b, n, h, w) = l.shape().dims4()?;
         let pixels = h * w;
         let mut e = vec![0f32; b * pixels];
         e.par_chunks_mut(w).enumerate().for_each(|(row, e_row)| {
@@ -100,7 +91,7 @@ impl CustomOp1 for SoftArgminOp {
     }
 
     fn bwd(&self, z: &Tensor, _e: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
-        let [b, n, h, w] = dims(z.layout())?;
+        let (b, n, h, w) = z.dims4()?;
         let pixels = h * w;
         let zv = z.flatten_all()?.to_vec1::<f32>()?;
         let g = grad.flatten_all()?.to_vec1::<f32>()?;

@@ -401,3 +401,10 @@ impl LinearAxisMap {
         &self.upper_weight
     }
 }
+
+/// `a + b` elementwise, into `a` (per-task accumulators of a rayon fold: weight and bias
+/// gradients).
+pub(super) fn add_into(mut a: Vec<f32>, b: Vec<f32>) -> Vec<f32> {
+    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+    a
+}
