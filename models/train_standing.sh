@@ -50,6 +50,10 @@
 #                          the same stream and snapshots, against `fine_ctrl` at equal steps
 #                          (1,000 steps by 2026-12-03, compared at 500 and 1,000; next 1,500):
 #     ARMS=fine_lr SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
+#   runs/clutter_fine_head the fine head alone (`--fine-head-only`, lr 1e-3) on the shipped
+#                          weights, the rest frozen, the same stream and snapshots, against
+#                          the default (its step 0) and `fine_lr` at equal steps (2026-12-03):
+#     ARMS=fine_head SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_head.log 2>&1 &
 # `pairs` stopped at 3,200 (2026-11-29): trainer validation 68.33 at 2,750, 68.25 at 3,000; its
 # step 3,100 ships as models/psmode_stage1.safetensors. `pairs_decay` finished it with a
 # decaying rate to 5,000 (2026-11-29; validation 68.97, the best) and held out no better
@@ -83,7 +87,8 @@
 # --camera-effects), rigs from a pool of 6 renewed every 400 samples. The arms are compared on held-out cluttered
 # streets with `tools/eval_heldout.sh` (obstacle recall beside δ1).
 #
-# env: SNAPSHOT_EVERY (none: weights every N steps as step_N.safetensors), MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
+# env: SNAPSHOT_EVERY (none: weights every N steps as step_N.safetensors), SNAPSHOT_AT (none: more
+# snapshot steps, space-separated, with SNAPSHOT_EVERY), MODE360_BIN (target/release/mode360), INIT (start weights of `plain` and `weighted`: the
 # shipped file), ARMS (none: see above), THREADS (1: threads per arm), STEPS (20000: the cosine schedule's length, so the rate stays near its
 # peak for many sessions)
 set -euo pipefail
@@ -150,6 +155,17 @@ for arm in $arms; do
     preset=parallax_zncc_log_fine
     seed=7
     ;;
+  fine_head)
+    # issue 38: the fine head alone (`--fine-head-only`) on the shipped weights, at a fresh
+    # run's rate: the rest of the network stays the shipped one, so what the default reads
+    # without the head is kept (both fine-tuning arms lost δ1 against the default as their
+    # backbones moved), and a step costs a third of `fine_lr`'s (1.0 against 3.3 s)
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init"
+      --fine-head-only)
+    preset=parallax_zncc_log_fine
+    lr=1e-3
+    seed=7
+    ;;
   w512)
     # issue 38: the shipped weights fine-tuned at a 512 input, where the cost volume's cells
     # are half as wide and thin obstacles survive (models/README.md, "Resolution, and the
@@ -204,7 +220,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
@@ -227,7 +243,14 @@ except OSError:
     # equal-step snapshots for an ablation: stop every SNAPSHOT_EVERY steps, keep the weights
     # as step_N.safetensors, resume
     (
-      for ((m = SNAPSHOT_EVERY; m <= ${steps_override:-${STEPS:-20000}}; m += SNAPSHOT_EVERY)); do
+      last=${steps_override:-${STEPS:-20000}}
+      # the multiples of SNAPSHOT_EVERY and the steps of SNAPSHOT_AT (a control's checkpoint
+      # step, say), in order
+      milestones=$( (
+        seq "$SNAPSHOT_EVERY" "$SNAPSHOT_EVERY" "$last"
+        for s in ${SNAPSHOT_AT:-}; do echo "$s"; done
+      ) | sort -n -u)
+      for m in $milestones; do
         [[ -f "$out/step_$m.safetensors" ]] && continue
         # a checkpoint already past m (snapshots lost with a machine) has no weights of step m:
         # copying would label later weights step_m

@@ -53,6 +53,10 @@ pub struct CheckpointState {
     /// checkpoints).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loss_weighting: Option<LossWeighting>,
+    /// Whether only the fine head learns (`TrainOptions::fine_head_only`; absent in older
+    /// checkpoints and in full runs). A resume must match; a fork may change it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub fine_head_only: bool,
 }
 
 /// What a resume must find again to read the same Deep360 frames for the same samples.
@@ -189,6 +193,11 @@ fn first_mismatch(
             "street",
             state.mix.street.as_str().to_string(),
             expected.mix.street.as_str().to_string(),
+        ),
+        (
+            "fine_head_only",
+            state.fine_head_only.to_string(),
+            expected.fine_head_only.to_string(),
         ),
         (
             "deep360_disk",

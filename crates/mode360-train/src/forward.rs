@@ -65,20 +65,36 @@ pub(super) struct SampleResult {
     pub(super) range_m: Tensor,
 }
 
+/// Which forward pass [`forward_sample`] runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Pass {
+    /// Only the final stage, for validation.
+    Validate,
+    /// Every hourglass regressed, for the stacked loss.
+    Train,
+    /// The final stage with gradients into the fine head alone
+    /// ([`Ssmode::forward_fine_head_only`]).
+    TrainFineHead,
+}
+
 pub(super) fn forward_sample(
     model: &Ssmode,
     sampling: &SweepSampling,
     sample: &TrainSample,
     loss_cfg: &LossConfig,
     device: &Device,
-    train: bool,
+    pass: Pass,
 ) -> Result<SampleResult, TrainError> {
     let images = sample
         .images
         .iter()
         .map(|t| t.to_device(device))
         .collect::<Result<Vec<_>, _>>()?;
-    let out = model.forward(&images, sampling, train)?;
+    let out = match pass {
+        Pass::Validate => model.forward(&images, sampling, false)?,
+        Pass::Train => model.forward(&images, sampling, true)?,
+        Pass::TrainFineHead => model.forward_fine_head_only(&images, sampling)?,
+    };
     let target = loss_cfg.target_labelled(&[(&sample.range_m, sample.labels.as_ref())], device)?;
     let loss = loss_cfg.loss(&out.inverse_depth_stages, &target)?;
     let range_m = out
@@ -103,7 +119,7 @@ pub(super) fn validation_pass(
     let mut loss_sum = 0.0;
     for s in samples {
         let sampling = cache.get(&s.rig, cfg)?;
-        let r = forward_sample(model, sampling, s, loss_cfg, device, false)?;
+        let r = forward_sample(model, sampling, s, loss_cfg, device, Pass::Validate)?;
         loss_sum += f64::from(r.loss.to_dtype(DType::F32)?.to_scalar::<f32>()?);
         let pred: Vec<f32> = r.range_m.flatten_all()?.to_vec1()?;
         let m = depth_metrics(&pred, &s.range_m.data, cfg.max_depth_m)

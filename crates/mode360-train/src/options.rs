@@ -128,6 +128,12 @@ pub struct TrainOptions {
         arg(long, value_name = "FACTOR", default_value_t = DEFAULT_FINE_HEAD_LR_SCALE)
     )]
     pub fine_head_lr_scale: f64,
+    /// Train the fine head alone (`fine_head.*`, preset `parallax_zncc_log_fine`), the rest
+    /// of the network frozen at its start weights: the head's inputs are detached, so a step
+    /// costs about a third of a full one, and what the start weights read without the head
+    /// stays as it was. The loss reads only the final stage.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub fine_head_only: bool,
     /// The loss's extra weights (near pixels, too far, obstacles).
     #[cfg_attr(feature = "cli", command(flatten))]
     pub loss_weighting: LossWeighting,
@@ -191,6 +197,7 @@ impl Default for TrainOptions {
             deep360_disk_fraction: 1.0,
             max_grad_norm: None,
             fine_head_lr_scale: DEFAULT_FINE_HEAD_LR_SCALE,
+            fine_head_only: false,
             loss_weighting: LossWeighting::default(),
             init_weights: None,
             fork_from: None,
@@ -258,6 +265,15 @@ pub(super) fn resolve_config(opts: &TrainOptions) -> Result<SsmodeConfig, TrainE
         return Err(TrainError::Option {
             option: "fine_head_lr_scale",
             problem: format!("must be a positive number, got {}", opts.fine_head_lr_scale),
+        });
+    }
+    if opts.fine_head_only && cfg.fine_head_channels == 0 {
+        return Err(TrainError::Option {
+            option: "fine_head_only",
+            problem: format!(
+                "preset {} has no fine head to train (use parallax_zncc_log_fine)",
+                opts.preset
+            ),
         });
     }
     Ok(cfg)

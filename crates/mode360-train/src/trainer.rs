@@ -12,7 +12,7 @@ use super::data::{
     render_sample, validation_specs, DataConfig, Deep360Mix, SampleSpec, SampleStream, TrainSample,
 };
 use super::forward::{
-    accumulate_grads, forward_sample, validation_pass, SamplingCache, MIN_SAMPLING_CACHE_RIGS,
+    accumulate_grads, forward_sample, validation_pass, Pass, SamplingCache, MIN_SAMPLING_CACHE_RIGS,
 };
 use super::init::{load_init_weights, named_vars, seeded_var_builder};
 use super::log::{TrainRecord, ValRecord};
@@ -82,8 +82,14 @@ impl Trainer {
         std::fs::create_dir_all(&opts.out_dir).map_err(io_err(&opts.out_dir))?;
         let mut varmap = VarMap::new();
         let model = Ssmode::new(&cfg, seeded_var_builder(&varmap, opts.stream.seed, &device))?;
+        // with `fine_head_only`, the optimizer holds (and a checkpoint's moments name) the
+        // head's variables alone
+        let learned = named_vars(&varmap)?
+            .into_iter()
+            .filter(|(name, _)| !opts.fine_head_only || name.starts_with(FINE_HEAD_PREFIX))
+            .collect();
         let mut opt = AdamW::new(
-            named_vars(&varmap)?,
+            learned,
             AdamWParams {
                 weight_decay: opts.weight_decay,
                 max_grad_norm: opts.max_grad_norm,
@@ -91,7 +97,11 @@ impl Trainer {
             },
         )?;
         let head_vars = opt.scale_lr_of(FINE_HEAD_PREFIX, opts.fine_head_lr_scale);
-        if head_vars > 0 && opts.fine_head_lr_scale != 1.0 {
+        if opts.fine_head_only {
+            tracing::info!(
+                "only the fine head's {head_vars} variables learn; the rest of the network stays at its start weights"
+            );
+        } else if head_vars > 0 && opts.fine_head_lr_scale != 1.0 {
             tracing::info!(
                 "the fine head's {head_vars} variables learn at {} times the rate",
                 opts.fine_head_lr_scale
@@ -109,6 +119,7 @@ impl Trainer {
             deep360_disk: deep360_disk.as_ref().map(Deep360DiskState::of),
             mix: opts.stream.mix,
             loss_weighting: Some(opts.loss_weighting),
+            fine_head_only: opts.fine_head_only,
         };
         let state = restore(&opts, &cfg, &mut varmap, &mut opt, state, &device)?;
         let (train_csv, val_csv, curves) = prepare_logs(&opts, state.step)?;
@@ -225,7 +236,11 @@ impl Trainer {
                 &sample,
                 &self.loss_cfg,
                 &self.device,
-                true,
+                if self.opts.fine_head_only {
+                    Pass::TrainFineHead
+                } else {
+                    Pass::Train
+                },
             )?;
             let scaled = (r.loss / self.opts.batch_size as f64)?;
             step_loss += f64::from(scaled.to_dtype(DType::F32)?.to_scalar::<f32>()?);

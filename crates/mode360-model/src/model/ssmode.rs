@@ -271,6 +271,86 @@ impl Ssmode {
         Ok(())
     }
 
+    /// The whole cost volume of `features` `(N B, h, w, Cf)`: `(B, D, h, w, C')`, or
+    /// `(B, D, h, w, C' + 1)` with the photometric cost channel written beside the views'
+    /// variance in one pass.
+    fn whole_volume(
+        &self,
+        images: &[Tensor],
+        features: &Tensor,
+        sampling: &SweepSampling,
+    ) -> Result<Tensor> {
+        if self.cfg.photometric_cost {
+            // (B, D, h, w, 1)
+            let photometric = photometric_cost(images, sampling)?;
+            cost_volume_appended(features, sampling, self.cfg.cost, &photometric)
+        } else {
+            cost_volume(features, sampling, self.cfg.cost)
+        }
+    }
+
+    /// Training of the fine head alone, the rest of the network frozen: the final stage as
+    /// [`Ssmode::forward`] with `train` computes it (range, index, confidence, probabilities),
+    /// but the only variables it depends on are `fine_head.*`. The head's two inputs, the
+    /// cost volume and the last hourglass's cost, are detached, so a backward pass runs
+    /// through the head and the regression only (about a third of a full training step), and
+    /// the earlier hourglasses are not regressed. An error on a network without the head.
+    pub fn forward_fine_head_only(
+        &self,
+        images: &[Tensor],
+        sampling: &SweepSampling,
+    ) -> Result<SsmodeOutput> {
+        const OP: &str = "Ssmode::forward_fine_head_only";
+        let Some(fine_head) = &self.fine_head else {
+            return Err(OpsError::Shape {
+                op: OP,
+                what: "the network has no fine head (fine_head_channels 0)".to_string(),
+            }
+            .into());
+        };
+        self.check_images(images, sampling)?;
+        // (N B, H, W, 3)
+        let stacked = Tensor::cat(images, 0)?;
+        // (N B, h, w, Cf)
+        let features = self
+            .feature
+            .forward(&stacked, sampling.sphere_conv())?
+            .detach();
+        // (B, D, h, w, C' (+ 1)), depending on no variable
+        let volume = self.whole_volume(images, &features, sampling)?;
+        drop(features);
+        // (B, D/s, h/s, (w + 2 p)/s, Ch)
+        let last = self
+            .aggregation
+            .forward(&volume, self.cfg.seam_pad_cells)?
+            .pop()
+            .zip(self.classif.last())
+            .ok_or(OpsError::Shape {
+                op: OP,
+                what: "no hourglass stages".to_string(),
+            })?;
+        // (B, D/s, h/s, w/s), detached: the hourglasses' graph is dropped here
+        let coarse = self.crop_seam(last.1.forward(&last.0)?)?.detach();
+        drop(last);
+        // (B, D/s, h, w)
+        let cost = fine_head.forward(&fine_head.cost_part(&volume)?, &coarse)?;
+        drop(volume);
+        // (B, H, W)
+        let r = regress(
+            &cost,
+            &self.hypotheses,
+            self.cfg.height(),
+            self.cfg.width,
+            self.far_readout(sampling),
+        )?;
+        Ok(SsmodeOutput {
+            stages: vec![r.range_m],
+            inverse_depth_stages: vec![r.inverse_depth_index],
+            confidence: confidence(&r.probabilities)?,
+            probabilities: Some(r.probabilities),
+        })
+    }
+
     /// The far-plane test of the readout on `sampling`'s rig.
     fn far_readout<'a>(&self, sampling: &'a SweepSampling) -> FarReadout<'a> {
         FarReadout {
@@ -374,15 +454,8 @@ impl Ssmode {
             StageProfiler::mark_on(&mut profiler, "regression");
             return Ok(out);
         }
-        // (B, D, h, w, C'), or (B, D, h, w, C' + 1) with the photometric cost channel written
-        // beside the views' variance in one pass
-        let volume = if self.cfg.photometric_cost {
-            // (B, D, h, w, 1)
-            let photometric = photometric_cost(images, sampling)?;
-            cost_volume_appended(&features, sampling, self.cfg.cost, &photometric)?
-        } else {
-            cost_volume(&features, sampling, self.cfg.cost)?
-        };
+        // (B, D, h, w, C' (+ 1))
+        let volume = self.whole_volume(images, &features, sampling)?;
         drop(features);
         StageProfiler::mark_on(&mut profiler, "cost_volume");
         // K x (B, D/s, h/s, (w + 2 p)/s, Ch), p columns from across the longitude seam each side

@@ -331,3 +331,90 @@ fn aggregation_in_slabs_equals_the_whole_volume() {
         }
     }
 }
+
+/// `Ssmode::forward_fine_head_only` computes the network's final stage (range and confidence
+/// as the full training forward computes them), and its gradient reaches the fine head's
+/// variables and no other: the rest of the network is frozen. A network without the head is
+/// refused by name.
+#[test]
+fn training_the_fine_head_alone_reads_the_final_stage_and_moves_only_the_head() {
+    use crate::common::{pseudo_random, seed_weights, tensor, values};
+    use candle_core::DType;
+    use candle_nn::{VarBuilder, VarMap};
+    use mode360_model::model::Ssmode;
+    let cfg = SsmodeConfig {
+        fine_head_channels: 3,
+        ..SsmodeConfig::tiny_zncc()
+    };
+    let rig = rig();
+    let varmap = VarMap::new();
+    let net = Ssmode::new(
+        &cfg,
+        VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu),
+    )
+    .expect("network");
+    // reproducible weights, and the head's output layer (which starts at zero) set, so that
+    // the head changes the output
+    seed_weights(&varmap, 3);
+    varmap.data().lock().expect("varmap")["fine_head.out.weight"]
+        .set(&tensor(&[0.5, -0.3, 0.8], &[3]))
+        .expect("set the head's output weights");
+    let sampling = SweepSampling::new(&rig, &cfg).expect("sampling");
+    let images: Vec<Tensor> = (0..rig.cameras.len())
+        .map(|c| {
+            let n = cfg.height() * cfg.width * 3;
+            let v: Vec<f64> = pseudo_random(n, 60 + c as u64)
+                .iter()
+                .map(|x| 0.5 + 0.5 * x)
+                .collect();
+            tensor(&v, &[1, cfg.height(), cfg.width, 3])
+        })
+        .collect();
+    let full = net.forward(&images, &sampling, true).expect("full forward");
+    let head = net
+        .forward_fine_head_only(&images, &sampling)
+        .expect("head-only forward");
+    assert_eq!(head.stages.len(), 1, "the final stage alone");
+    let close = |what: &str, a: &Tensor, b: &Tensor| {
+        let (a, b) = (values(a), values(b));
+        let err = crate::common::max_abs_diff(&a, &b);
+        assert!(err <= 1e-6, "{what}: differs by {err}");
+    };
+    close(
+        "range",
+        &head.stages[0],
+        full.stages.last().expect("stages"),
+    );
+    close("confidence", &head.confidence, &full.confidence);
+    let loss = (&head.inverse_depth_stages[0] - 0.3)
+        .and_then(|d| d.sqr())
+        .and_then(|d| d.mean_all())
+        .expect("loss");
+    let grads = loss.backward().expect("backward");
+    let data = varmap.data().lock().expect("varmap");
+    let mut head_vars = 0;
+    for (name, var) in data.iter() {
+        let grad = grads.get(var.as_tensor());
+        if name.starts_with("fine_head.") {
+            let g = grad.unwrap_or_else(|| panic!("no gradient for {name}"));
+            assert!(values(g).iter().any(|v| *v != 0.0), "{name}: zero gradient");
+            head_vars += 1;
+        } else {
+            assert!(grad.is_none(), "{name} got a gradient; it is frozen");
+        }
+    }
+    assert_eq!(head_vars, 4, "cost.weight, cost.bias, coarse and out");
+    drop(data);
+
+    let plain = Ssmode::new(
+        &SsmodeConfig::tiny_zncc(),
+        VarBuilder::zeros(DType::F32, &Device::Cpu),
+    )
+    .expect("network without a head");
+    let sampling = SweepSampling::new(&rig, &SsmodeConfig::tiny_zncc()).expect("sampling");
+    let err = plain
+        .forward_fine_head_only(&images, &sampling)
+        .expect_err("a network without the head")
+        .to_string();
+    assert!(err.contains("no fine head"), "{err}");
+}

@@ -38,6 +38,7 @@ fn opts(out: &Path, steps: usize) -> TrainOptions {
         until_step: None,
         max_grad_norm: Some(5.0),
         fine_head_lr_scale: 1.0,
+        fine_head_only: false,
         loss_weighting: Default::default(),
         device: mode360_model::model::ComputeDevice::Cpu,
         show_progress: false,
@@ -87,6 +88,67 @@ fn a_fine_head_rate_scale_that_is_not_positive_is_refused() {
         );
     }
     assert!(!out.exists(), "{} made for refused options", out.display());
+}
+
+/// `fine_head_only`: two steps leave every variable outside `fine_head.*` exactly at its start
+/// value and move the head; the optimizer's checkpoint holds the head's moments alone; a
+/// resume that drops the flag, and the flag on a preset without a head, are refused by name.
+#[test]
+fn training_the_fine_head_alone_moves_only_the_head() {
+    let dir = tempfile::tempdir().unwrap();
+    let fine = |out: &Path, steps: usize| TrainOptions {
+        preset: mode360_model::model::Preset::ParallaxZnccLogFine,
+        width: Some(64),
+        fine_head_only: true,
+        lr: 1e-2,
+        val_every: 0,
+        ..opts(out, steps)
+    };
+    let start = run_training(&fine(&dir.path().join("start"), 0)).unwrap();
+    let trained = run_training(&fine(&dir.path().join("head"), 2)).unwrap();
+    assert_eq!(trained.final_step, 2);
+    let (before, after) = (weights(&start.weights_path), weights(&trained.weights_path));
+    assert_eq!(before.len(), after.len());
+    let mut head_moved = 0;
+    for (name, b) in &before {
+        if name.starts_with("fine_head.") {
+            head_moved += usize::from(after[name] != *b);
+        } else {
+            assert!(after[name] == *b, "{name} moved; only the head learns");
+        }
+    }
+    assert!(
+        head_moved >= 2,
+        "{head_moved} of the head's variables moved"
+    );
+    let moments = weights(
+        &dir.path()
+            .join("head")
+            .join(CHECKPOINT_DIR)
+            .join(mode360_train::OPTIMIZER_FILE),
+    );
+    assert_eq!(moments.len(), 8, "m and v of the head's 4 variables");
+    assert!(
+        moments.keys().all(|k| k.contains("fine_head.")),
+        "{moments:?}"
+    );
+
+    let resumed_in_full = TrainOptions {
+        fine_head_only: false,
+        resume: true,
+        ..fine(&dir.path().join("head"), 4)
+    };
+    let e = run_training(&resumed_in_full).unwrap_err().to_string();
+    assert!(e.contains("fine_head_only"), "{e}");
+    let no_head = TrainOptions {
+        fine_head_only: true,
+        ..opts(&dir.path().join("plain"), 1)
+    };
+    let e = run_training(&no_head).unwrap_err().to_string();
+    assert!(
+        e.contains("fine_head_only") && e.contains("no fine head"),
+        "{e}"
+    );
 }
 
 fn weights(path: &Path) -> HashMap<String, Vec<f32>> {
