@@ -155,6 +155,16 @@ for arm in $arms; do
     preset=parallax_zncc_log_fine
     seed=7
     ;;
+  fine_slow)
+    # `fine_lr` with the backbone at a tenth of the rate (2e-6) and the head at the same 1e-3
+    # (`--fine-head-lr-scale 500`): between `fine_head` (backbone frozen: no gain by 1,000
+    # steps) and `fine_lr` (obstacles kept, δ1 lost against the default as the backbone moved)
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init"
+      --fine-head-lr-scale 500)
+    preset=parallax_zncc_log_fine
+    lr=2e-6
+    seed=7
+    ;;
   fine_head)
     # issue 38: the fine head alone (`--fine-head-only`) on the shipped weights, at a fresh
     # run's rate: the rest of the network stays the shipped one, so what the default reads
@@ -220,7 +230,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
