@@ -29,6 +29,7 @@
 #   WEIGHTS      SSMODE weights, also PSMODE's stage 1 (models/ssmode_parallax_zncc_log.safetensors)
 #   FUSION       PSMODE's fusion weights (unset: none, the most confident pair)
 #   NEAR_PASS    SSMODE's near-pass width (unset: off)
+#   NEAR_PASS_SOURCE  what the near pass is: network or sweep (network)
 #   OUT          output folder (BAGS_DIR/out)
 #   MODE360_BIN  the binary (target/release/mode360)
 #   RIGS         folder of the shipped rigs (launch_configs)
@@ -97,7 +98,8 @@ for est in $estimators; do
   w=()
   [[ $est == ssmode || $est == psmode ]] && w=(--weights "$weights")
   [[ $est == psmode && -n "${FUSION:-}" ]] && w+=(--fusion-weights "$FUSION")
-  [[ $est == ssmode && -n "${NEAR_PASS:-}" ]] && w+=(--near-pass-width "$NEAR_PASS")
+  [[ $est == ssmode && -n "${NEAR_PASS:-}" ]] &&
+    w+=(--near-pass-width "$NEAR_PASS" --near-pass-source "${NEAR_PASS_SOURCE:-network}")
   for row in "${rows[@]}"; do
     name="${row%%|*}"
     json="$out/${name}_${est}.json"

@@ -2,6 +2,7 @@
 //! `bench-node`.
 
 use clap::Args;
+use mode360_estimator::near_pass::NearPassSource;
 use mode360_estimator::psmode::PairChoice;
 use mode360_estimator::{EstimatorKind, EstimatorSpec};
 use mode360_model::model::{ComputeDevice, ReadoutOverrides};
@@ -36,6 +37,11 @@ pub struct EstimatorArgs {
     /// within 30 m and confident (at least 0.8). A second forward pass at that width. Off by default.
     #[arg(long)]
     pub near_pass_width: Option<usize>,
+    /// SSMODE: what the second pass (`--near-pass-width`) is: the network again, or the
+    /// learning-free photometric sweep on a grid of that width, trusted only where it reads
+    /// over 1.25 times nearer within 15 m and confident (at least 0.5).
+    #[arg(long, value_enum, default_value_t = NearPassSource::default())]
+    pub near_pass_source: NearPassSource,
     /// SSMODE's far-plane test: a pixel whose probability on the far field is at least this
     /// reads as out of range (above 1: off). Default: the weights file's, else 0.5.
     #[arg(long)]
@@ -62,6 +68,7 @@ impl EstimatorArgs {
             pairs: self.pairs.clone(),
             fusion_weights: self.fusion_weights.clone(),
             near_pass_width: self.near_pass_width,
+            near_pass_source: self.near_pass_source,
             readout: ReadoutOverrides {
                 far_plane_probability: self.far_plane_probability,
                 far_parallax_cells: self.far_parallax_cells,

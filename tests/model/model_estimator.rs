@@ -176,8 +176,8 @@ fn compact_weights_beat_the_photometric_sweep_on_held_out_frames() {
 #[test]
 fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles() {
     use mode360::estimator::near_pass::{
-        combine, NearPassEstimator, NEAR_PASS_MAX_RANGE_M, NEAR_PASS_MIN_CONFIDENCE,
-        NEAR_PASS_RATIO,
+        combine, NearPassEstimator, NearPassSource, NEAR_PASS_MAX_RANGE_M,
+        NEAR_PASS_MIN_CONFIDENCE, NEAR_PASS_RATIO,
     };
     use mode360::estimator::{EstimatorKind, EstimatorSpec};
     use mode360::model::ComputeDevice;
@@ -186,10 +186,16 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
     let mut coarse = SsmodeEstimator::load(&path).unwrap();
     let cfg = coarse.config().clone();
     let fine_width = 3 * cfg.width / 2;
-    let mut near =
-        NearPassEstimator::load_on(&path, ComputeDevice::Cpu, fine_width, &Default::default())
-            .unwrap();
+    let mut near = NearPassEstimator::load_on(
+        &path,
+        ComputeDevice::Cpu,
+        fine_width,
+        NearPassSource::Network,
+        &Default::default(),
+    )
+    .unwrap();
     assert_eq!(near.fine_width(), fine_width);
+    assert_eq!(near.source(), NearPassSource::Network);
     let mut fine = SsmodeEstimator::load_at_width(&path, ComputeDevice::Cpu, fine_width).unwrap();
     // the far field stays the same angle: 1.5 times the cells at 1.5 times the width
     assert_eq!(
@@ -204,7 +210,8 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
         coarse.estimate(&rig, &frame.images, output).unwrap(),
         fine.estimate(&rig, &frame.images, output).unwrap(),
     );
-    assert_eq!(got.range_m.data, combine(&c, &f).range_m.data);
+    let gate = NearPassSource::Network.gate();
+    assert_eq!(got.range_m.data, combine(&c, &f, &gate).range_m.data);
     // pixel by pixel: the fine pass's reading exactly where the rule says, else the coarse one
     let mut taken = 0;
     let fine_pixels = f.range_m.data.iter().zip(&f.confidence.data);
@@ -241,6 +248,85 @@ fn the_near_pass_runs_the_weights_at_two_widths_and_keeps_the_nearer_obstacles()
     };
     let err = spec.build().err().expect("photometric").to_string();
     assert!(err.contains("near_pass_width"), "{err}");
+}
+
+/// The sweep as the near pass (`--near-pass-source sweep`): on a cluttered street it takes the
+/// photometric sweep's range exactly where its gate says (nearer by the margin, within the
+/// near range, confident), and it recovers at least two more of the frame's obstacles (object
+/// instances within 10 m, as `eval` scores them) than the network alone.
+#[test]
+fn the_sweep_as_near_pass_reads_near_clutter_better_than_the_network_alone() {
+    use mode360::estimator::near_pass::{NearPassEstimator, NearPassSource};
+    use mode360::estimator::photometric::{PhotometricConfig, PhotometricSweep};
+    use mode360::model::ComputeDevice;
+    let path = mode360::estimator::ssmode::default_weights_path();
+    let rig = rig();
+    // at 512, the node's width, where the sweep resolves the thin clutter
+    let output = ErpGrid::new(512).unwrap();
+    let frame = cluttered_street_at(&rig, output.width());
+    let truth = frame.ground_truth.clone().expect("ground truth");
+    let labels = frame.labels.clone().expect("labels");
+    let mut near = NearPassEstimator::load_on(
+        &path,
+        ComputeDevice::Cpu,
+        output.width(),
+        NearPassSource::Sweep,
+        &Default::default(),
+    )
+    .unwrap();
+    let got = near.estimate(&rig, &frame.images, output).unwrap();
+    let alone = SsmodeEstimator::load(&path)
+        .unwrap()
+        .estimate(&rig, &frame.images, output)
+        .unwrap();
+    let sweep = PhotometricSweep::new(PhotometricConfig::default())
+        .unwrap()
+        .estimate(&rig, &frame.images, output)
+        .unwrap();
+    let gate = NearPassSource::Sweep.gate();
+    let mut taken = 0;
+    for k in 0..output.len() {
+        let (g, rc) = (got.range_m.data[k], alone.range_m.data[k]);
+        let (rs, cs) = (sweep.range_m.data[k], sweep.confidence.data[k]);
+        let rc_or_far = if rc.is_finite() { rc } else { f32::INFINITY };
+        let nearer = rs.is_finite()
+            && rs < gate.max_range_m
+            && gate.ratio * rs < rc_or_far
+            && cs >= gate.min_confidence;
+        if nearer {
+            assert_eq!(g, rs, "pixel {k}: the sweep's range");
+            taken += 1;
+        } else {
+            assert!(
+                g == rc || (g.is_nan() && rc.is_nan()),
+                "pixel {k}: the network's"
+            );
+        }
+    }
+    assert!(taken > 0 && taken < output.len() / 2, "{taken} px taken");
+    // the obstacles as `eval` scores them: object instances within 10 m, recovered when their
+    // median range is within 25 %
+    let score = |e: &mode360::estimator::DepthEstimate| {
+        let f = mode360::obstacles::frame_obstacles(&e.range_m.data, &truth.data, &labels, 1000.0)
+            .expect("scored");
+        let hits = f.obstacles.iter().filter(|o| o.recovered).count();
+        (
+            hits,
+            f.obstacles.len(),
+            f.near_object_delta1.pct().unwrap_or(0.0),
+        )
+    };
+    let (with, without) = (score(&got), score(&alone));
+    println!(
+        "sweep near pass: {taken} px taken; obstacles {} / {} of {}, δ1 objects within 5 m {:.1} / {:.1} %",
+        with.0, without.0, with.1, with.2, without.2
+    );
+    assert!(with.1 >= 5, "{} obstacles in the frame", with.1);
+    // measured: 13 against 10 of 17 (1,880 of 131,072 pixels from the sweep)
+    assert!(
+        with.0 >= without.0 + 2,
+        "obstacles recovered {with:?} against {without:?} alone"
+    );
 }
 
 /// The readout is an estimator setting: `--refine-radius-cells 0` turns the edge refinement off
@@ -386,8 +472,13 @@ fn hidden_points_get_low_confidence_and_are_where_the_estimate_is_wrong() {
 
 /// Frame 0 of a cluttered street (near clutter from 0.7 m out), seed 5, at 256 on `rig`.
 fn cluttered_street(rig: &mode360::geometry::Rig) -> mode360::frame::RigFrame {
+    cluttered_street_at(rig, 256)
+}
+
+/// [`cluttered_street`] at `width`.
+fn cluttered_street_at(rig: &mode360::geometry::Rig, width: usize) -> mode360::frame::RigFrame {
     SynthRenderer::new(SynthConfig {
-        width: 256,
+        width,
         seed: 5,
         street: mode360::synth::StreetStyle::Cluttered,
         ..SynthConfig::default()

@@ -179,6 +179,9 @@ pub struct EstimatorSpec {
     /// SSMODE's second pass for near obstacles at this input width (`None`: off;
     /// [`near_pass`]); an error at [`Self::build`] for the other estimators.
     pub near_pass_width: Option<usize>,
+    /// What SSMODE's second pass is (the network again, or the photometric sweep); used only
+    /// with `near_pass_width`.
+    pub near_pass_source: near_pass::NearPassSource,
     /// SSMODE's readout settings where they replace the weights file's (else the defaults);
     /// an error at [`Self::build`] for the other estimators.
     pub readout: ReadoutOverrides,
@@ -282,6 +285,7 @@ impl EstimatorSpec {
                         path,
                         self.device,
                         width,
+                        self.near_pass_source,
                         &self.readout,
                     )?),
                 })

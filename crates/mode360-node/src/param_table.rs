@@ -214,6 +214,16 @@ pub const PARAMETERS: &[ParamSpec] = &[
         },
     },
     ParamSpec {
+        name: "near_pass_source",
+        runtime: false,
+        constraint: Constraint::None,
+        get: |p| ParamValue::String(p.estimator.near_pass_source.to_string()),
+        set: |p, v| {
+            p.estimator.near_pass_source = v.parse().map_err(|e: EstimatorError| e.to_string())?;
+            Ok(())
+        },
+    },
+    ParamSpec {
         name: "device",
         runtime: false,
         constraint: Constraint::None,
