@@ -27,7 +27,9 @@ use super::fine_head::{FineHead, FINE_HEAD_PREFIX};
 use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
 use super::readout::Readout;
-use super::regression::{confidence, regress, regress_inference, FarReadout, RegressionHead};
+use super::regression::{
+    confidence, regress, regress_inference, FarReadout, Regression, RegressionHead,
+};
 use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
 use crate::model::ops::{flop_count, OpsError};
@@ -336,19 +338,25 @@ impl Ssmode {
         let cost = fine_head.forward(&fine_head.cost_part(&volume)?, &coarse)?;
         drop(volume);
         // (B, H, W)
-        let r = regress(
-            &cost,
-            &self.hypotheses,
-            self.cfg.height(),
-            self.cfg.width,
-            self.far_readout(sampling),
-        )?;
+        let r = self.regress_stage(&cost, sampling)?;
         Ok(SsmodeOutput {
             stages: vec![r.range_m],
             inverse_depth_stages: vec![r.inverse_depth_index],
             confidence: confidence(&r.probabilities)?,
             probabilities: Some(r.probabilities),
         })
+    }
+
+    /// Training's regression of one stage's cost `(B, D/s, h', w')` into `(B, H, W)` range,
+    /// index and probabilities, with the far-plane test on `sampling`'s rig.
+    fn regress_stage(&self, cost: &Tensor, sampling: &SweepSampling) -> Result<Regression> {
+        regress(
+            cost,
+            &self.hypotheses,
+            self.cfg.height(),
+            self.cfg.width,
+            self.far_readout(sampling),
+        )
     }
 
     /// The far-plane test of the readout on `sampling`'s rig.
@@ -482,13 +490,7 @@ impl Ssmode {
                 cost
             };
             // (B, H, W)
-            let r = regress(
-                &cost,
-                &self.hypotheses,
-                self.cfg.height(),
-                self.cfg.width,
-                self.far_readout(sampling),
-            )?;
+            let r = self.regress_stage(&cost, sampling)?;
             stages.push(r.range_m);
             inverse_depth_stages.push(r.inverse_depth_index);
             last_probabilities = Some(r.probabilities);
