@@ -1,5 +1,7 @@
 //! A 3x5 pixel font for the few labels the pictures carry (depth legends, the axes of training
-//! curves): digits, `.`, `-`, `%` and `m`, drawn at an integer scale with no font file.
+//! curves): digits, capital letters, `m` (metres), `.`, `,`, `-`, `%`, `:`, `/` and
+//! parentheses, drawn at an integer scale with no font file. A space, or any other character,
+//! leaves a blank.
 
 use crate::frame::RgbImage;
 use image::Rgb;
@@ -53,6 +55,36 @@ impl TextStyle {
     }
 }
 
+/// The capital letters A to Z, rows top first, bit 2 the left column.
+const LETTERS: [[u8; 5]; 26] = [
+    [2, 5, 7, 5, 5], // A
+    [6, 5, 6, 5, 6], // B
+    [3, 4, 4, 4, 3], // C
+    [6, 5, 5, 5, 6], // D
+    [7, 4, 6, 4, 7], // E
+    [7, 4, 6, 4, 4], // F
+    [3, 4, 5, 5, 3], // G
+    [5, 5, 7, 5, 5], // H
+    [7, 2, 2, 2, 7], // I
+    [1, 1, 1, 5, 2], // J
+    [5, 5, 6, 5, 5], // K
+    [4, 4, 4, 4, 7], // L
+    [5, 7, 7, 5, 5], // M
+    [6, 5, 5, 5, 5], // N
+    [2, 5, 5, 5, 2], // O
+    [6, 5, 6, 4, 4], // P
+    [2, 5, 5, 6, 3], // Q
+    [6, 5, 6, 5, 5], // R
+    [3, 4, 2, 1, 6], // S
+    [7, 2, 2, 2, 2], // T
+    [5, 5, 5, 5, 7], // U
+    [5, 5, 5, 5, 2], // V
+    [5, 5, 7, 7, 5], // W
+    [5, 5, 2, 5, 5], // X
+    [5, 5, 2, 2, 2], // Y
+    [7, 1, 2, 4, 7], // Z
+];
+
 /// Rows of a 3x5 glyph, top first, bit 2 the left column.
 fn glyph(c: char) -> Option<[u8; 5]> {
     Some(match c {
@@ -70,6 +102,12 @@ fn glyph(c: char) -> Option<[u8; 5]> {
         '-' => [0, 0, 7, 0, 0],
         '%' => [5, 1, 2, 4, 5],
         'm' => [0, 0, 7, 7, 5],
+        ',' => [0, 0, 0, 2, 4],
+        ':' => [0, 2, 0, 2, 0],
+        '/' => [1, 1, 2, 4, 4],
+        '(' => [1, 2, 2, 2, 1],
+        ')' => [4, 2, 2, 2, 4],
+        'A'..='Z' => LETTERS[(c as u8 - b'A') as usize],
         _ => return None,
     })
 }
@@ -77,6 +115,23 @@ fn glyph(c: char) -> Option<[u8; 5]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_glyph_is_distinct_and_a_space_is_blank() {
+        let chars: Vec<char> = ('0'..='9')
+            .chain('A'..='Z')
+            .chain("m.,-%:/()".chars())
+            .collect();
+        let glyphs: Vec<[u8; 5]> = chars.iter().map(|&c| glyph(c).unwrap()).collect();
+        for (i, a) in glyphs.iter().enumerate() {
+            assert!(a.iter().all(|&row| row < 8), "{} is 3 wide", chars[i]);
+            for (j, b) in glyphs.iter().enumerate().skip(i + 1) {
+                assert_ne!(a, b, "{} and {} look alike", chars[i], chars[j]);
+            }
+        }
+        assert_eq!(glyph(' '), None);
+        assert_eq!(glyph('q'), None);
+    }
 
     #[test]
     fn text_covers_its_width_and_the_glyphs_pixels() {

@@ -42,10 +42,15 @@ const LABEL_TEXT: TextStyle = TextStyle {
     ink: AXIS,
 };
 const VAL_COLOUR: Rgb<u8> = Rgb([220, 60, 40]);
+/// The step axis' title.
+const STEP_AXIS_TITLE: &str = "STEP";
 /// Horizontal grid lines per panel.
 const GRID_LINES: usize = 4;
 /// Top of the delta1 axis, percent.
 const PERCENT_MAX: f64 = 100.0;
+/// Grid steps the delta1 axis may take, percent: the smallest whose [`GRID_LINES`] intervals
+/// hold the validation points is used, so a change of a tenth of a point shows.
+const PERCENT_STEPS: [f64; 8] = [0.25, 0.5, 1.0, 2.0, 2.5, 5.0, 10.0, 25.0];
 
 /// One row of `train.csv`.
 #[derive(Clone, Debug, PartialEq)]
@@ -319,11 +324,48 @@ fn label_rows(img: &mut RgbImage, p: Panel, labels: &[String]) {
     }
 }
 
+/// The delta1 axis `(bottom, top, grid step)` for validation values in `[min, max]`, percent:
+/// the first step `s` of [`PERCENT_STEPS`] for which
+///
+/// ```text
+/// bottom = s floor(min / s)  (one step lower where that is min itself, never below 0)
+/// top    = bottom + GRID_LINES s  (moved down to 100 % with bottom where it is above)
+/// ```
+///
+/// holds `max` below `top` (or at 100 %), so no point sits on the panel's edge but at 0 or 100.
+fn percent_axis(min: f64, max: f64) -> (f64, f64, f64) {
+    let intervals = GRID_LINES as f64;
+    for s in PERCENT_STEPS {
+        let mut bottom = (min / s).floor() * s;
+        if bottom == min {
+            bottom -= s;
+        }
+        bottom = bottom.clamp(0.0, PERCENT_MAX - intervals * s);
+        let top = bottom + intervals * s;
+        if bottom <= min && (max < top || top == PERCENT_MAX) {
+            return (bottom, top, s);
+        }
+    }
+    (0.0, PERCENT_MAX, PERCENT_MAX / intervals)
+}
+
+/// Draws `segments` left to right from `(x, y)`, each in its own colour (a title that is its
+/// own legend).
+fn draw_segments(img: &mut RgbImage, x: i64, y: i64, segments: &[(&str, Rgb<u8>)]) {
+    let mut x = x;
+    for &(text, ink) in segments {
+        let style = TextStyle { ink, ..LABEL_TEXT };
+        style.draw(img, x.max(0) as u32, y.max(0) as u32, text);
+        x += i64::from(style.width_px(text) + style.gap_px);
+    }
+}
+
 /// Re-plots `curves.png`: top panel the training loss (each step light blue, its running mean
 /// over [`TRAIN_SMOOTH_STEPS`] blue) and the validation loss (red) vs step on one shared log10
-/// scale spanning the data; bottom panel validation delta1 (red) vs step on a fixed 0..100 %
-/// scale, grid lines every 25 %. Both panels share the step axis; the grid lines carry their
-/// values and the step axis its first and last step (the CSV files hold the numbers).
+/// scale spanning the data; bottom panel validation delta1 (red) vs step on a scale fitted to
+/// the points ([`percent_axis`]; 0..100 % without any). Both panels share the step axis; each
+/// carries a title in the colours of its lines, the grid lines their values and the step axis
+/// its first and last step (the CSV files hold the numbers).
 pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(), String> {
     let train = if train_csv.exists() {
         read_columns(train_csv, "step", "loss")
@@ -357,6 +399,27 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
     };
     draw_frame(&mut img, top);
     draw_frame(&mut img, bottom);
+    let title_y = |panel: Panel| panel.y0 - i64::from(LABEL_GAP_PX + LABEL_TEXT.height_px());
+    let mean = format!("MEAN OF {TRAIN_SMOOTH_STEPS}");
+    draw_segments(
+        &mut img,
+        top.x0,
+        title_y(top),
+        &[
+            ("LOSS, LOG SCALE: ", AXIS),
+            ("EACH STEP", TRAIN_RAW_COLOUR),
+            (", ", AXIS),
+            (&mean, TRAIN_COLOUR),
+            (", ", AXIS),
+            ("VALIDATION", VAL_COLOUR),
+        ],
+    );
+    draw_segments(
+        &mut img,
+        bottom.x0,
+        title_y(bottom),
+        &[("VALIDATION DELTA1 (%)", VAL_COLOUR)],
+    );
     let (train_log, val_log) = (log10_series(&train), log10_series(&val_loss));
     if let Some(b) = bounds_of(&[&train_log, &val_log]) {
         draw_series(&mut img, top, b, &train_log, TRAIN_RAW_COLOUR, false);
@@ -372,19 +435,22 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
         label_rows(&mut img, top, &labels);
     }
     if let Some(b) = bounds_of(&[&train, &val_d1]) {
-        let pct = Bounds {
-            y_min: 0.0,
-            y_max: PERCENT_MAX,
-            ..b
+        let (y_min, y_max, grid_step) = match bounds_of(&[&val_d1]) {
+            Some(v) => percent_axis(v.y_min, v.y_max),
+            None => (0.0, PERCENT_MAX, PERCENT_MAX / GRID_LINES as f64),
         };
+        let pct = Bounds { y_min, y_max, ..b };
         draw_series(&mut img, bottom, pct, &val_d1, VAL_COLOUR, true);
+        // as many decimals as the grid step has
+        let decimals = if grid_step.fract() == 0.0 {
+            0
+        } else if (grid_step * 2.0).fract() == 0.0 {
+            1
+        } else {
+            2
+        };
         let labels: Vec<String> = (0..=GRID_LINES)
-            .map(|k| {
-                format!(
-                    "{:.0}%",
-                    PERCENT_MAX * (GRID_LINES - k) as f64 / GRID_LINES as f64
-                )
-            })
+            .map(|k| format!("{:.*}%", decimals, y_max - grid_step * k as f64))
             .collect();
         label_rows(&mut img, bottom, &labels);
         let y = (bottom.y1 + i64::from(LABEL_GAP_PX)) as u32;
@@ -392,6 +458,8 @@ pub fn plot_curves(train_csv: &Path, val_csv: &Path, out_png: &Path) -> Result<(
         LABEL_TEXT.draw(&mut img, bottom.x0 as u32, y, &first);
         let x = bottom.x1 - i64::from(LABEL_TEXT.width_px(&last));
         LABEL_TEXT.draw(&mut img, x.max(0) as u32, y, &last);
+        let x = (bottom.x0 + bottom.x1 - i64::from(LABEL_TEXT.width_px(STEP_AXIS_TITLE))) / 2;
+        LABEL_TEXT.draw(&mut img, x.max(0) as u32, y, STEP_AXIS_TITLE);
     }
     let tmp = out_png.with_extension("png.tmp");
     img.save_with_format(&tmp, image::ImageFormat::Png)
@@ -454,5 +522,38 @@ mod tests {
             .filter(|&(x, y)| *img.get_pixel(x, y) == TRAIN_COLOUR)
             .count();
         assert!(blue > 200, "running mean pixels near the middle: {blue}");
+        // the titles, in the lines' colours, above the top panel
+        let title_ink = |c: Rgb<u8>| {
+            (0..PANEL_MARGIN_PX as u32)
+                .flat_map(|y| (0..PLOT_WIDTH_PX).map(move |x| (x, y)))
+                .filter(|&(x, y)| *img.get_pixel(x, y) == c)
+                .count()
+        };
+        assert!(title_ink(TRAIN_COLOUR) > 50 && title_ink(VAL_COLOUR) > 50);
+        // delta1 50 and 60 % on a 45..65 % axis: the validation line spans half the bottom
+        // panel (a tenth on a fixed 0..100 % axis)
+        let red_rows: Vec<u32> = (h / 2 + PANEL_MARGIN_PX as u32 / 2..h - PANEL_MARGIN_PX as u32)
+            .filter(|&y| {
+                (LEFT_MARGIN_PX as u32..PLOT_WIDTH_PX).any(|x| *img.get_pixel(x, y) == VAL_COLOUR)
+            })
+            .collect();
+        let panel_h = f64::from(h / 2 - PANEL_MARGIN_PX as u32 * 3 / 2);
+        let span = f64::from(red_rows.last().unwrap() - red_rows.first().unwrap());
+        assert!(
+            (span / panel_h - 0.5).abs() < 0.05,
+            "validation line spans {span} of {panel_h} rows"
+        );
+    }
+
+    #[test]
+    fn the_delta1_axis_fits_its_points() {
+        // a tenth of a point apart: quarter-point grid steps
+        assert_eq!(percent_axis(92.8, 92.93), (92.75, 93.75, 0.25));
+        // a point on a grid line gets one step below it
+        assert_eq!(percent_axis(50.0, 60.0), (45.0, 65.0, 5.0));
+        // never below 0 or above 100
+        assert_eq!(percent_axis(0.0, 3.0), (0.0, 4.0, 1.0));
+        assert_eq!(percent_axis(99.0, 100.0), (98.0, 100.0, 0.5));
+        assert_eq!(percent_axis(3.0, 97.0), (0.0, 100.0, 25.0));
     }
 }
