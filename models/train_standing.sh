@@ -52,8 +52,10 @@
 #     ARMS=fine_lr SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
 #   runs/clutter_fine_slow `fine_lr` with the backbone at a tenth of the rate (2e-6, the head at
 #                          1e-3), the same stream and snapshots (1,500 steps by 2026-12-06:
-#                          random objects still lost 1.4 to 2.3 points against the default at
-#                          1,000 and 1,250; numbers in models/README.md)
+#                          random objects -2.25, -1.38, -0.48 against the default at 1,000,
+#                          1,250, 1,500, every other row within 0.1, 31 against 29 of 54
+#                          obstacles at 5-10 m; goes on, next comparison at 1,750 and 2,000):
+#     ARMS=fine_slow SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_slow.log 2>&1 &
 #   runs/clutter_fine_obj  `fine_lr` with half the samples random objects, against `fine_lr`'s
 #                          rows at equal steps (started 2026-12-06):
 #     ARMS=fine_obj SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_obj.log 2>&1 &
@@ -178,7 +180,8 @@ for arm in $arms; do
   fine_obj)
     # `fine_lr` with half the samples random objects (`--objects-fraction 0.5`, against a
     # quarter): every fine-tuning arm on this stream lost random-objects δ1 against the default
-    # (`fine_ctrl` without the head too, `fine_slow` with the backbone at a tenth of the rate),
+    # (`fine_ctrl` without the head too, `fine_slow` with the backbone at a tenth of the rate
+    # to 1,250 steps),
     # so the stream's share of them, not the head or the rate, is the next thing to vary;
     # compared with `fine_lr`'s rows at equal steps (models/README.md)
     loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --init-weights "$init"
