@@ -52,9 +52,10 @@
 #     ARMS=fine_lr SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_fine.log 2>&1 &
 #   runs/clutter_fine_slow `fine_lr` with the backbone at a tenth of the rate (2e-6, the head at
 #                          1e-3), the same stream and snapshots (1,500 steps by 2026-12-06:
-#                          random objects -2.25, -1.38, -0.48, -2.65 against the default at
-#                          1,000, 1,250, 1,500, 1,750, every other row within 0.1, 31 against
-#                          29 of 54 obstacles at 5-10 m; goes on, next comparison at 2,000):
+#                          random objects -2.25, -1.38, -0.48, -2.65, -2.22 against the
+#                          default at 1,000 to 2,000, every other row within 0.1, 31 against
+#                          29 of 54 obstacles at 5-10 m; ahead of fine_lr on every row at
+#                          2,000; goes on):
 #     ARMS=fine_slow SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_slow.log 2>&1 &
 #   runs/clutter_fine_obj  `fine_lr` with half the samples random objects, against `fine_lr`'s
 #                          rows at equal steps (started 2026-12-06; at 500 random objects
