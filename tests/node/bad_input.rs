@@ -117,42 +117,32 @@ impl Harness {
     }
 
     /// Sends good groups stamped `first_ns` + 1 ms, + 2 ms, ... every [`WARM_UP_PERIOD`] until
-    /// depth answers one of them, then waits until the node has taken every group it will
-    /// answer (the last one sent is answered or replaced), so that the next group is the newest.
+    /// depth answers one of them, then until the last one sent is answered or has had a period
+    /// to arrive (so the node's counters hold every warm-up message it will get; a group still
+    /// in the mailbox is replaced by the next, newer one).
     fn warm_up(&mut self, first_ns: u64) -> Result<(), String> {
         let t0 = Instant::now();
         let mut sent = Vec::new();
-        let mut next_send = t0;
+        let mut last_sent_at = t0;
         loop {
-            if Instant::now() >= next_send {
-                let s = first_ns + (sent.len() as u64 + 1) * WARM_UP_STEP_NS;
-                self.send_good(s)?;
-                sent.push(s);
-                next_send += WARM_UP_PERIOD;
-            }
             self.take_depth();
-            if let Some(&last) = sent.last() {
-                if sent.iter().any(|s| self.depth_stamps.contains(s)) {
-                    // a later group still in the mailbox is answered within DEPTH_TIMEOUT
-                    // or was already replaced; either way the mailbox is empty once the
-                    // last one sent is accounted for
-                    let health = self.node.health();
-                    if self.depth_stamps.contains(&last)
-                        || health.groups_processed + health.groups_dropped + health.sync.unmatched
-                            >= sent.len() as u64
-                        || t0.elapsed() > DEPTH_TIMEOUT
-                    {
-                        return Ok(());
-                    }
-                    next_send = Instant::now() + DEPTH_TIMEOUT;
+            let answered = sent.iter().any(|s| self.depth_stamps.contains(s));
+            if answered {
+                let last_answered = sent.last().is_some_and(|s| self.depth_stamps.contains(s));
+                if last_answered || last_sent_at.elapsed() >= WARM_UP_PERIOD {
+                    return Ok(());
                 }
-            }
-            if t0.elapsed() > DEPTH_TIMEOUT && !sent.iter().any(|s| self.depth_stamps.contains(s)) {
+            } else if t0.elapsed() > DEPTH_TIMEOUT {
                 return Err(format!(
                     "no depth for any of {} warm-up groups within {DEPTH_TIMEOUT:?}; health {:?}",
                     sent.len(),
                     self.node.health()
                 ));
+            } else if sent.is_empty() || last_sent_at.elapsed() >= WARM_UP_PERIOD {
+                let s = first_ns + (sent.len() as u64 + 1) * WARM_UP_STEP_NS;
+                self.send_good(s)?;
+                sent.push(s);
+                last_sent_at = Instant::now();
             }
             std::thread::sleep(POLL);
         }

@@ -342,7 +342,7 @@ fn percent_axis(min: f64, max: f64) -> (f64, f64, f64) {
         }
         bottom = bottom.clamp(0.0, PERCENT_MAX - intervals * s);
         let top = bottom + intervals * s;
-        if bottom <= min && (max < top || top == PERCENT_MAX) {
+        if max < top || top == PERCENT_MAX {
             return (bottom, top, s);
         }
     }
