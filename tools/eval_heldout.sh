@@ -30,6 +30,7 @@
 #   FUSION       PSMODE's fusion weights (unset: none, the most confident pair)
 #   NEAR_PASS    SSMODE's near-pass width (unset: off)
 #   NEAR_PASS_SOURCE  what the near pass is: network or sweep (network)
+#   NEAR_MODE    SSMODE's near-mode probability (unset: the default, 0.2; above 1: off)
 #   OUT          output folder (BAGS_DIR/out)
 #   MODE360_BIN  the binary (target/release/mode360)
 #   RIGS         folder of the shipped rigs (launch_configs)
@@ -98,6 +99,7 @@ for est in $estimators; do
   w=()
   [[ $est == ssmode || $est == psmode ]] && w=(--weights "$weights")
   [[ $est == psmode && -n "${FUSION:-}" ]] && w+=(--fusion-weights "$FUSION")
+  [[ $est == ssmode && -n "${NEAR_MODE:-}" ]] && w+=(--near-mode-probability "$NEAR_MODE")
   [[ $est == ssmode && -n "${NEAR_PASS:-}" ]] &&
     w+=(--near-pass-width "$NEAR_PASS" --near-pass-source "${NEAR_PASS_SOURCE:-network}")
   for row in "${rows[@]}"; do

@@ -51,6 +51,11 @@ pub struct EstimatorArgs {
     /// file's, else 0.25.
     #[arg(long)]
     pub far_parallax_cells: Option<f64>,
+    /// SSMODE's near mode: a pixel reads the nearest mode of its hypothesis distribution
+    /// that holds at least this probability where it is within 10 m and over 1.25 times
+    /// nearer than the expectation (above 1: off). Default 0.2.
+    #[arg(long)]
+    pub near_mode_probability: Option<f64>,
     /// SSMODE's edge refinement: radius in network cells of the confidence-weighted median
     /// before upsampling (0: off; at most 8). Default: the weights file's, else 2.
     #[arg(long)]
@@ -72,6 +77,7 @@ impl EstimatorArgs {
             readout: ReadoutOverrides {
                 far_plane_probability: self.far_plane_probability,
                 far_parallax_cells: self.far_parallax_cells,
+                near_mode_probability: self.near_mode_probability,
                 refine_radius_cells: self.refine_radius_cells,
             },
             ..EstimatorSpec::with_weights(self.estimator, self.weights.clone())

@@ -255,8 +255,8 @@ impl EstimatorSpec {
             return Err(EstimatorError::BadConfig {
                 field: "readout".to_string(),
                 problem: format!(
-                    "the readout settings (far-plane probability, far field, edge refinement) \
-                     are SSMODE's (asked of {})",
+                    "the readout settings (far-plane probability, far field, near mode, edge \
+                     refinement) are SSMODE's (asked of {})",
                     self.kind
                 ),
             });

@@ -29,7 +29,10 @@ use mode360_core::geometry::panorama::{CameraPanorama, RigRemap};
 use mode360_core::geometry::{
     resample_erp, AlignedRange, ErpGrid, ErpRotation, PairSide, PairView, PixelCoord, Rig,
 };
-use mode360_model::model::{load_fusion_weights, ComputeDevice, Fusion, ModelError};
+use mode360_model::model::readout::NEAR_MODE_OFF;
+use mode360_model::model::{
+    load_fusion_weights, ComputeDevice, Fusion, ModelError, ReadoutOverrides,
+};
 
 mod fusion;
 mod pairs;
@@ -117,7 +120,13 @@ impl PsmodeEstimator {
         device: ComputeDevice,
         pairs: PairChoice,
     ) -> Result<Self, EstimatorError> {
-        let base = SsmodeEstimator::load_on(path.as_ref(), device)?;
+        // Stage 1 reads without the near mode: the pair choice and the fusion network were
+        // tuned and trained on its readout without it.
+        let readout = ReadoutOverrides {
+            near_mode_probability: Some(NEAR_MODE_OFF),
+            ..ReadoutOverrides::default()
+        };
+        let base = SsmodeEstimator::load_configured(path.as_ref(), device, None, &readout)?;
         let mut est = Self::from_stage1(base, pairs);
         if let Some(located) = fusion {
             if !located.exists() {

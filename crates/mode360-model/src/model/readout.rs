@@ -1,7 +1,8 @@
-//! How SSMODE's output is read: the far-plane test and the edge refinement. Inference settings
-//! chosen on the validation split, not the network's shape: an estimator setting with
-//! defaults ([`Readout::default`]), overridden per command (`--far-plane-probability`,
-//! `--far-parallax-cells`, `--refine-radius-cells`). Weights files do not carry them; a file
+//! How SSMODE's output is read: the far-plane test, the near mode and the edge refinement.
+//! Inference settings chosen on the validation split, not the network's shape: an estimator
+//! setting with defaults ([`Readout::default`]), overridden per command
+//! (`--far-plane-probability`, `--far-parallax-cells`, `--near-mode-probability`,
+//! `--refine-radius-cells`). Weights files do not carry them; a file
 //! written before they were settings carries the values it was tuned with in its config
 //! metadata, which are that file's defaults ([`Readout::recorded`]).
 
@@ -17,6 +18,12 @@ pub const DEFAULT_FAR_PLANE_PROBABILITY: f64 = 0.5;
 /// [`Readout::far_parallax_cells`] by default: the best of 0.125 to 1 cells on the validation
 /// seed (models/README.md, "Readout").
 pub const DEFAULT_FAR_PARALLAX_CELLS: f64 = 0.25;
+/// [`Readout::near_mode_probability`] by default: the best of 0.05 to 0.3 on the validation
+/// seed 2^63 + 3131 at 512 (models/README.md, "The near mode").
+pub const DEFAULT_NEAR_MODE_PROBABILITY: f64 = 0.2;
+/// [`Readout::near_mode_probability`] that turns the near mode off (any value above 1 does:
+/// no window holds more than all the probability).
+pub const NEAR_MODE_OFF: f64 = 2.0;
 /// [`Readout::refine_radius_cells`] by default: a 5x5 window, the best of 1 to 6 cells on the
 /// validation seed 2^63 + 3131 at 512 (models/README.md, "Edge refinement").
 pub const DEFAULT_REFINE_RADIUS_CELLS: usize = 2;
@@ -35,6 +42,10 @@ pub struct Readout {
     /// cost-volume cells from the far plane's count as the far plane in the far-plane test
     /// ([`mode360_core::geometry::FarField`]); 0 counts the far plane alone.
     pub far_parallax_cells: f64,
+    /// Near mode: a pixel whose nearest local mode of the hypothesis distribution holds at
+    /// least this probability reads that mode where it is markedly nearer than the
+    /// expectation (see [`super::regression`]); above 1 turns it off.
+    pub near_mode_probability: f64,
     /// Edge refinement: the radius in network cells of the confidence-weighted median that
     /// cleans the range before it is upsampled to the output; 0 turns it off.
     pub refine_radius_cells: usize,
@@ -45,6 +56,7 @@ impl Default for Readout {
         Self {
             far_plane_probability: DEFAULT_FAR_PLANE_PROBABILITY,
             far_parallax_cells: DEFAULT_FAR_PARALLAX_CELLS,
+            near_mode_probability: DEFAULT_NEAR_MODE_PROBABILITY,
             refine_radius_cells: DEFAULT_REFINE_RADIUS_CELLS,
         }
     }
@@ -109,6 +121,12 @@ impl Readout {
                 format!("{} must be positive", self.far_plane_probability),
             );
         }
+        if self.near_mode_probability.is_nan() || self.near_mode_probability <= 0.0 {
+            return bad(
+                "near_mode_probability",
+                format!("{} must be positive", self.near_mode_probability),
+            );
+        }
         if !(self.far_parallax_cells >= 0.0 && self.far_parallax_cells.is_finite()) {
             return bad(
                 "far_parallax_cells",
@@ -145,6 +163,7 @@ impl Readout {
 pub struct ReadoutOverrides {
     pub far_plane_probability: Option<f64>,
     pub far_parallax_cells: Option<f64>,
+    pub near_mode_probability: Option<f64>,
     pub refine_radius_cells: Option<usize>,
 }
 
@@ -161,6 +180,9 @@ impl ReadoutOverrides {
                 .far_plane_probability
                 .unwrap_or(base.far_plane_probability),
             far_parallax_cells: self.far_parallax_cells.unwrap_or(base.far_parallax_cells),
+            near_mode_probability: self
+                .near_mode_probability
+                .unwrap_or(base.near_mode_probability),
             refine_radius_cells: self.refine_radius_cells.unwrap_or(base.refine_radius_cells),
         };
         readout.validate()?;
@@ -223,6 +245,21 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("far_plane_probability"), "{e}");
+        for bad in [0.0, -0.2, f64::NAN] {
+            let e = ReadoutOverrides {
+                near_mode_probability: Some(bad),
+                ..ReadoutOverrides::default()
+            }
+            .apply(old)
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("near_mode_probability"), "{e}");
+        }
+        let off = ReadoutOverrides {
+            near_mode_probability: Some(NEAR_MODE_OFF),
+            ..ReadoutOverrides::default()
+        };
+        assert_eq!(off.apply(old).unwrap().near_mode_probability, NEAR_MODE_OFF);
         assert_eq!(
             Readout::default().at_width(256, 512).far_parallax_cells,
             0.5

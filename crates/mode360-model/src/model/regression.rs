@@ -18,11 +18,25 @@
 //! the sky) is read out as the far plane itself, `max_depth_m`, like the ground truth encodes
 //! the sky. Only the range is affected; the index the loss trains is the plain expectation.
 //!
-//! The far field ([`FarReadout::far_counts`], from [`mode360_core::geometry::FarField`]): where
+//! The far field ([`RangeReadout::far_counts`], from [`mode360_core::geometry::FarField`]): where
 //! the rig cannot tell the farthest `K(p)` hypotheses from the far plane (a short baseline, a
 //! ray along the baseline), the matching cost is flat over them and the probability spreads
 //! across them; its mean lands tens of metres in front of the sky. So the test sums them:
 //! `sum_{i < K(p)} p_i >= far_plane_probability`.
+//!
+//! Near mode: the expectation of a distribution with two modes, a near obstacle's and the
+//! background's, lands between them or on the background (a pole narrower than a cost cell, a
+//! near object the aggregation smeared into what stands behind it). So a pixel reads its
+//! nearest mode instead where that mode holds enough probability and is markedly nearer:
+//!
+//! ```text
+//! m = the largest i (the nearest) with p_i >= p_{i-1}, p_i >= p_{i+1} and sum_{|j - i| <= r} p_j >= near_mode_probability
+//! k_near = sum_{|j - m| <= r} p_j j / sum_{|j - m| <= r} p_j,   range_near = range(k_near)
+//! range = range_near   where range_near <= NEAR_MODE_MAX_RANGE_M and NEAR_MODE_RATIO range_near < range
+//! ```
+//!
+//! with `r` = [`CONFIDENCE_RADIUS`]; `range` is the expectation's or the far plane's. Like the
+//! far-plane test it moves the range only, never the index the loss trains.
 
 use candle_core::{DType, Result, Tensor};
 use candle_nn::VarBuilder;
@@ -38,6 +52,13 @@ use mode360_core::geometry::{DepthHypotheses, HypothesisSpacing};
 pub const CONFIDENCE_RADIUS: f64 = 2.0;
 /// Hypothesis axis of `(B, N, H, W)`.
 const HYPOTHESIS_AXIS: usize = 1;
+/// The near mode replaces the range only where it is more than this many times nearer (the
+/// near pass's ratio, `estimator::near_pass`).
+pub const NEAR_MODE_RATIO: f32 = 1.25;
+/// The near mode is read only within this range, metres: the best of 1.5, 3, 10 and 30 m on
+/// the validation seed (at 30 m the 0.3 m vertical pair lost 3.6 points of δ1, its
+/// structures at 10 to 30 m read too near; models/README.md, "The near mode").
+pub const NEAR_MODE_MAX_RANGE_M: f32 = 10.0;
 
 /// `classif`: conv `Ch -> Ch`, ReLU, conv `Ch -> 1` (no bias: the softmax ignores a constant).
 #[derive(Clone, Debug)]
@@ -62,22 +83,69 @@ impl RegressionHead {
     }
 }
 
-/// The far-plane test of the readout (see the module docs).
+/// How a pixel's range is read from its distribution besides the expectation: the far-plane
+/// test and the near mode (see the module docs).
 #[derive(Clone, Copy, Debug)]
-pub struct FarReadout<'a> {
+pub struct RangeReadout<'a> {
     /// Probability on the far field at which a pixel reads the far plane (above 1: never).
     pub probability: f64,
     /// Per output pixel (row-major, `H W`, shared by the batch), the hypotheses counted from
     /// the far plane that the rig cannot tell from it; `None`: the far plane alone.
     pub far_counts: Option<&'a [u16]>,
+    /// Probability a mode's window must hold for the near mode (above 1: off).
+    pub near_mode_probability: f64,
 }
 
-impl<'a> FarReadout<'a> {
-    /// The test on the far plane alone.
+impl<'a> RangeReadout<'a> {
+    /// The test on the far plane alone, without the near mode.
     pub fn far_plane_only(probability: f64) -> Self {
         Self {
             probability,
             far_counts: None,
+            near_mode_probability: f64::INFINITY,
+        }
+    }
+
+    /// Whether the near mode is on.
+    fn near_mode_on(&self) -> bool {
+        self.near_mode_probability <= 1.0
+    }
+
+    /// `range_m` with the near mode of the pixel's probabilities `p` (unnormalized: each
+    /// divided by `sum`) applied (see the module docs).
+    fn with_near_mode(
+        &self,
+        p: &[f32],
+        sum: f32,
+        range_m: f32,
+        hypotheses: &DepthHypotheses,
+    ) -> f32 {
+        let n = p.len();
+        let radius = CONFIDENCE_RADIUS as usize;
+        let threshold = self.near_mode_probability as f32 * sum;
+        // the nearest local maximum (index 0 is the farthest) whose window holds enough
+        let mode = (0..n).rev().find(|&i| {
+            let peak = (i + 1 >= n || p[i] >= p[i + 1]) && (i == 0 || p[i] >= p[i - 1]);
+            peak && p[i.saturating_sub(radius)..(i + radius + 1).min(n)]
+                .iter()
+                .sum::<f32>()
+                >= threshold
+        });
+        let Some(m) = mode else {
+            return range_m;
+        };
+        let (lo, hi) = (m.saturating_sub(radius), (m + radius + 1).min(n));
+        let (mut mass, mut moment) = (0f32, 0f32);
+        for (j, &x) in p.iter().enumerate().take(hi).skip(lo) {
+            mass += x;
+            moment += x * j as f32;
+        }
+        let k = moment / mass / (n - 1) as f32;
+        let near_m = hypotheses.depth_at_normalized(f64::from(k)) as f32;
+        if near_m <= NEAR_MODE_MAX_RANGE_M && NEAR_MODE_RATIO * near_m < range_m {
+            near_m
+        } else {
+            range_m
         }
     }
 
@@ -117,7 +185,7 @@ pub fn regress(
     hypotheses: &DepthHypotheses,
     height: usize,
     width: usize,
-    far: FarReadout,
+    far: RangeReadout,
 ) -> Result<Regression> {
     far.check(height, width)?;
     let n = hypotheses.count();
@@ -154,9 +222,25 @@ pub fn regress(
         }
     };
     let max_depth = Tensor::full(hypotheses.depth_m(0.0) as f32, far_mass.shape(), device)?;
-    let range_m = far_mass
+    let mut range_m = far_mass
         .ge(far.probability)?
         .where_cond(&max_depth, &soft_range_m)?;
+    if far.near_mode_on() {
+        // (B, H, W), pixel by pixel on the host as in `regress_inference`
+        let dims = range_m.dims().to_vec();
+        let pixels = height * width;
+        let p = probabilities.flatten_all()?.to_vec1::<f32>()?;
+        let mut ranges = range_m.flatten_all()?.to_vec1::<f32>()?;
+        let mut column = vec![0f32; n];
+        for (q, range) in ranges.iter_mut().enumerate() {
+            let (bi, k) = (q / pixels, q % pixels);
+            for (i, c) in column.iter_mut().enumerate() {
+                *c = p[(bi * n + i) * pixels + k];
+            }
+            *range = far.with_near_mode(&column, 1.0, *range, hypotheses);
+        }
+        range_m = Tensor::from_vec(ranges, dims, device)?;
+    }
     Ok(Regression {
         range_m,
         inverse_depth_index,
@@ -210,7 +294,7 @@ pub fn regress_inference(
     hypotheses: &DepthHypotheses,
     height: usize,
     width: usize,
-    far: FarReadout,
+    far: RangeReadout,
 ) -> Result<InferenceRegression> {
     far.check(height, width)?;
     let n = hypotheses.count();
@@ -279,10 +363,15 @@ pub fn regress_inference(
                 index_row[u] = k;
                 conf_row[u] = near * inv_sum;
                 let far_mass: f32 = p[..far.count(v * width + u, n)].iter().sum();
-                range_row[u] = if f64::from(far_mass * inv_sum) >= far.probability {
+                let range = if f64::from(far_mass * inv_sum) >= far.probability {
                     far_m
                 } else {
                     hypotheses.depth_at_normalized(f64::from(k)) as f32
+                };
+                range_row[u] = if far.near_mode_on() {
+                    far.with_near_mode(&p, sum, range, hypotheses)
+                } else {
+                    range
                 };
             }
         });

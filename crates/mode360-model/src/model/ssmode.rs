@@ -28,7 +28,7 @@ use super::hourglass::CostAggregation;
 use super::photometric_cost::photometric_cost;
 use super::readout::Readout;
 use super::regression::{
-    confidence, regress, regress_inference, FarReadout, Regression, RegressionHead,
+    confidence, regress, regress_inference, RangeReadout, Regression, RegressionHead,
 };
 use super::seam::crop_longitude;
 use super::sweep_sampling::SweepSampling;
@@ -355,15 +355,16 @@ impl Ssmode {
             &self.hypotheses,
             self.cfg.height(),
             self.cfg.width,
-            self.far_readout(sampling),
+            self.range_readout(sampling),
         )
     }
 
-    /// The far-plane test of the readout on `sampling`'s rig.
-    fn far_readout<'a>(&self, sampling: &'a SweepSampling) -> FarReadout<'a> {
-        FarReadout {
+    /// The far-plane test and the near mode of the readout on `sampling`'s rig.
+    fn range_readout<'a>(&self, sampling: &'a SweepSampling) -> RangeReadout<'a> {
+        RangeReadout {
             probability: self.readout.far_plane_probability,
             far_counts: sampling.far_counts(),
+            near_mode_probability: self.readout.near_mode_probability,
         }
     }
 
@@ -394,7 +395,7 @@ impl Ssmode {
             &self.hypotheses,
             self.cfg.height(),
             self.cfg.width,
-            self.far_readout(sampling),
+            self.range_readout(sampling),
         )?;
         Ok(SsmodeOutput {
             stages: vec![r.range_m],

@@ -88,7 +88,7 @@ fn cost_volume_samples_features_where_the_sweep_geometry_says() {
 
 #[test]
 fn fused_inference_regression_equals_the_training_path() {
-    use mode360_model::model::regression::{confidence, regress, regress_inference, FarReadout};
+    use mode360_model::model::regression::{confidence, regress, regress_inference, RangeReadout};
     let cfg = SsmodeConfig::tiny();
     let hyps = cfg.output_hypotheses().expect("hypotheses");
     let (height, width) = (18, 36);
@@ -116,9 +116,9 @@ fn fused_inference_regression_equals_the_training_path() {
             .map(|v| v * scale)
             .collect();
         let cost = Tensor::from_vec(values, DIMS, &Device::Cpu).unwrap();
-        let readout = FarReadout {
-            probability: far,
+        let readout = RangeReadout {
             far_counts,
+            ..RangeReadout::far_plane_only(far)
         };
         let slow = regress(&cost, &hyps, height, width, readout).unwrap();
         let slow_conf = confidence(&slow.probabilities).unwrap();
@@ -192,6 +192,94 @@ fn fused_inference_regression_equals_the_training_path() {
             .fold(0f32, f32::max);
         assert!(rel < 1e-4, "range differs by {rel} relative");
     }
+}
+
+/// Costs `(1, N, 1, pixels)` whose softmax is each pixel's `probabilities` (N each).
+fn cost_of_probabilities(pixels: &[Vec<f32>]) -> Tensor {
+    let n = pixels[0].len();
+    let mut data = vec![0f32; n * pixels.len()];
+    for (k, p) in pixels.iter().enumerate() {
+        for (i, &x) in p.iter().enumerate() {
+            data[i * pixels.len() + k] = x.max(1e-12).ln();
+        }
+    }
+    Tensor::from_vec(data, (1, n, 1, pixels.len()), &Device::Cpu).unwrap()
+}
+
+#[test]
+fn the_near_mode_reads_a_near_obstacle_the_expectation_melts_into_the_background() {
+    use mode360_model::model::regression::{
+        regress, regress_inference, RangeReadout, NEAR_MODE_MAX_RANGE_M, NEAR_MODE_RATIO,
+    };
+    // the shipped preset's hypotheses: 96 uniform in log depth over 0.5 to 1000 m
+    let cfg = SsmodeConfig::parallax_zncc_log();
+    let hyps = cfg.output_hypotheses().expect("hypotheses");
+    let n = hyps.count();
+    let index_of = |range_m: f64| hyps.index_of_depth(range_m).round() as usize;
+    // two modes, `near_share` of the mass on hypothesis `near`, the rest on `far`, each
+    // spread over its neighbours 1:2:1
+    let bimodal = |near: usize, far: usize, near_share: f32| -> Vec<f32> {
+        let mut p = vec![1e-6f32; n];
+        for (centre, share) in [(near, near_share), (far, 1.0 - near_share)] {
+            for (d, w) in [(-1i64, 0.25f32), (0, 0.5), (1, 0.25)] {
+                let i = (centre as i64 + d).clamp(0, n as i64 - 1) as usize;
+                p[i] += share * w;
+            }
+        }
+        p
+    };
+    let pole = index_of(3.0);
+    let facade = index_of(40.0);
+    let beyond = index_of(f64::from(NEAR_MODE_MAX_RANGE_M) * 1.6);
+    let pixels = vec![
+        // a pole at 3 m with 30 % of the mass in front of a facade at 40 m
+        bimodal(pole, facade, 0.3),
+        // the same with 10 %: below the threshold
+        bimodal(pole, facade, 0.1),
+        // a nearer mode beyond the near mode's range
+        bimodal(beyond, facade, 0.3),
+        // one mode: the expectation
+        bimodal(pole, pole, 0.5),
+    ];
+    let cost = cost_of_probabilities(&pixels);
+    let readout = RangeReadout {
+        near_mode_probability: 0.2,
+        ..RangeReadout::far_plane_only(2.0)
+    };
+    let off = RangeReadout::far_plane_only(2.0);
+    let read = |r: RangeReadout| -> [Vec<f32>; 2] {
+        let fast = regress_inference(&cost, &hyps, 1, pixels.len(), r).unwrap();
+        let slow = regress(&cost, &hyps, 1, pixels.len(), r).unwrap();
+        let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        [flat(&fast.range_m), flat(&slow.range_m)]
+    };
+    let with = read(readout);
+    let without = read(off);
+    for [fast, slow] in [&with, &without] {
+        for (a, b) in fast.iter().zip(slow) {
+            assert!(((a - b) / b).abs() < 1e-4, "fused {a} against unfused {b}");
+        }
+    }
+    let (with, without) = (&with[0], &without[0]);
+    let pole_m = hyps.depth_m(pole as f64) as f32;
+    // the expectation lands between the modes, well behind the pole
+    assert!(without[0] > 2.0 * pole_m, "expectation {} m", without[0]);
+    assert!(
+        (with[0] / pole_m - 1.0).abs() < 0.02,
+        "near mode {} m against the pole's {pole_m} m",
+        with[0]
+    );
+    assert_eq!(with[1], without[1], "a 10 % mode is below the threshold");
+    assert!(
+        hyps.depth_m(beyond as f64) as f32 > NEAR_MODE_MAX_RANGE_M
+            && without[2] > NEAR_MODE_RATIO * NEAR_MODE_MAX_RANGE_M,
+        "the case does not test the range limit"
+    );
+    assert_eq!(
+        with[2], without[2],
+        "a mode beyond {NEAR_MODE_MAX_RANGE_M} m"
+    );
+    assert_eq!(with[3], without[3], "one mode reads its expectation");
 }
 
 #[test]
