@@ -1,5 +1,7 @@
 //! Seconds per frame of the SSMODE readout stages after the network, at the shipped network
-//! width (256) and the node's default output width (512): the edge refinement
+//! width (256) and the node's default output width (512): the regression of the last cost
+//! into range and confidence without and with the near mode
+//! ([`mode360::model::regression::regress_inference`]), the edge refinement
 //! ([`mode360::estimator::edge_refine`]) and the guided upsampling
 //! ([`mode360::estimator::guided_upsample`]), on a rendered street frame's reference image and
 //! a range with noise and edges.
@@ -10,7 +12,9 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use mode360::estimator::edge_refine::{rgb_on_grid, weighted_median_refine, EdgeRefineParams};
 use mode360::estimator::guided_upsample::{grey_on_grid, guided_upsample};
 use mode360::geometry::{ErpGrid, Rig};
-use mode360::model::readout::DEFAULT_REFINE_RADIUS_CELLS;
+use mode360::model::readout::{DEFAULT_NEAR_MODE_PROBABILITY, DEFAULT_REFINE_RADIUS_CELLS};
+use mode360::model::regression::{regress_inference, RangeReadout};
+use mode360::model::SsmodeConfig;
 use mode360::synth::{SynthConfig, SynthRenderer};
 
 const RIG_PATH: &str = concat!(
@@ -63,6 +67,35 @@ fn readout(c: &mut Criterion) {
     let params = EdgeRefineParams::with_radius(DEFAULT_REFINE_RADIUS_CELLS);
     let mut group = c.benchmark_group("readout");
     group.sample_size(SAMPLES);
+    // the shipped preset's last cost: (1, D/2, H/2, W/2) with pseudo-random values
+    let cfg = SsmodeConfig::parallax_zncc_log();
+    let Ok(hypotheses) = cfg.output_hypotheses() else {
+        eprintln!("readout bench: no hypotheses");
+        return;
+    };
+    let dims = (1, cfg.hypotheses / 2, net.height() / 2, net.width() / 2);
+    let values: Vec<f32> = (0..dims.1 * dims.2 * dims.3)
+        .map(|k| ((k * 7919) % 1009) as f32 / 126.0 - 4.0)
+        .collect();
+    let Ok(cost) = candle_core::Tensor::from_vec(values, dims, &candle_core::Device::Cpu) else {
+        eprintln!("readout bench: no cost tensor");
+        return;
+    };
+    for (name, near_mode_probability) in [
+        ("regress_256x128_near_mode_off", f64::INFINITY),
+        ("regress_256x128_near_mode", DEFAULT_NEAR_MODE_PROBABILITY),
+    ] {
+        let readout = RangeReadout {
+            near_mode_probability,
+            ..RangeReadout::far_plane_only(0.5)
+        };
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                regress_inference(&cost, &hypotheses, net.height(), net.width(), readout)
+                    .map(|r| r.range_m.elem_count())
+            })
+        });
+    }
     group.bench_function("edge_refine_256x128", |b| {
         b.iter(|| weighted_median_refine(&range, &confidence, &rgb, net, &params).len())
     });

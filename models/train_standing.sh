@@ -61,6 +61,13 @@
 #                          rows at equal steps (started 2026-12-06; at 500 random objects
 #                          76.47 against fine_lr's 74.69 and the default's 75.60):
 #     ARMS=fine_obj SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing_obj.log 2>&1 &
+#                          stopped at 1,100 (2026-12-06): at 1,000 random objects 71.72
+#                          against fine_lr's 74.10 (12 frames: 74.32 against the default's
+#                          75.90), the gain at 500 drifted away; its run is deleted
+#   runs/clutter_fine_slowobj `fine_slow` with half the samples random objects, forked once
+#                          from fine_slow at 2,100 (2026-12-06; fine_slow and fine_obj are then
+#                          deleted, their numbers in models/README.md):
+#     ARMS=fine_slowobj SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #   runs/clutter_fine_head the fine head alone (`--fine-head-only`, lr 1e-3) on the shipped
 #                          weights, the rest frozen, the same stream and snapshots, against
 #                          the default (its step 0) and `fine_lr` at equal steps (2026-12-03):
@@ -190,6 +197,20 @@ for arm in $arms; do
       --fine-head-lr-scale 50)
     objects_fraction=0.5
     preset=parallax_zncc_log_fine
+    seed=7
+    ;;
+  fine_slowobj)
+    # `fine_slow` (the backbone at 2e-6, the head at 1e-3) with half the samples random
+    # objects, forked once from `fine_slow` at its step 2,100: `fine_obj` showed that half the
+    # samples random objects lifts that row at first (+0.52 on 12 frames at 500) and that the
+    # backbone's drift at 2e-5 takes it back by 1,000 (-1.58); `fine_slow`'s backbone drifts
+    # less but never won the row back (-2.22 at 2,000). Compared with `fine_slow`'s rows at
+    # 2,000 and the default (models/README.md)
+    loss=(--near-weight 8 --obstacle-weight 2 --thin-weight 1 --fork-from runs/clutter_fine_slow
+      --fine-head-lr-scale 500)
+    objects_fraction=0.5
+    preset=parallax_zncc_log_fine
+    lr=2e-6
     seed=7
     ;;
   fine_head)
