@@ -12,7 +12,9 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use mode360::estimator::edge_refine::{rgb_on_grid, weighted_median_refine, EdgeRefineParams};
 use mode360::estimator::guided_upsample::{grey_on_grid, guided_upsample};
 use mode360::geometry::{ErpGrid, Rig};
-use mode360::model::readout::{DEFAULT_NEAR_MODE_PROBABILITY, DEFAULT_REFINE_RADIUS_CELLS};
+use mode360::model::readout::{
+    DEFAULT_NEAR_MODE_PROBABILITY, DEFAULT_REFINE_RADIUS_CELLS, NEAR_MODE_OFF,
+};
 use mode360::model::regression::{regress_inference, RangeReadout};
 use mode360::model::SsmodeConfig;
 use mode360::synth::{SynthConfig, SynthRenderer};
@@ -82,7 +84,7 @@ fn readout(c: &mut Criterion) {
         return;
     };
     for (name, near_mode_probability) in [
-        ("regress_256x128_near_mode_off", f64::INFINITY),
+        ("regress_256x128_near_mode_off", NEAR_MODE_OFF),
         ("regress_256x128_near_mode", DEFAULT_NEAR_MODE_PROBABILITY),
     ] {
         let readout = RangeReadout {

@@ -43,6 +43,7 @@ use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
 use super::hourglass::Conv3d;
+use super::readout::NEAR_MODE_OFF;
 use crate::model::ops::{
     resample_linear_axis, soft_argmin_index, upsample_trilinear, LinearAxisMap,
 };
@@ -52,6 +53,12 @@ use mode360_core::geometry::{DepthHypotheses, HypothesisSpacing};
 pub const CONFIDENCE_RADIUS: f64 = 2.0;
 /// Hypothesis axis of `(B, N, H, W)`.
 const HYPOTHESIS_AXIS: usize = 1;
+
+/// The hypotheses within [`CONFIDENCE_RADIUS`] of hypothesis `i` of `n`.
+fn window(i: usize, n: usize) -> std::ops::Range<usize> {
+    let radius = CONFIDENCE_RADIUS as usize;
+    i.saturating_sub(radius)..(i + radius + 1).min(n)
+}
 /// The near mode replaces the range only where it is more than this many times nearer (the
 /// near pass's ratio, `estimator::near_pass`).
 pub const NEAR_MODE_RATIO: f32 = 1.25;
@@ -102,7 +109,7 @@ impl<'a> RangeReadout<'a> {
         Self {
             probability,
             far_counts: None,
-            near_mode_probability: f64::INFINITY,
+            near_mode_probability: NEAR_MODE_OFF,
         }
     }
 
@@ -112,7 +119,7 @@ impl<'a> RangeReadout<'a> {
     }
 
     /// `range_m` with the near mode of the pixel's probabilities `p` (unnormalized: each
-    /// divided by `sum`) applied (see the module docs).
+    /// divided by `sum`) applied (see the module docs); `range_m` itself when it is off.
     fn with_near_mode(
         &self,
         p: &[f32],
@@ -120,25 +127,23 @@ impl<'a> RangeReadout<'a> {
         range_m: f32,
         hypotheses: &DepthHypotheses,
     ) -> f32 {
+        if !self.near_mode_on() {
+            return range_m;
+        }
         let n = p.len();
-        let radius = CONFIDENCE_RADIUS as usize;
         let threshold = self.near_mode_probability as f32 * sum;
         // the nearest local maximum (index 0 is the farthest) whose window holds enough
         let mode = (0..n).rev().find(|&i| {
             let peak = (i + 1 >= n || p[i] >= p[i + 1]) && (i == 0 || p[i] >= p[i - 1]);
-            peak && p[i.saturating_sub(radius)..(i + radius + 1).min(n)]
-                .iter()
-                .sum::<f32>()
-                >= threshold
+            peak && p[window(i, n)].iter().sum::<f32>() >= threshold
         });
         let Some(m) = mode else {
             return range_m;
         };
-        let (lo, hi) = (m.saturating_sub(radius), (m + radius + 1).min(n));
         let (mut mass, mut moment) = (0f32, 0f32);
-        for (j, &x) in p.iter().enumerate().take(hi).skip(lo) {
-            mass += x;
-            moment += x * j as f32;
+        for j in window(m, n) {
+            mass += p[j];
+            moment += p[j] * j as f32;
         }
         let k = moment / mass / (n - 1) as f32;
         let near_m = hypotheses.depth_at_normalized(f64::from(k)) as f32;
@@ -308,7 +313,6 @@ pub fn regress_inference(
     let mut conf = vec![0f32; b * pixels];
     let mut range = vec![0f32; b * pixels];
     let far_m = hypotheses.depth_m(0.0) as f32;
-    let radius = CONFIDENCE_RADIUS as usize;
     index
         .par_chunks_mut(width)
         .zip(conf.par_chunks_mut(width))
@@ -356,9 +360,7 @@ pub fn regress_inference(
                 for (i, &x) in p.iter().enumerate() {
                     expected += x * i as f32;
                 }
-                let near: f32 = p[arg.saturating_sub(radius)..(arg + radius + 1).min(n)]
-                    .iter()
-                    .sum();
+                let near: f32 = p[window(arg, n)].iter().sum();
                 let k = expected * inv_sum / (n - 1) as f32;
                 index_row[u] = k;
                 conf_row[u] = near * inv_sum;
@@ -368,11 +370,7 @@ pub fn regress_inference(
                 } else {
                     hypotheses.depth_at_normalized(f64::from(k)) as f32
                 };
-                range_row[u] = if far.near_mode_on() {
-                    far.with_near_mode(&p, sum, range, hypotheses)
-                } else {
-                    range
-                };
+                range_row[u] = far.with_near_mode(&p, sum, range, hypotheses);
             }
         });
     let device = cost.device();
