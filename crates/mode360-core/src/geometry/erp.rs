@@ -206,6 +206,35 @@ impl ErpGrid {
         )
     }
 
+    /// The bilinear value of `values` (row-major, one per pixel of this grid) at `s`, as two
+    /// interpolations along the rows and one across them:
+    ///
+    /// ```text
+    /// top = a + fu (b - a),   bottom = c + fu (d - c),   value = top + fv (bottom - top)
+    /// ```
+    ///
+    /// with `a, b, c, d` the values at the corners of [`Self::taps_of`] (top-left, top-right,
+    /// bottom-left, bottom-right): its weighted sum to rounding, in 3 multiplications instead
+    /// of 8. 0 for [`ErpSample::UNSEEN`]. Panics if `values` is shorter than the grid.
+    #[inline(always)]
+    pub fn interpolate(&self, s: ErpSample, values: &[f32]) -> f32 {
+        if !s.is_seen() {
+            return 0.0;
+        }
+        let (w, h) = (self.width, self.height);
+        let (u0, v0) = (usize::from(s.u0), usize::from(s.v0));
+        let u1 = if u0 + 1 == w { 0 } else { u0 + 1 };
+        let v1 = (v0 + 1).min(h - 1);
+        let (fu, fv) = (
+            f32::from(s.fu) * ErpSample::FRACTION_STEP,
+            f32::from(s.fv) * ErpSample::FRACTION_STEP,
+        );
+        let (top_row, bottom_row) = (&values[v0 * w..][..w], &values[v1 * w..][..w]);
+        let top = top_row[u0] + fu * (top_row[u1] - top_row[u0]);
+        let bottom = bottom_row[u0] + fu * (bottom_row[u1] - bottom_row[u0]);
+        top + fv * (bottom - top)
+    }
+
     #[inline(always)]
     fn corner_taps(&self, u0: u32, v0: u32, fu: f32, fv: f32) -> BilinearTaps {
         let (w, h) = (self.width as u32, self.height as u32);
@@ -352,6 +381,29 @@ mod tests {
             worst = worst.max((a - b).abs());
         }
         assert!(worst > 0.0 && worst < 3.1e-5, "worst weight error {worst}");
+    }
+
+    /// `interpolate` reads the value of the taps' weighted sum (to rounding) on samples across
+    /// the seam, on the last row and off the grid (0 for the unseen sample).
+    #[test]
+    fn interpolate_is_the_weighted_sum_of_the_taps() {
+        let grid = ErpGrid::new(64).unwrap();
+        let values: Vec<f32> = (0..grid.len())
+            .map(|k| ((k as f32) * 0.37).sin() * 2.0 + 0.5)
+            .collect();
+        let mut worst = 0f32;
+        for k in 0..4000 {
+            let t = k as f64;
+            let p = PixelCoord {
+                u: (t * 0.618_033_988_7).fract() * 70.0 - 3.0,
+                v: (t * 0.414_213_562_3).fract() * 34.0 - 1.0,
+            };
+            let s = grid.bilinear_sample(p);
+            let taps = grid.taps_of(s).sample(&values);
+            worst = worst.max((grid.interpolate(s, &values) - taps).abs());
+        }
+        assert!(worst < 1e-5, "worst difference {worst}");
+        assert_eq!(grid.interpolate(ErpSample::UNSEEN, &values), 0.0);
     }
 
     #[test]

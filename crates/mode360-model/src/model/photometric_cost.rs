@@ -69,9 +69,19 @@ fn grey_images(images: &[Tensor], b: usize) -> Result<Vec<Vec<f32>>> {
 }
 
 /// Samples `grey` through `table` for the cells `first .. first + out.len()`; returns the
-/// per-cell tap weight (1 where the camera sees the sample, 0 where it does not).
+/// per-cell tap weight (1 where the camera sees the sample, 0 where it does not). The sweep's
+/// tables of ERP samples are read directly ([`mode360_core::geometry::ErpGrid::interpolate`]:
+/// this loop was half the channel's time when it expanded every sample's taps).
 #[inline(always)]
 fn warp(grey: &[f32], table: &SampleTable, first: usize, out: &mut [f32], seen: &mut [f32]) {
+    if let Some((grid, samples)) = table.erp_samples() {
+        let samples = &samples[first..first + out.len()];
+        for ((o, s), &sample) in out.iter_mut().zip(seen.iter_mut()).zip(samples) {
+            *o = grid.interpolate(sample, grey);
+            *s = if sample.is_seen() { 1.0 } else { 0.0 };
+        }
+        return;
+    }
     for (k, (o, s)) in out.iter_mut().zip(seen.iter_mut()).enumerate() {
         let taps = table.taps(first + k);
         let mut value = 0.0;
