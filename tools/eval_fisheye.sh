@@ -7,7 +7,7 @@
 # writes OUT_DIR/heldout_RIG.mcap, photometric_RIG.json and ssmode_RIG.json.
 #
 #   tools/eval_fisheye.sh [WEIGHTS] [OUT_DIR]
-#     WEIGHTS  SSMODE weights (models/ssmode_parallax_zncc_log.safetensors)
+#     WEIGHTS  SSMODE weights (models/ssmode_parallax_zncc_log_fine.safetensors)
 #     OUT_DIR  bags and results (/tmp/mode360_fisheye)
 #
 # env (default): MODE360_BIN (target/release/mode360), RIGS (launch_configs: rig_deep360.yaml,
@@ -17,7 +17,7 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bin="${MODE360_BIN:-$root/target/release/mode360}"
 rigs="${RIGS:-$root/launch_configs}"
-weights="${1:-$root/models/ssmode_parallax_zncc_log.safetensors}"
+weights="${1:-$root/models/ssmode_parallax_zncc_log_fine.safetensors}"
 out="${2:-/tmp/mode360_fisheye}"
 mkdir -p "$out"
 for rig in deep360 omnimvs dual_fisheye; do

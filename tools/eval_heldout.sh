@@ -26,7 +26,7 @@
 #                readout, never the held-out rows: SEED=$(python3 -c 'print(2**63 + 3131)')
 #   WIDTH        panorama width (512); FRAMES (4); FIRST_FRAME (60)
 #   ESTIMATORS   ("ssmode photometric"; also psmode)
-#   WEIGHTS      SSMODE weights, also PSMODE's stage 1 (models/ssmode_parallax_zncc_log.safetensors)
+#   WEIGHTS      SSMODE weights, also PSMODE's stage 1 (models/ssmode_parallax_zncc_log_fine.safetensors)
 #   FUSION       PSMODE's fusion weights (unset: none, the most confident pair)
 #   NEAR_PASS    SSMODE's near-pass width (unset: off)
 #   NEAR_PASS_SOURCE  what the near pass is: network or sweep (network)
@@ -44,7 +44,7 @@ width="${WIDTH:-512}"
 frames="${FRAMES:-4}"
 first="${FIRST_FRAME:-60}"
 estimators="${ESTIMATORS:-ssmode photometric}"
-weights="${WEIGHTS:-$root/models/ssmode_parallax_zncc_log.safetensors}"
+weights="${WEIGHTS:-$root/models/ssmode_parallax_zncc_log_fine.safetensors}"
 bin="${MODE360_BIN:-$root/target/release/mode360}"
 rigs="${RIGS:-$root/launch_configs}"
 eval_rigs="${EVAL_RIGS:-$root/models/eval_rigs}"

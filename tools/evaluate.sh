@@ -10,7 +10,7 @@
 #   tools/evaluate.sh [BAGS_DIR] [OUT_DIR] [WEIGHTS]
 #     BAGS_DIR  the bags of tools/make_eval_bags.sh (/tmp/mode360_eval)
 #     OUT_DIR   results (/tmp/mode360_eval_out)
-#     WEIGHTS   SSMODE weights (models/ssmode_parallax_zncc_log.safetensors)
+#     WEIGHTS   SSMODE weights (models/ssmode_parallax_zncc_log_fine.safetensors)
 #
 # env (default): ESTIMATORS ("ssmode photometric"), GEOMETRY_SHARE (1; 0 skips the same-image
 # pass, half the time), MODE360_BIN (target/release/mode360). Relative defaults are taken from
@@ -19,7 +19,7 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bags="${1:-/tmp/mode360_eval}"
 out="${2:-/tmp/mode360_eval_out}"
-weights="${3:-$root/models/ssmode_parallax_zncc_log.safetensors}"
+weights="${3:-$root/models/ssmode_parallax_zncc_log_fine.safetensors}"
 bin="${MODE360_BIN:-$root/target/release/mode360}"
 estimators="${ESTIMATORS:-ssmode photometric}"
 share=(--geometry-share); [[ ${GEOMETRY_SHARE:-1} == 0 ]] && share=()

@@ -124,7 +124,7 @@ fn same_image_views_collapse_the_photometric_sweep() -> TestResult {
     )
 }
 
-/// The shipped SSMODE weights (`models/ssmode_parallax_zncc_log.safetensors`) are a multi-view matcher:
+/// The shipped SSMODE weights (`models/ssmode_parallax_zncc_log_fine.safetensors`) are a multi-view matcher:
 /// with no parallax they lose at least [`MIN_SHARE_PTS`] δ1 points, as the sweep does (the
 /// earlier compact weights lost 3). Same bag as the photometric check.
 #[test]

@@ -94,11 +94,11 @@ fn installed_binary_runs_the_demo_from_an_empty_folder() -> TestResult {
     let data = home.join(".local/share/mode360");
     let weights = find_ending(
         &data.join("builtin"),
-        "models/ssmode_parallax_zncc_log.safetensors",
+        "models/ssmode_parallax_zncc_log_fine.safetensors",
     );
     assert_eq!(weights.len(), 1, "{weights:?}");
     let shipped = std::fs::read(format!(
-        "{MANIFEST_DIR}/models/ssmode_parallax_zncc_log.safetensors"
+        "{MANIFEST_DIR}/models/ssmode_parallax_zncc_log_fine.safetensors"
     ))?;
     assert!(
         std::fs::read(&weights[0])? == shipped,

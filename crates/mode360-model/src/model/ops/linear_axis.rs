@@ -19,7 +19,7 @@ use super::types::{
 const MIN_ELEMENTS_PER_TASK: usize = 4096;
 
 /// Linearly resamples axis `dim` of `x` to `out_len` samples (`align_corners = false`), with
-/// gradient. Every other axis is unchanged.
+/// gradient. Every other axis is unchanged; the same length returns `x` itself.
 pub fn resample_linear_axis(x: &Tensor, dim: usize, out_len: usize) -> Result<Tensor> {
     const OP: &str = "resample_linear_axis";
     if x.dtype() != candle_core::DType::F32 {
@@ -36,6 +36,11 @@ pub fn resample_linear_axis(x: &Tensor, dim: usize, out_len: usize) -> Result<Te
             what: format!("axis {dim} out of range for shape {:?}", x.dims()),
         }
         .into());
+    }
+    if x.dim(dim)? == out_len {
+        // `src = j`: every weight is on `in[j]`, so the op is the identity (the fine head's
+        // cost arrives at the output's rows and columns)
+        return Ok(x.clone());
     }
     let map = LinearAxisMap::new(x.dim(dim)?, out_len)?;
     if !has_custom_kernels(x.device()) {
