@@ -68,6 +68,12 @@
 #                          from fine_slow at 2,100 (2026-12-06; fine_slow and fine_obj are then
 #                          deleted, their numbers in models/README.md):
 #     ARMS=fine_slowobj SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
+#                          its step 3,000 ships as models/ssmode_parallax_zncc_log_fine.safetensors
+#                          (2026-12-06); stopped at 3,150, the control of `fine_thin`:
+#   runs/clutter_fine_thin `fine_slowobj` with obstacle pixels x4 and thin ones x4 more (against
+#                          x2 and x1), forked once from fine_slowobj at 3,150 (2026-12-06), to be
+#                          compared with fine_slowobj continued, at equal steps, on validation:
+#     ARMS=fine_thin SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #   runs/clutter_fine_head the fine head alone (`--fine-head-only`, lr 1e-3) on the shipped
 #                          weights, the rest frozen, the same stream and snapshots, against
 #                          the default (its step 0) and `fine_lr` at equal steps (2026-12-03):
@@ -213,6 +219,18 @@ for arm in $arms; do
     lr=2e-6
     seed=7
     ;;
+  fine_thin)
+    # issue 38, after the fine head shipped (`fine_slowobj` at 3,000): its thin obstacles are the
+    # widest gap (held-out 10 of 15, target 85 %), so the same arm with an obstacle's pixels at
+    # 4 and a thin one's 4 more (against 2 and 1), forked once from runs/clutter_fine_slowobj at
+    # its step 3,150; `fine_slowobj` continued is its control at equal steps
+    loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4
+      --fork-from runs/clutter_fine_slowobj --fine-head-lr-scale 500)
+    objects_fraction=0.5
+    preset=parallax_zncc_log_fine
+    lr=2e-6
+    seed=7
+    ;;
   fine_head)
     # issue 38: the fine head alone (`--fine-head-only`) on the shipped weights, at a fresh
     # run's rate: the rest of the network stays the shipped one, so what the default reads
@@ -278,7 +296,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
