@@ -349,18 +349,25 @@ mod tests {
     use super::*;
     use approx::assert_relative_eq;
 
+    /// 4,000 positions spread over a 64x32 grid and past its edges (across the seam, above the
+    /// first row and below the last).
+    fn scattered_pixels() -> impl Iterator<Item = PixelCoord> {
+        (0..4000).map(|k| {
+            let t = k as f64;
+            PixelCoord {
+                u: (t * 0.618_033_988_7).fract() * 70.0 - 3.0,
+                v: (t * 0.414_213_562_3).fract() * 34.0 - 1.0,
+            }
+        })
+    }
+
     /// The compact sample rounds the offsets to 1/65536 of a pixel: the same corners as the
     /// exact taps and weights within 3.1e-5 of them (offsets next to 1 included), summing to 1.
     #[test]
     fn compact_samples_round_the_offsets_only() {
         let grid = ErpGrid::new(64).unwrap();
         let mut worst = 0f32;
-        for k in 0..4000 {
-            let t = k as f64;
-            let p = PixelCoord {
-                u: (t * 0.618_033_988_7).fract() * 70.0 - 3.0,
-                v: (t * 0.414_213_562_3).fract() * 34.0 - 1.0,
-            };
+        for p in scattered_pixels() {
             let (exact, compact) = (grid.bilinear_taps(p), grid.taps_of(grid.bilinear_sample(p)));
             assert_eq!(exact.index, compact.index, "{p:?}");
             for (a, b) in exact.weight.iter().zip(&compact.weight) {
@@ -392,12 +399,7 @@ mod tests {
             .map(|k| ((k as f32) * 0.37).sin() * 2.0 + 0.5)
             .collect();
         let mut worst = 0f32;
-        for k in 0..4000 {
-            let t = k as f64;
-            let p = PixelCoord {
-                u: (t * 0.618_033_988_7).fract() * 70.0 - 3.0,
-                v: (t * 0.414_213_562_3).fract() * 34.0 - 1.0,
-            };
+        for p in scattered_pixels() {
             let s = grid.bilinear_sample(p);
             let taps = grid.taps_of(s).sample(&values);
             worst = worst.max((grid.interpolate(s, &values) - taps).abs());
