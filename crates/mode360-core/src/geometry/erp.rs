@@ -198,12 +198,8 @@ impl ErpGrid {
         if !s.is_seen() {
             return BilinearTaps::UNSEEN;
         }
-        self.corner_taps(
-            u32::from(s.u0),
-            u32::from(s.v0),
-            f32::from(s.fu) * ErpSample::FRACTION_STEP,
-            f32::from(s.fv) * ErpSample::FRACTION_STEP,
-        )
+        let (fu, fv) = s.offsets();
+        self.corner_taps(u32::from(s.u0), u32::from(s.v0), fu, fv)
     }
 
     /// The bilinear value of `values` (row-major, one per pixel of this grid) at `s`, as two
@@ -221,25 +217,29 @@ impl ErpGrid {
         if !s.is_seen() {
             return 0.0;
         }
-        let (w, h) = (self.width, self.height);
+        let w = self.width;
         let (u0, v0) = (usize::from(s.u0), usize::from(s.v0));
-        let u1 = if u0 + 1 == w { 0 } else { u0 + 1 };
-        let v1 = (v0 + 1).min(h - 1);
-        let (fu, fv) = (
-            f32::from(s.fu) * ErpSample::FRACTION_STEP,
-            f32::from(s.fv) * ErpSample::FRACTION_STEP,
-        );
+        let (u1, v1) = self.opposite_corner(u0, v0);
+        let (fu, fv) = s.offsets();
         let (top_row, bottom_row) = (&values[v0 * w..][..w], &values[v1 * w..][..w]);
         let top = top_row[u0] + fu * (top_row[u1] - top_row[u0]);
         let bottom = bottom_row[u0] + fu * (bottom_row[u1] - bottom_row[u0]);
         top + fv * (bottom - top)
     }
 
+    /// The bottom-right corner `(u0 + 1 mod W, min(v0 + 1, H - 1))` of the top-left `(u0, v0)`:
+    /// longitude wraps, latitude clamps.
+    #[inline(always)]
+    fn opposite_corner(&self, u0: usize, v0: usize) -> (usize, usize) {
+        let u1 = if u0 + 1 == self.width { 0 } else { u0 + 1 };
+        (u1, (v0 + 1).min(self.height - 1))
+    }
+
     #[inline(always)]
     fn corner_taps(&self, u0: u32, v0: u32, fu: f32, fv: f32) -> BilinearTaps {
-        let (w, h) = (self.width as u32, self.height as u32);
-        let u1 = if u0 + 1 == w { 0 } else { u0 + 1 };
-        let v1 = (v0 + 1).min(h - 1);
+        let w = self.width as u32;
+        let (u1, v1) = self.opposite_corner(u0 as usize, v0 as usize);
+        let (u1, v1) = (u1 as u32, v1 as u32);
         let idx = |u: u32, v: u32| v * w + u;
         BilinearTaps::from_corners([idx(u0, v0), idx(u1, v0), idx(u0, v1), idx(u1, v1)], fu, fv)
     }
@@ -281,6 +281,15 @@ impl ErpSample {
     fn quantize(f: f32) -> u16 {
         let steps = (f * Self::FRACTION_STEPS as f32).round();
         steps.clamp(0.0, f32::from(u16::MAX)) as u16
+    }
+
+    /// The offsets right of and below the corner, in pixels.
+    #[inline(always)]
+    fn offsets(&self) -> (f32, f32) {
+        (
+            f32::from(self.fu) * Self::FRACTION_STEP,
+            f32::from(self.fv) * Self::FRACTION_STEP,
+        )
     }
 
     /// Whether the sample has taps (is not [`Self::UNSEEN`]); widths stay below `u16::MAX`

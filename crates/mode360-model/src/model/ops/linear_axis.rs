@@ -37,12 +37,13 @@ pub fn resample_linear_axis(x: &Tensor, dim: usize, out_len: usize) -> Result<Te
         }
         .into());
     }
-    if x.dim(dim)? == out_len {
+    let in_len = x.dim(dim)?;
+    if in_len == out_len {
         // `src = j`: every weight is on `in[j]`, so the op is the identity (the fine head's
         // cost arrives at the output's rows and columns)
         return Ok(x.clone());
     }
-    let map = LinearAxisMap::new(x.dim(dim)?, out_len)?;
+    let map = LinearAxisMap::new(in_len, out_len)?;
     if !has_custom_kernels(x.device()) {
         return composite::resample_linear_axis_composite(x, dim, &map);
     }
