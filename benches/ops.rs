@@ -103,5 +103,36 @@ fn bench_table(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_conv, bench_table);
+/// The narrow layers of the shipped preset's aggregation at 256 (`bench-model`'s aggregation
+/// stage), each over a slice of its volume's spheres to keep a sample short:
+/// `(name, input (B, D, H, W, Cin), Cout, stride)`, kernel 3x3x3, padding 1.
+const NARROW_LAYERS: [(&str, [usize; 5], usize, [usize; 3]); 4] = [
+    // dres0.1 .. dres1.1 (and the hourglasses' last layer's size): 8 -> 8 at (48, 64, 132)
+    ("co8", [1, 12, 64, 132, 8], 8, [1, 1, 1]),
+    // hourglass conv2 and conv4: 16 -> 16 at (24, 32, 66)
+    ("co16", [1, 24, 32, 66, 16], 16, [1, 1, 1]),
+    // the entry convolution dres0.0: the 9-channel cost volume to 8, stride 2
+    ("co8_entry", [1, 16, 128, 256, 9], 8, [2, 2, 2]),
+    // the fine head's first layer: 9 -> 4, stride 2 over the spheres only
+    ("co4_fine", [1, 16, 128, 256, 9], 4, [2, 1, 1]),
+];
+
+fn bench_conv_narrow(c: &mut Criterion) {
+    let mut group = c.benchmark_group("conv3d_narrow");
+    group.sample_size(10);
+    for (name, dims, c_out, stride) in NARROW_LAYERS {
+        let [b, d, h, w, ci] = dims;
+        let g = Conv3dGeometry::new(b, [d, h, w], KERNEL, stride, UNIT, ci, c_out)
+            .unwrap_or_else(|e| panic!("geometry: {e}"));
+        let x = randn(&dims);
+        let wt = randn(&[3, 3, 3, ci, c_out]);
+        group.throughput(Throughput::Elements(g.flops() as u64));
+        group.bench_function(name, |bench| {
+            bench.iter(|| conv3d(&x, &wt, stride, UNIT).unwrap_or_else(|e| panic!("{e}")))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_conv, bench_conv_narrow, bench_table);
 criterion_main!(benches);

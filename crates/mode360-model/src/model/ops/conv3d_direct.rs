@@ -19,13 +19,16 @@ use rayon::prelude::*;
 
 use super::types::Conv3dGeometry;
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+
 /// Output cells per register block when `Co` fills one 8-lane vector.
-const BLOCK_CO8: usize = 8;
+const BLOCK_CO8: usize = 12;
 /// Output cells per register block when `Co` fills two 8-lane vectors.
-const BLOCK_CO16: usize = 4;
+const BLOCK_CO16: usize = 6;
 /// Output cells per register block when `Co` fills half an 8-lane vector (the fine head's
 /// first layer, in 4-lane vectors; 4, 6, 12 and 16 cells ran slower on the fine head's volume).
-const BLOCK_CO4: usize = 8;
+const BLOCK_CO4: usize = 12;
 /// Output cells per register block of the `Co = 1` (dot product) kernel.
 const BLOCK_DOT: usize = 4;
 
@@ -89,18 +92,30 @@ pub(super) fn conv3d_forward_direct(
         {
             return None;
         }
+        if x.len() != g.batch * g.in_dims.iter().product::<usize>() * g.c_in
+            || w.len() != g.kernel.iter().product::<usize>() * g.c_in * g.c_out
+        {
+            return None;
+        }
         match (g.c_in, g.c_out) {
             (_, 8) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
-                // SAFETY: AVX2 and FMA were detected above.
-                unsafe { row_avx2::<8, BLOCK_CO8>(x, w, g, row, y) }
+                // SAFETY: AVX2 and FMA were detected above, the lengths checked.
+                unsafe { row_avx2::<8, 1, BLOCK_CO8>(x, w, g, row, y) }
             })),
-            (_, 4) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
-                // SAFETY: AVX2 and FMA were detected above.
-                unsafe { row_avx2::<4, BLOCK_CO4>(x, w, g, row, y) }
-            })),
+            (_, 4) => {
+                let len = g.kernel[2] * g.c_in;
+                let packed: Vec<f32> = w
+                    .chunks_exact(len * avx2::CO_PAIRED)
+                    .flat_map(|tap_row| avx2::pack_pairs_co4(tap_row, len))
+                    .collect();
+                Some(run(x, w, g, epilogue, |x, w, g, row, y| {
+                    // SAFETY: AVX2 and FMA were detected above, the lengths checked.
+                    unsafe { row_co4_avx2::<BLOCK_CO4>(x, w, &packed, g, row, y) }
+                }))
+            }
             (_, 16) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
-                // SAFETY: AVX2 and FMA were detected above.
-                unsafe { row_avx2::<16, BLOCK_CO16>(x, w, g, row, y) }
+                // SAFETY: AVX2 and FMA were detected above, the lengths checked.
+                unsafe { row_avx2::<16, 2, BLOCK_CO16>(x, w, g, row, y) }
             })),
             (8, 1) => Some(run(x, w, g, epilogue, |x, w, g, row, y| {
                 // SAFETY: AVX2 and FMA were detected above.
@@ -222,51 +237,139 @@ fn input_column(g: &Conv3dGeometry, ow: usize, e: usize) -> Option<usize> {
         .filter(|&iw| iw < g.in_dims[2])
 }
 
-/// One output row with `Co = CO` (a multiple of 8) in blocks of `R` cells.
+/// One output row with `Co = CO = 8·V` in register blocks of `R` cells, then of
+/// [`BLOCK_TAIL`] cells, the rest (padded edges and the last few cells) by [`edge_cells`].
 ///
 /// # Safety
-/// The CPU must support AVX2 and FMA.
+/// The CPU must support AVX2 and FMA; `x` and `w` hold the geometry's input and weights.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn row_avx2<const CO: usize, const R: usize>(
+unsafe fn row_avx2<const CO: usize, const V: usize, const R: usize>(
     x: &[f32],
     w: &[f32],
     g: &Conv3dGeometry,
     row: usize,
     y: &mut [f32],
 ) {
+    debug_assert_eq!(CO, V * avx2::LANES);
     let Some(taps) = TapRows::new(g, row) else {
         return row_scalar(x, w, g, row, y);
     };
-    let (ci, kw, sw, pw) = (g.c_in, g.kernel[2], g.stride[2], g.padding[2]);
-    let wo = g.out_dims[2];
+    let (lo, hi) = interior_columns(g);
+    let ow = blocks_avx2::<V, R>(x, w, g, &taps, lo..hi, y);
+    let ow = blocks_avx2::<V, BLOCK_TAIL>(x, w, g, &taps, ow..hi, y);
+    edge_cells::<CO>(x, w, g, &taps, (0..lo).chain(ow..g.out_dims[2]), y);
+}
+
+/// Output cells per register block after the main blocks of a row.
+const BLOCK_TAIL: usize = 4;
+
+/// The interior cells `cols` of one row in blocks of `R` from `cols.start`; returns the first
+/// cell not done.
+///
+/// # Safety
+/// As [`row_avx2`]; `cols` interior columns ([`interior_columns`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn blocks_avx2<const V: usize, const R: usize>(
+    x: &[f32],
+    w: &[f32],
+    g: &Conv3dGeometry,
+    taps: &TapRows,
+    cols: std::ops::Range<usize>,
+    y: &mut [f32],
+) -> usize {
+    use std::arch::x86_64::_mm256_setzero_ps;
+    let co = V * avx2::LANES;
+    let (ci, sw, pw) = (g.c_in, g.stride[2], g.padding[2]);
+    let (len, step) = (g.kernel[2] * ci, sw * ci);
+    let mut ow = cols.start;
+    while ow + R <= cols.end {
+        let mut acc = [[_mm256_setzero_ps(); V]; R];
+        for &(x_off, w_off) in taps.iter() {
+            // cells ow..ow + R read x_row[(ow + r)·sW − pW + k / Ci] (inside: interior columns)
+            let x0 = x_off + (ow * sw - pw) * ci;
+            debug_assert!(x0 + (R - 1) * step + len <= x.len() && w_off + len * co <= w.len());
+            avx2::block::<V, R>(
+                x.as_ptr().add(x0),
+                step,
+                w.as_ptr().add(w_off),
+                len,
+                &mut acc,
+            );
+        }
+        debug_assert!((ow + R) * co <= y.len());
+        avx2::store::<V, R>(&acc, y.as_mut_ptr().add(ow * co));
+        ow += R;
+    }
+    ow
+}
+
+/// One output row with `Co = 4` in register blocks of `R` cells of [`avx2::block_co4`]'s paired
+/// taps (`packed`: [`avx2::pack_pairs_co4`] of each tap row's weights, `kD·kH` of them, in the
+/// order of `w`), the rest by [`edge_cells`].
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA; `x` and `w` hold the geometry's input and weights.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn row_co4_avx2<const R: usize>(
+    x: &[f32],
+    w: &[f32],
+    packed: &[f32],
+    g: &Conv3dGeometry,
+    row: usize,
+    y: &mut [f32],
+) {
+    use std::arch::x86_64::_mm256_setzero_ps;
+    let Some(taps) = TapRows::new(g, row) else {
+        return row_scalar(x, w, g, row, y);
+    };
+    let (ci, sw, pw) = (g.c_in, g.stride[2], g.padding[2]);
+    let (len, step) = (g.kernel[2] * ci, sw * ci);
+    let packed_len = len.div_ceil(2) * avx2::LANES;
     let (lo, hi) = interior_columns(g);
     let mut ow = lo;
     while ow + R <= hi {
-        let mut acc = [[0f32; CO]; R];
+        let mut acc = [_mm256_setzero_ps(); R];
         for &(x_off, w_off) in taps.iter() {
-            for e in 0..kw {
-                // cells ow..ow + R read x_row[(ow + r)·sW + e − pW] (inside: interior columns)
-                let x0 = x_off + ((ow * sw + e) - pw) * ci;
-                let xs = &x[x0..x0 + ((R - 1) * sw + 1) * ci];
-                let ws = &w[w_off + e * ci * CO..w_off + (e + 1) * ci * CO];
-                for (c, wv) in ws.chunks_exact(CO).enumerate() {
-                    for (r, acc_r) in acc.iter_mut().enumerate() {
-                        let xv = xs[r * sw * ci + c];
-                        for (a, &wj) in acc_r.iter_mut().zip(wv) {
-                            *a = xv.mul_add(wj, *a);
-                        }
-                    }
-                }
-            }
+            let x0 = x_off + (ow * sw - pw) * ci;
+            let p0 = w_off / (len * avx2::CO_PAIRED) * packed_len;
+            debug_assert!(x0 + (R - 1) * step + len <= x.len() && p0 + packed_len <= packed.len());
+            avx2::block_co4::<R>(
+                x.as_ptr().add(x0),
+                step,
+                packed.as_ptr().add(p0),
+                len,
+                &mut acc,
+            );
         }
-        for (r, acc_r) in acc.iter().enumerate() {
-            y[(ow + r) * CO..(ow + r + 1) * CO].copy_from_slice(acc_r);
-        }
+        debug_assert!((ow + R) * avx2::CO_PAIRED <= y.len());
+        avx2::store_co4::<R>(&acc, y.as_mut_ptr().add(ow * avx2::CO_PAIRED));
         ow += R;
     }
-    for ow in (0..lo).chain(ow..wo) {
-        let mut acc = [0f32; CO];
+    edge_cells::<{ avx2::CO_PAIRED }>(x, w, g, &taps, (0..lo).chain(ow..g.out_dims[2]), y);
+}
+
+/// The cells `cols` of one row one at a time, the taps outside the input skipped (`CO` the
+/// geometry's output channels, a constant so that a cell's accumulators are one register).
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA (without them `mul_add` is a library call).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn edge_cells<const CO: usize>(
+    x: &[f32],
+    w: &[f32],
+    g: &Conv3dGeometry,
+    taps: &TapRows,
+    cols: impl Iterator<Item = usize>,
+    y: &mut [f32],
+) {
+    let (ci, kw) = (g.c_in, g.kernel[2]);
+    debug_assert_eq!(g.c_out, CO);
+    for ow in cols {
+        let mut cell = [0f32; CO];
         for &(x_off, w_off) in taps.iter() {
             for e in 0..kw {
                 let Some(iw) = input_column(g, ow, e) else {
@@ -275,13 +378,13 @@ unsafe fn row_avx2<const CO: usize, const R: usize>(
                 let xs = &x[x_off + iw * ci..x_off + (iw + 1) * ci];
                 let ws = &w[w_off + e * ci * CO..w_off + (e + 1) * ci * CO];
                 for (&xv, wv) in xs.iter().zip(ws.chunks_exact(CO)) {
-                    for (a, &wj) in acc.iter_mut().zip(wv) {
+                    for (a, &wj) in cell.iter_mut().zip(wv) {
                         *a = xv.mul_add(wj, *a);
                     }
                 }
             }
         }
-        y[ow * CO..(ow + 1) * CO].copy_from_slice(&acc);
+        y[ow * CO..(ow + 1) * CO].copy_from_slice(&cell);
     }
 }
 
