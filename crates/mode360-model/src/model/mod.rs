@@ -26,6 +26,7 @@ pub mod presets;
 pub mod readout;
 pub mod regression;
 pub mod seam;
+pub mod softmax_stats;
 pub mod sphere_conv;
 pub mod ssmode;
 pub mod sweep_sampling;

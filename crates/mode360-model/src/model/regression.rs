@@ -44,6 +44,7 @@ use rayon::prelude::*;
 
 use super::hourglass::Conv3d;
 use super::readout::NEAR_MODE_OFF;
+use super::softmax_stats::{softmax_in_place, SoftmaxSums};
 use crate::model::ops::{
     resample_linear_axis, soft_argmin_index, upsample_trilinear, LinearAxisMap,
 };
@@ -336,30 +337,17 @@ pub fn regress_inference(
                     axis.upper_indices(),
                     axis.upper_weights(),
                 );
-                let mut max = f32::NEG_INFINITY;
-                for i in 0..n {
-                    let c = (1.0 - lam[i]) * s[lo[i] as usize] + lam[i] * s[hi[i] as usize];
-                    p[i] = c;
-                    max = max.max(c);
+                for (i, c) in p.iter_mut().enumerate() {
+                    *c = (1.0 - lam[i]) * s[lo[i] as usize] + lam[i] * s[hi[i] as usize];
                 }
-                let mut sum = 0f32;
-                for x in p.iter_mut() {
-                    *x = (*x - max).exp();
-                    sum += *x;
-                }
+                // p_i = e_i / sum; the argmax of the probabilities, first of equals (as the
+                // unfused path): costs a rounding error apart can have equal probabilities
+                let SoftmaxSums {
+                    sum,
+                    moment: expected,
+                    argmax: arg,
+                } = softmax_in_place(&mut p);
                 let inv_sum = 1.0 / sum;
-                // Argmax of the probabilities, first of equals (as the unfused path): costs a
-                // rounding error apart can have equal probabilities.
-                let mut arg = 0;
-                for i in 1..n {
-                    if p[i] * inv_sum > p[arg] * inv_sum {
-                        arg = i;
-                    }
-                }
-                let mut expected = 0f32;
-                for (i, &x) in p.iter().enumerate() {
-                    expected += x * i as f32;
-                }
                 let near: f32 = p[window(arg, n)].iter().sum();
                 let k = expected * inv_sum / (n - 1) as f32;
                 index_row[u] = k;

@@ -96,6 +96,23 @@ impl CustomOp1 for LinearAxisOp {
         let inner: usize = dims[self.dim + 1..].iter().product();
         let outer: usize = dims[..self.dim].iter().product();
         let mut out = vec![0f32; outer * out_len * inner];
+        if inner == 1 {
+            // the last axis: one chunk per line (a chunk per value cost more than its sum)
+            out.par_chunks_mut(out_len.max(1))
+                .enumerate()
+                .with_min_len((MIN_ELEMENTS_PER_TASK / out_len.max(1)).max(1))
+                .for_each(|(outer_idx, line)| {
+                    let src = &x[outer_idx * in_len..(outer_idx + 1) * in_len];
+                    for (j, o) in line.iter_mut().enumerate() {
+                        for e in rows.start[j]..rows.start[j + 1] {
+                            *o += rows.weight[e] * src[rows.src[e] as usize];
+                        }
+                    }
+                });
+            let mut out_dims = dims.to_vec();
+            out_dims[self.dim] = out_len;
+            return Ok((CpuStorage::F32(out), Shape::from(out_dims)));
+        }
         // (outer, n_in, inner) -> (outer, n_out, inner), one chunk of `inner` per (o, j)
         out.par_chunks_mut(inner.max(1))
             .enumerate()
