@@ -38,8 +38,14 @@ pub fn softmax_in_place(c: &mut [f32]) -> SoftmaxSums {
 /// [`softmax_in_place`] one hypothesis at a time.
 pub fn softmax_scalar(c: &mut [f32]) -> SoftmaxSums {
     let max = c.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let (mut sum, mut moment) = (0f32, 0f32);
-    for (i, x) in c.iter_mut().enumerate() {
+    finish_from(c, 0, max, 0.0, 0.0)
+}
+
+/// Exponentiates `c[first..]` one at a time, adds them to the sums of `c[..first]` and finds the
+/// argmax of all.
+fn finish_from(c: &mut [f32], first: usize, max: f32, sum: f32, moment: f32) -> SoftmaxSums {
+    let (mut sum, mut moment) = (sum, moment);
+    for (i, x) in c.iter_mut().enumerate().skip(first) {
         *x = (*x - max).exp();
         sum += *x;
         moment += *x * i as f32;
@@ -64,7 +70,7 @@ fn first_argmax(e: &[f32]) -> usize {
 
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::{
-    __m256, _mm256_add_epi32, _mm256_add_ps, _mm256_and_ps, _mm256_castps256_ps128,
+    __m128, __m256, _mm256_add_epi32, _mm256_add_ps, _mm256_and_ps, _mm256_castps256_ps128,
     _mm256_castsi256_ps, _mm256_cmp_ps, _mm256_cvtps_epi32, _mm256_extractf128_ps, _mm256_floor_ps,
     _mm256_fmadd_ps, _mm256_fnmadd_ps, _mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps,
     _mm256_mul_ps, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_ps, _mm256_setzero_ps,
@@ -129,30 +135,17 @@ unsafe fn exp_avx2(x: __m256) -> __m256 {
     _mm256_and_ps(_mm256_mul_ps(y, two_n), above_min)
 }
 
-/// The sum of a vector's lanes.
+/// A vector's lanes folded by `op` (an associative 4-lane operation: sum, max).
 ///
 /// # Safety
 /// AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn lane_sum(v: __m256) -> f32 {
-    let q = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
-    let q = _mm_add_ps(q, _mm_movehl_ps(q, q));
-    _mm_cvtss_f32(_mm_add_ps(q, _mm_shuffle_ps::<0b01>(q, q)))
-}
-
-/// The largest of a vector's lanes.
-///
-/// # Safety
-/// AVX2.
-#[cfg(target_arch = "x86_64")]
-#[inline]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn lane_max(v: __m256) -> f32 {
-    let q = _mm_max_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
-    let q = _mm_max_ps(q, _mm_movehl_ps(q, q));
-    _mm_cvtss_f32(_mm_max_ps(q, _mm_shuffle_ps::<0b01>(q, q)))
+unsafe fn lane_fold(v: __m256, op: impl Fn(__m128, __m128) -> __m128) -> f32 {
+    let q = op(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+    let q = op(q, _mm_movehl_ps(q, q));
+    _mm_cvtss_f32(op(q, _mm_shuffle_ps::<0b01>(q, q)))
 }
 
 /// [`softmax_in_place`] eight hypotheses at a time (the last `len % 8` one at a time).
@@ -167,7 +160,10 @@ unsafe fn softmax_avx2(c: &mut [f32]) -> SoftmaxSums {
     for chunk in c[..full].chunks_exact(LANES) {
         max_v = _mm256_max_ps(max_v, _mm256_loadu_ps(chunk.as_ptr()));
     }
-    let max = c[full..].iter().copied().fold(lane_max(max_v), f32::max);
+    let max = c[full..]
+        .iter()
+        .copied()
+        .fold(lane_fold(max_v, |a, b| _mm_max_ps(a, b)), f32::max);
     let max_b = _mm256_set1_ps(max);
     let (mut sum_v, mut moment_v) = (_mm256_setzero_ps(), _mm256_setzero_ps());
     let mut index = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
@@ -179,17 +175,14 @@ unsafe fn softmax_avx2(c: &mut [f32]) -> SoftmaxSums {
         moment_v = _mm256_fmadd_ps(e, index, moment_v);
         index = _mm256_add_ps(index, step);
     }
-    let (mut sum, mut moment) = (lane_sum(sum_v), lane_sum(moment_v));
-    for (i, x) in c.iter_mut().enumerate().skip(full) {
-        *x = (*x - max).exp();
-        sum += *x;
-        moment += *x * i as f32;
-    }
-    SoftmaxSums {
-        sum,
-        moment,
-        argmax: first_argmax(c),
-    }
+    let add = |a, b| _mm_add_ps(a, b);
+    finish_from(
+        c,
+        full,
+        max,
+        lane_fold(sum_v, add),
+        lane_fold(moment_v, add),
+    )
 }
 
 #[cfg(test)]
