@@ -69,11 +69,12 @@
 #                          deleted, their numbers in models/README.md):
 #     ARMS=fine_slowobj SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #                          its step 3,000 ships as models/ssmode_parallax_zncc_log_fine.safetensors
-#                          (2026-12-06); stopped at 3,150, the control of `fine_thin`:
+#                          (2026-12-06); stopped at 3,150, then continued from there as the
+#                          control of `fine_thin` (at 3,500: models/README.md, "Next arm"):
 #   runs/clutter_fine_thin `fine_slowobj` with obstacle pixels x4 and thin ones x4 more (against
 #                          x2 and x1), forked once from fine_slowobj at 3,150 (2026-12-06), to be
 #                          compared with fine_slowobj continued, at equal steps, on validation:
-#     ARMS=fine_thin SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
+#     ARMS="fine_thin fine_slowobj" SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #   runs/clutter_fine_head the fine head alone (`--fine-head-only`, lr 1e-3) on the shipped
 #                          weights, the rest frozen, the same stream and snapshots, against
 #                          the default (its step 0) and `fine_lr` at equal steps (2026-12-03):
