@@ -12,6 +12,7 @@
 
 use super::GeometryError;
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use std::f64::consts::{FRAC_PI_2, PI};
 
 /// The smallest ERP width accepted.
@@ -309,21 +310,24 @@ pub fn resample_erp(data: &[f32], channels: usize, src: ErpGrid, dst: ErpGrid) -
     }
     let scale = src.width() as f64 / dst.width() as f64;
     let mut out = vec![0.0; dst.len() * channels];
-    for v in 0..dst.height() {
-        for u in 0..dst.width() {
-            let taps = src.bilinear_taps(PixelCoord {
-                u: (u as f64 + 0.5) * scale - 0.5,
-                v: (v as f64 + 0.5) * scale - 0.5,
-            });
-            let o = (v * dst.width() + u) * channels;
-            for (&i, &w) in taps.index.iter().zip(taps.weight.iter()) {
-                let s = i as usize * channels;
-                for c in 0..channels {
-                    out[o + c] += w * data[s + c];
+    // one task per output row (the node resamples three or four 512-wide maps a frame)
+    out.par_chunks_mut((dst.width() * channels).max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            for u in 0..dst.width() {
+                let taps = src.bilinear_taps(PixelCoord {
+                    u: (u as f64 + 0.5) * scale - 0.5,
+                    v: (v as f64 + 0.5) * scale - 0.5,
+                });
+                let o = u * channels;
+                for (&i, &w) in taps.index.iter().zip(taps.weight.iter()) {
+                    let s = i as usize * channels;
+                    for c in 0..channels {
+                        row[o + c] += w * data[s + c];
+                    }
                 }
             }
-        }
-    }
+        });
     out
 }
 
@@ -466,5 +470,43 @@ mod tests {
         assert_eq!((t.index[0], t.index[1]), (15, 8));
         let sum: f32 = t.weight.iter().sum();
         assert_relative_eq!(sum, 1.0);
+    }
+
+    /// Two channels, 32 -> 64 wide and back: a field linear in the row (channel 0) and a
+    /// longitude wave (channel 1) read at their pixel-centre positions; the wave wraps the seam.
+    #[test]
+    fn resample_erp_interpolates_rows_and_wraps_longitude() {
+        let (small, large) = (ErpGrid::new(32).unwrap(), ErpGrid::new(64).unwrap());
+        let field = |grid: ErpGrid, u: f64, v: f64| {
+            let lon = 2.0 * PI * (u + 0.5) / grid.width() as f64;
+            [v as f32 * 0.5, (lon.cos()) as f32]
+        };
+        let data: Vec<f32> = (0..small.len())
+            .flat_map(|k| field(small, (k % 32) as f64, (k / 32) as f64))
+            .collect();
+        let up = resample_erp(&data, 2, small, large);
+        assert_eq!(up.len(), large.len() * 2);
+        for v in 1..large.height() - 1 {
+            for u in 0..large.width() {
+                let k = (v * large.width() + u) * 2;
+                // the small grid's row of this pixel's centre: (v + 0.5) / 2 - 0.5
+                let row = (v as f64 + 0.5) / 2.0 - 0.5;
+                assert_relative_eq!(up[k], row as f32 * 0.5, epsilon = 1e-5);
+                let lon = 2.0 * PI * (u as f64 + 0.5) / 64.0;
+                // linear interpolation of a cosine sampled 32 times a turn
+                assert!(
+                    (f64::from(up[k + 1]) - lon.cos()).abs() < 0.01,
+                    "u {u}: {}",
+                    up[k + 1]
+                );
+            }
+        }
+        let down = resample_erp(&up, 2, large, small);
+        for (k, (a, b)) in down.iter().zip(&data).enumerate() {
+            let row = k / 2 / 32;
+            if row > 0 && row < small.height() - 1 {
+                assert!((a - b).abs() < 0.01, "value {k}: {a} against {b}");
+            }
+        }
     }
 }
