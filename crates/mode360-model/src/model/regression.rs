@@ -330,13 +330,13 @@ pub fn regress_inference(
                 }
             }
             let mut p = vec![0f32; n];
+            let (lo, hi, lam) = (
+                axis.lower_indices(),
+                axis.upper_indices(),
+                axis.upper_weights(),
+            );
             for u in 0..width {
                 let s = &spheres[u * d..(u + 1) * d];
-                let (lo, hi, lam) = (
-                    axis.lower_indices(),
-                    axis.upper_indices(),
-                    axis.upper_weights(),
-                );
                 for (i, c) in p.iter_mut().enumerate() {
                     *c = (1.0 - lam[i]) * s[lo[i] as usize] + lam[i] * s[hi[i] as usize];
                 }

@@ -109,25 +109,23 @@ impl CustomOp1 for LinearAxisOp {
                         }
                     }
                 });
-            let mut out_dims = dims.to_vec();
-            out_dims[self.dim] = out_len;
-            return Ok((CpuStorage::F32(out), Shape::from(out_dims)));
-        }
-        // (outer, n_in, inner) -> (outer, n_out, inner), one chunk of `inner` per (o, j)
-        out.par_chunks_mut(inner.max(1))
-            .enumerate()
-            .with_min_len((MIN_ELEMENTS_PER_TASK / inner.max(1)).max(1))
-            .for_each(|(k, o)| {
-                let (outer_idx, j) = (k / out_len, k % out_len);
-                let base = outer_idx * in_len * inner;
-                for e in rows.start[j]..rows.start[j + 1] {
-                    let (i, w) = (rows.src[e] as usize, rows.weight[e]);
-                    let src = &x[base + i * inner..base + (i + 1) * inner];
-                    for (o, v) in o.iter_mut().zip(src) {
-                        *o += w * v;
+        } else {
+            // (outer, n_in, inner) -> (outer, n_out, inner), one chunk of `inner` per (o, j)
+            out.par_chunks_mut(inner.max(1))
+                .enumerate()
+                .with_min_len((MIN_ELEMENTS_PER_TASK / inner.max(1)).max(1))
+                .for_each(|(k, o)| {
+                    let (outer_idx, j) = (k / out_len, k % out_len);
+                    let base = outer_idx * in_len * inner;
+                    for e in rows.start[j]..rows.start[j + 1] {
+                        let (i, w) = (rows.src[e] as usize, rows.weight[e]);
+                        let src = &x[base + i * inner..base + (i + 1) * inner];
+                        for (o, v) in o.iter_mut().zip(src) {
+                            *o += w * v;
+                        }
                     }
-                }
-            });
+                });
+        }
         let mut out_dims = dims.to_vec();
         out_dims[self.dim] = out_len;
         Ok((CpuStorage::F32(out), Shape::from(out_dims)))
