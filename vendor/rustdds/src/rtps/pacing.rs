@@ -13,11 +13,20 @@
 //!
 //! `MODE360_DDS_PACE_KIB_PER_MS` sets the budget in KiB per millisecond
 //! (default [`DEFAULT_KIB_PER_MS`]; 0 turns pacing off).
+//!
+//! Writers take turns in the order they were first paced ([`Turns`]): the
+//! sample at the head goes at the full rate and the others wait for it, so a
+//! node's outputs arrive in the order they were published (its depth image
+//! first, not interleaved with its confidence and point cloud, which would
+//! make each arrive as late as the last).
 
 use std::{
-  cell::Cell,
+  cell::{Cell, RefCell},
+  collections::VecDeque,
   time::{Duration, Instant},
 };
+
+use crate::structure::guid::GUID;
 
 /// Length of one budget period.
 pub(crate) const PERIOD: Duration = Duration::from_millis(1);
@@ -87,9 +96,93 @@ fn capacity(budget: usize) -> f64 {
   budget as f64 * f64::from(BURST_PERIODS)
 }
 
+/// How long the writer at the head of [`Turns`] may go without sending before
+/// the next one gets the turn: a writer whose sample was dropped or that was
+/// deleted mid-sample never says it is done. Far above a period and a late
+/// wake-up of the event loop, far below a frame period.
+pub(crate) const STALE_TURN: Duration = Duration::from_millis(20);
+
+/// One waiting writer and when it last sent (or reached the head).
+#[derive(Clone, Copy, Debug)]
+struct Turn<K> {
+  writer: K,
+  since: Instant,
+}
+
+/// The writers of one event loop in the order they were first paced. The
+/// head's sample goes; the others wait until it is done, so samples go one
+/// after another at the full rate instead of interleaved at a fraction of it.
+#[derive(Debug)]
+pub(crate) struct Turns<K> {
+  queue: VecDeque<Turn<K>>,
+}
+
+impl<K: Copy + Eq> Turns<K> {
+  pub(crate) const fn new() -> Self {
+    Self {
+      queue: VecDeque::new(),
+    }
+  }
+
+  /// Whether `writer` may send now: the queue is empty or `writer` is its
+  /// head. Otherwise `writer` joins the end of the queue (once). A head that
+  /// has not sent for [`STALE_TURN`] is dropped first.
+  pub(crate) fn may_send(&mut self, writer: K, now: Instant) -> bool {
+    while let Some(head) = self.queue.front() {
+      if head.writer == writer || now.saturating_duration_since(head.since) < STALE_TURN {
+        break;
+      }
+      self.queue.pop_front();
+      self.restart_head(now);
+    }
+    match self.queue.front() {
+      Some(head) if head.writer != writer => {
+        if !self.queue.iter().any(|t| t.writer == writer) {
+          self.queue.push_back(Turn { writer, since: now });
+        }
+        false
+      }
+      _ => true,
+    }
+  }
+
+  /// `writer`, which [`Self::may_send`] let go, sent at `now`.
+  pub(crate) fn sent(&mut self, writer: K, now: Instant) {
+    if let Some(head) = self.queue.front_mut() {
+      if head.writer == writer {
+        head.since = now;
+      }
+    }
+  }
+
+  /// `writer`, which [`Self::may_send`] let go, must wait for the bucket: it
+  /// keeps the turn (it takes it when nobody holds it).
+  pub(crate) fn paced(&mut self, writer: K, now: Instant) {
+    if self.queue.is_empty() {
+      self.queue.push_back(Turn { writer, since: now });
+    }
+  }
+
+  /// `writer`'s sample is sent (or given up): the next writer's turn.
+  pub(crate) fn done(&mut self, writer: K, now: Instant) {
+    let was_head = self.queue.front().is_some_and(|t| t.writer == writer);
+    self.queue.retain(|t| t.writer != writer);
+    if was_head {
+      self.restart_head(now);
+    }
+  }
+
+  fn restart_head(&mut self, now: Instant) {
+    if let Some(head) = self.queue.front_mut() {
+      head.since = now;
+    }
+  }
+}
+
 thread_local! {
   static BUCKET: Cell<Option<Bucket>> = const { Cell::new(None) };
   static BUDGET: Cell<Option<usize>> = const { Cell::new(None) };
+  static TURNS: RefCell<Turns<GUID>> = const { RefCell::new(Turns::new()) };
 }
 
 /// Bytes a period may carry (`None`: pacing off).
@@ -108,17 +201,34 @@ fn budget_bytes() -> Option<usize> {
   })
 }
 
-/// Takes `bytes` from this thread's bucket: `None` when they may go now,
-/// `Some(wait)` when the writer should resume in `wait`.
-pub(crate) fn take(bytes: usize) -> Option<Duration> {
+/// Takes `bytes` for `writer` from this thread's bucket, in its turn
+/// ([`Turns`]): `None` when they may go now, `Some(wait)` when the writer
+/// should resume in `wait` (a period while another writer's sample goes).
+pub(crate) fn take(writer: GUID, bytes: usize) -> Option<Duration> {
   let budget = budget_bytes()?;
   let now = Instant::now();
-  BUCKET.with(|cell| {
-    let mut bucket = cell.get().unwrap_or_else(|| Bucket::full(budget, now));
-    let result = bucket.take_at(bytes, budget, now);
-    cell.set(Some(bucket));
+  TURNS.with(|turns| {
+    let mut turns = turns.borrow_mut();
+    if !turns.may_send(writer, now) {
+      return Some(PERIOD);
+    }
+    let result = BUCKET.with(|cell| {
+      let mut bucket = cell.get().unwrap_or_else(|| Bucket::full(budget, now));
+      let result = bucket.take_at(bytes, budget, now);
+      cell.set(Some(bucket));
+      result
+    });
+    match result {
+      None => turns.sent(writer, now),
+      Some(_) => turns.paced(writer, now),
+    }
     result
   })
+}
+
+/// `writer`'s paced sample is sent, or given up: the next writer's turn.
+pub(crate) fn done(writer: GUID) {
+  TURNS.with(|turns| turns.borrow_mut().done(writer, Instant::now()));
 }
 
 #[cfg(test)]
@@ -158,6 +268,40 @@ mod tests {
         "late {late_us} us: {took} s against {ideal_s} s"
       );
     }
+  }
+
+  #[test]
+  fn writers_take_turns_in_the_order_they_were_paced() {
+    let t0 = Instant::now();
+    let mut turns = Turns::new();
+    // Writer 1 sends, is paced and holds the turn; 2 and 3 queue behind it.
+    assert!(turns.may_send(1, t0));
+    turns.sent(1, t0);
+    turns.paced(1, t0);
+    assert!(!turns.may_send(2, t0));
+    assert!(!turns.may_send(3, t0));
+    assert!(!turns.may_send(2, t0), "asking again does not queue twice");
+    assert!(turns.may_send(1, t0 + PERIOD));
+    turns.done(1, t0 + PERIOD);
+    assert!(!turns.may_send(3, t0 + PERIOD), "2 was paced before 3");
+    assert!(turns.may_send(2, t0 + PERIOD));
+    turns.done(2, t0 + 2 * PERIOD);
+    assert!(turns.may_send(3, t0 + 2 * PERIOD));
+    turns.done(3, t0 + 2 * PERIOD);
+    assert!(turns.queue.is_empty());
+  }
+
+  #[test]
+  fn a_head_that_stops_sending_loses_the_turn() {
+    let t0 = Instant::now();
+    let mut turns = Turns::new();
+    turns.paced(1, t0);
+    assert!(!turns.may_send(2, t0 + PERIOD));
+    // Writer 1 never comes back (its sample was dropped).
+    assert!(!turns.may_send(2, t0 + STALE_TURN - PERIOD));
+    assert!(turns.may_send(2, t0 + STALE_TURN));
+    // Writer 2 is now the head, counted from when it got the turn.
+    assert!(!turns.may_send(3, t0 + STALE_TURN + PERIOD));
   }
 
   #[test]

@@ -908,6 +908,8 @@ impl Writer {
         };
         match progress {
           SendProgress::Complete => {
+            // mode360 patch: the next paced writer's turn.
+            super::pacing::done(self.my_guid);
             self.last_sent = sequence_number;
             self.sample_cursor = SampleCursor::Fresh;
             self.send_buffer.set_sent_frontier(sequence_number);
@@ -938,6 +940,7 @@ impl Writer {
             // Drop: advance past this sample without recording blocked sockets,
             // so no write-readiness back-pressure is applied. The unsent
             // remainder is discarded and later evicted by cache cleaning.
+            super::pacing::done(self.my_guid);
             self.last_sent = sequence_number;
             self.sample_cursor = SampleCursor::Fresh;
             self.send_buffer.set_sent_frontier(sequence_number);
@@ -1057,7 +1060,7 @@ impl Writer {
     for (resume_cursor, msg) in messages_to_send {
       if let Some(wait) = paced
         .then(|| msg.datagram_len())
-        .and_then(super::pacing::take)
+        .and_then(|bytes| super::pacing::take(self.my_guid, bytes))
       {
         return (
           fragmentation_needed,
