@@ -163,12 +163,17 @@ impl<K: Copy + Eq> Turns<K> {
     }
   }
 
-  /// `writer`'s sample is sent (or given up): the next writer's turn.
-  pub(crate) fn done(&mut self, writer: K, now: Instant) {
+  /// `writer`'s sample is sent (or given up): the next writer's turn. Returns
+  /// the writer whose turn it now is, to be woken at once (waiting, it would
+  /// look again only a period later, and the budget of that gap is lost).
+  pub(crate) fn done(&mut self, writer: K, now: Instant) -> Option<K> {
     let was_head = self.queue.front().is_some_and(|t| t.writer == writer);
     self.queue.retain(|t| t.writer != writer);
     if was_head {
       self.restart_head(now);
+      self.queue.front().map(|t| t.writer)
+    } else {
+      None
     }
   }
 
@@ -203,14 +208,17 @@ fn budget_bytes() -> Option<usize> {
 
 /// Takes `bytes` for `writer` from this thread's bucket, in its turn
 /// ([`Turns`]): `None` when they may go now, `Some(wait)` when the writer
-/// should resume in `wait` (a period while another writer's sample goes).
+/// should resume in `wait`. A writer waiting for its turn is woken when it
+/// comes ([`done`]); it looks again after [`STALE_TURN`] in case the head
+/// never finishes (polling each period, six waiting writers cost the event loop
+/// so much that a loaded player at 512 fell behind).
 pub(crate) fn take(writer: GUID, bytes: usize) -> Option<Duration> {
   let budget = budget_bytes()?;
   let now = Instant::now();
   TURNS.with(|turns| {
     let mut turns = turns.borrow_mut();
     if !turns.may_send(writer, now) {
-      return Some(PERIOD);
+      return Some(STALE_TURN);
     }
     let result = BUCKET.with(|cell| {
       let mut bucket = cell.get().unwrap_or_else(|| Bucket::full(budget, now));
@@ -227,8 +235,9 @@ pub(crate) fn take(writer: GUID, bytes: usize) -> Option<Duration> {
 }
 
 /// `writer`'s paced sample is sent, or given up: the next writer's turn.
-pub(crate) fn done(writer: GUID) {
-  TURNS.with(|turns| turns.borrow_mut().done(writer, Instant::now()));
+/// Returns that writer, to be woken now.
+pub(crate) fn done(writer: GUID) -> Option<GUID> {
+  TURNS.with(|turns| turns.borrow_mut().done(writer, Instant::now()))
 }
 
 #[cfg(test)]
@@ -282,12 +291,11 @@ mod tests {
     assert!(!turns.may_send(3, t0));
     assert!(!turns.may_send(2, t0), "asking again does not queue twice");
     assert!(turns.may_send(1, t0 + PERIOD));
-    turns.done(1, t0 + PERIOD);
+    assert_eq!(turns.done(1, t0 + PERIOD), Some(2), "2 is woken");
     assert!(!turns.may_send(3, t0 + PERIOD), "2 was paced before 3");
     assert!(turns.may_send(2, t0 + PERIOD));
-    turns.done(2, t0 + 2 * PERIOD);
-    assert!(turns.may_send(3, t0 + 2 * PERIOD));
-    turns.done(3, t0 + 2 * PERIOD);
+    assert_eq!(turns.done(3, t0 + PERIOD), None, "3 gives up; not the head");
+    assert_eq!(turns.done(2, t0 + 2 * PERIOD), None, "nobody is waiting");
     assert!(turns.queue.is_empty());
   }
 

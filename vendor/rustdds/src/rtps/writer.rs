@@ -420,6 +420,20 @@ impl Writer {
   // Schedule a timed event for this Writer on the event loop's shared timer.
   // The payload is tagged with this Writer's EntityId so the event loop can
   // route the fired event back to this Writer.
+  /// mode360 patch: this writer's paced sample is sent or dropped; the next
+  /// paced writer of this event loop, if one waits, is woken now.
+  fn pass_pacing_turn(&self) {
+    if let Some(next) = super::pacing::done(self.my_guid) {
+      self.timed_event_timer.borrow_mut().set_timeout(
+        std::time::Duration::ZERO,
+        DpTimerEvent::Writer {
+          entity_id: next.entity_id,
+          event: TimedEvent::ResumePaced,
+        },
+      );
+    }
+  }
+
   fn schedule_timed_event(&self, after: std::time::Duration, event: TimedEvent) {
     self.timed_event_timer.borrow_mut().set_timeout(
       after,
@@ -909,7 +923,7 @@ impl Writer {
         match progress {
           SendProgress::Complete => {
             // mode360 patch: the next paced writer's turn.
-            super::pacing::done(self.my_guid);
+            self.pass_pacing_turn();
             self.last_sent = sequence_number;
             self.sample_cursor = SampleCursor::Fresh;
             self.send_buffer.set_sent_frontier(sequence_number);
@@ -940,7 +954,7 @@ impl Writer {
             // Drop: advance past this sample without recording blocked sockets,
             // so no write-readiness back-pressure is applied. The unsent
             // remainder is discarded and later evicted by cache cleaning.
-            super::pacing::done(self.my_guid);
+            self.pass_pacing_turn();
             self.last_sent = sequence_number;
             self.sample_cursor = SampleCursor::Fresh;
             self.send_buffer.set_sent_frontier(sequence_number);
