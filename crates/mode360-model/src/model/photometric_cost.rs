@@ -124,48 +124,71 @@ impl SphereInputs<'_> {
     }
 
     /// Sphere `d`'s channel `(H W)`, in `[-1, 1]`.
+    ///
+    /// Loops rather than iterator closures: a closure's body that is not inlined is compiled
+    /// without the caller's AVX2 ([`Self::channel_avx2`]), and the warp and window statistics
+    /// of every camera were half the channel's time that way.
     #[inline(always)]
     fn channel(&self, d: usize) -> Vec<f32> {
-        let (w, h) = (self.w, self.h);
-        let cells = w * h;
+        let cells = self.w * self.h;
         let mut tmp = vec![0.0f32; cells];
-        let owned: Vec<Option<WarpedView>> = self
-            .grey
-            .iter()
-            .zip(self.tables)
-            .zip(self.fixed)
-            .map(|((g, table), fixed)| {
-                fixed.is_none().then(|| {
-                    let mut warped = vec![0.0f32; cells];
-                    let mut weight = vec![0.0f32; cells];
-                    warp(g, table, d * cells, &mut warped, &mut weight);
-                    let stats =
-                        ViewStats::new(warped, w, h, self.params.window_radius_px, &mut tmp);
-                    (stats, self.track_seen.then(|| seen_mask(&weight)))
-                })
-            })
-            .collect();
-        let per_camera: Vec<&WarpedView> = owned
-            .iter()
-            .zip(self.fixed)
-            .filter_map(|(a, b)| a.as_ref().or(b.as_ref()))
-            .collect();
-        let views: Vec<&ViewStats> = per_camera.iter().map(|(v, _)| v).collect();
-        let seen: Vec<Option<&[f32]>> = per_camera.iter().map(|(_, s)| s.as_deref()).collect();
-        sphere_cost(&views, &seen, self.pair_weights, w, h, &self.params)
-            .into_iter()
-            .map(|c| (UNDECIDED_COST - c) / UNDECIDED_COST)
-            .collect()
+        let mut owned: Vec<Option<WarpedView>> = Vec::with_capacity(self.grey.len());
+        for ((grey, table), fixed) in self.grey.iter().zip(self.tables).zip(self.fixed) {
+            owned.push(if fixed.is_none() {
+                Some(self.warped_view(grey, table, d, &mut tmp))
+            } else {
+                None
+            });
+        }
+        let mut views: Vec<&ViewStats> = Vec::with_capacity(owned.len());
+        let mut seen: Vec<Option<&[f32]>> = Vec::with_capacity(owned.len());
+        for (own, fixed) in owned.iter().zip(self.fixed) {
+            if let Some((stats, mask)) = own.as_ref().or(fixed.as_ref()) {
+                views.push(stats);
+                seen.push(mask.as_deref());
+            }
+        }
+        let mut channel = sphere_cost(
+            &views,
+            &seen,
+            self.pair_weights,
+            self.w,
+            self.h,
+            &self.params,
+        );
+        for c in channel.iter_mut() {
+            *c = (UNDECIDED_COST - *c) / UNDECIDED_COST;
+        }
+        channel
+    }
+
+    /// Camera `grey`'s view of sphere `d` through `table`: its window statistics and, where
+    /// tracked, where it sees the sphere. `tmp` is scratch of a sphere's size.
+    #[inline(always)]
+    fn warped_view(
+        &self,
+        grey: &[f32],
+        table: &SampleTable,
+        d: usize,
+        tmp: &mut [f32],
+    ) -> WarpedView {
+        let cells = self.w * self.h;
+        let mut warped = vec![0.0f32; cells];
+        let mut weight = vec![0.0f32; cells];
+        warp(grey, table, d * cells, &mut warped, &mut weight);
+        let stats = ViewStats::new(warped, self.w, self.h, self.params.window_radius_px, tmp);
+        (stats, self.track_seen.then(|| seen_mask(&weight)))
     }
 }
 
 /// 1 where a camera's tap weight says it sees the sample, else 0.
 #[inline(always)]
 fn seen_mask(weight: &[f32]) -> Vec<f32> {
-    weight
-        .iter()
-        .map(|&x| if x >= SEEN_WEIGHT { 1.0 } else { 0.0 })
-        .collect()
+    let mut mask = vec![0.0f32; weight.len()];
+    for (m, &x) in mask.iter_mut().zip(weight) {
+        *m = if x >= SEEN_WEIGHT { 1.0 } else { 0.0 };
+    }
+    mask
 }
 
 /// The photometric cost channel `(B, D, H, W, 1)` of `images` (one `(B, H, W, 3)` tensor in
