@@ -17,6 +17,7 @@ use ros2_client::Publisher;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
+use std::time::Instant;
 
 use super::error::dds_err;
 use super::NodeError;
@@ -24,7 +25,8 @@ use super::NodeError;
 /// The 1-slot "latest group" mailbox between the DDS thread and the inference worker.
 #[derive(Default)]
 pub(super) struct Mailbox {
-    pub(super) slot: Option<SyncGroup<RgbImage>>,
+    /// The newest complete group and when it was posted.
+    pub(super) slot: Option<(SyncGroup<RgbImage>, Instant)>,
     pub(super) shutdown: bool,
 }
 
@@ -57,8 +59,9 @@ pub(super) fn post_groups(shared: &Shared, groups: Vec<SyncGroup<RgbImage>>) {
     let mut replaced = 0u64;
     {
         let mut mb = lock(&shared.mailbox);
+        let now = Instant::now();
         for g in groups {
-            if mb.slot.replace(g).is_some() {
+            if mb.slot.replace((g, now)).is_some() {
                 replaced += 1;
             }
         }
@@ -136,7 +139,8 @@ pub(super) fn worker_main(
                 if mb.shutdown {
                     return;
                 }
-                if let Some(g) = mb.slot.take() {
+                if let Some((g, posted)) = mb.slot.take() {
+                    lock(&shared.health).record_mailbox_wait(posted.elapsed());
                     break g;
                 }
                 mb = shared

@@ -157,6 +157,7 @@ fn assemble_report(
         groups_lost: m.groups_published.saturating_sub(health.sync.groups),
         pipeline_errors: health.pipeline_errors,
         mean_inference_ms: health.mean_latency_ms,
+        mean_mailbox_wait_ms: health.mean_mailbox_wait_ms,
         latency: LatencyStats::from_samples(&m.heard.latencies_ms),
         rss: rss_stats(&m.rss_samples, m.heard.first_depth_s, m.end_s),
         cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),

@@ -121,6 +121,8 @@ pub struct BenchReport {
     pub pipeline_errors: u64,
     /// The node's own pipeline time (estimator + messages), mean, milliseconds.
     pub mean_inference_ms: Option<f64>,
+    /// How long a group waited in the node's mailbox for the worker, mean, milliseconds.
+    pub mean_mailbox_wait_ms: Option<f64>,
     pub latency: Option<LatencyStats>,
     pub rss: Option<RssStats>,
     pub cpus: usize,
@@ -173,6 +175,10 @@ impl BenchReport {
             (
                 "inference (node, mean)".into(),
                 format!("{} ms", opt(self.mean_inference_ms, 0)),
+            ),
+            (
+                "mailbox wait (node, mean)".into(),
+                format!("{} ms", opt(self.mean_mailbox_wait_ms, 0)),
             ),
         ];
         match &self.latency {

@@ -169,6 +169,12 @@ pub struct NodeHealth {
     pub last_latency_ms: Option<f64>,
     /// Mean latency over all processed groups, milliseconds.
     pub mean_latency_ms: Option<f64>,
+    /// Groups the inference worker took from its mailbox (the live node).
+    pub groups_taken: u64,
+    /// Mean time a group waited in the mailbox for the worker, milliseconds (the live node;
+    /// `None` in replay and before the first group). Beside `mean_latency_ms` it says where a
+    /// group's time goes: waiting behind the previous group or being processed.
+    pub mean_mailbox_wait_ms: Option<f64>,
     /// A camera whose blocked fraction exceeds this is WARN (ERROR above
     /// [`LENS_ERROR_FRACTION`]); the `lens_warn_fraction` parameter.
     pub lens_warn_fraction: f64,
@@ -208,6 +214,8 @@ impl Default for NodeHealth {
             last_pipeline_error: None,
             last_latency_ms: None,
             mean_latency_ms: None,
+            groups_taken: 0,
+            mean_mailbox_wait_ms: None,
             lens_warn_fraction: DEFAULT_LENS_WARN_FRACTION,
             calibration_warn_deg: DEFAULT_CALIBRATION_WARN_DEG,
             last_depth_at: None,
@@ -255,6 +263,15 @@ impl NodeHealth {
         self.record_processed(latency.as_secs_f64() * 1e3);
         self.clouds_skipped += u64::from(!cloud_built);
         self.last_depth_at = Some(std::time::Instant::now());
+    }
+
+    /// Counts a group the worker took from the mailbox after it waited there `wait` (the
+    /// running mean over every group taken).
+    pub fn record_mailbox_wait(&mut self, wait: std::time::Duration) {
+        self.groups_taken += 1;
+        let ms = wait.as_secs_f64() * 1e3;
+        let mean = self.mean_mailbox_wait_ms.unwrap_or(0.0);
+        self.mean_mailbox_wait_ms = Some(mean + (ms - mean) / self.groups_taken as f64);
     }
 
     /// Takes a group's rig health checks (rig order) into the cameras' health.
@@ -502,6 +519,7 @@ fn pipeline_status(health: &NodeHealth, hardware_id: &str) -> DiagnosticStatus {
             ),
             kv("last_latency_ms", opt_ms(health.last_latency_ms)),
             kv("mean_latency_ms", opt_ms(health.mean_latency_ms)),
+            kv("mean_mailbox_wait_ms", opt_ms(health.mean_mailbox_wait_ms)),
             kv("degraded_cameras", degraded.join(",")),
             kv(
                 "depth_age_s",

@@ -263,6 +263,24 @@ fn processed_groups_keep_the_newest_and_the_mean_latency() {
 }
 
 #[test]
+fn groups_taken_keep_the_mean_mailbox_wait_on_diagnostics() {
+    let mut h = NodeHealth::of_cameras([("cam1", "/cam1/image_raw".to_string())]);
+    let wait_of = |h: &NodeHealth| {
+        let report = diagnostic_array(0, "mode360", h);
+        diagnostic_value(&report, "mode360: pipeline", "mean_mailbox_wait_ms").map(str::to_string)
+    };
+    assert_eq!(h.mean_mailbox_wait_ms, None);
+    assert_eq!(wait_of(&h).as_deref(), Some("n/a"));
+    for ms in [0, 90, 30] {
+        h.record_mailbox_wait(std::time::Duration::from_millis(ms));
+    }
+    assert_eq!(h.groups_taken, 3);
+    let mean = h.mean_mailbox_wait_ms.unwrap_or(f64::NAN);
+    assert!((mean - 40.0).abs() < 1e-9, "{mean}");
+    assert_eq!(wait_of(&h).as_deref(), Some("40.0"));
+}
+
+#[test]
 fn the_summary_line_names_every_count() {
     let mut health = NodeHealth::of_cameras([("cam1", "/cam1".into()), ("cam2", "/cam2".into())]);
     health.cameras[0].received = 4;
