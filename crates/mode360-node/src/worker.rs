@@ -133,15 +133,14 @@ pub(super) fn worker_main(
     shared: Arc<Shared>,
 ) {
     loop {
-        let group = {
+        let (group, posted) = {
             let mut mb = lock(&shared.mailbox);
             loop {
                 if mb.shutdown {
                     return;
                 }
-                if let Some((g, posted)) = mb.slot.take() {
-                    lock(&shared.health).record_mailbox_wait(posted.elapsed());
-                    break g;
+                if let Some(taken) = mb.slot.take() {
+                    break taken;
                 }
                 mb = shared
                     .wake
@@ -149,6 +148,7 @@ pub(super) fn worker_main(
                     .unwrap_or_else(|poisoned| poisoned.into_inner());
             }
         };
+        lock(&shared.health).record_mailbox_wait(posted.elapsed());
         let images = group
             .messages
             .into_iter()

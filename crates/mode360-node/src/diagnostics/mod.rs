@@ -270,8 +270,11 @@ impl NodeHealth {
     pub fn record_mailbox_wait(&mut self, wait: std::time::Duration) {
         self.groups_taken += 1;
         let ms = wait.as_secs_f64() * 1e3;
-        let mean = self.mean_mailbox_wait_ms.unwrap_or(0.0);
-        self.mean_mailbox_wait_ms = Some(mean + (ms - mean) / self.groups_taken as f64);
+        self.mean_mailbox_wait_ms = Some(running_mean(
+            self.mean_mailbox_wait_ms,
+            self.groups_taken,
+            ms,
+        ));
     }
 
     /// Takes a group's rig health checks (rig order) into the cameras' health.
@@ -284,8 +287,11 @@ impl NodeHealth {
     /// running mean over every processed group).
     pub fn record_processed(&mut self, latency_ms: f64) {
         self.groups_processed += 1;
-        let mean = self.mean_latency_ms.unwrap_or(0.0);
-        self.mean_latency_ms = Some(mean + (latency_ms - mean) / self.groups_processed as f64);
+        self.mean_latency_ms = Some(running_mean(
+            self.mean_latency_ms,
+            self.groups_processed,
+            latency_ms,
+        ));
         self.last_latency_ms = Some(latency_ms);
     }
 
@@ -324,6 +330,13 @@ fn kv(key: &str, value: impl ToString) -> KeyValue {
         key: key.to_string(),
         value: value.to_string(),
     }
+}
+
+/// The mean of `count` values, `mean` being that of the first `count - 1` (`None`: none yet)
+/// and `x` the newest: `mean + (x - mean) / count`.
+fn running_mean(mean: Option<f64>, count: u64, x: f64) -> f64 {
+    let mean = mean.unwrap_or(0.0);
+    mean + (x - mean) / count as f64
 }
 
 fn opt_ms(v: Option<f64>) -> String {

@@ -417,9 +417,6 @@ impl Writer {
   // --------------------------------------------------------------
   // --------------------------------------------------------------
 
-  // Schedule a timed event for this Writer on the event loop's shared timer.
-  // The payload is tagged with this Writer's EntityId so the event loop can
-  // route the fired event back to this Writer.
   /// mode360 patch: this writer's paced sample is sent or dropped; the next
   /// paced writer of this event loop, if one waits, is woken now.
   fn pass_pacing_turn(&self) {
@@ -434,6 +431,9 @@ impl Writer {
     }
   }
 
+  // Schedule a timed event for this Writer on the event loop's shared timer.
+  // The payload is tagged with this Writer's EntityId so the event loop can
+  // route the fired event back to this Writer.
   fn schedule_timed_event(&self, after: std::time::Duration, event: TimedEvent) {
     self.timed_event_timer.borrow_mut().set_timeout(
       after,
