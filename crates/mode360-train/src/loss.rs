@@ -29,6 +29,9 @@
 //! `mode360_core::obstacles` counts (object instances with median true range at most
 //! [`mode360_core::obstacles::OBSTACLE_MAX_RANGE_M`] and enough pixels): `o_p = obstacle_weight`, times `thin_weight`
 //! for an instance narrower than [`mode360_core::obstacles::THIN_MAX_WIDTH_DEG`]; 1 elsewhere and without labels.
+//! A sky pixel (true range at `max_depth_m`, labels not needed) weighs `sky_weight` in `a_p`
+//! instead of 1, so that heavier obstacle weights do not leave the sky to be read as a far
+//! surface.
 
 use candle_core::{DType, Device, Tensor};
 use mode360_core::frame::{FloatImage, SceneLabels, SurfaceClass};
@@ -96,6 +99,10 @@ pub struct LossWeighting {
     #[serde(default = "unit_weight")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub thin_weight: f64,
+    /// Loss weight of a sky pixel (true range at the maximum depth; 1: the plain loss).
+    #[serde(default = "unit_weight")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
+    pub sky_weight: f64,
 }
 
 fn unit_weight() -> f64 {
@@ -124,6 +131,7 @@ impl Default for LossWeighting {
             too_far_range_m: f64::INFINITY,
             obstacle_weight: 1.0,
             thin_weight: 1.0,
+            sky_weight: 1.0,
         }
     }
 }
@@ -134,6 +142,7 @@ impl LossWeighting {
             && self.too_far_weight == 1.0
             && self.obstacle_weight == 1.0
             && self.thin_weight == 1.0
+            && self.sky_weight == 1.0
     }
 
     fn weighs_obstacles(&self) -> bool {
@@ -253,6 +262,8 @@ impl LossConfig {
                     mask.push(1.0f32);
                     let near_w = if r <= near.near_range_m {
                         near.near_weight as f32
+                    } else if r >= self.max_depth_m {
+                        near.sky_weight as f32
                     } else {
                         1.0
                     };

@@ -236,3 +236,41 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
     let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
     assert_eq!((weight[1], weight[41]), (12.0, 1.0));
 }
+
+#[test]
+fn sky_weight_applies_at_the_maximum_depth_only() {
+    let cfg = LossConfig {
+        min_depth_m: 0.5,
+        max_depth_m: 100.0,
+        hypotheses: 11,
+        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
+        stage_weights: vec![1.0],
+        weighting: mode360_train::loss::LossWeighting {
+            near_weight: 3.0,
+            sky_weight: 2.5,
+            ..Default::default()
+        },
+    };
+    // near, middle, just short of the sky, the sky, beyond it (invalid)
+    let gt = FloatImage {
+        width: 5,
+        height: 1,
+        data: vec![2.0, 50.0, 99.9, 100.0, 150.0],
+    };
+    let target = cfg.target(&[&gt], &Device::Cpu).unwrap();
+    let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    assert_eq!(weight, vec![3.0, 1.0, 1.0, 2.5, 0.0]);
+    // The truth everywhere but the sky, which reads one hypothesis step (0.1) too near:
+    // 10 * 0.1 = 1 hypothesis unit -> SmoothL1 0.5, times 2.5, over the 4 valid pixels.
+    let mut pred: Vec<f32> = target
+        .normalized_inverse_depth
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert_eq!(pred[3], 0.0, "the sky is the farthest hypothesis");
+    pred[3] = 0.1;
+    let pred = Tensor::from_vec(pred, (1, 1, 5), &Device::Cpu).unwrap();
+    let loss: f32 = cfg.loss(&[pred], &target).unwrap().to_scalar().unwrap();
+    assert!((loss - 2.5 * 0.5 / 4.0).abs() < 1e-5, "{loss}");
+}
