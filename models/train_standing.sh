@@ -75,6 +75,16 @@
 #                          x2 and x1), forked once from fine_slowobj at 3,150 (2026-12-06), to be
 #                          compared with fine_slowobj continued, at equal steps, on validation:
 #     ARMS="fine_thin fine_slowobj" SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
+#                          compared at 3,500, 3,750 and 4,000 (models/README.md): 8 to 11 more
+#                          cluttered obstacles, 1.4 to 1.7 points of random objects lost, most of
+#                          it sky; fine_slowobj stopped at 4,073 (2026-12-06, night), its run deleted
+#   runs/clutter_fine_sky  `fine_thin` with a sky pixel's weight at 2 (`--sky-weight 2`), forked
+#                          once from fine_thin at 4,323 (2026-12-06, night); fine_thin continued
+#                          is its control at equal steps (at 4,500 random objects 75.79 against
+#                          74.48, every obstacle the same; at 4,750 ahead on all nine validation
+#                          rows); its step 4,750 averaged 1:1 with the previous default ships as
+#                          models/ssmode_parallax_zncc_log_fine.safetensors (2026-12-06, night):
+#     ARMS="fine_thin fine_sky" SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #   runs/clutter_fine_head the fine head alone (`--fine-head-only`, lr 1e-3) on the shipped
 #                          weights, the rest frozen, the same stream and snapshots, against
 #                          the default (its step 0) and `fine_lr` at equal steps (2026-12-03):
