@@ -2,7 +2,19 @@
 
 use candle_core::{Device, Tensor};
 use mode360_core::frame::{FloatImage, SceneLabels, SurfaceClass};
-use mode360_train::loss::{smooth_l1, LossConfig};
+use mode360_train::loss::{smooth_l1, LossConfig, LossWeighting};
+
+/// One stage over `min_depth_m`..100 m, D = 11 hypotheses uniform in inverse depth.
+fn one_stage(min_depth_m: f64, weighting: LossWeighting) -> LossConfig {
+    LossConfig {
+        min_depth_m,
+        max_depth_m: 100.0,
+        hypotheses: 11,
+        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
+        stage_weights: vec![1.0],
+        weighting,
+    }
+}
 
 #[test]
 fn smooth_l1_by_hand() {
@@ -71,20 +83,16 @@ fn multi_stage_loss_by_hand() {
 #[test]
 fn obstacle_weighting_by_hand() {
     // Depth range 1..100 m, D = 11: errors in hypothesis units are 10 * (pred - target).
-    let cfg = LossConfig {
-        min_depth_m: 1.0,
-        max_depth_m: 100.0,
-        hypotheses: 11,
-        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
-        stage_weights: vec![1.0],
-        weighting: mode360_train::loss::LossWeighting {
+    let cfg = one_stage(
+        1.0,
+        LossWeighting {
             near_range_m: 5.0,
             near_weight: 3.0,
             too_far_weight: 2.0,
             too_far_range_m: f64::INFINITY,
             ..Default::default()
         },
-    };
+    );
     // 1 m (n = 1, near) and 100 m (n = 0, far).
     let gt = FloatImage {
         width: 2,
@@ -196,19 +204,15 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
         tall_labels.class[2 * w + c] = SurfaceClass::Object;
         tall_labels.instance[2 * w + c] = 5;
     }
-    let cfg = LossConfig {
-        min_depth_m: 0.5,
-        max_depth_m: 100.0,
-        hypotheses: 11,
-        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
-        stage_weights: vec![1.0],
-        weighting: mode360_train::loss::LossWeighting {
+    let cfg = one_stage(
+        0.5,
+        LossWeighting {
             near_weight: 3.0,
             obstacle_weight: 4.0,
             thin_weight: 2.0,
             ..Default::default()
         },
-    };
+    );
     let target = cfg
         .target_labelled(&[(&tall, Some(&tall_labels))], &Device::Cpu)
         .unwrap();
@@ -239,18 +243,14 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
 
 #[test]
 fn sky_weight_applies_at_the_maximum_depth_only() {
-    let cfg = LossConfig {
-        min_depth_m: 0.5,
-        max_depth_m: 100.0,
-        hypotheses: 11,
-        spacing: mode360_core::geometry::HypothesisSpacing::InverseDepth,
-        stage_weights: vec![1.0],
-        weighting: mode360_train::loss::LossWeighting {
+    let cfg = one_stage(
+        0.5,
+        LossWeighting {
             near_weight: 3.0,
             sky_weight: 2.5,
             ..Default::default()
         },
-    };
+    );
     // near, middle, just short of the sky, the sky, beyond it (invalid)
     let gt = FloatImage {
         width: 5,
