@@ -22,16 +22,15 @@
 //! `too_far_weight` more; both 1 (the default) give the plain loss:
 //!
 //! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
-//! `a_p = (near_weight if g_p <= near_range_m else 1) * o_p`,
+//! `a_p = (near_weight if g_p <= near_range_m, sky_weight if g_p = max_depth_m, else 1) * o_p`,
 //! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m else 1`.
 //!
 //! With the output frame's labels, `o_p` weighs the pixels of the obstacles that
 //! `mode360_core::obstacles` counts (object instances with median true range at most
 //! [`mode360_core::obstacles::OBSTACLE_MAX_RANGE_M`] and enough pixels): `o_p = obstacle_weight`, times `thin_weight`
 //! for an instance narrower than [`mode360_core::obstacles::THIN_MAX_WIDTH_DEG`]; 1 elsewhere and without labels.
-//! A sky pixel (true range at `max_depth_m`, labels not needed) weighs `sky_weight` in `a_p`
-//! instead of 1, so that heavier obstacle weights do not leave the sky to be read as a far
-//! surface.
+//! `sky_weight` (labels not needed) keeps heavier obstacle weights from leaving the sky to be
+//! read as a far surface.
 
 use candle_core::{DType, Device, Tensor};
 use mode360_core::frame::{FloatImage, SceneLabels, SurfaceClass};
@@ -260,14 +259,14 @@ impl LossConfig {
                 if r.is_finite() && r > 0.0 && r <= self.max_depth_m {
                     target.push(Self::normalized_in(hypotheses.as_ref(), r) as f32);
                     mask.push(1.0f32);
-                    let near_w = if r <= near.near_range_m {
+                    let range_w = if r <= near.near_range_m {
                         near.near_weight as f32
                     } else if r >= self.max_depth_m {
                         near.sky_weight as f32
                     } else {
                         1.0
                     };
-                    weight.push(near_w * obstacle);
+                    weight.push(range_w * obstacle);
                     too_far_zone.push(f32::from(u8::from(r <= near.too_far_range_m)));
                 } else {
                     target.push(0.0);
