@@ -412,6 +412,24 @@ impl EvalReport {
                 .collect();
             s.push_str(&format!("| {} | {} |\n", r.condition, cells.join(" | ")));
         }
+        s.push_str(&format!(
+            "of each band's misses, read too far % (the rest too near or without a range)\n| condition | {} |\n|---|{}\n",
+            labels.join(" | "),
+            "---|".repeat(labels.len())
+        ));
+        for r in self
+            .rows
+            .iter()
+            .filter(|r| !r.range_bands.pixels.is_empty())
+        {
+            let cells: Vec<String> = r
+                .range_bands
+                .too_far_pct()
+                .iter()
+                .map(|far| far.map_or_else(|| "-".to_string(), |f| format!("{f:.0}")))
+                .collect();
+            s.push_str(&format!("| {} | {} |\n", r.condition, cells.join(" | ")));
+        }
         s
     }
 }

@@ -95,6 +95,11 @@ pub struct RangeBands {
     pub pixels: Vec<u64>,
     /// Pixels within δ1 per band.
     pub within_delta1: Vec<u64>,
+    /// Misses read too far per band: predicted at least `DELTA_THRESHOLD` times the truth
+    /// (out of range counts at `max_depth_m`). The rest of a band's misses are too near or
+    /// have no usable prediction. Empty in reports written before it was counted.
+    #[serde(default)]
+    pub too_far: Vec<u64>,
 }
 
 impl RangeBands {
@@ -120,6 +125,7 @@ impl RangeBands {
         if self.pixels.len() != Self::COUNT {
             self.pixels = vec![0; Self::COUNT];
             self.within_delta1 = vec![0; Self::COUNT];
+            self.too_far = vec![0; Self::COUNT];
         }
         for (&p, &g) in pred.iter().zip(gt) {
             let (p, g) = (p as f64, g as f64);
@@ -138,8 +144,28 @@ impl RangeBands {
             let p = if p == f64::INFINITY { max_depth_m } else { p };
             if p.is_finite() && p > 0.0 && (p / g).max(g / p) < DELTA_THRESHOLD {
                 self.within_delta1[band] += 1;
+            } else if p.is_finite() && p / g >= DELTA_THRESHOLD {
+                self.too_far[band] += 1;
             }
         }
+    }
+
+    /// Share (%) of each band's misses that read too far (the obstacle melted into what
+    /// stands behind it, or read as sky): `100 too_far / (pixels - within_delta1)`; `None`
+    /// for a band without misses or a report without the count.
+    pub fn too_far_pct(&self) -> Vec<Option<f64>> {
+        if self.too_far.len() != self.pixels.len() {
+            return vec![None; self.pixels.len()];
+        }
+        self.pixels
+            .iter()
+            .zip(&self.within_delta1)
+            .zip(&self.too_far)
+            .map(|((&n, &k), &far)| {
+                let misses = n.saturating_sub(k);
+                (misses > 0).then(|| 100.0 * far as f64 / misses as f64)
+            })
+            .collect()
     }
 
     /// δ1 (%) per band, `None` for a band without pixels.
@@ -455,6 +481,27 @@ mod tests {
     }
 
     #[test]
+    fn range_bands_split_misses_into_too_far_and_too_near() {
+        // 10 m read at 5 m (too near), 20 m (too far) and 11 m (a hit); 3 m read as NaN (a
+        // miss, neither way)
+        let gt = [10.0, 10.0, 10.0, 3.0];
+        let pred = [5.0, 20.0, 11.0, f32::NAN];
+        let mut bands = RangeBands::default();
+        bands.add_frame(&pred, &gt, 1000.0);
+        assert_eq!(bands.within_delta1[1], 1);
+        assert_eq!(bands.too_far[1], 1);
+        let far = bands.too_far_pct();
+        assert_eq!(far[1], Some(50.0));
+        assert_eq!(far[0], Some(0.0));
+        // a report written before the count: no share, not zero
+        let old = RangeBands {
+            too_far: Vec::new(),
+            ..bands
+        };
+        assert!(old.too_far_pct().iter().all(Option::is_none));
+    }
+
+    #[test]
     fn range_bands_place_each_pixel_and_count_misses() {
         // gt 2 m: hit; 10 m: miss; 50 m: hit; 200 m predicted +Inf (scored as 1000 m): miss;
         // 500 m: hit; the sky: hit; NaN ground truth: ignored.
@@ -465,6 +512,12 @@ mod tests {
         bands.add_frame(&pred, &gt, 1000.0);
         assert_eq!(bands.pixels, vec![2, 2, 2, 2, 2, 2]);
         assert_eq!(bands.within_delta1, vec![2, 0, 2, 0, 2, 2]);
+        // both misses read too far (20 m for 10 m, out of range for 200 m)
+        assert_eq!(bands.too_far, vec![0, 2, 0, 2, 0, 0]);
+        let far = bands.too_far_pct();
+        assert_eq!(far[0], None);
+        assert_eq!(far[1], Some(100.0));
+        assert_eq!(far[3], Some(100.0));
         let d = bands.delta1_pct();
         assert_eq!(d[1], Some(0.0));
         assert_eq!(d[5], Some(100.0));

@@ -23,7 +23,13 @@
 //!
 //! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
 //! `a_p = (near_weight if g_p <= near_range_m, sky_weight if g_p = max_depth_m, else 1) * o_p`,
-//! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m else 1`.
+//! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m,`
+//! `      too_near_weight if n_s > n and near_range_m < g_p < max_depth_m and o_p = 1, else 1`.
+//!
+//! The too-near weight is for the surfaces beyond the near range that are not obstacles (the
+//! street at 5 to 80 m): heavy near and obstacle weights teach the network to read them too
+//! near (phantom obstacles, obstacles fattened into their background), while within the near
+//! range, and on an obstacle, a too-near reading is the safe error.
 //!
 //! With the output frame's labels, `o_p` weighs the pixels of the obstacles that
 //! `mode360_core::obstacles` counts (object instances with median true range at most
@@ -102,6 +108,12 @@ pub struct LossWeighting {
     #[serde(default = "unit_weight")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub sky_weight: f64,
+    /// Loss weight of a pixel beyond --near-range-m (and short of the maximum depth), not on
+    /// a weighted obstacle, predicted nearer than its truth: a phantom obstacle (1: the plain
+    /// loss).
+    #[serde(default = "unit_weight")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
+    pub too_near_weight: f64,
 }
 
 fn unit_weight() -> f64 {
@@ -131,6 +143,7 @@ impl Default for LossWeighting {
             obstacle_weight: 1.0,
             thin_weight: 1.0,
             sky_weight: 1.0,
+            too_near_weight: 1.0,
         }
     }
 }
@@ -142,6 +155,7 @@ impl LossWeighting {
             && self.obstacle_weight == 1.0
             && self.thin_weight == 1.0
             && self.sky_weight == 1.0
+            && self.too_near_weight == 1.0
     }
 
     fn weighs_obstacles(&self) -> bool {
@@ -195,6 +209,10 @@ pub struct LossTarget {
     /// `(B, H, W)` 1 where a too-far reading weighs `too_far_weight` (true range at most
     /// `too_far_range_m`), 0 elsewhere.
     pub too_far_zone: Tensor,
+    /// `(B, H, W)` 1 where a too-near reading weighs `too_near_weight` (true range beyond
+    /// `near_range_m` and short of the maximum depth, not on a weighted obstacle), 0
+    /// elsewhere.
+    pub too_near_zone: Tensor,
 }
 
 impl LossConfig {
@@ -251,6 +269,7 @@ impl LossConfig {
         let mut mask = Vec::with_capacity(gts.len() * w * h);
         let mut weight = Vec::with_capacity(gts.len() * w * h);
         let mut too_far_zone = Vec::with_capacity(gts.len() * w * h);
+        let mut too_near_zone = Vec::with_capacity(gts.len() * w * h);
         let near = &self.weighting;
         for (g, labels) in gts {
             let factors = near.obstacle_factors(g, *labels, self.max_depth_m);
@@ -268,11 +287,15 @@ impl LossConfig {
                     };
                     weight.push(range_w * obstacle);
                     too_far_zone.push(f32::from(u8::from(r <= near.too_far_range_m)));
+                    too_near_zone.push(f32::from(u8::from(
+                        r > near.near_range_m && r < self.max_depth_m && obstacle == 1.0,
+                    )));
                 } else {
                     target.push(0.0);
                     mask.push(0.0);
                     weight.push(0.0);
                     too_far_zone.push(0.0);
+                    too_near_zone.push(0.0);
                 }
             }
         }
@@ -282,6 +305,7 @@ impl LossConfig {
             mask: Tensor::from_vec(mask, shape, device)?,
             weight: Tensor::from_vec(weight, shape, device)?,
             too_far_zone: Tensor::from_vec(too_far_zone, shape, device)?,
+            too_near_zone: Tensor::from_vec(too_near_zone, shape, device)?,
         })
     }
 
@@ -311,7 +335,16 @@ impl LossConfig {
                 let too_far = (too_far * &target.too_far_zone)?;
                 // 1 + (too_far_weight - 1) * [too far in the zone]
                 let far_w = ((too_far * (self.weighting.too_far_weight - 1.0))? + 1.0)?;
-                ((per_pixel * &target.weight)? * far_w)?
+                let per_pixel = ((per_pixel * &target.weight)? * far_w)?;
+                if self.weighting.too_near_weight == 1.0 {
+                    per_pixel
+                } else {
+                    // 1 + (too_near_weight - 1) * [too near in its zone]
+                    let too_near = diff.gt(0.0)?.to_dtype(DType::F32)?;
+                    let too_near = (too_near * &target.too_near_zone)?;
+                    let near_w = ((too_near * (self.weighting.too_near_weight - 1.0))? + 1.0)?;
+                    (per_pixel * near_w)?
+                }
             };
             let term = (per_pixel.sum_all()? / &denom)?;
             let term = (term * w)?;

@@ -229,6 +229,19 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
     assert_eq!(at(2, 41), 4.0 * 2.0, "counted and thin, beyond 5 m");
     assert_eq!(at(0, 50), 3.0, "a near wall is not an obstacle");
     assert_eq!(at(0, 100), 1.0);
+    // The too-near zone: beyond the near range and not on a weighted obstacle.
+    let zone: Vec<f32> = target
+        .too_near_zone
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    let zone_at = |row: usize, col: usize| zone[row * w + col];
+    assert_eq!(zone_at(2, 41), 0.0, "a counted obstacle at 6 m");
+    assert_eq!(zone_at(1, 11), 1.0, "8 m, too few pixels to count");
+    assert_eq!(zone_at(0, 21), 1.0, "an object beyond 10 m");
+    assert_eq!(zone_at(0, 1), 0.0, "near");
+    assert_eq!(zone_at(0, 100), 1.0, "the 50 m background");
     // Without labels only the near weight applies.
     let unlabelled = cfg.target(&[&tall], &Device::Cpu).unwrap();
     let weight: Vec<f32> = unlabelled.weight.flatten_all().unwrap().to_vec1().unwrap();
@@ -273,4 +286,50 @@ fn sky_weight_applies_at_the_maximum_depth_only() {
     let pred = Tensor::from_vec(pred, (1, 1, 5), &Device::Cpu).unwrap();
     let loss: f32 = cfg.loss(&[pred], &target).unwrap().to_scalar().unwrap();
     assert!((loss - 2.5 * 0.5 / 4.0).abs() < 1e-5, "{loss}");
+}
+
+#[test]
+fn too_near_weight_applies_beyond_the_near_range_only() {
+    // 1..100 m, D = 11: errors in hypothesis units are 10 * (pred - target).
+    let cfg = one_stage(
+        1.0,
+        LossWeighting {
+            near_range_m: 5.0,
+            too_near_weight: 3.0,
+            ..Default::default()
+        },
+    );
+    // near (2 m), mid-range (20 m), the sky (100 m)
+    let gt = FloatImage {
+        width: 3,
+        height: 1,
+        data: vec![2.0, 20.0, 100.0],
+    };
+    let target = cfg.target(&[&gt], &Device::Cpu).unwrap();
+    let zone: Vec<f32> = target
+        .too_near_zone
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert_eq!(zone, vec![0.0, 1.0, 0.0]);
+    let truth: Vec<f32> = target
+        .normalized_inverse_depth
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    let loss_of = |offsets: [f32; 3]| -> f32 {
+        let pred: Vec<f32> = truth.iter().zip(offsets).map(|(t, o)| t + o).collect();
+        let pred = Tensor::from_vec(pred, (1, 1, 3), &Device::Cpu).unwrap();
+        cfg.loss(&[pred], &target).unwrap().to_scalar().unwrap()
+    };
+    // Every pixel one hypothesis step (0.1) too near: SmoothL1 0.5 each, the mid-range one
+    // times 3, over 3 valid pixels: (0.5 + 1.5 + 0.5) / 3.
+    let near = loss_of([0.1, 0.1, 0.1]);
+    assert!((near - 2.5 / 3.0).abs() < 1e-5, "{near}");
+    // One step too far (the near pixel and the sky cannot go farther than 0: keep them
+    // exact): the mid-range pixel alone, weight 1.
+    let far = loss_of([0.0, -0.1, 0.0]);
+    assert!((far - 0.5 / 3.0).abs() < 1e-5, "{far}");
 }
