@@ -265,31 +265,25 @@ for arm in $arms; do
     lr=2e-6
     seed=7
     ;;
-  fine_tn)
+  fine_tn | fine_tn2)
     # issue 38: `fine_sky` keeps its obstacles and wins random objects back, but streets lose
     # 2.2 points at 5 to 20 m and 1.7 at 20 to 80 m against the previous default (validation,
     # 12 frames, at 5,000), and the loss is too-near readings: of the 5-20 m band's misses 42 %
     # read too far against 66 % (too near 5.9 % of the band's pixels against 2.7 %; `eval`'s
-    # too-far table). So the same loss with a too-near reading beyond 5 m, off the weighted
-    # obstacles, at 4 (`--too-near-weight`), forked once from runs/clutter_fine_sky at its step
-    # 5,100 (2026-12-07); `fine_sky` continued is its control at equal steps. (`fine_mid`, the
-    # near and sky weights halved, ran 61 steps before this diagnosis replaced it.)
+    # too-far table). So `fine_tn` is the same loss with a too-near reading beyond 5 m, off the
+    # weighted obstacles, at 4 (`--too-near-weight`), forked once from runs/clutter_fine_sky at
+    # its step 5,100 (2026-12-07); `fine_sky` continued is its control at equal steps.
+    # (`fine_mid`, the near and sky weights halved, ran 61 steps before this diagnosis replaced
+    # it.) `fine_tn` won back the mid-range and lifted δ1 on every row, but kept 3 or 4 fewer
+    # of random objects' nearest (0-2 m) than its control at 5,250 and 5,500: the zone also
+    # holds the far background beside a near object, so a fattened near object is punished x4
+    # there. `fine_tn2` is the same loss at half the too-near weight (x2), forked once from
+    # runs/clutter_fine_sky at its step 5,750 (2026-12-07; fine_sky stops there), compared
+    # with `fine_tn` at equal steps
+    too_near=4
+    [[ "$arm" == fine_tn2 ]] && too_near=2
     loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-      --too-near-weight 4 --fork-from runs/clutter_fine_sky --fine-head-lr-scale 500)
-    objects_fraction=0.5
-    preset=parallax_zncc_log_fine
-    lr=2e-6
-    seed=7
-    ;;
-  fine_tn2)
-    # issue 38: `fine_tn` wins back the mid-range and lifts δ1 on every row, but keeps 3 or 4
-    # fewer of random objects' nearest (0-2 m) than its control at 5,250 and 5,500: the zone
-    # also holds the far background beside a near object, so a fattened near object is
-    # punished x4 there. The same loss at half the too-near weight (x2), forked once from
-    # runs/clutter_fine_sky at its step 5,750 (2026-12-07), which stops there; compared with
-    # `fine_tn` at equal steps
-    loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-      --too-near-weight 2 --fork-from runs/clutter_fine_sky --fine-head-lr-scale 500)
+      --too-near-weight "$too_near" --fork-from runs/clutter_fine_sky --fine-head-lr-scale 500)
     objects_fraction=0.5
     preset=parallax_zncc_log_fine
     lr=2e-6

@@ -384,14 +384,52 @@ impl EvalReport {
     }
 
     /// δ1 per ground-truth range band (pixels pooled over frames), with each band's share of
-    /// the pixels: where the estimator loses.
+    /// the pixels: where the estimator loses; then the share of each band's misses read too
+    /// far: which way.
     pub fn range_band_table(&self) -> String {
         let Some(first) = self.rows.iter().find(|r| !r.range_bands.pixels.is_empty()) else {
             return String::new();
         };
         let labels = metrics::RangeBands::labels(first.max_depth_m);
+        let mut s = self.band_table(
+            "δ1 % by ground-truth range (share of pixels %)",
+            &labels,
+            |bands| {
+                bands
+                    .delta1_pct()
+                    .iter()
+                    .zip(bands.share_pct())
+                    .map(|(d, share)| match d {
+                        Some(d) => format!("{d:.1} ({share:.1})"),
+                        None => "- (0)".to_string(),
+                    })
+                    .collect()
+            },
+        );
+        s.push_str(&self.band_table(
+            "of each band's misses, read too far % (the rest too near or without a range)",
+            &labels,
+            |bands| {
+                bands
+                    .too_far_pct()
+                    .iter()
+                    .map(|far| far.map_or_else(|| "-".to_string(), |f| format!("{f:.0}")))
+                    .collect()
+            },
+        ));
+        s
+    }
+
+    /// One table of `title` with a column per range band and a row per condition that has
+    /// band counts, its cells from `cells`.
+    fn band_table(
+        &self,
+        title: &str,
+        labels: &[String],
+        cells: impl Fn(&metrics::RangeBands) -> Vec<String>,
+    ) -> String {
         let mut s = format!(
-            "δ1 % by ground-truth range (share of pixels %)\n| condition | {} |\n|---|{}\n",
+            "{title}\n| condition | {} |\n|---|{}\n",
             labels.join(" | "),
             "---|".repeat(labels.len())
         );
@@ -400,35 +438,11 @@ impl EvalReport {
             .iter()
             .filter(|r| !r.range_bands.pixels.is_empty())
         {
-            let cells: Vec<String> = r
-                .range_bands
-                .delta1_pct()
-                .iter()
-                .zip(r.range_bands.share_pct())
-                .map(|(d, share)| match d {
-                    Some(d) => format!("{d:.1} ({share:.1})"),
-                    None => "- (0)".to_string(),
-                })
-                .collect();
-            s.push_str(&format!("| {} | {} |\n", r.condition, cells.join(" | ")));
-        }
-        s.push_str(&format!(
-            "of each band's misses, read too far % (the rest too near or without a range)\n| condition | {} |\n|---|{}\n",
-            labels.join(" | "),
-            "---|".repeat(labels.len())
-        ));
-        for r in self
-            .rows
-            .iter()
-            .filter(|r| !r.range_bands.pixels.is_empty())
-        {
-            let cells: Vec<String> = r
-                .range_bands
-                .too_far_pct()
-                .iter()
-                .map(|far| far.map_or_else(|| "-".to_string(), |f| format!("{f:.0}")))
-                .collect();
-            s.push_str(&format!("| {} | {} |\n", r.condition, cells.join(" | ")));
+            s.push_str(&format!(
+                "| {} | {} |\n",
+                r.condition,
+                cells(&r.range_bands).join(" | ")
+            ));
         }
         s
     }

@@ -16,6 +16,20 @@ fn one_stage(min_depth_m: f64, weighting: LossWeighting) -> LossConfig {
     }
 }
 
+/// A tensor's values, flattened.
+fn values(t: &Tensor) -> Vec<f32> {
+    t.flatten_all().unwrap().to_vec1().unwrap()
+}
+
+/// A one-row range image.
+fn row_image(data: Vec<f32>) -> FloatImage {
+    FloatImage {
+        width: data.len(),
+        height: 1,
+        data,
+    }
+}
+
 #[test]
 fn smooth_l1_by_hand() {
     let x = Tensor::new(&[-3.0f32, -0.5, 0.0, 0.4, 2.0], &Device::Cpu).unwrap();
@@ -49,14 +63,9 @@ fn multi_stage_loss_by_hand() {
         data: vec![f32::NAN, 200.0],
     };
     let target = cfg.target(&[&gt, &gt2], &Device::Cpu).unwrap();
-    let mask: Vec<f32> = target.mask.flatten_all().unwrap().to_vec1().unwrap();
+    let mask: Vec<f32> = values(&target.mask);
     assert_eq!(mask, vec![1.0, 1.0, 0.0, 0.0]);
-    let n: Vec<f32> = target
-        .normalized_inverse_depth
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
+    let n: Vec<f32> = values(&target.normalized_inverse_depth);
     assert!((n[0] - 1.0).abs() < 1e-6 && n[1].abs() < 1e-6);
 
     // Two stages (weights 0.7 and 1.0). Predictions in normalized inverse depth; errors in
@@ -100,7 +109,7 @@ fn obstacle_weighting_by_hand() {
         data: vec![1.0, 100.0],
     };
     let target = cfg.target(&[&gt], &Device::Cpu).unwrap();
-    let w: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    let w: Vec<f32> = values(&target.weight);
     assert_eq!(w, vec![3.0, 1.0]);
     // Near pixel read too far: pred 0.8 -> error -2 -> SmoothL1 1.5, times 3 x 2 = 9.
     // Far pixel read too near: pred 0.1 -> error +1 -> 0.5, times 1. Mean over 2: 4.75.
@@ -132,12 +141,7 @@ fn obstacle_weighting_by_hand() {
         data: vec![1.0, 50.0],
     };
     let target = near_only.target(&[&gt50], &Device::Cpu).unwrap();
-    let zone: Vec<f32> = target
-        .too_far_zone
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
+    let zone: Vec<f32> = values(&target.too_far_zone);
     assert_eq!(zone, vec![1.0, 0.0]);
     // n(50 m) = (1/50 - 1/100) / (1 - 1/100); pred 0 is 10 n hypothesis steps too far:
     // SmoothL1 0.5 (10 n)^2. The near pixel read 2 steps too far weighs 3 x 2: 6 x 1.5 = 9.
@@ -216,7 +220,7 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
     let target = cfg
         .target_labelled(&[(&tall, Some(&tall_labels))], &Device::Cpu)
         .unwrap();
-    let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    let weight: Vec<f32> = values(&target.weight);
     let at = |row: usize, col: usize| weight[row * w + col];
     assert_eq!(at(0, 1), 3.0 * 4.0, "near, counted, wide");
     assert_eq!(at(1, 11), 1.0, "too few pixels");
@@ -230,12 +234,7 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
     assert_eq!(at(0, 50), 3.0, "a near wall is not an obstacle");
     assert_eq!(at(0, 100), 1.0);
     // The too-near zone: beyond the near range and not on a weighted obstacle.
-    let zone: Vec<f32> = target
-        .too_near_zone
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
+    let zone: Vec<f32> = values(&target.too_near_zone);
     let zone_at = |row: usize, col: usize| zone[row * w + col];
     assert_eq!(zone_at(2, 41), 0.0, "a counted obstacle at 6 m");
     assert_eq!(zone_at(1, 11), 1.0, "8 m, too few pixels to count");
@@ -244,13 +243,13 @@ fn obstacle_and_thin_weights_follow_the_counted_instances() {
     assert_eq!(zone_at(0, 100), 1.0, "the 50 m background");
     // Without labels only the near weight applies.
     let unlabelled = cfg.target(&[&tall], &Device::Cpu).unwrap();
-    let weight: Vec<f32> = unlabelled.weight.flatten_all().unwrap().to_vec1().unwrap();
+    let weight: Vec<f32> = values(&unlabelled.weight);
     assert_eq!((weight[1], weight[2 * w + 41]), (3.0, 1.0));
     // The two-row frame alone: instance 5 has 4 pixels and is not counted.
     let target = cfg
         .target_labelled(&[(&gt, Some(&labels))], &Device::Cpu)
         .unwrap();
-    let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    let weight: Vec<f32> = values(&target.weight);
     assert_eq!((weight[1], weight[41]), (12.0, 1.0));
 }
 
@@ -265,22 +264,13 @@ fn sky_weight_applies_at_the_maximum_depth_only() {
         },
     );
     // near, middle, just short of the sky, the sky, beyond it (invalid)
-    let gt = FloatImage {
-        width: 5,
-        height: 1,
-        data: vec![2.0, 50.0, 99.9, 100.0, 150.0],
-    };
+    let gt = row_image(vec![2.0, 50.0, 99.9, 100.0, 150.0]);
     let target = cfg.target(&[&gt], &Device::Cpu).unwrap();
-    let weight: Vec<f32> = target.weight.flatten_all().unwrap().to_vec1().unwrap();
+    let weight: Vec<f32> = values(&target.weight);
     assert_eq!(weight, vec![3.0, 1.0, 1.0, 2.5, 0.0]);
     // The truth everywhere but the sky, which reads one hypothesis step (0.1) too near:
     // 10 * 0.1 = 1 hypothesis unit -> SmoothL1 0.5, times 2.5, over the 4 valid pixels.
-    let mut pred: Vec<f32> = target
-        .normalized_inverse_depth
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
+    let mut pred: Vec<f32> = values(&target.normalized_inverse_depth);
     assert_eq!(pred[3], 0.0, "the sky is the farthest hypothesis");
     pred[3] = 0.1;
     let pred = Tensor::from_vec(pred, (1, 1, 5), &Device::Cpu).unwrap();
@@ -300,25 +290,11 @@ fn too_near_weight_applies_beyond_the_near_range_only() {
         },
     );
     // near (2 m), mid-range (20 m), the sky (100 m)
-    let gt = FloatImage {
-        width: 3,
-        height: 1,
-        data: vec![2.0, 20.0, 100.0],
-    };
+    let gt = row_image(vec![2.0, 20.0, 100.0]);
     let target = cfg.target(&[&gt], &Device::Cpu).unwrap();
-    let zone: Vec<f32> = target
-        .too_near_zone
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
+    let zone: Vec<f32> = values(&target.too_near_zone);
     assert_eq!(zone, vec![0.0, 1.0, 0.0]);
-    let truth: Vec<f32> = target
-        .normalized_inverse_depth
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
+    let truth: Vec<f32> = values(&target.normalized_inverse_depth);
     let loss_of = |offsets: [f32; 3]| -> f32 {
         let pred: Vec<f32> = truth.iter().zip(offsets).map(|(t, o)| t + o).collect();
         let pred = Tensor::from_vec(pred, (1, 1, 3), &Device::Cpu).unwrap();
