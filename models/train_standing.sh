@@ -92,9 +92,11 @@
 #                          5,100 (2026-12-07); fine_sky continued is its control (at 5,250 and
 #                          5,500: +0.46 to +0.97 on streets, random objects and cluttered, the
 #                          mid-range won back, 3 or 4 fewer random objects within 2 m); fine_sky
-#                          stopped at 5,750 for
-#   runs/clutter_fine_tn2  the same at x2, forked once from fine_sky at 5,750, against fine_tn:
-#     ARMS="fine_tn fine_tn2" SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
+#                          stopped at 5,750 (its run deleted)
+#   runs/clutter_fine_tne  fine_tn with the far side of depth edges out of the too-near zone
+#                          (`--too-near-edge-px 3`), forked once from fine_tn at 5,800
+#                          (2026-12-07); fine_tn continued is its control:
+#     ARMS="fine_tn fine_tne" SNAPSHOT_EVERY=250 nohup nice -n 10 models/train_standing.sh > /tmp/standing.log 2>&1 &
 #   runs/clutter_fine_head the fine head alone (`--fine-head-only`, lr 1e-3) on the shipped
 #                          weights, the rest frozen, the same stream and snapshots, against
 #                          the default (its step 0) and `fine_lr` at equal steps (2026-12-03):
@@ -265,7 +267,7 @@ for arm in $arms; do
     lr=2e-6
     seed=7
     ;;
-  fine_tn | fine_tn2)
+  fine_tn | fine_tne)
     # issue 38: `fine_sky` keeps its obstacles and wins random objects back, but streets lose
     # 2.2 points at 5 to 20 m and 1.7 at 20 to 80 m against the previous default (validation,
     # 12 frames, at 5,000), and the loss is too-near readings: of the 5-20 m band's misses 42 %
@@ -274,16 +276,21 @@ for arm in $arms; do
     # weighted obstacles, at 4 (`--too-near-weight`), forked once from runs/clutter_fine_sky at
     # its step 5,100 (2026-12-07); `fine_sky` continued is its control at equal steps.
     # (`fine_mid`, the near and sky weights halved, ran 61 steps before this diagnosis replaced
-    # it.) `fine_tn` won back the mid-range and lifted δ1 on every row, but kept 3 or 4 fewer
-    # of random objects' nearest (0-2 m) than its control at 5,250 and 5,500: the zone also
-    # holds the far background beside a near object, so a fattened near object is punished x4
-    # there. `fine_tn2` is the same loss at half the too-near weight (x2), forked once from
-    # runs/clutter_fine_sky at its step 5,750 (2026-12-07; fine_sky stops there), compared
-    # with `fine_tn` at equal steps
-    too_near=4
-    [[ "$arm" == fine_tn2 ]] && too_near=2
+    # it.) `fine_tn` won back the mid-range and lifted δ1 on every row, but kept 3 to 5 fewer
+    # of random objects' nearest (0-2 m) than its control at 5,250, 5,500 and 5,750: the zone
+    # also holds the far background beside a near object, so a near object read a little wide
+    # is punished x4 there. `fine_tne` leaves the far side of depth edges out of the zone
+    # (within 3 pixels at 256 of a surface over 1.25 times nearer: `--too-near-edge-px 3`),
+    # forked once from runs/clutter_fine_tn at its step 5,800 (2026-12-07); `fine_tn`
+    # continued is its control at equal steps. (`fine_tn2`, x2 forked from fine_sky at 5,750,
+    # ran a few minutes before `fine_tne` replaced it.)
     loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-      --too-near-weight "$too_near" --fork-from runs/clutter_fine_sky --fine-head-lr-scale 500)
+      --too-near-weight 4 --fork-from runs/clutter_fine_sky --fine-head-lr-scale 500)
+    if [[ "$arm" == fine_tne ]]; then
+      loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
+        --too-near-weight 4 --too-near-edge-px 3 --fork-from runs/clutter_fine_tn
+        --fine-head-lr-scale 500)
+    fi
     objects_fraction=0.5
     preset=parallax_zncc_log_fine
     lr=2e-6
@@ -354,7 +361,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tn2, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac

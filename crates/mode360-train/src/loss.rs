@@ -24,12 +24,15 @@
 //! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
 //! `a_p = (near_weight if g_p <= near_range_m, sky_weight if g_p = max_depth_m, else 1) * o_p`,
 //! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m,`
-//! `      too_near_weight if n_s > n and near_range_m < g_p < max_depth_m and o_p = 1, else 1`.
+//! `      too_near_weight if n_s > n and near_range_m < g_p < max_depth_m and o_p = 1`
+//! `      and no g_q < g_p / 1.25 within too_near_edge_px of p (Chebyshev), else 1`.
 //!
 //! The too-near weight is for the surfaces beyond the near range that are not obstacles (the
 //! street at 5 to 80 m): heavy near and obstacle weights teach the network to read them too
 //! near (phantom obstacles, obstacles fattened into their background), while within the near
-//! range, and on an obstacle, a too-near reading is the safe error.
+//! range, and on an obstacle, a too-near reading is the safe error. With `too_near_edge_px`
+//! the far side of a depth edge is left out too, so that the weight punishes phantom
+//! surfaces, not a near object read a little wider than it is.
 //!
 //! With the output frame's labels, `o_p` weighs the pixels of the obstacles that
 //! `mode360_core::obstacles` counts (object instances with median true range at most
@@ -114,6 +117,11 @@ pub struct LossWeighting {
     #[serde(default = "unit_weight")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
     pub too_near_weight: f64,
+    /// Leave out of the too-near weight the pixels within this many pixels (of the training
+    /// image) of a surface over 1.25 times nearer: the far side of a depth edge (0: off).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub too_near_edge_px: usize,
 }
 
 fn unit_weight() -> f64 {
@@ -132,6 +140,45 @@ fn range_or_unlimited<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::
 /// Range below which [`LossWeighting::near_weight`] applies by default, metres.
 pub const DEFAULT_NEAR_RANGE_M: f64 = 5.0;
 
+/// A neighbour over this many times nearer makes a pixel the far side of a depth edge
+/// ([`LossWeighting::too_near_edge_px`]); δ1's threshold.
+pub const DEPTH_EDGE_RATIO: f64 = 1.25;
+
+/// Each pixel's smallest valid true range within `radius_px` pixels (a `(2 r + 1)^2` window,
+/// clamped at the image's borders; invalid ranges ignored; +inf where none), a separable
+/// minimum filter. `radius_px` 0 gives the image itself.
+fn nearest_within(g: &FloatImage, radius_px: usize) -> Vec<f32> {
+    let valid = |r: f32| {
+        if r.is_finite() && r > 0.0 {
+            r
+        } else {
+            f32::INFINITY
+        }
+    };
+    let (w, h) = (g.width, g.height);
+    let data: Vec<f32> = g.data.iter().map(|&r| valid(r)).collect();
+    if radius_px == 0 || data.len() != w * h {
+        return data;
+    }
+    let mut rows = vec![f32::INFINITY; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (lo, hi) = (x.saturating_sub(radius_px), (x + radius_px).min(w - 1));
+            rows[y * w + x] = data[y * w + lo..=y * w + hi]
+                .iter()
+                .fold(f32::INFINITY, |m, &r| m.min(r));
+        }
+    }
+    let mut out = vec![f32::INFINITY; w * h];
+    for y in 0..h {
+        let (lo, hi) = (y.saturating_sub(radius_px), (y + radius_px).min(h - 1));
+        for x in 0..w {
+            out[y * w + x] = (lo..=hi).fold(f32::INFINITY, |m, yy| m.min(rows[yy * w + x]));
+        }
+    }
+    out
+}
+
 impl Default for LossWeighting {
     /// The plain loss: every weight 1.
     fn default() -> Self {
@@ -144,6 +191,7 @@ impl Default for LossWeighting {
             thin_weight: 1.0,
             sky_weight: 1.0,
             too_near_weight: 1.0,
+            too_near_edge_px: 0,
         }
     }
 }
@@ -273,7 +321,8 @@ impl LossConfig {
         let near = &self.weighting;
         for (g, labels) in gts {
             let factors = near.obstacle_factors(g, *labels, self.max_depth_m);
-            for (&r, &obstacle) in g.data.iter().zip(&factors) {
+            let nearest = nearest_within(g, near.too_near_edge_px);
+            for ((&r, &obstacle), &nearest) in g.data.iter().zip(&factors).zip(&nearest) {
                 let r = f64::from(r);
                 if r.is_finite() && r > 0.0 && r <= self.max_depth_m {
                     target.push(Self::normalized_in(hypotheses.as_ref(), r) as f32);
@@ -288,7 +337,10 @@ impl LossConfig {
                     weight.push(range_w * obstacle);
                     too_far_zone.push(f32::from(u8::from(r <= near.too_far_range_m)));
                     too_near_zone.push(f32::from(u8::from(
-                        r > near.near_range_m && r < self.max_depth_m && obstacle == 1.0,
+                        r > near.near_range_m
+                            && r < self.max_depth_m
+                            && obstacle == 1.0
+                            && f64::from(nearest) * DEPTH_EDGE_RATIO >= r,
                     )));
                 } else {
                     target.push(0.0);

@@ -309,3 +309,34 @@ fn too_near_weight_applies_beyond_the_near_range_only() {
     let far = loss_of([0.0, -0.1, 0.0]);
     assert!((far - 0.5 / 3.0).abs() < 1e-5, "{far}");
 }
+
+#[test]
+fn too_near_edge_px_leaves_out_the_far_side_of_a_depth_edge() {
+    // Two rows: a 2 m post at column 3 of the first, 20 m behind it, a 17 m patch (not an
+    // edge: under 1.25 times nearer than 20 m) at column 6; the second row all 20 m.
+    let mut data = vec![20.0f32, 20.0, 20.0, 2.0, 20.0, 20.0, 17.0, 20.0];
+    data.extend([20.0f32; 8]);
+    let gt = FloatImage {
+        width: 8,
+        height: 2,
+        data,
+    };
+    let zone_with = |edge_px: usize| {
+        let cfg = one_stage(
+            1.0,
+            LossWeighting {
+                too_near_weight: 4.0,
+                too_near_edge_px: edge_px,
+                ..Default::default()
+            },
+        );
+        values(&cfg.target(&[&gt], &Device::Cpu).unwrap().too_near_zone)
+    };
+    let off = zone_with(0);
+    assert_eq!(&off[..8], &[1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0]);
+    assert!(off[8..].iter().all(|&z| z == 1.0));
+    // Within 2 pixels of the post (the second row too): left out.
+    let edge = zone_with(2);
+    assert_eq!(&edge[..8], &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0]);
+    assert_eq!(&edge[8..], &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0]);
+}
