@@ -44,6 +44,8 @@
 use candle_core::{DType, Device, Tensor};
 use mode360_core::frame::{FloatImage, SceneLabels, SurfaceClass};
 use mode360_core::geometry::{DepthHypotheses, DepthRange, HypothesisSpacing};
+// a neighbour over δ1's threshold nearer makes a pixel the far side of a depth edge
+use mode360_core::metrics::DELTA_THRESHOLD;
 use mode360_core::obstacles::frame_obstacles;
 use std::collections::BTreeMap;
 
@@ -139,10 +141,6 @@ fn range_or_unlimited<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::
 
 /// Range below which [`LossWeighting::near_weight`] applies by default, metres.
 pub const DEFAULT_NEAR_RANGE_M: f64 = 5.0;
-
-/// A neighbour over this many times nearer makes a pixel the far side of a depth edge
-/// ([`LossWeighting::too_near_edge_px`]); δ1's threshold.
-pub const DEPTH_EDGE_RATIO: f64 = 1.25;
 
 /// Each pixel's smallest valid true range within `radius_px` pixels (a `(2 r + 1)^2` window,
 /// clamped at the image's borders; invalid ranges ignored; +inf where none), a separable
@@ -340,7 +338,7 @@ impl LossConfig {
                         r > near.near_range_m
                             && r < self.max_depth_m
                             && obstacle == 1.0
-                            && f64::from(nearest) * DEPTH_EDGE_RATIO >= r,
+                            && f64::from(nearest) * DELTA_THRESHOLD >= r,
                     )));
                 } else {
                     target.push(0.0);
