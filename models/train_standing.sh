@@ -296,6 +296,25 @@ for arm in $arms; do
     lr=2e-6
     seed=7
     ;;
+  fine_edge | fine_edge10)
+    # issue 38: `fine_tne` forked from `fine_tn` after it had lost random objects' nearest, so
+    # it could only show that the edge exclusion keeps what is left. `fine_edge` is `fine_tne`'s
+    # loss from `fine_tn`'s own fork point (runs/clutter_fine_sky at 5,100, restored from git,
+    # b84047d, and run on from 5,012 for the fork; 2026-12-07), and `fine_edge10` the same
+    # with the too-near zone starting at 10 m (`--too-near-min-range-m 10`: the 5-10 m ring
+    # where a near object's neighbours stand keeps the plain loss). Compared at equal steps
+    # with `fine_sky` (control) and `fine_tn` (the too-near weight alone) on validation.
+    loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
+      --too-near-weight 4 --too-near-edge-px 3 --fork-from runs/clutter_fine_sky
+      --fine-head-lr-scale 500)
+    if [[ "$arm" == fine_edge10 ]]; then
+      loss+=(--too-near-min-range-m 10)
+    fi
+    objects_fraction=0.5
+    preset=parallax_zncc_log_fine
+    lr=2e-6
+    seed=7
+    ;;
   fine_head)
     # issue 38: the fine head alone (`--fine-head-only`) on the shipped weights, at a fresh
     # run's rate: the rest of the network stays the shipped one, so what the default reads
@@ -361,7 +380,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac

@@ -24,7 +24,8 @@
 //! `L = sum_s w_s * sum_{valid} a_p b_p SmoothL1(...) / |valid|`,
 //! `a_p = (near_weight if g_p <= near_range_m, sky_weight if g_p = max_depth_m, else 1) * o_p`,
 //! `b_p = too_far_weight if n_s < n and g_p <= too_far_range_m,`
-//! `      too_near_weight if n_s > n and near_range_m < g_p < max_depth_m and o_p = 1`
+//! `      too_near_weight if n_s > n and max(near_range_m, too_near_min_range_m) < g_p < max_depth_m`
+//! `      and o_p = 1`
 //! `      and no g_q < g_p / 1.25 within too_near_edge_px of p (Chebyshev), else 1`.
 //!
 //! The too-near weight is for the surfaces beyond the near range that are not obstacles (the
@@ -32,7 +33,9 @@
 //! near (phantom obstacles, obstacles fattened into their background), while within the near
 //! range, and on an obstacle, a too-near reading is the safe error. With `too_near_edge_px`
 //! the far side of a depth edge is left out too, so that the weight punishes phantom
-//! surfaces, not a near object read a little wider than it is.
+//! surfaces, not a near object read a little wider than it is. With `too_near_min_range_m`
+//! the zone starts farther out than the near range, so that the weight leaves the mid-range
+//! between them (where a near object's neighbours stand) to the plain loss.
 //!
 //! With the output frame's labels, `o_p` weighs the pixels of the obstacles that
 //! `mode360_core::obstacles` counts (object instances with median true range at most
@@ -124,6 +127,11 @@ pub struct LossWeighting {
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub too_near_edge_px: usize,
+    /// Where the too-near weight starts: pixels whose true range is beyond both this and
+    /// --near-range-m, metres (0: from --near-range-m).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
+    pub too_near_min_range_m: f64,
 }
 
 fn unit_weight() -> f64 {
@@ -190,6 +198,7 @@ impl Default for LossWeighting {
             sky_weight: 1.0,
             too_near_weight: 1.0,
             too_near_edge_px: 0,
+            too_near_min_range_m: 0.0,
         }
     }
 }
@@ -256,7 +265,7 @@ pub struct LossTarget {
     /// `too_far_range_m`), 0 elsewhere.
     pub too_far_zone: Tensor,
     /// `(B, H, W)` 1 where a too-near reading weighs `too_near_weight` (true range beyond
-    /// `near_range_m` and short of the maximum depth, not on a weighted obstacle), 0
+    /// `near_range_m` and `too_near_min_range_m` and short of the maximum depth, not on a weighted obstacle), 0
     /// elsewhere.
     pub too_near_zone: Tensor,
 }
@@ -317,6 +326,7 @@ impl LossConfig {
         let mut too_far_zone = Vec::with_capacity(gts.len() * w * h);
         let mut too_near_zone = Vec::with_capacity(gts.len() * w * h);
         let near = &self.weighting;
+        let too_near_from_m = near.near_range_m.max(near.too_near_min_range_m);
         for (g, labels) in gts {
             let factors = near.obstacle_factors(g, *labels, self.max_depth_m);
             let nearest = nearest_within(g, near.too_near_edge_px);
@@ -335,7 +345,7 @@ impl LossConfig {
                     weight.push(range_w * obstacle);
                     too_far_zone.push(f32::from(u8::from(r <= near.too_far_range_m)));
                     too_near_zone.push(f32::from(u8::from(
-                        r > near.near_range_m
+                        r > too_near_from_m
                             && r < self.max_depth_m
                             && obstacle == 1.0
                             && f64::from(nearest) * DELTA_THRESHOLD >= r,

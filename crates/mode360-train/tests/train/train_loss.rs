@@ -340,3 +340,26 @@ fn too_near_edge_px_leaves_out_the_far_side_of_a_depth_edge() {
     assert_eq!(&edge[..8], &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0]);
     assert_eq!(&edge[8..], &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0]);
 }
+
+#[test]
+fn too_near_min_range_m_moves_the_start_of_the_zone_out() {
+    // near (2 m), mid-range (7 m, 10 m, 12 m), far (50 m), the sky (100 m)
+    let gt = row_image(vec![2.0, 7.0, 10.0, 12.0, 50.0, 100.0]);
+    let zone_from = |min_range_m: f64| {
+        let cfg = one_stage(
+            1.0,
+            LossWeighting {
+                near_range_m: 5.0,
+                too_near_weight: 4.0,
+                too_near_min_range_m: min_range_m,
+                ..Default::default()
+            },
+        );
+        values(&cfg.target(&[&gt], &Device::Cpu).unwrap().too_near_zone)
+    };
+    // 0 (the default) and anything inside the near range: from the near range out.
+    assert_eq!(zone_from(0.0), vec![0.0, 1.0, 1.0, 1.0, 1.0, 0.0]);
+    assert_eq!(zone_from(3.0), vec![0.0, 1.0, 1.0, 1.0, 1.0, 0.0]);
+    // From 10 m: strictly beyond it.
+    assert_eq!(zone_from(10.0), vec![0.0, 0.0, 0.0, 1.0, 1.0, 0.0]);
+}
