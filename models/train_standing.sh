@@ -296,7 +296,7 @@ for arm in $arms; do
     lr=2e-6
     seed=7
     ;;
-  fine_edge | fine_edge10)
+  fine_edge | fine_edge10 | fine_edgefar)
     # issue 38: `fine_tne` forked from `fine_tn` after it had lost random objects' nearest, so
     # it could only show that the edge exclusion keeps what is left. `fine_edge` is `fine_tne`'s
     # loss from `fine_tn`'s own fork point (runs/clutter_fine_sky at 5,100, restored from git,
@@ -304,11 +304,20 @@ for arm in $arms; do
     # with the too-near zone starting at 10 m (`--too-near-min-range-m 10`: the 5-10 m ring
     # where a near object's neighbours stand keeps the plain loss). Compared at equal steps
     # with `fine_sky` (control) and `fine_tn` (the too-near weight alone) on validation.
+    # At 5,250 and 5,500 both lost random objects' nearest as `fine_tn` had (0-2 m 53 and 54 of
+    # 123 at 5,500 against the control's 56) and the zone's start changed nothing (every row
+    # within 0.04), so `fine_edge10` stopped at 5,500 for `fine_edgefar`: `fine_edge` with a
+    # near pixel (within 5 m) read too far at 2 (`--too-far-weight 2 --too-far-range-m 5`),
+    # the push back against reading a near object as its background, forked from the same
+    # 5,100.
     loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
       --too-near-weight 4 --too-near-edge-px 3 --fork-from runs/clutter_fine_sky
       --fine-head-lr-scale 500)
     if [[ "$arm" == fine_edge10 ]]; then
       loss+=(--too-near-min-range-m 10)
+    fi
+    if [[ "$arm" == fine_edgefar ]]; then
+      loss+=(--too-far-weight 2 --too-far-range-m 5)
     fi
     objects_fraction=0.5
     preset=parallax_zncc_log_fine
@@ -380,7 +389,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs_lr, pairs_decay, fusion or fusion1)" >&2
     exit 2
     ;;
   esac
