@@ -152,6 +152,17 @@ mix=(--street cluttered --soiled-fraction 0.3 --fisheye-fraction 0.2
   --rig-layouts any --blocked-fraction 0.2 --max-grad-norm 50 --camera-effects)
 export RAYON_NUM_THREADS="${THREADS:-1}" CANDLE_NUM_THREADS="${THREADS:-1}"
 pids=()
+# `fine_sky`'s loss, to which every arm forked from it (fine_tn, fine_tne, fine_edge*) adds
+sky_loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
+  --fine-head-lr-scale 500)
+# the settings of `fine_sky` and the arms forked from it: half the samples random objects, the
+# fine head's preset, the backbone at 2e-6, the seed-7 stream
+fine_sky_settings() {
+  objects_fraction=0.5
+  preset=parallax_zncc_log_fine
+  lr=2e-6
+  seed=7
+}
 # where an arm's run lives
 run_dir() {
   case "$1" in
@@ -260,12 +271,8 @@ for arm in $arms; do
     # % of sky pixels: patches of the textured sky read at 50 to 200 m), so the same loss with
     # a sky pixel's weight at 2 (`--sky-weight`), forked once from runs/clutter_fine_thin;
     # `fine_thin` continued is its control at equal steps
-    loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-      --fork-from runs/clutter_fine_thin --fine-head-lr-scale 500)
-    objects_fraction=0.5
-    preset=parallax_zncc_log_fine
-    lr=2e-6
-    seed=7
+    loss=("${sky_loss[@]}" --fork-from runs/clutter_fine_thin)
+    fine_sky_settings
     ;;
   fine_tn | fine_tne)
     # issue 38: `fine_sky` keeps its obstacles and wins random objects back, but streets lose
@@ -284,17 +291,12 @@ for arm in $arms; do
     # forked once from runs/clutter_fine_tn at its step 5,800 (2026-12-07); `fine_tn`
     # continued is its control at equal steps. (`fine_tn2`, x2 forked from fine_sky at 5,750,
     # ran a few minutes before `fine_tne` replaced it.)
-    loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-      --too-near-weight 4 --fork-from runs/clutter_fine_sky --fine-head-lr-scale 500)
+    loss=("${sky_loss[@]}" --too-near-weight 4 --fork-from runs/clutter_fine_sky)
     if [[ "$arm" == fine_tne ]]; then
-      loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-        --too-near-weight 4 --too-near-edge-px 3 --fork-from runs/clutter_fine_tn
-        --fine-head-lr-scale 500)
+      loss=("${sky_loss[@]}" --too-near-weight 4 --too-near-edge-px 3
+        --fork-from runs/clutter_fine_tn)
     fi
-    objects_fraction=0.5
-    preset=parallax_zncc_log_fine
-    lr=2e-6
-    seed=7
+    fine_sky_settings
     ;;
   fine_edge | fine_edge10 | fine_edgefar)
     # issue 38: `fine_tne` forked from `fine_tn` after it had lost random objects' nearest, so
@@ -310,19 +312,15 @@ for arm in $arms; do
     # near pixel (within 5 m) read too far at 2 (`--too-far-weight 2 --too-far-range-m 5`),
     # the push back against reading a near object as its background, forked from the same
     # 5,100.
-    loss=(--near-weight 8 --obstacle-weight 4 --thin-weight 4 --sky-weight 2
-      --too-near-weight 4 --too-near-edge-px 3 --fork-from runs/clutter_fine_sky
-      --fine-head-lr-scale 500)
+    loss=("${sky_loss[@]}" --too-near-weight 4 --too-near-edge-px 3
+      --fork-from runs/clutter_fine_sky)
     if [[ "$arm" == fine_edge10 ]]; then
       loss+=(--too-near-min-range-m 10)
     fi
     if [[ "$arm" == fine_edgefar ]]; then
       loss+=(--too-far-weight 2 --too-far-range-m 5)
     fi
-    objects_fraction=0.5
-    preset=parallax_zncc_log_fine
-    lr=2e-6
-    seed=7
+    fine_sky_settings
     ;;
   fine_head)
     # issue 38: the fine head alone (`--fine-head-only`) on the shipped weights, at a fresh

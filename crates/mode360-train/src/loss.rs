@@ -265,8 +265,8 @@ pub struct LossTarget {
     /// `too_far_range_m`), 0 elsewhere.
     pub too_far_zone: Tensor,
     /// `(B, H, W)` 1 where a too-near reading weighs `too_near_weight` (true range beyond
-    /// `near_range_m` and `too_near_min_range_m` and short of the maximum depth, not on a weighted obstacle), 0
-    /// elsewhere.
+    /// `near_range_m` and `too_near_min_range_m` and short of the maximum depth, not on a
+    /// weighted obstacle), 0 elsewhere.
     pub too_near_zone: Tensor,
 }
 
