@@ -311,7 +311,9 @@ for arm in $arms; do
     # within 0.04), so `fine_edge10` stopped at 5,500 for `fine_edgefar`: `fine_edge` with a
     # near pixel (within 5 m) read too far at 2 (`--too-far-weight 2 --too-far-range-m 5`),
     # the push back against reading a near object as its background, forked from the same
-    # 5,100.
+    # 5,100. `fine_edge` stopped at 6,285 (2026-12-07: level with the default on streets and
+    # cluttered δ1, 4 fewer of random objects' nearest; its run is in git history at 640bade);
+    # `fine_edgefar` goes on.
     loss=("${sky_loss[@]}" --too-near-weight 4 --too-near-edge-px 3
       --fork-from runs/clutter_fine_sky)
     if [[ "$arm" == fine_edge10 ]]; then

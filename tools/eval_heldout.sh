@@ -26,8 +26,10 @@
 #                readout, never the held-out rows: SEED=$(python3 -c 'print(2**63 + 3131)')
 #   WIDTH        panorama width (512); FRAMES (4); FIRST_FRAME (60)
 #   ESTIMATORS   ("ssmode photometric"; also psmode)
-#   WEIGHTS      SSMODE weights, also PSMODE's stage 1 (models/ssmode_parallax_zncc_log_fine.safetensors)
-#   FUSION       PSMODE's fusion weights (unset: none, the most confident pair)
+#   WEIGHTS      SSMODE weights (models/ssmode_parallax_zncc_log_fine.safetensors); when set, also
+#                PSMODE's stage 1 (unset: PSMODE's own, models/psmode_stage1.safetensors)
+#   FUSION       PSMODE's fusion weights, or none (the most confident pair) (unset: consensus, the
+#                range the pairs agree on)
 #   NEAR_PASS    SSMODE's near-pass width (unset: off)
 #   NEAR_PASS_SOURCE  what the near pass is: network or sweep (network)
 #   NEAR_MODE    SSMODE's near-mode probability (unset: the default, 0.2; above 1: off)
@@ -97,7 +99,7 @@ summary="$out/summary.md"
 } >"$summary"
 for est in $estimators; do
   w=()
-  [[ $est == ssmode || $est == psmode ]] && w=(--weights "$weights")
+  [[ $est == ssmode || ($est == psmode && -n "${WEIGHTS:-}") ]] && w=(--weights "$weights")
   [[ $est == psmode && -n "${FUSION:-}" ]] && w+=(--fusion-weights "$FUSION")
   [[ $est == ssmode && -n "${NEAR_MODE:-}" ]] && w+=(--near-mode-probability "$NEAR_MODE")
   [[ $est == ssmode && -n "${NEAR_PASS:-}" ]] &&

@@ -24,8 +24,8 @@ pub struct EstimatorArgs {
     #[arg(long, default_value_t = ComputeDevice::Cpu)]
     pub device: ComputeDevice,
     /// PSMODE: the fusion network's weights (stage 2, `train --stage fusion`), e.g. the shipped
-    /// models/psmode_fusion.safetensors; without it (or `none`) the most confident pair wins
-    /// each pixel (the paper's "without fusion").
+    /// models/psmode_fusion.safetensors; without it (or `consensus`) each pixel takes the range
+    /// the pairs agree on; `none`: the most confident pair (the paper's "without fusion").
     #[arg(long)]
     pub fusion_weights: Option<PathBuf>,
     /// PSMODE: the camera pairs of stage 1, `all` or `left-right` camera names separated by

@@ -287,7 +287,7 @@ fn same_image_views_use_the_reference_of_the_selected_cameras() -> TestResult {
 }
 
 /// PSMODE (stage 1 with the shipped SSMODE weights on each of the six pairs in its GEER frame,
-/// the most confident pair per pixel): a matcher of pairs, so with every camera fed the same
+/// the range the pairs agree on per pixel, its default): a matcher of pairs, so with every camera fed the same
 /// image each pair loses its parallax and the estimate collapses as SSMODE's does. Same bag.
 #[test]
 fn same_image_views_collapse_psmode() -> TestResult {

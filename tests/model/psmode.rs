@@ -10,7 +10,7 @@ use mode360::model::{ComputeDevice, FusionConfig};
 use mode360::synth::{SynthConfig, SynthRenderer};
 use mode360::train::data::{DataConfig, SceneMix, StreamOptions};
 use mode360::train::fusion::{run_fusion_training, FusionTrainOptions, FUSION_WEIGHTS_FILE};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The test network: 32 wide.
 fn tiny() -> FusionConfig {
@@ -209,15 +209,22 @@ fn a_stages_weights_are_refused_where_the_other_is_expected() -> TestResult {
     .ok_or("fusion weights for SSMODE")?
     .to_string();
     assert!(e.contains("only PSMODE"), "{e}");
-    // the shipped fusion network is found (or unpacked from the binary); unset and `none` are
-    // no network
-    use mode360::estimator::psmode::{fusion_weights_path, DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION};
+    // the shipped fusion network is found (or unpacked from the binary); `none` is no network
+    // (the most confident pair), unset the pairs' consensus
+    use mode360::estimator::psmode::{
+        fusion_weights_path, CONSENSUS_FUSION, DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION,
+    };
     let shipped = fusion_weights_path(Some(Path::new(DEFAULT_FUSION_WEIGHTS_PATH)))
         .ok_or("no shipped fusion")?;
     let (cfg, _) = mode360::model::load_fusion_weights(&shipped, &candle_core::Device::Cpu)?;
     assert_eq!(cfg, FusionConfig::small());
     assert_eq!(fusion_weights_path(Some(Path::new(NO_FUSION))), None);
-    assert_eq!(fusion_weights_path(None), None);
+    let consensus = Some(PathBuf::from(CONSENSUS_FUSION));
+    assert_eq!(fusion_weights_path(None), consensus);
+    assert_eq!(
+        fusion_weights_path(Some(Path::new(CONSENSUS_FUSION))),
+        consensus
+    );
     Ok(())
 }
 

@@ -124,6 +124,10 @@ pub struct ObstacleScore {
     pub width_deg: f64,
     /// Share of its pixels predicted out of range, %.
     pub out_of_range_pct: f64,
+    /// Median latitude of its pixels in the output frame, degrees (negative: below the
+    /// horizon; about -45 and lower: beneath the rig); 0 in reports written before it existed.
+    #[serde(default)]
+    pub elevation_deg: f64,
     pub recovered: bool,
 }
 
@@ -165,6 +169,7 @@ pub struct FrameObstacles {
 struct InstancePixels {
     truth_m: Vec<f64>,
     pred_m: Vec<f64>,
+    latitude_deg: Vec<f64>,
     out_of_range: usize,
     widest_row: usize,
     row: usize,
@@ -183,6 +188,11 @@ fn median(values: &mut [f64]) -> Option<f64> {
     } else {
         0.5 * (values[n / 2 - 1] + values[n / 2])
     })
+}
+
+/// Latitude of ERP row `v` of `height` rows, degrees: `lat = 90 - 180 (v + 0.5) / height`.
+fn row_latitude_deg(v: usize, height: usize) -> f64 {
+    90.0 - 180.0 * (v as f64 + 0.5) / height as f64
 }
 
 /// The prediction as scored: `+Inf` and anything at or beyond `max_depth_m` is
@@ -257,6 +267,7 @@ pub fn frame_obstacles(
         acc.row_count += 1;
         acc.widest_row = acc.widest_row.max(acc.row_count);
         acc.truth_m.push(g);
+        acc.latitude_deg.push(row_latitude_deg(row, labels.height));
         if let Some((p, out_of_range)) = p {
             acc.pred_m.push(p);
             acc.out_of_range += usize::from(out_of_range);
@@ -283,6 +294,7 @@ pub fn frame_obstacles(
             pred_range_m,
             width_deg: acc.widest_row as f64 * deg_per_px,
             out_of_range_pct: 100.0 * acc.out_of_range as f64 / pixels as f64,
+            elevation_deg: median(&mut acc.latitude_deg).unwrap_or(0.0),
             recovered,
         });
     }
@@ -361,6 +373,11 @@ mod tests {
         assert_eq!(pole.pred_range_m, Some(MAX_M));
         assert_eq!(pole.out_of_range_pct, 100.0);
         assert!((pole.width_deg - 2.0 * 360.0 / W as f64).abs() < 1e-9);
+        // rows 100..140 of 256, two pixels each: the median lies between rows 119 and 120
+        let lat = |v: f64| 90.0 - 180.0 * (v + 0.5) / H as f64;
+        assert!((pole.elevation_deg - 0.5 * (lat(119.0) + lat(120.0))).abs() < 1e-9);
+        // the car (rows 130..150) lies below the horizon (row 128)
+        assert!(f.obstacles[1].elevation_deg < 0.0);
         assert!(f.obstacles[1].recovered && !f.obstacles[1].is_thin());
         assert!(f.obstacles[2].recovered);
         let c = ObstacleCounts::of_frame(&f);

@@ -172,9 +172,9 @@ pub struct EstimatorSpec {
     pub device: ComputeDevice,
     /// The camera pairs PSMODE matches (ignored by the others).
     pub pairs: psmode::PairChoice,
-    /// PSMODE's fusion network (stage 2): `None` or `none` no network (the most confident pair
-    /// per pixel), else a file such as the shipped `models/psmode_fusion.safetensors`
-    /// ([`psmode::fusion_weights_path`]).
+    /// PSMODE's fusion network (stage 2): `None` or `consensus` no network (per pixel the range
+    /// the pairs agree on), `none` no network (the most confident pair per pixel), else a file
+    /// such as the shipped `models/psmode_fusion.safetensors` ([`psmode::fusion_weights_path`]).
     pub fusion_weights: Option<PathBuf>,
     /// SSMODE's second pass for near obstacles at this input width (`None`: off;
     /// [`near_pass`]); an error at [`Self::build`] for the other estimators.

@@ -37,10 +37,10 @@ use mode360_model::model::{
 mod fusion;
 mod pairs;
 
-use fusion::most_confident;
+use fusion::{consensus, most_confident};
 pub use fusion::{
-    fusion_tensors, fusion_weights_path, PairFusion, BUILTIN_FUSION_WEIGHTS,
-    DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION,
+    fusion_tensors, fusion_weights_path, PairFusion, AGREEMENT_RATIO, BUILTIN_FUSION_WEIGHTS,
+    CONSENSUS_FUSION, DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION,
 };
 use pairs::{camera_names, pair_name};
 pub use pairs::{PairChoice, PAIR_SEPARATOR};
@@ -112,8 +112,9 @@ pub struct PsmodeEstimator {
 
 impl PsmodeEstimator {
     /// Stage-1 weights from `path` (found as [`locate_weights`] says) on `device`, and the
-    /// fusion network from the file `fusion` (`None`: the most confident pair per pixel; see
-    /// [`fusion_weights_path`] for what a setting names).
+    /// fusion network from the file `fusion` (`None`: the most confident pair per pixel,
+    /// [`CONSENSUS_FUSION`]: the pairs' consensus; [`fusion_weights_path`] turns a setting into
+    /// this).
     pub fn load_on(
         path: impl AsRef<Path>,
         fusion: Option<&Path>,
@@ -128,7 +129,9 @@ impl PsmodeEstimator {
         };
         let base = SsmodeEstimator::load_configured(path.as_ref(), device, None, &readout)?;
         let mut est = Self::from_stage1(base, pairs);
-        if let Some(located) = fusion {
+        if fusion == Some(Path::new(CONSENSUS_FUSION)) {
+            est.fusion = PairFusion::Consensus;
+        } else if let Some(located) = fusion {
             if !located.exists() {
                 return Err(EstimatorError::BadConfig {
                     field: "fusion_weights".to_string(),
@@ -174,7 +177,7 @@ impl PsmodeEstimator {
     pub fn fusion(&self) -> Option<&Fusion> {
         match &self.fusion {
             PairFusion::Network(net) => Some(net),
-            PairFusion::MostConfident => None,
+            PairFusion::MostConfident | PairFusion::Consensus => None,
         }
     }
 
@@ -494,13 +497,18 @@ impl DepthEstimator for PsmodeEstimator {
         // the network's weights are shared by the clone
         let fusion = self.fusion.clone();
         match fusion {
-            PairFusion::MostConfident => {
+            PairFusion::MostConfident | PairFusion::Consensus => {
                 let pairwise = self.pairwise_on(rig, images, &[output], None)?;
                 let pairwise = pairwise.first().ok_or_else(|| EstimatorError::BadConfig {
                     field: "rig".to_string(),
                     problem: "PSMODE's stage 1 returned nothing".to_string(),
                 })?;
-                let (range, conf) = most_confident(&pairwise.aligned, output.len());
+                let (range, conf) = if matches!(fusion, PairFusion::Consensus) {
+                    let max_range_m = self.base.config().max_depth_m as f32;
+                    consensus(&pairwise.aligned, output.len(), max_range_m)
+                } else {
+                    most_confident(&pairwise.aligned, output.len())
+                };
                 Ok(DepthEstimate::on_grid(output, range, conf))
             }
             PairFusion::Network(net) => {
@@ -598,5 +606,32 @@ mod tests {
         let (r, c) = most_confident(&[a, b], 3);
         assert_eq!(r, vec![1.0, 5.0, 4.0]);
         assert_eq!(c, vec![0.9, 0.1, 0.6]);
+    }
+
+    #[test]
+    fn the_pairs_that_agree_outvote_the_most_confident_one() {
+        // pixel 0: one confident pair at 10 m, two at 4 and 4.2 m (within 1.25 of each other)
+        // pixel 1: no pair has a range
+        // pixel 2: the sky and 2 km (both past the 1 km cap, so they agree) against 5 m
+        let pair = |range_m: Vec<f32>, confidence: Vec<f32>| AlignedRange {
+            range_m,
+            confidence,
+        };
+        let pairs = [
+            pair(vec![10.0, f32::NAN, f32::INFINITY], vec![0.99, 0.0, 0.9]),
+            pair(vec![4.0, f32::NAN, 2000.0], vec![0.9, 0.0, 0.8]),
+            pair(vec![4.2, f32::NAN, 5.0], vec![0.9, 0.0, 0.95]),
+        ];
+        let (r, c) = consensus(&pairs, 3, 1000.0);
+        // the confidence-weighted mean of ln 4 and ln 4.2 (equal weights): sqrt(4 * 4.2)
+        assert!((r[0] - (4.0f32 * 4.2).sqrt()).abs() < 1e-4, "{}", r[0]);
+        assert!((c[0] - 0.9 * 1.8 / 2.79).abs() < 1e-6, "{}", c[0]);
+        assert!(r[1].is_nan());
+        assert_eq!(c[1], 0.0);
+        assert_eq!(r[2], f32::INFINITY);
+        assert!((c[2] - 0.9 * 1.7 / 2.65).abs() < 1e-6, "{}", c[2]);
+        // the most confident pair would have taken 10 m and 5 m
+        let (r, _) = most_confident(&pairs, 3);
+        assert_eq!((r[0], r[2]), (10.0, 5.0));
     }
 }

@@ -37,7 +37,7 @@ use psmode::{bench_psmode_case, case_fusion_weights, PsmodeBenchOptions, PSMODE,
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BenchSubject {
     Ssmode(Preset),
-    /// `psmode` (`fusion` false: the most confident pair, the default) or `psmode_fusion`.
+    /// `psmode` (`fusion` false: the default, the pairs' consensus) or `psmode_fusion`.
     Psmode {
         fusion: bool,
     },

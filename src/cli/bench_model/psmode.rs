@@ -1,6 +1,6 @@
 //! PSMODE's cases of `mode360 bench-model`: the whole estimator per frame, as the node runs it
 //! (stage 1 on every camera pair of the rig at its network's width, each pair's range brought
-//! into the output frame, then the most confident pair per pixel or the fusion network).
+//! into the output frame, then the pairs' consensus per pixel or the fusion network).
 //!
 //! Unlike the SSMODE cases, the width is the frame's (images in, depth out), not a network's:
 //! both networks run at the widths they were trained at, as in the node.
@@ -22,7 +22,7 @@ use mode360_synth::{SynthConfig, SynthRenderer};
 
 use super::{median, observed_peak_mib, ModelBenchCase, StageSummary};
 
-/// Name of PSMODE without the fusion network (the most confident pair per pixel) in
+/// Name of PSMODE without the fusion network (its default: the pairs' consensus per pixel) in
 /// `--presets`.
 pub const PSMODE: &str = "psmode";
 /// Name of PSMODE with the fusion network in `--presets`.
@@ -49,11 +49,9 @@ pub struct PsmodeBenchOptions {
 }
 
 /// The fusion weights of the case named `name`: the shipped fusion network for
-/// [`PSMODE_FUSION`], none for [`PSMODE`].
+/// [`PSMODE_FUSION`], PSMODE's default (the pairs' consensus) for [`PSMODE`].
 pub fn case_fusion_weights(name: &str) -> Option<PathBuf> {
-    (name == PSMODE_FUSION)
-        .then(|| fusion_weights_path(Some(Path::new(DEFAULT_FUSION_WEIGHTS_PATH))))
-        .flatten()
+    fusion_weights_path((name == PSMODE_FUSION).then_some(Path::new(DEFAULT_FUSION_WEIGHTS_PATH)))
 }
 
 /// Parameters stored in a weights file (every tensor of it).

@@ -86,14 +86,15 @@ impl EvalReport {
                         .pred_range_m
                         .map_or_else(|| "no estimate".to_string(), |p| format!("{p:.2} m"));
                     s.push_str(&format!(
-                        "    instance {} at stamp {} ns: {:.2} m -> {} ({} px, {:.1}° wide, {:.0} % out of range)\n",
+                        "    instance {} at stamp {} ns: {:.2} m -> {} ({} px, {:.1}° wide, {:.0} % out of range, elevation {:.0}°)\n",
                         miss.score.instance,
                         miss.stamp_ns,
                         miss.score.true_range_m,
                         pred,
                         miss.score.pixels,
                         miss.score.width_deg,
-                        miss.score.out_of_range_pct
+                        miss.score.out_of_range_pct,
+                        miss.score.elevation_deg
                     ));
                 }
             }

@@ -14,11 +14,21 @@ use std::path::{Path, PathBuf};
 /// The shipped fusion network (stage 2), found like every shipped file
 /// ([`mode360_core::shipped`]). Not PSMODE's default: on held-out cluttered streets it costs
 /// more than it gains on clean ones (models/README.md); `--fusion-weights` names it.
+/// PSMODE's default is the pairs' [`consensus`], which needs no weights.
 pub const DEFAULT_FUSION_WEIGHTS_PATH: &str = "models/psmode_fusion.safetensors";
 
-/// `--fusion-weights none` (the node's `fusion_weights: none`, and the default): no fusion
-/// network, the most confident pair per pixel (the paper's "without fusion").
+/// `--fusion-weights none` (the node's `fusion_weights: none`): no fusion network, the most
+/// confident pair per pixel (the paper's "without fusion").
 pub const NO_FUSION: &str = "none";
+
+/// `--fusion-weights consensus` (the node's `fusion_weights: consensus`), and the default: no
+/// fusion network, per pixel the range the pairs agree on ([`consensus`]). Held out it reads
+/// 0.2 to 1.5 points of δ1 more than the most confident pair on every row (models/README.md).
+pub const CONSENSUS_FUSION: &str = "consensus";
+
+/// Two pairs agree on a pixel when their ranges differ by less than this factor (the δ1
+/// threshold of the metrics).
+pub const AGREEMENT_RATIO: f64 = mode360_core::metrics::DELTA_THRESHOLD;
 
 /// The shipped fusion network, built into the binary.
 pub const BUILTIN_FUSION_WEIGHTS: &[BuiltinFile] = &[BuiltinFile {
@@ -26,13 +36,15 @@ pub const BUILTIN_FUSION_WEIGHTS: &[BuiltinFile] = &[BuiltinFile {
     bytes: include_bytes!("../../../../models/psmode_fusion.safetensors"),
 }];
 
-/// The fusion weights a setting names: `None` (unset) and [`NO_FUSION`] none, anything else
-/// that file, located as [`mode360_core::shipped`] says (so the shipped
-/// [`DEFAULT_FUSION_WEIGHTS_PATH`] is found wherever the binary runs).
+/// The fusion weights a setting names: [`NO_FUSION`] none (the most confident pair), `None`
+/// (unset) and [`CONSENSUS_FUSION`] the pairs' consensus, returned as [`CONSENSUS_FUSION`]
+/// (it names no file), anything else that file, located as [`mode360_core::shipped`] says
+/// (so the shipped [`DEFAULT_FUSION_WEIGHTS_PATH`] is found wherever the binary runs).
 pub fn fusion_weights_path(setting: Option<&Path>) -> Option<PathBuf> {
     match setting {
-        None => None,
+        None => Some(PathBuf::from(CONSENSUS_FUSION)),
         Some(p) if p == Path::new(NO_FUSION) => None,
+        Some(p) if p == Path::new(CONSENSUS_FUSION) => Some(p.to_path_buf()),
         Some(p) => Some(shipped::locate_path(p, BUILTIN_FUSION_WEIGHTS)),
     }
 }
@@ -43,6 +55,8 @@ pub enum PairFusion {
     /// Per pixel, the pair with the highest confidence (the paper's "without fusion").
     #[default]
     MostConfident,
+    /// Per pixel, the range the pairs agree on ([`consensus`]).
+    Consensus,
     /// The trained fusion network (stage 2) on its own grid, resampled to the output.
     Network(Box<Fusion>),
 }
@@ -89,6 +103,68 @@ pub fn fusion_tensors(
         Tensor::from_vec(pairwise.reference_rgb.clone(), (1, h, w, 3), device)
             .map_err(tensor_err)?,
     ))
+}
+
+/// Per output pixel, the range the pairs agree on, with ranges capped at `max_range_m` (a
+/// pair reading the sky agrees with one reading the far field):
+///
+/// ```text
+/// agree(i, j)  = |ln r_i - ln r_j| < ln AGREEMENT_RATIO
+/// support(i)   = sum of c_j over the pairs j that agree with i
+/// m            = the pair of most support (ties: the more confident)
+/// ln r         = sum c_j ln r_j / sum c_j   over the pairs j that agree with m
+/// c            = max c_j over them * (their support / sum of every pair's c)
+/// ```
+///
+/// A range at `max_range_m` comes out as `+Inf` (REP 117); NaN and 0 where no pair has a range.
+/// Where one pair errs and the others agree the majority wins, where the most confident pair
+/// would take the error (network confidences saturate at 0.9 to 0.99 on every pair).
+pub(super) fn consensus(
+    aligned: &[AlignedRange],
+    pixels: usize,
+    max_range_m: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let tolerance = AGREEMENT_RATIO.ln() as f32;
+    let ln_max = max_range_m.ln();
+    let mut range = vec![f32::NAN; pixels];
+    let mut conf = vec![0.0f32; pixels];
+    // (ln range, confidence) of the pairs with a range at the pixel
+    let mut votes: Vec<(f32, f32)> = Vec::with_capacity(aligned.len());
+    for k in 0..pixels {
+        votes.clear();
+        votes.extend(aligned.iter().filter_map(|a| {
+            let r = a.range_m[k];
+            (!r.is_nan() && r > 0.0).then(|| (r.min(max_range_m).ln(), a.confidence[k].max(0.0)))
+        }));
+        let agree = |l: f32| votes.iter().filter(move |(m, _)| (m - l).abs() < tolerance);
+        let Some(&(mode, _)) = votes.iter().max_by(|a, b| {
+            let support = |l: f32| agree(l).map(|(_, c)| c).sum::<f32>();
+            (support(a.0), a.1)
+                .partial_cmp(&(support(b.0), b.1))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        }) else {
+            continue;
+        };
+        let (mut weight, mut sum, mut best) = (0.0f32, 0.0f32, 0.0f32);
+        for &(l, c) in agree(mode) {
+            weight += c;
+            sum += c * l;
+            best = best.max(c);
+        }
+        let total: f32 = votes.iter().map(|(_, c)| c).sum();
+        let ln_r = if weight > 0.0 { sum / weight } else { mode };
+        range[k] = if ln_r >= ln_max {
+            f32::INFINITY
+        } else {
+            ln_r.exp()
+        };
+        conf[k] = if total > 0.0 {
+            best * weight / total
+        } else {
+            0.0
+        };
+    }
+    (range, conf)
 }
 
 /// Per output pixel, the aligned pair with the highest confidence (NaN and 0 where none).
