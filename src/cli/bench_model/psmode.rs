@@ -13,7 +13,7 @@ use anyhow::{Context, Result};
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::memory::{reset_peak_resident, resident_mib};
 use mode360_estimator::psmode::{
-    fusion_weights_path, PairChoice, PsmodeEstimator, DEFAULT_FUSION_WEIGHTS_PATH,
+    fusion_weights_path, PairChoice, PsmodeEstimator, CONSENSUS_FUSION, DEFAULT_FUSION_WEIGHTS_PATH,
 };
 use mode360_estimator::ssmode::{locate_weights, PSMODE_STAGE1_WEIGHTS_PATH};
 use mode360_estimator::DepthEstimator;
@@ -80,8 +80,13 @@ pub fn bench_psmode_case(opts: &PsmodeBenchOptions) -> Result<ModelBenchCase> {
         opts.device,
         PairChoice::All,
     )?;
+    // the fusion network's file, if the setting names one (the consensus names none)
+    let network = opts
+        .fusion_weights
+        .as_deref()
+        .filter(|f| *f != Path::new(CONSENSUS_FUSION));
     let mut parameters = stored_parameters(&stage1)?;
-    if let Some(fusion) = &opts.fusion_weights {
+    if let Some(fusion) = network {
         parameters += stored_parameters(fusion)?;
     }
     let renderer = SynthRenderer::new(SynthConfig {
@@ -103,7 +108,7 @@ pub fn bench_psmode_case(opts: &PsmodeBenchOptions) -> Result<ModelBenchCase> {
     }
     let network_min_s = times.iter().copied().fold(f64::INFINITY, f64::min);
     let median_s = median(&mut times);
-    let name = if opts.fusion_weights.is_some() {
+    let name = if network.is_some() {
         PSMODE_FUSION
     } else {
         PSMODE
