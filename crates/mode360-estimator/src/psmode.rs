@@ -12,7 +12,8 @@
 //!
 //! Stage 2, fusion: the trained fusion network ([`Fusion`], [`PairFusion::Network`]) takes the
 //! pairs' aligned ranges and confidences and the reference panorama on its own grid; without
-//! it, [`PairFusion::MostConfident`] keeps per output pixel the pair with the highest
+//! it, [`PairFusion::Consensus`] (the default setting) takes per output pixel the range the
+//! pairs agree on, and [`PairFusion::MostConfident`] (`none`) the pair with the highest
 //! confidence (the paper's "PSMODE without fusion").
 
 use nalgebra::Isometry3;
