@@ -137,12 +137,12 @@ pub(super) fn consensus(
             (!r.is_nan() && r > 0.0).then(|| (r.min(max_range_m).ln(), a.confidence[k].max(0.0)))
         }));
         let agree = |l: f32| votes.iter().filter(move |(m, _)| (m - l).abs() < tolerance);
-        let Some(&(mode, _)) = votes.iter().max_by(|a, b| {
-            let support = |l: f32| agree(l).map(|(_, c)| c).sum::<f32>();
-            (support(a.0), a.1)
-                .partial_cmp(&(support(b.0), b.1))
-                .unwrap_or(std::cmp::Ordering::Equal)
-        }) else {
+        // each vote's support once, then the best (support, confidence)
+        let Some((mode, _)) = votes
+            .iter()
+            .map(|&(l, c)| (l, (agree(l).map(|(_, c)| c).sum::<f32>(), c)))
+            .max_by(|a, b| a.1.partial_cmp(&b.1).unwrap_or(std::cmp::Ordering::Equal))
+        else {
             continue;
         };
         let (mut weight, mut sum, mut best) = (0.0f32, 0.0f32, 0.0f32);
