@@ -30,6 +30,7 @@
 #                PSMODE's stage 1 (unset: PSMODE's own, models/psmode_stage1.safetensors)
 #   FUSION       PSMODE's fusion weights, or none (the most confident pair) (unset: consensus, the
 #                range the pairs agree on)
+#   PAIR_WIDTH   PSMODE's stage-1 width (unset: the default, 512; 0: its trained width, 256)
 #   NEAR_PASS    SSMODE's near-pass width (unset: off)
 #   NEAR_PASS_SOURCE  what the near pass is: network or sweep (network)
 #   NEAR_MODE    SSMODE's near-mode probability (unset: the default, 0.2; above 1: off)
@@ -101,6 +102,7 @@ for est in $estimators; do
   w=()
   [[ $est == ssmode || ($est == psmode && -n "${WEIGHTS:-}") ]] && w=(--weights "$weights")
   [[ $est == psmode && -n "${FUSION:-}" ]] && w+=(--fusion-weights "$FUSION")
+  [[ $est == psmode && -n "${PAIR_WIDTH:-}" ]] && w+=(--pair-width "$PAIR_WIDTH")
   [[ $est == ssmode && -n "${NEAR_MODE:-}" ]] && w+=(--near-mode-probability "$NEAR_MODE")
   [[ $est == ssmode && -n "${NEAR_PASS:-}" ]] &&
     w+=(--near-pass-width "$NEAR_PASS" --near-pass-source "${NEAR_PASS_SOURCE:-network}")

@@ -32,6 +32,10 @@ pub struct EstimatorArgs {
     /// commas (e.g. `cam1-cam2,cam3-cam4`).
     #[arg(long, default_value = "all", value_parser = parse_pairs)]
     pub pairs: PairChoice,
+    /// PSMODE: stage 1's input width where the output is at least that wide (default 512;
+    /// 0: the width its network was trained at, 256, about three times faster).
+    #[arg(long)]
+    pub pair_width: Option<usize>,
     /// SSMODE: a second pass of the network at this input width (e.g. 512) for near
     /// obstacles; its range replaces the first pass's where it is over 1.25 times nearer,
     /// within 30 m and confident (at least 0.8). A second forward pass at that width. Off by default.
@@ -72,6 +76,7 @@ impl EstimatorArgs {
         EstimatorSpec {
             pairs: self.pairs.clone(),
             fusion_weights: self.fusion_weights.clone(),
+            pair_width: self.pair_width,
             near_pass_width: self.near_pass_width,
             near_pass_source: self.near_pass_source,
             readout: ReadoutOverrides {

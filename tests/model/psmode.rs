@@ -2,7 +2,9 @@
 //! and without it, and the stages' weights files refused where the other is expected.
 
 use crate::common::{deep360_rig, TestResult};
-use mode360::estimator::psmode::{PairChoice, PsmodeEstimator};
+use mode360::estimator::psmode::{
+    PairChoice, PsmodeEstimator, DEFAULT_PAIR_WIDTH, TRAINED_PAIR_WIDTH,
+};
 use mode360::estimator::ssmode::{default_weights_path, SsmodeEstimator};
 use mode360::estimator::{DepthEstimator, EstimatorKind, EstimatorSpec};
 use mode360::geometry::ErpGrid;
@@ -148,6 +150,7 @@ fn psmode_with_an_untrained_fusion_equals_the_most_confident_pair() -> TestResul
         Some(&out.join(FUSION_WEIGHTS_FILE)),
         ComputeDevice::Cpu,
         PairChoice::All,
+        DEFAULT_PAIR_WIDTH,
     )?
     .estimate(&rig, &frame.images, grid)?;
     let without = PsmodeEstimator::load_on(
@@ -155,6 +158,7 @@ fn psmode_with_an_untrained_fusion_equals_the_most_confident_pair() -> TestResul
         None,
         ComputeDevice::Cpu,
         PairChoice::All,
+        DEFAULT_PAIR_WIDTH,
     )?
     .estimate(&rig, &frame.images, grid)?;
     let mut worst = 0.0f32;
@@ -192,6 +196,7 @@ fn a_stages_weights_are_refused_where_the_other_is_expected() -> TestResult {
         Some(&shipped),
         ComputeDevice::Cpu,
         PairChoice::All,
+        DEFAULT_PAIR_WIDTH,
     )
     .err()
     .ok_or("stage 1 as fusion")?
@@ -244,6 +249,7 @@ fn pairs_naming_an_unknown_camera_are_refused() -> TestResult {
         None,
         ComputeDevice::Cpu,
         PairChoice::parse("cam1-bumper")?,
+        DEFAULT_PAIR_WIDTH,
     )?;
     let e = est
         .estimate(&rig, &images, ErpGrid::new(64)?)
@@ -304,6 +310,7 @@ fn bench_model_times_psmode_with_and_without_fusion() -> TestResult {
             stage1_weights: None,
             fusion_weights: case_fusion_weights(name),
             width: 64,
+            pair_width: DEFAULT_PAIR_WIDTH,
             rig: deep360_rig(),
             runs: 1,
             seed: 3,
@@ -321,5 +328,40 @@ fn bench_model_times_psmode_with_and_without_fusion() -> TestResult {
         assert!(c.end_to_end_median_s > 0.0 && c.peak_rss_mib > 0.0);
     }
     assert!(plain.preset.starts_with("psmode (") && fused.preset.starts_with("psmode_fusion ("));
+    Ok(())
+}
+
+/// Stage 1 runs at the pair width where the output is at least that wide and at the width its
+/// network was trained at otherwise; a width the network cannot run at is refused naming the
+/// setting, and a pair width given to another estimator is an error.
+#[test]
+fn stage_one_runs_at_the_pair_width_where_the_output_is_that_wide() -> TestResult {
+    let load = |width| {
+        PsmodeEstimator::load_on(
+            default_weights_path(),
+            None,
+            ComputeDevice::Cpu,
+            PairChoice::All,
+            width,
+        )
+    };
+    let est = load(DEFAULT_PAIR_WIDTH)?;
+    // the shipped stage 1 was trained at 256
+    assert_eq!(
+        [128, 256, 511, 512, 1024].map(|w| est.stage1_width(w)),
+        [256, 256, 256, 512, 512]
+    );
+    for width in [TRAINED_PAIR_WIDTH, 256, 128] {
+        assert_eq!(load(width)?.stage1_width(1024), 256, "pair width {width}");
+    }
+    let e = load(500).err().ok_or("a width the network cannot run at")?;
+    let e = e.to_string();
+    assert!(e.contains("pair_width") && e.contains("500"), "{e}");
+    let spec = EstimatorSpec {
+        pair_width: Some(512),
+        ..EstimatorSpec::new(EstimatorKind::Ssmode)
+    };
+    let e = spec.build().err().ok_or("a pair width for SSMODE")?;
+    assert!(e.to_string().contains("pair_width"), "{e}");
     Ok(())
 }

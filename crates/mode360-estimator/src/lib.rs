@@ -176,6 +176,10 @@ pub struct EstimatorSpec {
     /// the pairs agree on), `none` no network (the most confident pair per pixel), else a file
     /// such as the shipped `models/psmode_fusion.safetensors` ([`psmode::fusion_weights_path`]).
     pub fusion_weights: Option<PathBuf>,
+    /// PSMODE's stage-1 input width where the output is at least that wide (`None`:
+    /// [`psmode::DEFAULT_PAIR_WIDTH`]; [`psmode::TRAINED_PAIR_WIDTH`]: the width the network
+    /// was trained at); an error at [`Self::build`] for the other estimators.
+    pub pair_width: Option<usize>,
     /// SSMODE's second pass for near obstacles at this input width (`None`: off;
     /// [`near_pass`]); an error at [`Self::build`] for the other estimators.
     pub near_pass_width: Option<usize>,
@@ -242,6 +246,15 @@ impl EstimatorSpec {
                 ),
             });
         }
+        if let (Some(width), false) = (self.pair_width, self.kind == EstimatorKind::Psmode) {
+            return Err(EstimatorError::BadConfig {
+                field: "pair_width".to_string(),
+                problem: format!(
+                    "only PSMODE matches camera pairs (got pair width {width} for {})",
+                    self.kind
+                ),
+            });
+        }
         if let (Some(width), false) = (self.near_pass_width, self.kind == EstimatorKind::Ssmode) {
             return Err(EstimatorError::BadConfig {
                 field: "near_pass_width".to_string(),
@@ -297,6 +310,7 @@ impl EstimatorSpec {
                 psmode::fusion_weights_path(self.fusion_weights.as_deref()).as_deref(),
                 self.device,
                 self.pairs.clone(),
+                self.pair_width.unwrap_or(psmode::DEFAULT_PAIR_WIDTH),
             )?)),
         }
     }

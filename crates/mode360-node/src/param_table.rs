@@ -10,7 +10,7 @@
 
 use super::params::{ExtrinsicsSource, ImageTransport, NodeParams};
 use super::pipeline::FarValue;
-use mode360_estimator::psmode::PairChoice;
+use mode360_estimator::psmode::{PairChoice, DEFAULT_PAIR_WIDTH};
 use mode360_estimator::EstimatorError;
 use mode360_model::model::DeviceError;
 use std::net::IpAddr;
@@ -196,6 +196,25 @@ pub const PARAMETERS: &[ParamSpec] = &[
         get: |p| ParamValue::String(p.estimator.pairs.to_string()),
         set: |p, v| {
             p.estimator.pairs = PairChoice::parse(v).map_err(|e| e.to_string())?;
+            Ok(())
+        },
+    },
+    ParamSpec {
+        name: "pair_width",
+        runtime: false,
+        constraint: Constraint::None,
+        get: |p| {
+            let w = p.estimator.pair_width.unwrap_or(DEFAULT_PAIR_WIDTH);
+            ParamValue::Integer(w as i64)
+        },
+        set: |p, v| {
+            // the default is kept unset, so that a params file listing it still loads the
+            // other estimators (which refuse a pair width)
+            let width = v
+                .trim()
+                .parse::<usize>()
+                .map_err(|_| "expected a width in pixels, or 0 for the trained width")?;
+            p.estimator.pair_width = (width != DEFAULT_PAIR_WIDTH).then_some(width);
             Ok(())
         },
     },

@@ -35,7 +35,7 @@ use mode360_core::geometry::panorama::panorama_rig;
 use mode360_core::geometry::{CameraPair, ErpGrid, PairView};
 use mode360_core::metrics::{depth_metrics, FrameAverage};
 use mode360_core::progress::frames_bar;
-use mode360_estimator::psmode::{fusion_tensors, PairChoice, PsmodeEstimator};
+use mode360_estimator::psmode::{fusion_tensors, PairChoice, PsmodeEstimator, TRAINED_PAIR_WIDTH};
 use mode360_model::model::{save_fusion_weights, ComputeDevice, Fusion, FusionConfig};
 
 /// The fusion's range loss.
@@ -208,6 +208,8 @@ impl FusionTrainer {
             None,
             ComputeDevice::Cpu,
             PairChoice::All,
+            // the stream renders at the fusion network's width, stage 1 runs at its own
+            TRAINED_PAIR_WIDTH,
         )
         .map_err(other)?;
         let mut varmap = VarMap::new();

@@ -20,6 +20,7 @@ use clap::Args;
 
 use mode360_core::geometry::{ErpGrid, Rig};
 use mode360_core::memory::{peak_resident_mib, reset_peak_resident, resident_mib};
+use mode360_estimator::psmode::DEFAULT_PAIR_WIDTH;
 use mode360_estimator::ssmode::{shipped_weights_paths, SsmodeEstimator};
 use mode360_estimator::DepthEstimator;
 use mode360_model::model::ops::with_composites;
@@ -393,8 +394,9 @@ pub fn format_table(cases: &[ModelBenchCase]) -> String {
 pub struct BenchModelArgs {
     /// What to measure (comma separated): any SSMODE preset name, also the ones training does
     /// not offer (tiny, tiny_parallax, tiny_zncc), or psmode / psmode_fusion: PSMODE's whole
-    /// estimator per frame at the width (its networks at their trained widths), without and
-    /// with the shipped fusion network.
+    /// estimator per frame at the width (stage 1 at `--pair-width` where the width is at least
+    /// that, the fusion network at its trained width), without and with the shipped fusion
+    /// network.
     #[arg(long, value_parser = <BenchSubject as std::str::FromStr>::from_str, value_delimiter = ',', default_values_t = [BenchSubject::Ssmode(Preset::Parallax), BenchSubject::Ssmode(Preset::Compact)])]
     pub presets: Vec<BenchSubject>,
     /// Input widths (comma separated, height = width / 2).
@@ -426,6 +428,10 @@ pub struct BenchModelArgs {
     /// the CPU kernels, to compare the two.
     #[arg(long)]
     pub composites: bool,
+    /// PSMODE: stage 1's input width where the frame is at least that wide (default 512, as
+    /// the estimator's; 0: the width its network was trained at).
+    #[arg(long, default_value_t = DEFAULT_PAIR_WIDTH)]
+    pub pair_width: usize,
 }
 
 pub fn run(a: BenchModelArgs) -> Result<()> {
@@ -472,6 +478,7 @@ pub fn run(a: BenchModelArgs) -> Result<()> {
                     stage1_weights: weights,
                     fusion_weights: case_fusion_weights(subject.as_str()),
                     width,
+                    pair_width: a.pair_width,
                     rig: rig.clone(),
                     runs: a.runs,
                     seed: 1,
@@ -506,6 +513,7 @@ fn bench_model_child(
         .args(["--widths", &width.to_string()])
         .args(["--runs", &a.runs.to_string()])
         .args(["--device", &a.device.to_string()])
+        .args(["--pair-width", &a.pair_width.to_string()])
         .arg("--rig")
         .arg(&a.rig)
         .arg("--json")

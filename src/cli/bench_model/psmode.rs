@@ -40,6 +40,8 @@ pub struct PsmodeBenchOptions {
     pub fusion_weights: Option<PathBuf>,
     /// Frame width (images and depth; height = width / 2).
     pub width: usize,
+    /// Stage 1's input width where `width` is at least that ([`PsmodeEstimator::load_on`]).
+    pub pair_width: usize,
     pub rig: Rig,
     /// Timed frames (after one untimed warm-up frame).
     pub runs: usize,
@@ -79,6 +81,7 @@ pub fn bench_psmode_case(opts: &PsmodeBenchOptions) -> Result<ModelBenchCase> {
         opts.fusion_weights.as_deref(),
         opts.device,
         PairChoice::All,
+        opts.pair_width,
     )?;
     // the fusion network's file, if the setting names one (the consensus names none)
     let network = opts
@@ -115,12 +118,13 @@ pub fn bench_psmode_case(opts: &PsmodeBenchOptions) -> Result<ModelBenchCase> {
     };
     Ok(ModelBenchCase {
         preset: format!(
-            "{name} ({}, {} pairs)",
+            "{name} ({}, {} pairs at {})",
             stage1
                 .file_name()
                 .map(|f| f.to_string_lossy())
                 .unwrap_or_default(),
-            estimator.pair_count()
+            estimator.pair_count(),
+            estimator.stage1_width(opts.width)
         ),
         width: opts.width,
         height: opts.width / 2,

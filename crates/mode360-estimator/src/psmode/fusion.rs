@@ -181,3 +181,50 @@ pub(super) fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f3
     }
     (range, conf)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_most_confident_pair_wins_each_pixel() {
+        let a = AlignedRange {
+            range_m: vec![1.0, f32::NAN, 3.0],
+            confidence: vec![0.9, 0.0, 0.2],
+        };
+        let b = AlignedRange {
+            range_m: vec![2.0, 5.0, 4.0],
+            confidence: vec![0.5, 0.1, 0.6],
+        };
+        let (r, c) = most_confident(&[a, b], 3);
+        assert_eq!(r, vec![1.0, 5.0, 4.0]);
+        assert_eq!(c, vec![0.9, 0.1, 0.6]);
+    }
+
+    #[test]
+    fn the_pairs_that_agree_outvote_the_most_confident_one() {
+        // pixel 0: one confident pair at 10 m, two at 4 and 4.2 m (within 1.25 of each other)
+        // pixel 1: no pair has a range
+        // pixel 2: the sky and 2 km (both past the 1 km cap, so they agree) against 5 m
+        let pair = |range_m: Vec<f32>, confidence: Vec<f32>| AlignedRange {
+            range_m,
+            confidence,
+        };
+        let pairs = [
+            pair(vec![10.0, f32::NAN, f32::INFINITY], vec![0.99, 0.0, 0.9]),
+            pair(vec![4.0, f32::NAN, 2000.0], vec![0.9, 0.0, 0.8]),
+            pair(vec![4.2, f32::NAN, 5.0], vec![0.9, 0.0, 0.95]),
+        ];
+        let (r, c) = consensus(&pairs, 3, 1000.0);
+        // the confidence-weighted mean of ln 4 and ln 4.2 (equal weights): sqrt(4 * 4.2)
+        assert!((r[0] - (4.0f32 * 4.2).sqrt()).abs() < 1e-4, "{}", r[0]);
+        assert!((c[0] - 0.9 * 1.8 / 2.79).abs() < 1e-6, "{}", c[0]);
+        assert!(r[1].is_nan());
+        assert_eq!(c[1], 0.0);
+        assert_eq!(r[2], f32::INFINITY);
+        assert!((c[2] - 0.9 * 1.7 / 2.65).abs() < 1e-6, "{}", c[2]);
+        // the most confident pair would have taken 10 m and 5 m
+        let (r, _) = most_confident(&pairs, 3);
+        assert_eq!((r[0], r[2]), (10.0, 5.0));
+    }
+}
