@@ -224,6 +224,61 @@ impl EstimatorSpec {
         })
     }
 
+    /// The settings of this spec that belong to one estimator: what each is, its owner and,
+    /// where it was given, the value as the error shows it.
+    fn owned_settings(&self) -> [OwnedSetting; 4] {
+        use EstimatorKind::{Psmode, Ssmode};
+        [
+            OwnedSetting {
+                field: "fusion_weights",
+                owner: Psmode,
+                what: "a fusion network",
+                given: self
+                    .fusion_weights
+                    .as_ref()
+                    .map(|p| p.display().to_string()),
+            },
+            OwnedSetting {
+                field: "pair_width",
+                owner: Psmode,
+                what: "a camera-pair width",
+                given: self.pair_width.map(|w| format!("pair width {w}")),
+            },
+            OwnedSetting {
+                field: "near_pass_width",
+                owner: Ssmode,
+                what: "a near pass",
+                given: self.near_pass_width.map(|w| format!("width {w}")),
+            },
+            OwnedSetting {
+                field: "readout",
+                owner: Ssmode,
+                what: "readout settings (far-plane probability, far field, near mode, edge \
+                       refinement)",
+                given: (!self.readout.is_empty()).then(|| "readout overrides".to_string()),
+            },
+        ]
+    }
+
+    /// Refuses a setting given to an estimator that does not have it, so that it is never
+    /// silently ignored: the error names the field, the owner and what was given.
+    fn check_owned_settings(&self) -> Result<(), EstimatorError> {
+        for setting in self.owned_settings() {
+            if let (Some(given), true) = (setting.given, setting.owner != self.kind) {
+                return Err(EstimatorError::BadConfig {
+                    field: setting.field.to_string(),
+                    problem: format!(
+                        "only {} has {} (got {given} for {})",
+                        setting.owner.as_str().to_uppercase(),
+                        setting.what,
+                        self.kind
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Builds the estimator (for SSMODE on a CUDA device: opens it, or says why not).
     pub fn build(&self) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
         if self.kind == EstimatorKind::Photometric && self.device != ComputeDevice::Cpu {
@@ -236,44 +291,7 @@ impl EstimatorSpec {
                 ),
             });
         }
-        if let (Some(path), false) = (&self.fusion_weights, self.kind == EstimatorKind::Psmode) {
-            return Err(EstimatorError::BadConfig {
-                field: "fusion_weights".to_string(),
-                problem: format!(
-                    "only PSMODE has a fusion network (got {} for {})",
-                    path.display(),
-                    self.kind
-                ),
-            });
-        }
-        if let (Some(width), false) = (self.pair_width, self.kind == EstimatorKind::Psmode) {
-            return Err(EstimatorError::BadConfig {
-                field: "pair_width".to_string(),
-                problem: format!(
-                    "only PSMODE matches camera pairs (got pair width {width} for {})",
-                    self.kind
-                ),
-            });
-        }
-        if let (Some(width), false) = (self.near_pass_width, self.kind == EstimatorKind::Ssmode) {
-            return Err(EstimatorError::BadConfig {
-                field: "near_pass_width".to_string(),
-                problem: format!(
-                    "only SSMODE has a near pass (got width {width} for {})",
-                    self.kind
-                ),
-            });
-        }
-        if !self.readout.is_empty() && self.kind != EstimatorKind::Ssmode {
-            return Err(EstimatorError::BadConfig {
-                field: "readout".to_string(),
-                problem: format!(
-                    "the readout settings (far-plane probability, far field, near mode, edge \
-                     refinement) are SSMODE's (asked of {})",
-                    self.kind
-                ),
-            });
-        }
+        self.check_owned_settings()?;
         match (self.kind, &self.weights) {
             (EstimatorKind::Photometric, None) => Ok(Box::new(photometric::PhotometricSweep::new(
                 photometric::PhotometricConfig::default(),
@@ -316,6 +334,18 @@ impl EstimatorSpec {
     }
 }
 
+/// A setting only one estimator has ([`EstimatorSpec::check_owned_settings`]).
+struct OwnedSetting {
+    /// The spec's field, as the error names it.
+    field: &'static str,
+    /// The estimator the setting belongs to.
+    owner: EstimatorKind,
+    /// What the setting is, after "only OWNER has".
+    what: &'static str,
+    /// The value given, as the error shows it; `None` where it was left unset.
+    given: Option<String>,
+}
+
 /// The estimator called `name`, with its default settings (SSMODE: the shipped weights).
 pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
     EstimatorSpec::with_weights(name.parse()?, None).build()
@@ -324,6 +354,70 @@ pub fn by_name(name: &str) -> Result<Box<dyn DepthEstimator>, EstimatorError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_setting_given_to_an_estimator_without_it_is_refused_by_name() {
+        use EstimatorKind::{Photometric, Psmode, Ssmode};
+        let given: [(&str, EstimatorKind, EstimatorSpec); 4] = [
+            (
+                "fusion_weights",
+                Psmode,
+                EstimatorSpec {
+                    fusion_weights: Some(PathBuf::from("fusion.safetensors")),
+                    ..EstimatorSpec::default()
+                },
+            ),
+            (
+                "pair_width",
+                Psmode,
+                EstimatorSpec {
+                    pair_width: Some(512),
+                    ..EstimatorSpec::default()
+                },
+            ),
+            (
+                "near_pass_width",
+                Ssmode,
+                EstimatorSpec {
+                    near_pass_width: Some(512),
+                    ..EstimatorSpec::default()
+                },
+            ),
+            (
+                "readout",
+                Ssmode,
+                EstimatorSpec {
+                    readout: ReadoutOverrides {
+                        refine_radius_cells: Some(0),
+                        ..ReadoutOverrides::default()
+                    },
+                    ..EstimatorSpec::default()
+                },
+            ),
+        ];
+        for (field, owner, spec) in given {
+            for kind in [Photometric, Ssmode, Psmode] {
+                let result = EstimatorSpec {
+                    kind,
+                    ..spec.clone()
+                }
+                .check_owned_settings();
+                if kind == owner {
+                    assert!(result.is_ok(), "{field} for {kind}: {result:?}");
+                    continue;
+                }
+                let e = result.expect_err(field).to_string();
+                let owner_name = owner.as_str().to_uppercase();
+                assert!(
+                    e.contains(field) && e.contains(&owner_name) && e.contains(kind.as_str()),
+                    "{field} for {kind}: {e}"
+                );
+            }
+        }
+        for kind in [Photometric, Ssmode, Psmode] {
+            assert!(EstimatorSpec::new(kind).check_owned_settings().is_ok());
+        }
+    }
 
     #[test]
     fn kinds_round_trip_through_their_names() {
