@@ -263,20 +263,23 @@ impl EstimatorSpec {
     /// Refuses a setting given to an estimator that does not have it, so that it is never
     /// silently ignored: the error names the field, the owner and what was given.
     fn check_owned_settings(&self) -> Result<(), EstimatorError> {
-        for setting in self.owned_settings() {
-            if let (Some(given), true) = (setting.given, setting.owner != self.kind) {
-                return Err(EstimatorError::BadConfig {
-                    field: setting.field.to_string(),
-                    problem: format!(
-                        "only {} has {} (got {given} for {})",
-                        setting.owner.as_str().to_uppercase(),
-                        setting.what,
-                        self.kind
-                    ),
-                });
-            }
-        }
-        Ok(())
+        let Some(setting) = self
+            .owned_settings()
+            .into_iter()
+            .find(|s| s.owner != self.kind && s.given.is_some())
+        else {
+            return Ok(());
+        };
+        Err(EstimatorError::BadConfig {
+            field: setting.field.to_string(),
+            problem: format!(
+                "only {} has {} (got {} for {})",
+                setting.owner.as_str().to_uppercase(),
+                setting.what,
+                setting.given.unwrap_or_default(),
+                self.kind
+            ),
+        })
     }
 
     /// Builds the estimator (for SSMODE on a CUDA device: opens it, or says why not).
@@ -357,7 +360,7 @@ mod tests {
 
     #[test]
     fn a_setting_given_to_an_estimator_without_it_is_refused_by_name() {
-        use EstimatorKind::{Photometric, Psmode, Ssmode};
+        use EstimatorKind::{Psmode, Ssmode};
         let given: [(&str, EstimatorKind, EstimatorSpec); 4] = [
             (
                 "fusion_weights",
@@ -396,7 +399,7 @@ mod tests {
             ),
         ];
         for (field, owner, spec) in given {
-            for kind in [Photometric, Ssmode, Psmode] {
+            for kind in EstimatorKind::ALL {
                 let result = EstimatorSpec {
                     kind,
                     ..spec.clone()
@@ -414,7 +417,7 @@ mod tests {
                 );
             }
         }
-        for kind in [Photometric, Ssmode, Psmode] {
+        for kind in EstimatorKind::ALL {
             assert!(EstimatorSpec::new(kind).check_owned_settings().is_ok());
         }
     }
