@@ -392,6 +392,20 @@ for arm in $arms; do
       --fork-from runs/psmode_pairs)
     steps_override=5000
     ;;
+  fusion_select)
+    # PSMODE stage 2 with the select head (issue 41): weights over the pairs per pixel, so it
+    # blends what the pairs measured and never invents a range, its base input the pairs'
+    # consensus; stage 1 (the shipped file) at 512 as PSMODE runs it, its pairs splatted onto
+    # the 256 fusion grid; 160 cached samples, validated on the same 8 held-out frames
+    "$bin" train --stage fusion --fusion-head select --fusion-pair-width 512 \
+      --stage1-weights models/psmode_stage1.safetensors --fusion-samples 160 \
+      --fusion-val-samples 8 --width 256 --steps "${STEPS:-1500}" --lr 3e-4 --warmup-steps 50 \
+      --objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --rig-layouts any \
+      --blocked-fraction 0.2 --camera-effects --rig-pool 6 --val-every 250 \
+      --checkpoint-every 50 --fusion-loss log-l1 --seed 6 --resume --out runs/psmode_select &
+    pids+=($!)
+    continue
+    ;;
   fusion1)
     # PSMODE stage 2 on the fine-tuned stage 1 (models/psmode_stage1.safetensors, `pairs` at
     # 3,100): `fusion` was trained on the zero-shot stage 1 and its 200 samples held no more,
@@ -406,7 +420,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs512, pairs_lr, pairs_decay, fusion or fusion1)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs512, pairs_lr, pairs_decay, fusion, fusion1 or fusion_select)" >&2
     exit 2
     ;;
   esac

@@ -33,6 +33,15 @@ pub struct TrainArgs {
     /// lambda 0.5).
     #[arg(long, value_enum, default_value_t = mode360_train::fusion::FusionLoss::LogL1)]
     pub fusion_loss: mode360_train::fusion::FusionLoss,
+    /// Fusion: the head, correction (of the most confident pair's range) or select (weights
+    /// over the pairs, blending their ranges; its base input is the pairs' consensus).
+    #[arg(long, value_enum, default_value_t = mode360_model::model::FusionHead::Correction)]
+    pub fusion_head: mode360_model::model::FusionHead,
+    /// Fusion: stage 1's input width (0: the width it was trained at, 256); wider than
+    /// --width, the stream renders at this width, stage 1 runs there and its pairs and the
+    /// ground truth are brought onto the fusion's grid.
+    #[arg(long, default_value_t = 0)]
+    pub fusion_pair_width: usize,
     /// Fusion: held-out validation frames.
     #[arg(long, default_value_t = 8)]
     pub fusion_val_samples: usize,
@@ -68,9 +77,13 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
     use mode360_train::data::DataConfig;
     use mode360_train::fusion::{run_fusion_training, FusionTrainOptions};
     let t = a.train;
+    let preset = match a.fusion_head {
+        mode360_model::model::FusionHead::Correction => FusionConfig::small(),
+        mode360_model::model::FusionHead::Select => FusionConfig::select(),
+    };
     let config = FusionConfig {
-        width: t.width.unwrap_or(FusionConfig::small().width),
-        ..FusionConfig::small()
+        width: t.width.unwrap_or(preset.width),
+        ..preset
     };
     // the fusion trains on whole rigs: stage 1 makes the pairs
     let mut stream = t.stream;
@@ -81,6 +94,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
     let opts = FusionTrainOptions {
         out_dir: t.out_dir,
         stage1_weights,
+        pair_width: a.fusion_pair_width,
         samples: a.fusion_samples,
         steps: t.steps,
         until_step: t.until_step,
@@ -92,7 +106,7 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
         resume: t.resume,
         data: DataConfig {
             stream,
-            width: config.width,
+            width: config.width.max(a.fusion_pair_width),
             max_depth_m: config.max_depth_m,
             deep360_disk: None,
         },

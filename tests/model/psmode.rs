@@ -24,6 +24,7 @@ fn options(out: &Path, steps: usize, until: Option<usize>) -> FusionTrainOptions
     FusionTrainOptions {
         out_dir: out.to_path_buf(),
         stage1_weights: default_weights_path(),
+        pair_width: 0,
         samples: 2,
         steps,
         until_step: until,
@@ -166,6 +167,91 @@ fn psmode_with_an_untrained_fusion_equals_the_most_confident_pair() -> TestResul
         worst = worst.max((a - b).abs() / b.max(0.5));
     }
     assert!(worst < 2e-3, "relative difference {worst}");
+    Ok(())
+}
+
+/// An untrained select head weighs every pair with a range alike, so PSMODE with it returns the
+/// geometric mean of the pairs' aligned ranges per pixel (the wiring from stage 1 through the
+/// pair weights back to ranges is exact). Trained on a stream rendered twice as wide as its
+/// grid (stage 1's `pair_width`), its loss falls on its two samples (1.347 to 1.319 when
+/// written: choosing among the pairs of a 32-wide grid gains little).
+#[test]
+fn psmode_with_a_select_fusion_blends_the_pairs() -> TestResult {
+    use mode360::model::FusionHead;
+    let dir = tempfile::tempdir()?;
+    let select = |out: &Path, steps: usize, lr: f64| {
+        let mut o = options(out, steps, None);
+        o.config = FusionConfig {
+            head: FusionHead::Select,
+            ..tiny()
+        };
+        o.pair_width = 2 * o.config.width;
+        o.data.width = o.render_width();
+        o.lr = lr;
+        o.val_samples = 0;
+        o
+    };
+    let fixed = dir.path().join("fixed");
+    run_fusion_training(&select(&fixed, 1, 0.0))?;
+    let rig = deep360_rig();
+    let frame = SynthRenderer::new(SynthConfig {
+        seed: 21,
+        width: 256,
+        ..SynthConfig::default()
+    })?
+    .render_frame(&rig, 0);
+    let grid = ErpGrid::new(tiny().width)?;
+    let load = |fusion: Option<&Path>| {
+        PsmodeEstimator::load_on(
+            default_weights_path(),
+            fusion,
+            ComputeDevice::Cpu,
+            PairChoice::All,
+            DEFAULT_PAIR_WIDTH,
+        )
+    };
+    let with = load(Some(&fixed.join(FUSION_WEIGHTS_FILE)))?.estimate(&rig, &frame.images, grid)?;
+    let pairs = load(None)?.pairwise(&rig, &frame.images, grid)?;
+    assert_eq!(pairs.aligned.len(), 6);
+    let (mut checked, mut worst) = (0usize, 0.0f32);
+    for (k, &r) in with.range_m.data.iter().enumerate() {
+        let logs: Vec<f32> = pairs
+            .aligned
+            .iter()
+            .map(|a| a.range_m[k])
+            .filter(|r| !r.is_nan() && *r > 0.0)
+            .map(|r| r.min(1000.0).ln())
+            .collect();
+        if logs.is_empty() {
+            assert!(r.is_nan(), "pixel {k}: {r} where no pair has a range");
+            continue;
+        }
+        let want = (logs.iter().sum::<f32>() / logs.len() as f32).exp();
+        if want < 999.0 {
+            worst = worst.max((r - want).abs() / want);
+            checked += 1;
+        }
+    }
+    assert!(checked > grid.len() / 2, "{checked} pixels compared");
+    assert!(worst < 1e-3, "relative difference {worst}");
+
+    let trained = dir.path().join("trained");
+    run_fusion_training(&select(&trained, 30, 3e-3))?;
+    let l = losses(&trained.join("train.csv"));
+    let (first, last) = ((l[0] + l[1]) / 2.0, (l[28] + l[29]) / 2.0);
+    println!("select head loss: first epoch {first:.4}, last epoch {last:.4}");
+    // it can only choose among the pairs (no correction), so it falls less than the
+    // correction head's on the same samples
+    assert!(last < 0.98 * first, "loss {first} -> {last}");
+    // a cache written for one head is refused by the other, naming what is missing
+    let mut other = options(&trained, 31, None);
+    other.resume = false;
+    other.pair_width = 2 * other.config.width;
+    other.data.width = other.render_width();
+    let e = run_fusion_training(&other)
+        .err()
+        .ok_or("cache of the other head")?;
+    assert!(e.to_string().contains("'base'"), "{e}");
     Ok(())
 }
 

@@ -41,7 +41,7 @@ use mode360_model::model::{
 mod fusion;
 mod pairs;
 
-use fusion::{consensus, most_confident};
+use fusion::{blend, consensus, most_confident};
 pub use fusion::{
     fusion_tensors, fusion_weights_path, PairFusion, AGREEMENT_RATIO, BUILTIN_FUSION_WEIGHTS,
     CONSENSUS_FUSION, DEFAULT_FUSION_WEIGHTS_PATH, NO_FUSION,
@@ -572,7 +572,8 @@ impl DepthEstimator for PsmodeEstimator {
             }
             PairFusion::Network(net) => {
                 // the network runs on its grid; its correction of the most confident pair is
-                // added to that pair's index on the output grid, which keeps the splat's detail
+                // added to that pair's index on the output grid (or its pair weights blend the
+                // pairs' ranges there), which keeps the splat's detail
                 let cfg = net.config().clone();
                 let fgrid = ErpGrid::new(cfg.width)?;
                 let grids = if output == fgrid {
@@ -593,13 +594,22 @@ impl DepthEstimator for PsmodeEstimator {
                     t.and_then(|t| t.flatten_all()?.to_vec1::<f32>())
                         .map_err(model_err)
                 };
+                let conf = resample_erp(&to_vec(net.confidence(&out))?, 1, fgrid, output);
+                if let Some(weights) = &out.pair_weights {
+                    // (1, P, H, W) -> (H, W, P) on the network's grid, then on the output's
+                    let p = on_output.aligned.len();
+                    let weights = to_vec(weights.permute((0, 2, 3, 1)))?;
+                    let weights = resample_erp(&weights, p, fgrid, output);
+                    let max_range_m = cfg.max_depth_m as f32;
+                    let range = blend(&on_output.aligned, &weights, output.len(), max_range_m);
+                    return Ok(DepthEstimate::on_grid(output, range, conf));
+                }
                 // (H, W) on the network's grid: the correction of the base index
                 let delta = to_vec(
                     out.index
                         .clamp(0.0, 1.0)
                         .and_then(|i| i - base.narrow(3, 0, 1)?.squeeze(3)?),
                 )?;
-                let conf = to_vec(net.confidence(&out))?;
                 let delta = resample_erp(&delta, 1, fgrid, output);
                 let (base_range, _) = most_confident(&on_output.aligned, output.len());
                 let range = base_range
@@ -614,11 +624,7 @@ impl DepthEstimator for PsmodeEstimator {
                         cfg.range_of_index((t + f64::from(d)).clamp(0.0, 1.0)) as f32
                     })
                     .collect();
-                Ok(DepthEstimate::on_grid(
-                    output,
-                    range,
-                    resample_erp(&conf, 1, fgrid, output),
-                ))
+                Ok(DepthEstimate::on_grid(output, range, conf))
             }
         }
     }

@@ -3,7 +3,10 @@
 //!
 //! * Data: sample `k` is the training stream's rendered sample `k` (the same [`DataConfig`]
 //!   as SSMODE's runs; fisheye images as panoramas), run through stage 1 (the stage-1 weights
-//!   given, every pair of the rig, [`PsmodeEstimator::pairwise`]) on the fusion grid. The
+//!   given, every pair of the rig, [`PsmodeEstimator::pairwise_on`]) on the fusion grid. With
+//!   a `pair_width` wider than the fusion grid the stream renders at that width, stage 1 runs
+//!   there and its pairs are splatted onto the fusion grid; the ground truth is brought there
+//!   by the nearest range of each block of pixels (as the splat keeps the nearest). The
 //!   first `samples` of the stream are the training set: stage 1's output for each is cached
 //!   in `out_dir/stage1_cache/` on first use, so later epochs cost only the fusion network.
 //!   Step `s` uses sample `perm(s)`, a seeded shuffle per epoch.
@@ -36,7 +39,7 @@ use mode360_core::geometry::{CameraPair, ErpGrid, PairView};
 use mode360_core::metrics::{depth_metrics, FrameAverage};
 use mode360_core::progress::frames_bar;
 use mode360_estimator::psmode::{fusion_tensors, PairChoice, PsmodeEstimator, TRAINED_PAIR_WIDTH};
-use mode360_model::model::{save_fusion_weights, ComputeDevice, Fusion, FusionConfig};
+use mode360_model::model::{save_fusion_weights, ComputeDevice, Fusion, FusionConfig, FusionHead};
 
 /// The fusion's range loss.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -70,6 +73,10 @@ pub struct FusionTrainOptions {
     pub out_dir: PathBuf,
     /// Stage-1 (SSMODE-architecture) weights whose pairwise output the fusion learns to fuse.
     pub stage1_weights: PathBuf,
+    /// Stage 1's input width (as the estimator's `pair_width`; [`TRAINED_PAIR_WIDTH`]: the
+    /// width its network was trained at). Wider than the fusion grid, the stream renders at
+    /// this width ([`FusionTrainOptions::render_width`]).
+    pub pair_width: usize,
     pub config: FusionConfig,
     pub loss: FusionLoss,
     /// Training set size (the stream's first samples).
@@ -97,6 +104,17 @@ struct FusionState {
     stage1_weights: String,
     #[serde(default = "silog")]
     loss: FusionLoss,
+    #[serde(default)]
+    pair_width: usize,
+    #[serde(default)]
+    head: FusionHead,
+}
+
+impl FusionTrainOptions {
+    /// The width the stream must render at: the fusion grid's, or stage 1's where wider.
+    pub fn render_width(&self) -> usize {
+        self.config.width.max(self.pair_width)
+    }
 }
 
 /// The loss of checkpoints written before the choice existed.
@@ -167,6 +185,36 @@ pub fn fusion_loss(
     Ok((range_loss + ((bce / n)? * CONFIDENCE_LOSS_WEIGHT)?)?)
 }
 
+/// The cache's key of the base estimate a head reads (the most confident pair, or the pairs'
+/// consensus), so that a cache written for one head is refused by the other.
+fn base_key(head: FusionHead) -> &'static str {
+    match head {
+        FusionHead::Correction => "base",
+        FusionHead::Select => "consensus",
+    }
+}
+
+/// Ground truth on `fine` brought onto `coarse` (`fine` a whole multiple of it): per coarse
+/// pixel the nearest positive range of its block (the sky's `+Inf` where that is all there
+/// is; 0, no ground truth, where the block has none).
+fn nearest_in_blocks(range_m: &[f32], fine: ErpGrid, coarse: ErpGrid) -> Vec<f32> {
+    let f = fine.width() / coarse.width();
+    if f <= 1 {
+        return range_m.to_vec();
+    }
+    let mut out = vec![0.0f32; coarse.len()];
+    for (v, row) in out.chunks_mut(coarse.width()).enumerate() {
+        for (u, px) in row.iter_mut().enumerate() {
+            *px = (0..f * f)
+                .map(|k| range_m[(v * f + k / f) * fine.width() + u * f + k % f])
+                .filter(|r| *r > 0.0)
+                .min_by(f32::total_cmp)
+                .unwrap_or(0.0);
+        }
+    }
+    out
+}
+
 /// A fusion run.
 pub struct FusionTrainer {
     opts: FusionTrainOptions,
@@ -191,12 +239,15 @@ impl FusionTrainer {
                 problem: "need at least one sample and one step".into(),
             });
         }
-        if opts.data.width != opts.config.width {
+        let render = opts.render_width();
+        if opts.data.width != render || !render.is_multiple_of(opts.config.width) {
             return Err(TrainError::Option {
                 option: "width",
                 problem: format!(
-                    "the stream renders {} wide, the fusion network is {} wide",
-                    opts.data.width, opts.config.width
+                    "the stream renders {} wide, the fusion network is {} wide and stage 1 \
+                     runs at {} (the stream must render at {render}, a multiple of the \
+                     network's width)",
+                    opts.data.width, opts.config.width, opts.pair_width
                 ),
             });
         }
@@ -208,8 +259,13 @@ impl FusionTrainer {
             None,
             ComputeDevice::Cpu,
             PairChoice::All,
-            // the stream renders at the fusion network's width, stage 1 runs at its own
-            TRAINED_PAIR_WIDTH,
+            // stage 1 runs at `pair_width` where the stream renders that wide, else at its
+            // trained width
+            if opts.pair_width > opts.config.width {
+                opts.pair_width
+            } else {
+                TRAINED_PAIR_WIDTH
+            },
         )
         .map_err(other)?;
         let mut varmap = VarMap::new();
@@ -226,6 +282,8 @@ impl FusionTrainer {
             width: opts.config.width,
             stage1_weights: opts.stage1_weights.display().to_string(),
             loss: opts.loss,
+            pair_width: opts.pair_width,
+            head: opts.config.head,
         };
         let ckpt = opts.out_dir.join(super::CHECKPOINT_DIR);
         if opts.resume && ckpt.join(super::STATE_FILE).is_file() {
@@ -266,7 +324,7 @@ impl FusionTrainer {
             let pairs = take("pairs")?;
             let cached = CachedSample {
                 pairs: self.with_parallax(pairs, spec)?,
-                base: take("base")?,
+                base: take(base_key(self.opts.config.head))?,
                 rgb: take("rgb")?,
                 gt: take("gt")?,
             };
@@ -274,21 +332,28 @@ impl FusionTrainer {
         }
         let r = render_panoramas(&self.opts.data, spec)?;
         let grid = ErpGrid::new(self.opts.config.width).map_err(other)?;
+        let render = ErpGrid::new(r.range_m.width).map_err(other)?;
         let rig = panorama_rig(&r.rig);
+        // the render grid too where it is wider, so that stage 1 runs at its width
+        let grids = if render == grid {
+            vec![grid]
+        } else {
+            vec![grid, render]
+        };
         let pairwise = self
             .stage1
-            .pairwise(&rig, &r.panoramas, grid)
-            .map_err(other)?;
+            .pairwise_on(&rig, &r.panoramas, &grids, Some(grid))
+            .map_err(other)?
+            .into_iter()
+            .next()
+            .ok_or_else(|| other("stage 1 returned nothing"))?;
         let (pairs, base, rgb) =
             fusion_tensors(&self.opts.config, &pairwise, &self.device).map_err(other)?;
-        let gt = Tensor::from_vec(
-            r.range_m.data,
-            (1, grid.height(), grid.width()),
-            &self.device,
-        )?;
+        let gt = nearest_in_blocks(&r.range_m.data, render, grid);
+        let gt = Tensor::from_vec(gt, (1, grid.height(), grid.width()), &self.device)?;
         let tensors = HashMap::from([
             ("pairs".to_string(), pairs.clone()),
-            ("base".to_string(), base.clone()),
+            (base_key(self.opts.config.head).to_string(), base.clone()),
             ("rgb".to_string(), rgb.clone()),
             ("gt".to_string(), gt.clone()),
         ]);
@@ -492,4 +557,29 @@ fn resume(
 /// `FusionTrainer::new(opts)?.run()`.
 pub fn run_fusion_training(opts: &FusionTrainOptions) -> Result<FusionSummary, TrainError> {
     FusionTrainer::new(opts)?.run()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ground_truth_blocks_keep_their_nearest_range() {
+        let (fine, coarse) = (ErpGrid::new(8).unwrap(), ErpGrid::new(4).unwrap());
+        let mut range = vec![10.0f32; fine.len()];
+        // block (0, 0): one pixel at 2 m; block (0, 1): all sky; block (1, 3): no ground truth
+        range[1] = 2.0;
+        for k in [2, 3, 10, 11] {
+            range[k] = f32::INFINITY;
+        }
+        for k in [2 * 8 + 6, 2 * 8 + 7, 3 * 8 + 6, 3 * 8 + 7] {
+            range[k] = if k % 2 == 0 { f32::NAN } else { 0.0 };
+        }
+        let out = nearest_in_blocks(&range, fine, coarse);
+        assert_eq!(out.len(), coarse.len());
+        assert_eq!(out[0], 2.0);
+        assert_eq!(out[1], f32::INFINITY);
+        assert_eq!(out[4 + 3], 0.0);
+        assert_eq!(out[2], 10.0);
+    }
 }

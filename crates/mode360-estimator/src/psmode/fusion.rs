@@ -8,7 +8,7 @@ use candle_core::{Device, Tensor};
 use mode360_core::geometry::AlignedRange;
 use mode360_core::shipped::{self, BuiltinFile};
 use mode360_model::model::fusion::{index_and_confidence, pair_input, PAIR_INPUT_CHANNELS};
-use mode360_model::model::{Fusion, FusionConfig, ModelError};
+use mode360_model::model::{Fusion, FusionConfig, FusionHead, ModelError};
 use std::path::{Path, PathBuf};
 
 /// The shipped fusion network (stage 2), found like every shipped file
@@ -62,7 +62,8 @@ pub enum PairFusion {
 }
 
 /// The fusion network's input tensors from stage 1's result on the network's grid:
-/// `pairs (1, P, H, W, 2)`, `base (1, H, W, 2)` (the most confident pair) and `rgb (1, H, W, 3)`.
+/// `pairs (1, P, H, W, 3)`, `base (1, H, W, 2)` (the most confident pair, or the pairs'
+/// [`consensus`] for a [`FusionHead::Select`] network) and `rgb (1, H, W, 3)`.
 pub fn fusion_tensors(
     cfg: &FusionConfig,
     pairwise: &PairwiseEstimate,
@@ -94,7 +95,18 @@ pub fn fusion_tensors(
         .zip(&pairwise.parallax_m)
         .flat_map(|(a, p)| pair_input(cfg, &a.range_m, &a.confidence, p))
         .collect();
-    let (base_range, base_conf) = most_confident(&pairwise.aligned, grid.len());
+    let (base_range, base_conf) = match cfg.head {
+        FusionHead::Correction => most_confident(&pairwise.aligned, grid.len()),
+        FusionHead::Select => {
+            let max_range_m = cfg.max_depth_m as f32;
+            let (mut range, conf) = consensus(&pairwise.aligned, grid.len(), max_range_m);
+            // the consensus writes the far plane as +Inf: index 0 with its confidence
+            for r in range.iter_mut().filter(|r| r.is_infinite()) {
+                *r = max_range_m;
+            }
+            (range, conf)
+        }
+    };
     let base = index_and_confidence(cfg, &base_range, &base_conf);
     let tensor_err = |e: candle_core::Error| EstimatorError::Model(ModelError::Candle(e));
     Ok((
@@ -167,6 +179,52 @@ pub(super) fn consensus(
     (range, conf)
 }
 
+/// Per output pixel, the pairs' ranges blended in log range by a [`FusionHead::Select`]
+/// network's weights, `weights` `(H, W, P)` on the same grid (resampled from the network's):
+///
+/// ```text
+/// ln r = sum_p w_p ln min(r_p, max) / sum_p w_p   over the pairs p with a range there
+/// ```
+///
+/// `+Inf` at the far plane; the most confident pair where the weights of the pairs with a
+/// range there vanish; NaN where no pair has one.
+pub(super) fn blend(
+    aligned: &[AlignedRange],
+    weights: &[f32],
+    pixels: usize,
+    max_range_m: f32,
+) -> Vec<f32> {
+    let p = aligned.len();
+    let ln_max = max_range_m.ln();
+    let (fallback, _) = most_confident(aligned, pixels);
+    (0..pixels)
+        .map(|k| {
+            let (mut sum, mut weight) = (0.0f32, 0.0f32);
+            for (j, a) in aligned.iter().enumerate() {
+                let r = a.range_m[k];
+                if !r.is_nan() && r > 0.0 {
+                    let w = weights[k * p + j].max(0.0);
+                    sum += w * r.min(max_range_m).ln();
+                    weight += w;
+                }
+            }
+            if weight <= WEIGHT_FLOOR {
+                return fallback[k];
+            }
+            let ln_r = sum / weight;
+            if ln_r >= ln_max {
+                f32::INFINITY
+            } else {
+                ln_r.exp()
+            }
+        })
+        .collect()
+}
+
+/// Below this the blend's weights say nothing (resampling can leave a pair's weight on a
+/// pixel where another pair has the range).
+const WEIGHT_FLOOR: f32 = 1e-6;
+
 /// Per output pixel, the aligned pair with the highest confidence (NaN and 0 where none).
 pub(super) fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f32>, Vec<f32>) {
     let mut range = vec![f32::NAN; pixels];
@@ -199,6 +257,30 @@ mod tests {
         let (r, c) = most_confident(&[a, b], 3);
         assert_eq!(r, vec![1.0, 5.0, 4.0]);
         assert_eq!(c, vec![0.9, 0.1, 0.6]);
+    }
+
+    #[test]
+    fn the_blend_weighs_the_pairs_with_a_range_in_log_range() {
+        let pair = |range_m: Vec<f32>| AlignedRange {
+            confidence: vec![0.5; range_m.len()],
+            range_m,
+        };
+        // pixel 0: weights 3:1 on 2 m and 32 m; pixel 1: the weighted pair has no range, so
+        // the other one's 5 m; pixel 2: both at or past the far plane; pixel 3: no range
+        let pairs = [
+            pair(vec![2.0, f32::NAN, f32::INFINITY, f32::NAN]),
+            pair(vec![32.0, 5.0, 2000.0, f32::NAN]),
+        ];
+        let weights = [0.75, 0.25, 1.0, 0.0, 0.5, 0.5, 0.5, 0.5];
+        let r = blend(&pairs, &weights, 4, 1000.0);
+        // exp(0.75 ln 2 + 0.25 ln 32) = 2^(0.75 + 1.25) = 4
+        assert!((r[0] - 4.0).abs() < 1e-4, "{}", r[0]);
+        assert_eq!(
+            r[1], 5.0,
+            "the weights vanish there: the most confident pair"
+        );
+        assert_eq!(r[2], f32::INFINITY);
+        assert!(r[3].is_nan());
     }
 
     #[test]

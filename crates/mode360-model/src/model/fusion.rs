@@ -21,6 +21,17 @@
 //!
 //! Index `t = ln(max_depth / r) / ln(max_depth / min_depth)`: 0 at the far plane, 1 at the
 //! nearest range (log-depth, as the shipped SSMODE hypotheses). Channels-last throughout.
+//!
+//! With [`FusionHead::Select`] the decoder does not correct a base estimate: it scores each
+//! pair per pixel and the output is the score-weighted mean of the pairs' indices, so it can
+//! only choose among (and blend) what the pairs measured, never invent a range:
+//!
+//! ```text
+//! select: 1x1 on concat(pair feature_p, decoder)            (B, P, H, W, 1)
+//! w_p = softmax over the pairs with a range (score_p)       (B, P, H, W)
+//! index = sum_p w_p index_p;  head: 3x3 -> confidence logit (B, H, W, 1)
+//! base = the pairs' consensus (index, confidence)
+//! ```
 
 use candle_core::{Result, Tensor};
 use candle_nn::VarBuilder;
@@ -43,6 +54,21 @@ pub const SIZE_MULTIPLE: usize = 1 << (LEVELS - 1);
 const WEIGHT_EPS: f64 = 1e-6;
 /// Planar kernel side.
 const KERNEL: usize = 3;
+/// A pair without a range at a pixel gets this score (its softmax weight underflows to 0).
+const NO_RANGE_SCORE: f64 = -1e4;
+
+/// What the decoder's head returns.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
+pub enum FusionHead {
+    /// A correction of the base estimate's index (the most confident pair), and a confidence.
+    #[default]
+    Correction,
+    /// A score per pair (softmax over the pairs: the output blends the pairs' indices) and a
+    /// confidence; the base input is the pairs' consensus.
+    Select,
+}
 
 /// The fusion network's configuration, stored in its weights file.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -58,6 +84,9 @@ pub struct FusionConfig {
     pub pair_channels: usize,
     /// Channels of the encoder and decoder levels, full to quarter resolution.
     pub channels: [usize; LEVELS],
+    /// What the head returns (files written before the choice: a correction).
+    #[serde(default)]
+    pub head: FusionHead,
 }
 
 /// Why a fusion configuration cannot run.
@@ -82,6 +111,17 @@ impl FusionConfig {
             max_depth_m: 1000.0,
             pair_channels: 8,
             channels: [16, 24, 32],
+            head: FusionHead::Correction,
+        }
+    }
+
+    /// `small` with the [`FusionHead::Select`] head: it weighs the pairs instead of correcting
+    /// one.
+    pub fn select() -> Self {
+        Self {
+            name: "select".to_string(),
+            head: FusionHead::Select,
+            ..Self::small()
         }
     }
 
@@ -164,10 +204,13 @@ pub struct FusionOutput {
     pub index: Tensor,
     /// Confidence logit.
     pub confidence_logit: Tensor,
+    /// [`FusionHead::Select`]: each pair's weight `(B, P, H, W)` (summing to 1 over the pairs
+    /// with a range); `None` for a correction head.
+    pub pair_weights: Option<Tensor>,
 }
 
 /// The network. Variable names: `pair{0,1}`, `depth{k}`, `rgb{k}`, `fuse{k}`, `dec{0,1}`,
-/// `head`.
+/// `head`, and `select` with [`FusionHead::Select`].
 #[derive(Clone, Debug)]
 pub struct Fusion {
     cfg: FusionConfig,
@@ -177,6 +220,7 @@ pub struct Fusion {
     fuse: Vec<ErpConv>,
     dec: Vec<ResidualBlock>,
     head: ErpConv,
+    select: Option<ErpConv>,
 }
 
 impl Fusion {
@@ -224,7 +268,17 @@ impl Fusion {
             ResidualBlock::new(c[1] + c[0], c[0], 1, 1, vb.pp("dec0"))?,
             ResidualBlock::new(c[2] + c[1], c[1], 1, 1, vb.pp("dec1"))?,
         ];
-        let head = ErpConv::zeros(c[0], HEAD_CHANNELS, KERNEL, vb.pp("head"))?;
+        let (head, select) = match cfg.head {
+            FusionHead::Correction => (
+                ErpConv::zeros(c[0], HEAD_CHANNELS, KERNEL, vb.pp("head"))?,
+                None,
+            ),
+            // zero scores at initialization: the plain mean of the pairs' indices
+            FusionHead::Select => (
+                ErpConv::zeros(c[0], 1, KERNEL, vb.pp("head"))?,
+                Some(ErpConv::zeros(cp + c[0], 1, 1, vb.pp("select"))?),
+            ),
+        };
         Ok(Self {
             cfg: cfg.clone(),
             pair,
@@ -233,6 +287,7 @@ impl Fusion {
             fuse,
             dec,
             head,
+            select,
         })
     }
 
@@ -242,8 +297,9 @@ impl Fusion {
 
     /// `pairs (B, P, H, W, 3)` (index, confidence, both 0 where a pair says nothing, and the
     /// pair's parallax in metres, [`PairView::parallax_on`]),
-    /// `base (B, H, W, 2)` (the most confident pair's index and confidence), `rgb (B, H, W, 3)`
-    /// in [0, 1], all on the network's grid.
+    /// `base (B, H, W, 2)` (index and confidence: the most confident pair's, or the pairs'
+    /// consensus with [`FusionHead::Select`]), `rgb (B, H, W, 3)` in [0, 1], all on the
+    /// network's grid.
     pub fn forward(&self, pairs: &Tensor, base: &Tensor, rgb: &Tensor) -> Result<FusionOutput> {
         let (b, p, h, w, c) = pairs.dims5()?;
         if c != PAIR_INPUT_CHANNELS || (h, w) != (self.cfg.height(), self.cfg.width) || p == 0 {
@@ -287,13 +343,33 @@ impl Fusion {
             let x = Tensor::cat(&[&upsample_nearest(&up, 2)?, &fused[k]], 3)?;
             up = self.dec[k].forward(&x)?;
         }
-        // (B, H, W, 2)
-        let out = self.head.forward(&up)?;
-        let delta = out.narrow(3, 0, 1)?.squeeze(3)?;
-        let base_index = base.narrow(3, 0, 1)?.squeeze(3)?;
+        let Some(select) = &self.select else {
+            // (B, H, W, 2)
+            let out = self.head.forward(&up)?;
+            let delta = out.narrow(3, 0, 1)?.squeeze(3)?;
+            let base_index = base.narrow(3, 0, 1)?.squeeze(3)?;
+            return Ok(FusionOutput {
+                index: (base_index + delta)?,
+                confidence_logit: out.narrow(3, 1, 1)?.squeeze(3)?,
+                pair_weights: None,
+            });
+        };
+        // (B, P, H, W, C0): the decoder's features beside each pair's
+        let c0 = self.cfg.channels[0];
+        let ctx = up.unsqueeze(1)?.broadcast_as((b, p, h, w, c0))?;
+        let x = Tensor::cat(&[&f, &ctx], 4)?.reshape((b * p, h, w, self.cfg.pair_channels + c0))?;
+        // (B, P, H, W)
+        let score = select.forward(&x)?.reshape((b, p, h, w))?;
+        let has_range = conf.squeeze(4)?.gt(0.0)?;
+        let score =
+            has_range.where_cond(&score, &score.ones_like()?.affine(0.0, NO_RANGE_SCORE)?)?;
+        let weights = candle_nn::ops::softmax(&score, 1)?;
+        // (B, H, W)
+        let index = (pairs.narrow(4, 0, 1)?.squeeze(4)? * &weights)?.sum(1)?;
         Ok(FusionOutput {
-            index: (base_index + delta)?,
-            confidence_logit: out.narrow(3, 1, 1)?.squeeze(3)?,
+            index,
+            confidence_logit: self.head.forward(&up)?.squeeze(3)?,
+            pair_weights: Some(weights),
         })
     }
 
@@ -384,6 +460,61 @@ mod tests {
         // a wrong grid is refused
         let wrong = Tensor::zeros((1, 2, h, w + 2, 3), DType::F32, &Device::Cpu).unwrap();
         assert!(net.forward(&wrong, &base, &rgb).is_err());
+    }
+
+    #[test]
+    fn an_untrained_select_head_averages_the_pairs_with_a_range() {
+        let cfg = FusionConfig {
+            head: FusionHead::Select,
+            ..FusionConfig::tiny()
+        };
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let net = Fusion::new(&cfg, vb).unwrap();
+        let (h, w) = (cfg.height(), cfg.width);
+        let n = h * w;
+        // pair 0 at 2 m, pair 1 at 8 m; pair 2 has no range on the first half of the pixels
+        let at = |r: f32| vec![r; n];
+        let mut third = at(100.0);
+        third[..n / 2].fill(f32::NAN);
+        let par = vec![0.5; n];
+        let inputs: Vec<f32> = [at(2.0), at(8.0), third]
+            .iter()
+            .flat_map(|r| pair_input(&cfg, r, &vec![0.8; n], &par))
+            .collect();
+        let pairs = Tensor::from_vec(inputs, (1, 3, h, w, 3), &Device::Cpu).unwrap();
+        let base = Tensor::zeros((1, h, w, 2), DType::F32, &Device::Cpu).unwrap();
+        let rgb = Tensor::zeros((1, h, w, 3), DType::F32, &Device::Cpu).unwrap();
+        let out = net.forward(&pairs, &base, &rgb).unwrap();
+        let range: Vec<f32> = net
+            .range_m(&out)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        // equal weights in log range: the geometric mean, 4 m where two pairs have a range
+        let three = (2.0f32 * 8.0 * 100.0).cbrt();
+        for (k, r) in range.iter().enumerate() {
+            let want = if k < n / 2 { 4.0 } else { three };
+            assert!((r - want).abs() < 1e-3 * want, "pixel {k}: {r} vs {want}");
+        }
+        let weights = out.pair_weights.unwrap();
+        assert_eq!(weights.dims(), &[1, 3, h, w]);
+        let w2: Vec<f32> = weights
+            .narrow(1, 2, 1)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        assert!(w2[..n / 2].iter().all(|&v| v == 0.0));
+        assert!(w2[n / 2..].iter().all(|&v| (v - 1.0 / 3.0).abs() < 1e-6));
+        // a correction file without the field still reads as a correction head
+        let json = serde_json::to_string(&FusionConfig::small()).unwrap();
+        let old: FusionConfig =
+            serde_json::from_str(&json.replace(",\"head\":\"correction\"", "")).unwrap();
+        assert_eq!(old, FusionConfig::small());
     }
 
     #[test]

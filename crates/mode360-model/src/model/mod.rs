@@ -34,7 +34,7 @@ pub mod weights;
 
 pub use config::SsmodeConfig;
 pub use device::{ComputeDevice, DeviceError};
-pub use fusion::{Fusion, FusionConfig, FusionOutput};
+pub use fusion::{Fusion, FusionConfig, FusionHead, FusionOutput};
 pub use input::input_tensor;
 pub use presets::Preset;
 pub use readout::{Readout, ReadoutOverrides};
