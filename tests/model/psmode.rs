@@ -308,7 +308,12 @@ fn a_stages_weights_are_refused_where_the_other_is_expected() -> TestResult {
     let shipped = fusion_weights_path(Some(Path::new(DEFAULT_FUSION_WEIGHTS_PATH)))
         .ok_or("no shipped fusion")?;
     let (cfg, _) = mode360::model::load_fusion_weights(&shipped, &candle_core::Device::Cpu)?;
-    assert_eq!(cfg, FusionConfig::small());
+    // either head: the shipped file is the `small` network or its `select` variant
+    let preset = match cfg.head {
+        mode360::model::FusionHead::Correction => FusionConfig::small(),
+        mode360::model::FusionHead::Select => FusionConfig::select(),
+    };
+    assert_eq!(cfg, preset);
     assert_eq!(fusion_weights_path(Some(Path::new(NO_FUSION))), None);
     let consensus = Some(PathBuf::from(CONSENSUS_FUSION));
     assert_eq!(fusion_weights_path(None), consensus);
