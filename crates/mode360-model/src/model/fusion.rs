@@ -27,7 +27,9 @@
 //! only choose among (and blend) what the pairs measured, never invent a range:
 //!
 //! ```text
+//! pairs (B, P, H, W, 4): index, confidence, parallax, dev_p = (index_p - base) / δ1 index
 //! select: 1x1 on concat(pair feature_p, decoder)            (B, P, H, W, 1)
+//! score_p = select_p - PRIOR_SHARPNESS |dev_p|
 //! w_p = softmax over the pairs with a range (score_p)       (B, P, H, W)
 //! index = sum_p w_p index_p;  head: 3x3 -> confidence logit (B, H, W, 1)
 //! base = the pairs' consensus (index, confidence)
@@ -56,6 +58,13 @@ const WEIGHT_EPS: f64 = 1e-6;
 const KERNEL: usize = 3;
 /// A pair without a range at a pixel gets this score (its softmax weight underflows to 0).
 const NO_RANGE_SCORE: f64 = -1e4;
+/// The select head's prior: a pair's score falls by this much per δ1 interval (a factor 1.25)
+/// between its range and the consensus's, so that the untrained head is a soft consensus.
+pub const PRIOR_SHARPNESS: f64 = 2.0;
+/// `ln 1.25`: one δ1 interval in log range.
+const DELTA1_LOG: f64 = 0.223_143_551_314_209_7;
+/// The select head's deviation channel is clamped to this many δ1 intervals.
+const MAX_DEVIATION: f64 = 8.0;
 
 /// What the decoder's head returns.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -227,8 +236,13 @@ impl Fusion {
     pub fn new(cfg: &FusionConfig, vb: VarBuilder) -> Result<Self> {
         cfg.validate().map_err(candle_core::Error::wrap)?;
         let (cp, c) = (cfg.pair_channels, cfg.channels);
+        // the select head also sees each pair's deviation from the consensus
+        let pair_in = match cfg.head {
+            FusionHead::Correction => PAIR_INPUT_CHANNELS,
+            FusionHead::Select => PAIR_INPUT_CHANNELS + 1,
+        };
         let pair = [
-            ErpConv::new(PAIR_INPUT_CHANNELS, cp, KERNEL, 1, 1, vb.pp("pair0"))?,
+            ErpConv::new(pair_in, cp, KERNEL, 1, 1, vb.pp("pair0"))?,
             ErpConv::new(cp, cp, KERNEL, 1, 1, vb.pp("pair1"))?,
         ];
         let mut depth = Vec::with_capacity(LEVELS);
@@ -310,8 +324,21 @@ impl Fusion {
                 self.cfg.width
             );
         }
-        // (B P, H, W, 2) -> (B P, H, W, Cp) -> (B, P, H, W, Cp)
-        let x = pairs.reshape((b * p, h, w, c))?;
+        // (B, P, H, W, 1): each pair's deviation from the base in δ1 intervals (select head)
+        let deviation = match self.cfg.head {
+            FusionHead::Correction => None,
+            FusionHead::Select => {
+                let base_index = base.narrow(3, 0, 1)?.unsqueeze(1)?;
+                let d = pairs.narrow(4, 0, 1)?.broadcast_sub(&base_index)?;
+                let d = (d * (self.cfg.log_span() / DELTA1_LOG))?;
+                Some(d.clamp(-MAX_DEVIATION, MAX_DEVIATION)?)
+            }
+        };
+        // (B P, H, W, C) -> (B P, H, W, Cp) -> (B, P, H, W, Cp)
+        let x = match &deviation {
+            None => pairs.reshape((b * p, h, w, c))?,
+            Some(d) => Tensor::cat(&[pairs, d], 4)?.reshape((b * p, h, w, c + 1))?,
+        };
         let x = self.pair[0].forward(&x)?.relu()?;
         let f = self.pair[1].forward(&x)?.relu()?;
         let f = f.reshape((b, p, h, w, self.cfg.pair_channels))?;
@@ -343,7 +370,7 @@ impl Fusion {
             let x = Tensor::cat(&[&upsample_nearest(&up, 2)?, &fused[k]], 3)?;
             up = self.dec[k].forward(&x)?;
         }
-        let Some(select) = &self.select else {
+        let (Some(select), Some(deviation)) = (&self.select, deviation) else {
             // (B, H, W, 2)
             let out = self.head.forward(&up)?;
             let delta = out.narrow(3, 0, 1)?.squeeze(3)?;
@@ -359,7 +386,8 @@ impl Fusion {
         let ctx = up.unsqueeze(1)?.broadcast_as((b, p, h, w, c0))?;
         let x = Tensor::cat(&[&f, &ctx], 4)?.reshape((b * p, h, w, self.cfg.pair_channels + c0))?;
         // (B, P, H, W)
-        let score = select.forward(&x)?.reshape((b, p, h, w))?;
+        let prior = (deviation.squeeze(4)?.abs()? * (-PRIOR_SHARPNESS))?;
+        let score = (select.forward(&x)?.reshape((b, p, h, w))? + prior)?;
         let has_range = conf.squeeze(4)?.gt(0.0)?;
         let score =
             has_range.where_cond(&score, &score.ones_like()?.affine(0.0, NO_RANGE_SCORE)?)?;
@@ -463,7 +491,7 @@ mod tests {
     }
 
     #[test]
-    fn an_untrained_select_head_averages_the_pairs_with_a_range() {
+    fn an_untrained_select_head_is_a_soft_consensus_of_the_pairs_with_a_range() {
         let cfg = FusionConfig {
             head: FusionHead::Select,
             ..FusionConfig::tiny()
@@ -473,17 +501,20 @@ mod tests {
         let net = Fusion::new(&cfg, vb).unwrap();
         let (h, w) = (cfg.height(), cfg.width);
         let n = h * w;
-        // pair 0 at 2 m, pair 1 at 8 m; pair 2 has no range on the first half of the pixels
+        // pairs at 4, 4.4 and 40 m, the third without a range on the first half of the
+        // pixels; the base (consensus) at 4.2 m
         let at = |r: f32| vec![r; n];
-        let mut third = at(100.0);
+        let mut third = at(40.0);
         third[..n / 2].fill(f32::NAN);
         let par = vec![0.5; n];
-        let inputs: Vec<f32> = [at(2.0), at(8.0), third]
+        let ranges = [4.0f64, 4.4, 40.0];
+        let inputs: Vec<f32> = [at(4.0), at(4.4), third]
             .iter()
             .flat_map(|r| pair_input(&cfg, r, &vec![0.8; n], &par))
             .collect();
         let pairs = Tensor::from_vec(inputs, (1, 3, h, w, 3), &Device::Cpu).unwrap();
-        let base = Tensor::zeros((1, h, w, 2), DType::F32, &Device::Cpu).unwrap();
+        let base = index_and_confidence(&cfg, &at(4.2), &at(0.9));
+        let base = Tensor::from_vec(base, (1, h, w, 2), &Device::Cpu).unwrap();
         let rgb = Tensor::zeros((1, h, w, 3), DType::F32, &Device::Cpu).unwrap();
         let out = net.forward(&pairs, &base, &rgb).unwrap();
         let range: Vec<f32> = net
@@ -493,10 +524,31 @@ mod tests {
             .unwrap()
             .to_vec1()
             .unwrap();
-        // equal weights in log range: the geometric mean, 4 m where two pairs have a range
-        let three = (2.0f32 * 8.0 * 100.0).cbrt();
+        // w_p ~ exp(-PRIOR_SHARPNESS |ln r_p - ln 4.2| / ln 1.25), blended in log range
+        let expected = |count: usize| {
+            let wts: Vec<f64> = ranges[..count]
+                .iter()
+                .map(|r| {
+                    let dev = ((r / 4.2f64).ln() / DELTA1_LOG).abs().min(MAX_DEVIATION);
+                    (-PRIOR_SHARPNESS * dev).exp()
+                })
+                .collect();
+            let sum: f64 = wts.iter().sum();
+            let ln: f64 = wts
+                .iter()
+                .zip(&ranges)
+                .map(|(w, r)| w * r.ln())
+                .sum::<f64>()
+                / sum;
+            (ln.exp() as f32, wts[count - 1] / sum)
+        };
+        let ((two, _), (three, far_weight)) = (expected(2), expected(3));
+        assert!(
+            far_weight < 1e-4,
+            "the pair 10 times farther weighs {far_weight}"
+        );
         for (k, r) in range.iter().enumerate() {
-            let want = if k < n / 2 { 4.0 } else { three };
+            let want = if k < n / 2 { two } else { three };
             assert!((r - want).abs() < 1e-3 * want, "pixel {k}: {r} vs {want}");
         }
         let weights = out.pair_weights.unwrap();
@@ -509,7 +561,9 @@ mod tests {
             .to_vec1()
             .unwrap();
         assert!(w2[..n / 2].iter().all(|&v| v == 0.0));
-        assert!(w2[n / 2..].iter().all(|&v| (v - 1.0 / 3.0).abs() < 1e-6));
+        assert!(w2[n / 2..]
+            .iter()
+            .all(|&v| (f64::from(v) - far_weight).abs() < 1e-6));
         // a correction file without the field still reads as a correction head
         let json = serde_json::to_string(&FusionConfig::small()).unwrap();
         let old: FusionConfig =
