@@ -575,7 +575,13 @@ impl DepthEstimator for PsmodeEstimator {
                 // added to that pair's index on the output grid (or its pair weights blend the
                 // pairs' ranges there), which keeps the splat's detail
                 let cfg = net.config().clone();
-                let fgrid = ErpGrid::new(cfg.width)?;
+                // a select head runs on the output's grid where it can (its pair weights then
+                // need no resampling), a correction head on its own
+                let fgrid = if cfg.runs_on(output.width()) {
+                    output
+                } else {
+                    ErpGrid::new(cfg.width)?
+                };
                 let grids = if output == fgrid {
                     vec![fgrid]
                 } else {

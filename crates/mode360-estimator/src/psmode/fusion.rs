@@ -71,7 +71,7 @@ pub fn fusion_tensors(
 ) -> Result<(Tensor, Tensor, Tensor), EstimatorError> {
     let grid = pairwise.grid;
     let (h, w) = (grid.height(), grid.width());
-    if (h, w) != (cfg.height(), cfg.width) {
+    if !cfg.runs_on(w) {
         return Err(EstimatorError::BadConfig {
             field: "fusion".to_string(),
             problem: format!(

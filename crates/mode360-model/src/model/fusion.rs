@@ -149,6 +149,18 @@ impl FusionConfig {
         self.width / 2
     }
 
+    /// Whether the network runs on an ERP grid `width` wide: a correction head only on its
+    /// own width; a select head (whose output is a blend of the pairs, scale-free but for its
+    /// receptive field) on any width whose height divides by [`SIZE_MULTIPLE`].
+    pub fn runs_on(&self, width: usize) -> bool {
+        match self.head {
+            FusionHead::Correction => width == self.width,
+            FusionHead::Select => {
+                width.is_multiple_of(2) && (width / 2).is_multiple_of(SIZE_MULTIPLE) && width > 0
+            }
+        }
+    }
+
     /// `ln(max_depth / min_depth)`: the index's span in log range.
     pub fn log_span(&self) -> f64 {
         (self.max_depth_m / self.min_depth_m).ln()
@@ -316,7 +328,7 @@ impl Fusion {
     /// network's grid.
     pub fn forward(&self, pairs: &Tensor, base: &Tensor, rgb: &Tensor) -> Result<FusionOutput> {
         let (b, p, h, w, c) = pairs.dims5()?;
-        if c != PAIR_INPUT_CHANNELS || (h, w) != (self.cfg.height(), self.cfg.width) || p == 0 {
+        if c != PAIR_INPUT_CHANNELS || h * 2 != w || !self.cfg.runs_on(w) || p == 0 {
             candle_core::bail!(
                 "Fusion::forward: pairs {:?}, expected (B, P >= 1, {}, {}, {PAIR_INPUT_CHANNELS})",
                 pairs.dims(),
