@@ -108,6 +108,10 @@
 # (streets 92.69 / soiled 91.72 / cluttered 85.38 against 92.71 / 91.75 / 85.69); its run is
 # deleted. No CPU arm is pending since: the next steps need a GPU (`w512`, issue 38) or a
 # fusion that corrects at full resolution (issue 41), so ARMS is empty by default.
+# `fusion_select` (the select head, stage 1 at 512, 160 cached samples) ran its 1,500 steps
+# (2026-12-07): trainer validation 86.40 against the consensus's 85.96, validation seed at 512
+# +0.04 to +0.26 over the consensus; it ships as models/psmode_fusion.safetensors. Its cache (about
+# 400 MB) is not committed; a longer run resumes from its checkpoint only where the cache is kept.
 # `fusion1` (stage 2 on the shipped stage 1, 300 cached samples) stopped at 2,050
 # (2026-11-29): validation 82.9 to 85.8 from step 250 on; at 1,500 on the held-out rows it
 # fused to streets 92.76 / soiled 91.06 / cluttered 77.53 against the most confident pair's
