@@ -462,6 +462,11 @@ mod tests {
     use candle_core::{DType, Device};
     use candle_nn::VarMap;
 
+    /// A tensor's values, flattened.
+    fn values(t: &Tensor) -> Vec<f32> {
+        t.flatten_all().unwrap().to_vec1().unwrap()
+    }
+
     #[test]
     fn an_untrained_network_returns_the_most_confident_pair() {
         let cfg = FusionConfig::tiny();
@@ -479,23 +484,11 @@ mod tests {
         let base = Tensor::from_vec(base, (1, h, w, 2), &Device::Cpu).unwrap();
         let rgb = Tensor::zeros((1, h, w, 3), DType::F32, &Device::Cpu).unwrap();
         let out = net.forward(&pairs, &base, &rgb).unwrap();
-        let range: Vec<f32> = net
-            .range_m(&out)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1()
-            .unwrap();
+        let range = values(&net.range_m(&out).unwrap());
         for (a, b) in range.iter().zip(&ranges) {
             assert!((a - b).abs() < 1e-3 * b, "{a} vs {b}");
         }
-        let c: Vec<f32> = net
-            .confidence(&out)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1()
-            .unwrap();
+        let c = values(&net.confidence(&out).unwrap());
         assert!(c.iter().all(|&v| (v - 0.5).abs() < 1e-6));
         // a wrong grid is refused
         let wrong = Tensor::zeros((1, 2, h, w + 2, 3), DType::F32, &Device::Cpu).unwrap();
@@ -529,13 +522,7 @@ mod tests {
         let base = Tensor::from_vec(base, (1, h, w, 2), &Device::Cpu).unwrap();
         let rgb = Tensor::zeros((1, h, w, 3), DType::F32, &Device::Cpu).unwrap();
         let out = net.forward(&pairs, &base, &rgb).unwrap();
-        let range: Vec<f32> = net
-            .range_m(&out)
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1()
-            .unwrap();
+        let range = values(&net.range_m(&out).unwrap());
         // w_p ~ exp(-PRIOR_SHARPNESS |ln r_p - ln 4.2| / ln 1.25), blended in log range
         let expected = |count: usize| {
             let wts: Vec<f64> = ranges[..count]
