@@ -11,10 +11,11 @@ use mode360_model::model::fusion::{index_and_confidence, pair_input, PAIR_INPUT_
 use mode360_model::model::{Fusion, FusionConfig, FusionHead, ModelError};
 use std::path::{Path, PathBuf};
 
-/// The shipped fusion network (stage 2), found like every shipped file
-/// ([`mode360_core::shipped`]). Not PSMODE's default: on held-out cluttered streets it costs
-/// more than it gains on clean ones (models/README.md); `--fusion-weights` names it.
-/// PSMODE's default is the pairs' [`consensus`], which needs no weights.
+/// The shipped fusion network (stage 2), a [`FusionHead::Select`] network that scores the pairs
+/// per pixel and blends their ranges ([`blend`]), found like every shipped file
+/// ([`mode360_core::shipped`]); `--fusion-weights` names it. Not PSMODE's default: it gains a
+/// few tenths of a point over the pairs' [`consensus`] for a network pass at the output's width
+/// (models/README.md, "The select head"), and the consensus needs no weights.
 pub const DEFAULT_FUSION_WEIGHTS_PATH: &str = "models/psmode_fusion.safetensors";
 
 /// `--fusion-weights none` (the node's `fusion_weights: none`): no fusion network, the most
@@ -196,7 +197,6 @@ pub(super) fn blend(
 ) -> Vec<f32> {
     let p = aligned.len();
     let ln_max = max_range_m.ln();
-    let (fallback, _) = most_confident(aligned, pixels);
     (0..pixels)
         .map(|k| {
             let (mut sum, mut weight) = (0.0f32, 0.0f32);
@@ -209,7 +209,7 @@ pub(super) fn blend(
                 }
             }
             if weight <= WEIGHT_FLOOR {
-                return fallback[k];
+                return most_confident_at(aligned, k).map_or(f32::NAN, |(r, _)| r);
             }
             let ln_r = sum / weight;
             if ln_r >= ln_max {
@@ -227,17 +227,22 @@ const WEIGHT_FLOOR: f32 = 1e-6;
 
 /// Per output pixel, the aligned pair with the highest confidence (NaN and 0 where none).
 pub(super) fn most_confident(aligned: &[AlignedRange], pixels: usize) -> (Vec<f32>, Vec<f32>) {
-    let mut range = vec![f32::NAN; pixels];
-    let mut conf = vec![0.0f32; pixels];
-    for a in aligned {
-        for k in 0..pixels {
-            if !a.range_m[k].is_nan() && (range[k].is_nan() || a.confidence[k] > conf[k]) {
-                range[k] = a.range_m[k];
-                conf[k] = a.confidence[k];
-            }
-        }
-    }
-    (range, conf)
+    (0..pixels)
+        .map(|k| most_confident_at(aligned, k).unwrap_or((f32::NAN, 0.0)))
+        .unzip()
+}
+
+/// At pixel `k`, the (range, confidence) of the aligned pair with the highest confidence, the
+/// first of equals; `None` where no pair has a range.
+fn most_confident_at(aligned: &[AlignedRange], k: usize) -> Option<(f32, f32)> {
+    aligned
+        .iter()
+        .map(|a| (a.range_m[k], a.confidence[k]))
+        .filter(|(r, _)| !r.is_nan())
+        .fold(None, |best, (r, c)| match best {
+            Some((_, bc)) if c <= bc => best,
+            _ => Some((r, c)),
+        })
 }
 
 #[cfg(test)]
