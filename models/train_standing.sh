@@ -410,6 +410,24 @@ for arm in $arms; do
     pids+=($!)
     continue
     ;;
+  fusion_support)
+    # `fusion_select` with each pair's support as a pair-encoder input (`--fusion-support`: the
+    # confidence-weighted share of the pairs within one δ1 interval of it), at equal steps
+    # against `fusion_select` on the same cached samples (hard links of its cache where that
+    # is on disk; the support is computed from the cached pairs, so the cache is the same)
+    if [[ ! -d runs/psmode_support/stage1_cache && -d runs/psmode_select/stage1_cache ]]; then
+      mkdir -p runs/psmode_support
+      cp -al runs/psmode_select/stage1_cache runs/psmode_support/stage1_cache
+    fi
+    "$bin" train --stage fusion --fusion-head select --fusion-support --fusion-pair-width 512 \
+      --stage1-weights models/psmode_stage1.safetensors --fusion-samples 160 \
+      --fusion-val-samples 8 --width 256 --steps "${STEPS:-1500}" --lr 3e-4 --warmup-steps 50 \
+      --objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --rig-layouts any \
+      --blocked-fraction 0.2 --camera-effects --rig-pool 6 --val-every 250 \
+      --checkpoint-every 50 --fusion-loss log-l1 --seed 6 --resume --out runs/psmode_support &
+    pids+=($!)
+    continue
+    ;;
   fusion1)
     # PSMODE stage 2 on the fine-tuned stage 1 (models/psmode_stage1.safetensors, `pairs` at
     # 3,100): `fusion` was trained on the zero-shot stage 1 and its 200 samples held no more,
@@ -424,7 +442,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs512, pairs_lr, pairs_decay, fusion, fusion1 or fusion_select)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs512, pairs_lr, pairs_decay, fusion, fusion1, fusion_select or fusion_support)" >&2
     exit 2
     ;;
   esac

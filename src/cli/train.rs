@@ -37,6 +37,10 @@ pub struct TrainArgs {
     /// over the pairs, blending their ranges; its base input is the pairs' consensus).
     #[arg(long, value_enum, default_value_t = mode360_model::model::FusionHead::Correction)]
     pub fusion_head: mode360_model::model::FusionHead,
+    /// Fusion, select head: the pair encoder also sees each pair's support (the
+    /// confidence-weighted share of the pairs within one δ1 interval of its range).
+    #[arg(long)]
+    pub fusion_support: bool,
     /// Fusion: stage 1's input width (0: the width it was trained at, 256); wider than
     /// --width, the stream renders at this width, stage 1 runs there and its pairs and the
     /// ground truth are brought onto the fusion's grid.
@@ -81,8 +85,12 @@ fn run_fusion(a: TrainArgs) -> Result<()> {
         mode360_model::model::FusionHead::Correction => FusionConfig::small(),
         mode360_model::model::FusionHead::Select => FusionConfig::select(),
     };
+    if a.fusion_support && preset.head != mode360_model::model::FusionHead::Select {
+        anyhow::bail!("--fusion-support needs --fusion-head select");
+    }
     let config = FusionConfig {
         width: t.width.unwrap_or(preset.width),
+        support_input: a.fusion_support,
         ..preset
     };
     // the fusion trains on whole rigs: stage 1 makes the pairs

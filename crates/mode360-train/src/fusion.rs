@@ -108,6 +108,8 @@ struct FusionState {
     pair_width: usize,
     #[serde(default)]
     head: FusionHead,
+    #[serde(default)]
+    support_input: bool,
 }
 
 impl FusionTrainOptions {
@@ -284,6 +286,7 @@ impl FusionTrainer {
             loss: opts.loss,
             pair_width: opts.pair_width,
             head: opts.config.head,
+            support_input: opts.config.support_input,
         };
         let ckpt = opts.out_dir.join(super::CHECKPOINT_DIR);
         if opts.resume && ckpt.join(super::STATE_FILE).is_file() {

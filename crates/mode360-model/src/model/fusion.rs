@@ -28,6 +28,8 @@
 //!
 //! ```text
 //! pairs (B, P, H, W, 4): index, confidence, parallax, dev_p = (index_p - base) / δ1 index
+//!   (and with `support_input` a fifth channel: support_p = sum_q c_q [|index_p - index_q|
+//!   < δ1 index] / sum_q c_q, the confidence-weighted share of the pairs that agree with p)
 //! select: 1x1 on concat(pair feature_p, decoder)            (B, P, H, W, 1)
 //! score_p = select_p - PRIOR_SHARPNESS |dev_p|
 //! w_p = softmax over the pairs with a range (score_p)       (B, P, H, W)
@@ -96,6 +98,11 @@ pub struct FusionConfig {
     /// What the head returns (files written before the choice: a correction).
     #[serde(default)]
     pub head: FusionHead,
+    /// [`FusionHead::Select`]: the pair encoder also sees each pair's support, the
+    /// confidence-weighted share of the pairs whose range is within one δ1 interval of its
+    /// own ([`pair_support`]) (files written before the choice: without).
+    #[serde(default)]
+    pub support_input: bool,
 }
 
 /// Why a fusion configuration cannot run.
@@ -121,6 +128,7 @@ impl FusionConfig {
             pair_channels: 8,
             channels: [16, 24, 32],
             head: FusionHead::Correction,
+            support_input: false,
         }
     }
 
@@ -248,10 +256,10 @@ impl Fusion {
     pub fn new(cfg: &FusionConfig, vb: VarBuilder) -> Result<Self> {
         cfg.validate().map_err(candle_core::Error::wrap)?;
         let (cp, c) = (cfg.pair_channels, cfg.channels);
-        // the select head also sees each pair's deviation from the consensus
+        // the select head also sees each pair's deviation from the consensus (and its support)
         let pair_in = match cfg.head {
             FusionHead::Correction => PAIR_INPUT_CHANNELS,
-            FusionHead::Select => PAIR_INPUT_CHANNELS + 1,
+            FusionHead::Select => PAIR_INPUT_CHANNELS + 1 + usize::from(cfg.support_input),
         };
         let pair = [
             ErpConv::new(pair_in, cp, KERNEL, 1, 1, vb.pp("pair0"))?,
@@ -349,6 +357,10 @@ impl Fusion {
         // (B P, H, W, C) -> (B P, H, W, Cp) -> (B, P, H, W, Cp)
         let x = match &deviation {
             None => pairs.reshape((b * p, h, w, c))?,
+            Some(d) if self.cfg.support_input => {
+                let support = pair_support(&self.cfg, pairs)?.unsqueeze(4)?;
+                Tensor::cat(&[pairs, d, &support], 4)?.reshape((b * p, h, w, c + 2))?
+            }
             Some(d) => Tensor::cat(&[pairs, d], 4)?.reshape((b * p, h, w, c + 1))?,
         };
         let x = self.pair[0].forward(&x)?.relu()?;
@@ -423,6 +435,34 @@ impl Fusion {
     pub fn confidence(&self, out: &FusionOutput) -> Result<Tensor> {
         candle_nn::ops::sigmoid(&out.confidence_logit)
     }
+}
+
+/// Each pair's support `(B, P, H, W)` from `pairs (B, P, H, W, >= 2)` (index, confidence):
+///
+/// ```text
+/// support_p = sum_q c_q [|index_p - index_q| ln(max / min) < ln 1.25] / (sum_q c_q + eps)
+/// ```
+///
+/// The confidence-weighted share of the pairs that agree with pair `p` within one δ1
+/// interval (`p` itself included), in [0, 1]; a pair without a range (confidence 0) adds
+/// nothing to the others' support.
+pub fn pair_support(cfg: &FusionConfig, pairs: &Tensor) -> Result<Tensor> {
+    let (b, p, h, w, _) = pairs.dims5()?;
+    // (B, P, H, W) each
+    let index = pairs.narrow(4, 0, 1)?.squeeze(4)?;
+    let conf = pairs.narrow(4, 1, 1)?.squeeze(4)?;
+    // (B, P, P, H, W): [p, q] = |index_p - index_q| in log range
+    let shape = (b, p, p, h, w);
+    let gap = (index.unsqueeze(2)?.broadcast_as(shape)?
+        - index.unsqueeze(1)?.broadcast_as(shape)?)?
+    .abs()?;
+    let agree = gap
+        .lt(DELTA1_LOG / cfg.log_span())?
+        .to_dtype(pairs.dtype())?;
+    // (B, P, H, W)
+    let agreeing = agree.broadcast_mul(&conf.unsqueeze(1)?)?.sum(2)?.detach();
+    let total = (conf.sum_keepdim(1)? + WEIGHT_EPS)?;
+    agreeing.broadcast_div(&total)
 }
 
 /// Per pixel of one pair's aligned estimate, `[index, confidence]` (both 0 where the range is
@@ -565,9 +605,64 @@ mod tests {
             .all(|&v| (f64::from(v) - far_weight).abs() < 1e-6));
         // a correction file without the field still reads as a correction head
         let json = serde_json::to_string(&FusionConfig::small()).unwrap();
-        let old: FusionConfig =
-            serde_json::from_str(&json.replace(",\"head\":\"correction\"", "")).unwrap();
+        let old = json
+            .replace(",\"head\":\"correction\"", "")
+            .replace(",\"support_input\":false", "");
+        assert!(!old.contains("support_input") && !old.contains("head"));
+        let old: FusionConfig = serde_json::from_str(&old).unwrap();
         assert_eq!(old, FusionConfig::small());
+    }
+
+    #[test]
+    fn a_pairs_support_is_the_confidence_weighted_share_that_agrees_with_it() {
+        let cfg = FusionConfig::tiny();
+        // one pixel, four pairs: 4 m (c 0.8), 4.4 m (c 0.4, within 1.25 of 4), 40 m (c 0.8),
+        // and a pair without a range (c 0, index 0)
+        let mut input = Vec::new();
+        for (r, c) in [(4.0f32, 0.8f32), (4.4, 0.4), (40.0, 0.8), (f32::NAN, 0.0)] {
+            input.extend(pair_input(&cfg, &[r], &[c], &[0.5]));
+        }
+        let pairs = Tensor::from_vec(input, (1, 4, 1, 1, 3), &Device::Cpu).unwrap();
+        let support = values(&pair_support(&cfg, &pairs).unwrap());
+        let total = 0.8 + 0.4 + 0.8;
+        let want = [1.2 / total, 1.2 / total, 0.8 / total, 0.0];
+        for (got, want) in support.iter().zip(want) {
+            assert!((got - want).abs() < 1e-5, "{support:?} vs {want:?}");
+        }
+        // with the support channel the untrained select head is still the prior's consensus
+        let with = FusionConfig {
+            head: FusionHead::Select,
+            support_input: true,
+            ..FusionConfig::tiny()
+        };
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let net = Fusion::new(&with, vb).unwrap();
+        let pair0 = varmap.data().lock().unwrap()["pair0.weight"]
+            .dims()
+            .to_vec();
+        assert!(pair0.contains(&(PAIR_INPUT_CHANNELS + 2)), "{pair0:?}");
+        let (h, w) = (with.height(), with.width);
+        let n = h * w;
+        let inputs: Vec<f32> = [4.0f32, 4.4]
+            .iter()
+            .flat_map(|&r| pair_input(&with, &vec![r; n], &vec![0.8; n], &vec![0.5; n]))
+            .collect();
+        let pairs = Tensor::from_vec(inputs, (1, 2, h, w, 3), &Device::Cpu).unwrap();
+        let base = index_and_confidence(&with, &vec![4.0; n], &vec![0.9; n]);
+        let base = Tensor::from_vec(base, (1, h, w, 2), &Device::Cpu).unwrap();
+        let rgb = Tensor::zeros((1, h, w, 3), DType::F32, &Device::Cpu).unwrap();
+        let range = values(
+            &net.range_m(&net.forward(&pairs, &base, &rgb).unwrap())
+                .unwrap(),
+        );
+        // weights 1 and exp(-2 ln 1.1 / ln 1.25) on 4 and 4.4 m, blended in log range
+        let w1 = (-PRIOR_SHARPNESS * (1.1f64).ln() / DELTA1_LOG).exp();
+        let want = ((4.0f64.ln() + w1 * 4.4f64.ln()) / (1.0 + w1)).exp() as f32;
+        assert!(
+            range.iter().all(|r| (r - want).abs() < 1e-3 * want),
+            "{want}"
+        );
     }
 
     #[test]
