@@ -112,6 +112,10 @@
 # (2026-12-07): trainer validation 86.40 against the consensus's 85.96, validation seed at 512
 # +0.04 to +0.26 over the consensus; it ships as models/psmode_fusion.safetensors. Its cache (about
 # 400 MB) is not committed; a longer run resumes from its checkpoint only where the cache is kept.
+# `fusion_support` (`fusion_select` with each pair's support as an input) ran its 1,500 steps on
+# that cache (2026-12-07, night): trainer validation 87.40 against 86.40, but at 512 on the
+# validation seed streets 91.89 against 94.73, random objects 70.03 against 74.82 and 25 fewer of
+# their nearest (models/README.md, "The select head"); not kept, its run deleted.
 # `fusion1` (stage 2 on the shipped stage 1, 300 cached samples) stopped at 2,050
 # (2026-11-29): validation 82.9 to 85.8 from step 250 on; at 1,500 on the held-out rows it
 # fused to streets 92.76 / soiled 91.06 / cluttered 77.53 against the most confident pair's
