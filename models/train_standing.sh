@@ -400,35 +400,31 @@ for arm in $arms; do
       --fork-from runs/psmode_pairs)
     steps_override=5000
     ;;
-  fusion_select)
+  fusion_select | fusion_support)
     # PSMODE stage 2 with the select head (issue 41): weights over the pairs per pixel, so it
     # blends what the pairs measured and never invents a range, its base input the pairs'
     # consensus; stage 1 (the shipped file) at 512 as PSMODE runs it, its pairs splatted onto
-    # the 256 fusion grid; 160 cached samples, validated on the same 8 held-out frames
-    "$bin" train --stage fusion --fusion-head select --fusion-pair-width 512 \
-      --stage1-weights models/psmode_stage1.safetensors --fusion-samples 160 \
-      --fusion-val-samples 8 --width 256 --steps "${STEPS:-1500}" --lr 3e-4 --warmup-steps 50 \
-      --objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --rig-layouts any \
-      --blocked-fraction 0.2 --camera-effects --rig-pool 6 --val-every 250 \
-      --checkpoint-every 50 --fusion-loss log-l1 --seed 6 --resume --out runs/psmode_select &
-    pids+=($!)
-    continue
-    ;;
-  fusion_support)
-    # `fusion_select` with each pair's support as a pair-encoder input (`--fusion-support`: the
-    # confidence-weighted share of the pairs within one δ1 interval of it), at equal steps
-    # against `fusion_select` on the same cached samples (hard links of its cache where that
-    # is on disk; the support is computed from the cached pairs, so the cache is the same)
-    if [[ ! -d runs/psmode_support/stage1_cache && -d runs/psmode_select/stage1_cache ]]; then
-      mkdir -p runs/psmode_support
-      cp -al runs/psmode_select/stage1_cache runs/psmode_support/stage1_cache
+    # the 256 fusion grid; 160 cached samples, validated on the same 8 held-out frames.
+    # `fusion_support` adds each pair's support as a pair-encoder input (`--fusion-support`:
+    # the confidence-weighted share of the pairs within one δ1 interval of it), at equal steps
+    # against `fusion_select` on the same cached samples (hard links of its cache where that is
+    # on disk; the support is computed from the cached pairs, so the cache is the same)
+    fusion_out=runs/psmode_select
+    support=()
+    if [[ "$arm" == fusion_support ]]; then
+      fusion_out=runs/psmode_support
+      support=(--fusion-support)
+      if [[ ! -d $fusion_out/stage1_cache && -d runs/psmode_select/stage1_cache ]]; then
+        mkdir -p "$fusion_out"
+        cp -al runs/psmode_select/stage1_cache "$fusion_out/stage1_cache"
+      fi
     fi
-    "$bin" train --stage fusion --fusion-head select --fusion-support --fusion-pair-width 512 \
+    "$bin" train --stage fusion --fusion-head select "${support[@]}" --fusion-pair-width 512 \
       --stage1-weights models/psmode_stage1.safetensors --fusion-samples 160 \
       --fusion-val-samples 8 --width 256 --steps "${STEPS:-1500}" --lr 3e-4 --warmup-steps 50 \
       --objects-fraction 0.25 --street cluttered --soiled-fraction 0.3 --rig-layouts any \
       --blocked-fraction 0.2 --camera-effects --rig-pool 6 --val-every 250 \
-      --checkpoint-every 50 --fusion-loss log-l1 --seed 6 --resume --out runs/psmode_support &
+      --checkpoint-every 50 --fusion-loss log-l1 --seed 6 --resume --out "$fusion_out" &
     pids+=($!)
     continue
     ;;
