@@ -176,6 +176,7 @@ run_dir() {
   case "$1" in
   pairs) echo psmode_pairs ;;
   pairs512) echo psmode_pairs512 ;;
+  pairs512_obst) echo psmode_pairs512_obst ;;
   pairs_lr) echo psmode_pairs_lr ;;
   pairs_decay) echo psmode_pairs_decay ;;
   w512) echo ssmode_w512 ;;
@@ -373,6 +374,17 @@ for arm in $arms; do
       --init-weights models/psmode_stage1.safetensors)
     width=512
     ;;
+  pairs512_obst)
+    # `pairs512` with obstacle pixels x4 and thin ones x4 more (against x2 and x1), from
+    # pairs512's step 400 (its best: past 400 it lost obstacles for no δ1, models/README.md,
+    # "Stage 1 at 512"), its snapshot committed as the start; compared with pairs512's rows at
+    # 500 and 600 (this arm's 100 and 200: a fresh optimizer and warm-up, and the stream from
+    # its first sample, which pairs512 saw in its first steps: not a perfect equal-steps pair)
+    # (started 2026-12-08, night)
+    loss=(--camera-pairs --near-weight 8 --obstacle-weight 4 --thin-weight 4
+      --init-weights runs/psmode_pairs512/step_400.safetensors)
+    width=512
+    ;;
   pairs_lr)
     # the same at 5 times the rate (stage 1 is a new task for SSMODE's weights, not a
     # fine-tune), forked once from `pairs` at its step 950
@@ -442,7 +454,7 @@ for arm in $arms; do
     continue
     ;;
   *)
-    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs512, pairs_lr, pairs_decay, fusion, fusion1, fusion_select or fusion_support)" >&2
+    echo "unknown arm '$arm' (plain, weighted, strong, nearfar, near, near10, obst, obst2, fine_ctrl, fine, fine_lr, fine_slow, fine_obj, fine_slowobj, fine_thin, fine_sky, fine_tn, fine_tne, fine_edge, fine_edge10, fine_edgefar, fine_head, w512, pairs, pairs512, pairs512_obst, pairs_lr, pairs_decay, fusion, fusion1, fusion_select or fusion_support)" >&2
     exit 2
     ;;
   esac
