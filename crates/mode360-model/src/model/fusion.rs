@@ -447,20 +447,20 @@ impl Fusion {
 /// interval (`p` itself included), in [0, 1]; a pair without a range (confidence 0) adds
 /// nothing to the others' support.
 pub fn pair_support(cfg: &FusionConfig, pairs: &Tensor) -> Result<Tensor> {
-    let (b, p, h, w, _) = pairs.dims5()?;
+    pairs.dims5()?;
     // (B, P, H, W) each
     let index = pairs.narrow(4, 0, 1)?.squeeze(4)?;
     let conf = pairs.narrow(4, 1, 1)?.squeeze(4)?;
-    // (B, P, P, H, W): [p, q] = |index_p - index_q| in log range
-    let shape = (b, p, p, h, w);
-    let gap = (index.unsqueeze(2)?.broadcast_as(shape)?
-        - index.unsqueeze(1)?.broadcast_as(shape)?)?
-    .abs()?;
+    // (B, P, P, H, W): [p, q] = |index_p - index_q|
+    let gap = index
+        .unsqueeze(2)?
+        .broadcast_sub(&index.unsqueeze(1)?)?
+        .abs()?;
     let agree = gap
         .lt(DELTA1_LOG / cfg.log_span())?
         .to_dtype(pairs.dtype())?;
     // (B, P, H, W)
-    let agreeing = agree.broadcast_mul(&conf.unsqueeze(1)?)?.sum(2)?.detach();
+    let agreeing = agree.broadcast_mul(&conf.unsqueeze(1)?)?.sum(2)?;
     let total = (conf.sum_keepdim(1)? + WEIGHT_EPS)?;
     agreeing.broadcast_div(&total)
 }
